@@ -1,0 +1,192 @@
+"""The joint information problem and the marginal information of the calibration.
+
+:func:`build` linearises every factor of a drive at its nominal motion (IMU preintegration,
+exteroceptive odometry, wheel increments, the non-holonomic constraint) plus a minimal gauge fix
+(position and yaw of one keyframe: the directions an IMU can never observe). :func:`marginal`
+eliminates the trajectory (pose and velocity of every keyframe) from ``H = JᵀJ``:
+
+    Λ_θ = H_θθ − H_θx H_xx⁻¹ H_xθ
+
+exploiting that H_xx is block-banded: it is stored in LAPACK band format, factored with a banded
+Cholesky and the border solved by banded triangular substitution. Cost and memory are linear in
+the drive length; a dense H_xx is never formed. :func:`marginal_dense` is the plain-numpy dense
+reference the tests hold the fast path to.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import cholesky_banded
+from scipy.linalg.lapack import dtbtrs
+
+from .errors import EvaluationError
+from .factors import imu, nonholonomic, odometry, wheel
+from .factors.base import POS, ROT, STATE_DIM, FactorBlock, Nominal
+from .rig import Rig
+
+# The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
+# gives the same marginal (the gauge is an exact symmetry); one near the data's scale keeps H_xx
+# well conditioned.
+_GAUGE_SIGMA_POS_M = 1.0
+_GAUGE_SIGMA_YAW_RAD = 0.01
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Whitened Jacobian blocks of every factor of a drive (see :class:`FactorBlock`)."""
+
+    n_keyframes: int
+    n_params: int
+    blocks: tuple[FactorBlock, ...]
+    R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
+
+    @property
+    def n_states(self) -> int:
+        return STATE_DIM * self.n_keyframes
+
+    @property
+    def bandwidth_blocks(self) -> int:
+        return max(b.stride * (b.n_states - 1) for b in self.blocks)
+
+    def window(self, k0: int, k1: int) -> "Problem":
+        """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with a new gauge."""
+        out = []
+        for b in self.blocks:
+            if b.name == "gauge":
+                continue
+            last = b.first + b.stride * (b.n_states - 1)
+            mask = (b.first >= k0) & (last <= k1)
+            if mask.any():
+                sel = b.select(mask)
+                out.append(FactorBlock(sel.name, sel.first - k0, sel.stride, sel.n_states, sel.Jx, sel.Jt))
+        gauge = gauge_block(self.R_W_B[k0], 0, self.n_params)
+        return Problem(k1 - k0 + 1, self.n_params, tuple(out) + (gauge,), self.R_W_B[k0:k1 + 1])
+
+    def without_gauge(self) -> "Problem":
+        return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
+                       self.R_W_B)
+
+
+def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
+    """A prior on the position (3) and world yaw (1) of ``keyframe``: the minimal gauge fix."""
+    Jx = np.zeros((1, 4, STATE_DIM))
+    Jx[0, 0:3, POS] = np.eye(3) / _GAUGE_SIGMA_POS_M
+    # world yaw of a right perturbation: e_zᵀ R δθ
+    Jx[0, 3, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
+    return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, n_params)))
+
+
+def build(nom: Nominal, rig: Rig, gauge_keyframe: int = 0) -> Problem:
+    """Linearise every factor of ``rig`` on the nominal motion ``nom``."""
+    if nom.n_keyframes < 3:
+        raise EvaluationError(f"the drive is too short: {nom.n_keyframes} keyframes at "
+                              f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
+    p = len(rig.coordinates)
+    parts = [imu.blocks(nom, rig), nonholonomic.blocks(nom, rig), wheel.blocks(nom, rig)]
+    parts += [odometry.blocks(nom, rig, s) for s in rig.config.sensors]
+    parts.append(gauge_block(nom.R[gauge_keyframe], gauge_keyframe, p))
+    return Problem(nom.n_keyframes, p, tuple(b for b in parts if b is not None), nom.R)
+
+
+def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """``H`` in blocks: ``B[d][k] = H[x_{k+d}, x_k]`` (K−d, 9, 9), ``H_xθ`` (K, 9, p) and ``H_θθ``."""
+    K, p, D = problem.n_keyframes, problem.n_params, problem.bandwidth_blocks
+    B = [np.zeros((K - d, STATE_DIM, STATE_DIM)) for d in range(D + 1)]
+    Hxt = np.zeros((K, STATE_DIM, p))
+    Htt = np.zeros((p, p))
+    for b in problem.blocks:
+        JxT = np.swapaxes(b.Jx, 1, 2)
+        Hxx = JxT @ b.Jx
+        Hxt_f = JxT @ b.Jt
+        Htt += np.einsum("nri,nrj->ij", b.Jt, b.Jt)
+        for a in range(b.n_states):
+            ka = b.first + a * b.stride
+            sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
+            Hxt[ka] += Hxt_f[:, sa]
+            for c in range(a + 1):
+                sc = slice(STATE_DIM * c, STATE_DIM * (c + 1))
+                B[(a - c) * b.stride][b.first + c * b.stride] += Hxx[:, sa, sc]
+    return B, Hxt, Htt
+
+
+def _banded(B: list[np.ndarray], K: int) -> np.ndarray:
+    """LAPACK lower band storage ``ab[i − j, j] = H[i, j]`` of the block-banded H_xx."""
+    D = len(B) - 1
+    kd = STATE_DIM * (D + 1) - 1
+    ab = np.zeros((kd + 1, STATE_DIM * K))
+    rr, cc = np.meshgrid(np.arange(STATE_DIM), np.arange(STATE_DIM), indexing="ij")
+    for d, Bd in enumerate(B):
+        diag = STATE_DIM * d + rr - cc
+        mask = diag >= 0
+        cols = STATE_DIM * np.arange(K - d)[:, None] + cc[mask][None, :]
+        ab[np.broadcast_to(diag[mask], cols.shape), cols] = Bd[:, rr[mask], cc[mask]]
+    return ab
+
+
+def marginal(problem: Problem) -> np.ndarray:
+    """Marginal information ``Λ_θ`` (p × p) of the calibration, trajectory eliminated (fast path)."""
+    B, Hxt, Htt = assemble(problem)
+    K = problem.n_keyframes
+    try:
+        L = cholesky_banded(_banded(B, K), lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        raise EvaluationError("the trajectory itself is undetermined by this rig's sensors "
+                              "(the keyframe information is singular beyond the gauge)") from None
+    Z, info = dtbtrs(L, Hxt.reshape(K * STATE_DIM, -1), uplo="L")
+    if info != 0:
+        raise EvaluationError(f"banded triangular solve failed (LAPACK info {info})")
+    Lam = Htt - Z.T @ Z
+    return 0.5 * (Lam + Lam.T)
+
+
+def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:
+    """The whitened Jacobian ``J`` (sparse, columns: states then θ) and a label per row."""
+    rows, cols, vals, labels = [], [], [], []
+    r0 = 0
+    nx = problem.n_states
+    for b in problem.blocks:
+        N, r = b.n_factors, b.n_rows
+        rid = r0 + np.arange(N * r).reshape(N, r)
+        for a in range(b.n_states):
+            c = STATE_DIM * (b.first + a * b.stride)[:, None] + np.arange(STATE_DIM)[None, :]
+            blk = b.Jx[:, :, STATE_DIM * a: STATE_DIM * (a + 1)]
+            rows.append(np.broadcast_to(rid[:, :, None], blk.shape).ravel())
+            cols.append(np.broadcast_to(c[:, None, :], blk.shape).ravel())
+            vals.append(blk.ravel())
+        rows.append(np.broadcast_to(rid[:, :, None], b.Jt.shape).ravel())
+        cols.append(np.broadcast_to(nx + np.arange(problem.n_params), b.Jt.shape).ravel())
+        vals.append(b.Jt.ravel())
+        labels += [f"{b.name}[{k}].{i}" for k in b.first for i in range(r)]
+        r0 += N * r
+    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    keep = vals != 0
+    J = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(r0, nx + problem.n_params))
+    return J, labels
+
+
+def state_names(n_keyframes: int) -> list[str]:
+    """Names of the state columns of ``J`` and ``H``, in order."""
+    comps = ["rot_x", "rot_y", "rot_z", "pos_x", "pos_y", "pos_z", "vel_x", "vel_y", "vel_z"]
+    return [f"x{k}.{c}" for k in range(n_keyframes) for c in comps]
+
+
+def marginal_dense(problem: Problem, gauge: bool = True) -> np.ndarray:
+    """Dense reference: form J and H in full and take the Schur complement with numpy.
+
+    With ``gauge=False`` the gauge prior is left out and ``H_xx`` pseudo-inverted instead, which
+    shows that the marginal does not depend on how (or whether) the gauge is fixed.
+    """
+    J, _ = jacobian(problem if gauge else problem.without_gauge())
+    J = J.toarray()
+    H = J.T @ J
+    nx = problem.n_states
+    Hxx, Hxt, Htt = H[:nx, :nx], H[:nx, nx:], H[nx:, nx:]
+    if gauge:
+        X = np.linalg.solve(Hxx, Hxt)
+    else:
+        X = np.linalg.pinv(Hxx, rcond=1e-12, hermitian=True) @ Hxt
+    Lam = Htt - Hxt.T @ X
+    return 0.5 * (Lam + Lam.T)
