@@ -1,9 +1,8 @@
 """The joint information problem and the marginal information of the calibration.
 
 :func:`build` linearises every factor of a drive at its nominal motion (IMU preintegration,
-exteroceptive odometry, wheel increments, the non-holonomic constraint) plus a minimal gauge fix
-(position and yaw of one keyframe: the directions an IMU can never observe). :func:`marginal`
-eliminates the trajectory (pose and velocity of every keyframe) from ``H = JᵀJ``:
+exteroceptive odometry, wheel increments, the non-holonomic constraint) and fixes the gauge
+minimally. :func:`marginal` eliminates the trajectory from ``H = JᵀJ``:
 
     Λ_θ = H_θθ − H_θx H_xx⁻¹ H_xθ
 
@@ -11,6 +10,16 @@ exploiting that H_xx is block-banded: it is stored in LAPACK band format, factor
 Cholesky and the border solved by banded triangular substitution. Cost and memory are linear in
 the drive length; a dense H_xx is never formed. :func:`marginal_dense` is the plain-numpy dense
 reference the tests hold the fast path to.
+
+Two parametrisations of the trajectory, one marginal. The factors' Jacobians are derived for the
+*world* state ``[δθ, δp, δv]`` (right rotation perturbation, world position and velocity), whose
+gauge is the position (3) and yaw (1) of the whole drive. The fast path uses the *local* state
+``[δθ_k, δv_k, δd_k]``: body-frame velocity ``v_k = R_kᵀ v`` and the body-frame increment
+``d_k = R_kᵀ (p_{k+1} − p_k)`` to the next keyframe. Every factor sees positions only through
+such differences, so no absolute position remains, the only gauge left is yaw, and — unlike in
+world coordinates, where a global tilt moves a keyframe 5 km away by 5 km × tilt — every symmetry
+of the problem has bounded components. That keeps the Schur complement accurate on hour-long
+drives. The marginal on θ does not depend on the parametrisation (the tests compare both).
 """
 
 from __future__ import annotations
@@ -22,9 +31,10 @@ import scipy.sparse as sp
 from scipy.linalg import cholesky_banded
 from scipy.linalg.lapack import dtbtrs
 
+from . import so3
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
-from .factors.base import POS, ROT, STATE_DIM, FactorBlock, Nominal
+from .factors.base import POS, ROT, STATE_DIM, VEL, FactorBlock, Nominal
 from .rig import Rig
 
 # The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
@@ -42,6 +52,7 @@ class Problem:
     n_params: int
     blocks: tuple[FactorBlock, ...]
     R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
+    local: bool = False  # state parametrisation: local [δθ, δv_body, δd] or world [δθ, δp, δv]
 
     @property
     def n_states(self) -> int:
@@ -55,19 +66,23 @@ class Problem:
         """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with a new gauge."""
         out = []
         for b in self.blocks:
-            if b.name == "gauge":
+            if b.name in ("gauge", "placeholder"):
                 continue
             last = b.first + b.stride * (b.n_states - 1)
             mask = (b.first >= k0) & (last <= k1)
             if mask.any():
                 sel = b.select(mask)
                 out.append(FactorBlock(sel.name, sel.first - k0, sel.stride, sel.n_states, sel.Jx, sel.Jt))
-        gauge = gauge_block(self.R_W_B[k0], 0, self.n_params)
-        return Problem(k1 - k0 + 1, self.n_params, tuple(out) + (gauge,), self.R_W_B[k0:k1 + 1])
+        K = k1 - k0 + 1
+        if self.local:
+            fix = (_yaw_gauge(self.R_W_B[k0], 0, self.n_params), _last_increment_prior(K, self.n_params))
+        else:
+            fix = (gauge_block(self.R_W_B[k0], 0, self.n_params),)
+        return Problem(K, self.n_params, tuple(out) + fix, self.R_W_B[k0:k1 + 1], self.local)
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
-                       self.R_W_B)
+                       self.R_W_B, self.local)
 
 
 def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
@@ -79,16 +94,70 @@ def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, n_params)))
 
 
-def build(nom: Nominal, rig: Rig, gauge_keyframe: int = 0) -> Problem:
-    """Linearise every factor of ``rig`` on the nominal motion ``nom``."""
+def build(nom: Nominal, rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
+    """Linearise every factor of ``rig`` on the nominal motion ``nom``.
+
+    ``local`` selects the trajectory parametrisation (see the module docstring); the gauge is
+    fixed at ``gauge_keyframe``.
+    """
     if nom.n_keyframes < 3:
         raise EvaluationError(f"the drive is too short: {nom.n_keyframes} keyframes at "
                               f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
     p = len(rig.coordinates)
     parts = [imu.blocks(nom, rig), nonholonomic.blocks(nom, rig), wheel.blocks(nom, rig)]
     parts += [odometry.blocks(nom, rig, s) for s in rig.config.sensors]
-    parts.append(gauge_block(nom.R[gauge_keyframe], gauge_keyframe, p))
-    return Problem(nom.n_keyframes, p, tuple(b for b in parts if b is not None), nom.R)
+    parts = [b for b in parts if b is not None]
+    if not local:
+        parts.append(gauge_block(nom.R[gauge_keyframe], gauge_keyframe, p))
+        return Problem(nom.n_keyframes, p, tuple(parts), nom.R)
+    v_b = np.einsum("kji,kj->ki", nom.R, nom.v)
+    d = np.einsum("kji,kj->ki", nom.R[:-1], np.diff(nom.p, axis=0))
+    parts = [_to_local(b, nom.R, v_b, d) for b in parts]
+    parts.append(_yaw_gauge(nom.R[gauge_keyframe], gauge_keyframe, p))
+    parts.append(_last_increment_prior(nom.n_keyframes, p))
+    return Problem(nom.n_keyframes, p, tuple(parts), nom.R, local=True)
+
+
+def _to_local(b: FactorBlock, R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> FactorBlock:
+    """Re-express a block's world-state Jacobian in local states.
+
+    ``δv_world = R_k δv_k − R_k [v_k]× δθ_k`` and ``δ(p_j − p_i) = Σ_{i≤q<j} (R_q δd_q − R_q [d_q]× δθ_q)``.
+    Positions enter every factor only through differences (its position Jacobians sum to zero),
+    so the position of the factor's first keyframe drops out.
+    """
+    span = b.stride * (b.n_states - 1)
+    n_new = span + 1
+    N, r, _ = b.Jx.shape
+    out = np.zeros((N, r, STATE_DIM * n_new))
+    for a in range(b.n_states):
+        k = b.first + a * b.stride
+        Ja = b.Jx[:, :, STATE_DIM * a: STATE_DIM * (a + 1)]
+        Jr, Jp, Jv = Ja[:, :, ROT], Ja[:, :, POS], Ja[:, :, VEL]
+        col = STATE_DIM * a * b.stride
+        Rk = R[k]
+        out[:, :, col + 0: col + 3] += Jr - Jv @ Rk @ so3.hat(v_b[k])
+        out[:, :, col + 3: col + 6] += Jv @ Rk
+        for q in range(a * b.stride):  # increments from the first keyframe up to k
+            kq = b.first + q
+            cq = STATE_DIM * q
+            JpR = Jp @ R[kq]
+            out[:, :, cq + 0: cq + 3] -= JpR @ so3.hat(d[kq])
+            out[:, :, cq + 6: cq + 9] += JpR
+    return FactorBlock(b.name, b.first, 1, n_new, out, b.Jt)
+
+
+def _yaw_gauge(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
+    """A prior on the world yaw of ``keyframe``: the one gauge of the local parametrisation."""
+    Jx = np.zeros((1, 1, STATE_DIM))
+    Jx[0, 0, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
+    return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, n_params)))
+
+
+def _last_increment_prior(n_keyframes: int, n_params: int) -> FactorBlock:
+    """The last keyframe has no successor; its increment columns are placeholders held at zero."""
+    Jx = np.zeros((1, 3, STATE_DIM))
+    Jx[0, :, 6:9] = np.eye(3)
+    return FactorBlock("placeholder", np.array([n_keyframes - 1]), 1, 1, Jx, np.zeros((1, 3, n_params)))
 
 
 def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -167,9 +236,13 @@ def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:
     return J, labels
 
 
-def state_names(n_keyframes: int) -> list[str]:
-    """Names of the state columns of ``J`` and ``H``, in order."""
-    comps = ["rot_x", "rot_y", "rot_z", "pos_x", "pos_y", "pos_z", "vel_x", "vel_y", "vel_z"]
+def state_names(n_keyframes: int, local: bool = True) -> list[str]:
+    """Names of the state columns of ``J`` and ``H``, in order (see the module docstring)."""
+    if local:
+        comps = ["rot_x", "rot_y", "rot_z", "vel_body_x", "vel_body_y", "vel_body_z",
+                 "incr_body_x", "incr_body_y", "incr_body_z"]
+    else:
+        comps = ["rot_x", "rot_y", "rot_z", "pos_x", "pos_y", "pos_z", "vel_x", "vel_y", "vel_z"]
     return [f"x{k}.{c}" for k in range(n_keyframes) for c in comps]
 
 

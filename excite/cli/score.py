@@ -1,5 +1,117 @@
-"""``excite score``: the evaluator's report of a route."""
+"""``excite score`` and ``excite rig``: the evaluator's report of a route; the bundled rigs."""
 
 from __future__ import annotations
 
-from . import app  # noqa: F401
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..evaluate import Options, Report, evaluate
+from ..rig import bundled_rigs, load_rig, rig_text
+from ..routes import read_route
+from . import app
+
+# how SI units are shown to people
+_DISPLAY = {"rad": (180 / math.pi, "deg"), "m": (100.0, "cm"), "s": (1e3, "ms"),
+            "rad/s": (180 / math.pi, "deg/s"), "m/s^2": (1.0, "m/s²"), "1": (1.0, "")}
+
+
+def human(value: float | None, unit: str) -> str:
+    """A value in SI ``unit`` in the unit an engineer reads it in (``0.5 cm``, ``0.05 deg``)."""
+    if value is None:
+        return "unobservable"
+    f, u = _DISPLAY.get(unit, (1.0, unit))
+    return f"{value * f:.3g} {u}".strip()
+
+
+def print_report(rep: Report, console: Console) -> None:
+    """The report as tables for a terminal."""
+    verdict = "[green]PASS[/]" if rep.passed else "[red]FAIL[/]"
+    console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]: {rep.duration_s:.1f} s, "
+                  f"{rep.length_m:.0f} m, {rep.n_keyframes} keyframes")
+    cond = "∞" if rep.condition_number is None else f"{rep.condition_number:.3g}"
+    console.print(f"score λ_min(SΛS) = [bold]{rep.score:.4g}[/]  {verdict}   rank {rep.rank}/"
+                  f"{rep.rank + rep.nullity} (threshold {rep.rank_threshold:.2g})   condition {cond}")
+    t = Table(title="Cramér–Rao σ per parameter (from the drive alone)", title_justify="left")
+    t.add_column("parameter")
+    t.add_column("σ", justify="right")
+    t.add_column("target", justify="right")
+    t.add_column("σ/target", justify="right")
+    t.add_column("")
+    show_prior = any(p.sigma_with_prior is not None for p in rep.parameters)
+    if show_prior:
+        t.add_column("σ with priors", justify="right")
+    for p in rep.parameters:
+        ratio = "—" if p.sigma is None else f"{p.sigma / p.target:.2f}"
+        row = [p.name, human(p.sigma, p.unit), human(p.target, p.unit), ratio,
+               "[green]ok[/]" if p.ok else "[red]✗[/]"]
+        if show_prior:
+            row.append(human(p.sigma_with_prior, p.unit) if p.sigma_with_prior is not None else "")
+        t.add_row(*row)
+    console.print(t)
+    if rep.weak_modes:
+        m = Table(title="Weakest directions (eigenvectors of SΛS, ascending)", title_justify="left")
+        m.add_column("λ", justify="right")
+        m.add_column("σ/target", justify="right")
+        m.add_column("dominant coordinates")
+        m.add_column("what it takes", overflow="fold")
+        for mode in rep.weak_modes:
+            coords = ", ".join(f"{n} {w:+.2f}" for n, w in mode.coordinates)
+            s = "∞" if mode.sigma_in_targets is None else f"{mode.sigma_in_targets:.3g}"
+            m.add_row(f"{mode.eigenvalue_scaled:.3g}", s, coords, mode.advice)
+        console.print(m)
+    if rep.segments:
+        s = Table(title="Information per route segment (segment alone)", title_justify="left")
+        s.add_column("from [s]", justify="right")
+        s.add_column("to [s]", justify="right")
+        s.add_column("score", justify="right")
+        s.add_column("along weakest mode", justify="right")
+        for seg in rep.segments:
+            s.add_row(f"{seg.t_start_s:.1f}", f"{seg.t_end_s:.1f}", f"{seg.score:.3g}",
+                      f"{seg.weakest_mode_information:.3g}")
+        console.print(s)
+
+
+@app.command()
+def score(
+    route: Annotated[Path, typer.Argument(help="Route file: waypoints/control CSV, GeoJSON, TUM, "
+                                                "KITTI (with --times), EuRoC CSV.")],
+    times: Annotated[Optional[Path], typer.Option(help="KITTI times file.")] = None,
+    rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
+    json_out: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
+    export: Annotated[Optional[Path], typer.Option(help="Write J, H, Λ and the column map to .npz.")] = None,
+    segments: Annotated[int, typer.Option(help="Report the information of this many route segments.")] = 0,
+) -> None:
+    """How well does this drive determine every calibration parameter of the rig?"""
+    r = load_rig(rig)
+    traj = read_route(route, times=times, suspension=r.suspension)
+    rep = evaluate(traj, r, Options(segments=segments))
+    if export is not None:
+        rep.export_npz(export)
+    if json_out:
+        typer.echo(json.dumps(rep.to_dict(), indent=2))
+    else:
+        print_report(rep, Console())
+
+
+rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs.")
+app.add_typer(rig_app, name="rig")
+
+
+@rig_app.command("show")
+def rig_show(name: Annotated[str, typer.Argument(help="Bundled rig name or rig YAML path.")] = "robotaxi") -> None:
+    """Print a rig's YAML (validated first)."""
+    load_rig(name)
+    typer.echo(rig_text(name), nl=False)
+
+
+@rig_app.command("list")
+def rig_list() -> None:
+    """Names of the bundled rigs."""
+    for n in bundled_rigs():
+        typer.echo(n)

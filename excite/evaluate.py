@@ -1,0 +1,296 @@
+"""Score a drive: how well does it determine every calibration parameter of a rig?
+
+:func:`evaluate` samples the drive, linearises the joint problem (:mod:`excite.information`),
+marginalises the trajectory and any nuisance parameter (a monocular camera's scale), scales by
+the accuracy targets ``S = diag(targets)`` and reports
+
+- the score ``λ_min(S Λ_θ S)``: ≥ 1 guarantees every Cramér–Rao σ is within its target;
+- the scaled and unscaled spectra, numerical rank with its threshold, condition number;
+- weak and unobservable modes, with their dominant named coordinates and motion advice;
+- per-parameter Cramér–Rao σ against target (None where the parameter is unobservable);
+- optionally the information each segment of the route contributes.
+
+:class:`Report` is plain data; :meth:`Report.to_dict` is the JSON contract the CLI, the service
+and the CI gate share.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import advice, information
+from .errors import EvaluationError
+from .factors.base import Nominal
+from .rig import Rig
+from .trajectory import Trajectory
+
+REPORT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Options:
+    """How to evaluate.
+
+    ``segments``: number of equal route segments whose own information is reported (0: none).
+    ``weak_below``: scaled eigenvalue under which a mode is reported as weak (1 = its σ reaches
+    the targets). ``rank_rtol``: eigenvalues of ``SΛS`` below ``rank_rtol · max diag(S H_θθ S)``
+    count as zero; the Schur complement is accurate to ~1e-13 of that scale, so 1e-10 separates
+    numerical zeros from weak but real information (which is what a calibration must fight for).
+    ``max_modes``: at most this many weak modes are listed.
+    """
+
+    segments: int = 0
+    weak_below: float = 1.0
+    rank_rtol: float = 1e-10
+    max_modes: int = 12
+
+    def __post_init__(self) -> None:
+        if self.segments < 0 or self.segments > 1000:
+            raise EvaluationError(f"segments must be between 0 and 1000, got {self.segments}")
+        if not (self.weak_below > 0 and np.isfinite(self.weak_below)):
+            raise EvaluationError(f"weak_below must be positive, got {self.weak_below}")
+        if not (0 < self.rank_rtol < 1):
+            raise EvaluationError(f"rank_rtol must be in (0, 1), got {self.rank_rtol}")
+
+
+@dataclass(frozen=True)
+class ParameterResult:
+    name: str
+    unit: str
+    sigma: float | None  # Cramér–Rao σ from the drive alone; None if unobservable
+    target: float
+    ok: bool
+    sigma_with_prior: float | None = None
+
+
+@dataclass(frozen=True)
+class WeakMode:
+    eigenvalue_scaled: float
+    status: str  # "unobservable" | "weak" | "ok"
+    coordinates: list[tuple[str, float]]  # dominant coordinates, |weight| descending
+    advice: str
+
+    @property
+    def sigma_in_targets(self) -> float | None:
+        """σ along this direction in units of the targets (None when unobservable)."""
+        return None if self.status == "unobservable" else float(1.0 / np.sqrt(self.eigenvalue_scaled))
+
+
+@dataclass(frozen=True)
+class Segment:
+    t_start_s: float
+    t_end_s: float
+    score: float
+    weakest_mode_information: float  # v ᵀ (S Λ_seg S) v along the whole route's weakest mode
+    parameter_information: dict[str, float]  # diag(S Λ_seg S): information per parameter, in targets⁻²
+
+
+@dataclass
+class Report:
+    route: str
+    rig: str
+    duration_s: float
+    length_m: float
+    n_keyframes: int
+    score: float
+    passed: bool
+    rank: int
+    nullity: int
+    rank_threshold: float
+    condition_number: float | None
+    spectrum_scaled: list[float]
+    spectrum_unscaled: list[float]
+    column_map: list[dict[str, Any]]
+    parameters: list[ParameterResult]
+    weak_modes: list[WeakMode]
+    segments: list[Segment]
+    score_with_priors: float | None
+    timings_ms: dict[str, float]
+    information: np.ndarray = field(repr=False)  # Λ_θ over the scored coordinates (SI units)
+    information_scaled: np.ndarray = field(repr=False)  # S Λ_θ S
+    _problem: information.Problem | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON report (finite floats, None for ∞/undefined)."""
+        return {
+            "version": REPORT_VERSION,
+            "route": self.route,
+            "rig": self.rig,
+            "score": self.score,
+            "passed": self.passed,
+            "duration_s": self.duration_s,
+            "length_m": self.length_m,
+            "n_keyframes": self.n_keyframes,
+            "rank": self.rank,
+            "nullity": self.nullity,
+            "rank_threshold": self.rank_threshold,
+            "condition_number": self.condition_number,
+            "spectrum_scaled": self.spectrum_scaled,
+            "spectrum_unscaled": self.spectrum_unscaled,
+            "column_map": self.column_map,
+            "parameters": [p.__dict__ for p in self.parameters],
+            "weak_modes": [
+                {"eigenvalue_scaled": m.eigenvalue_scaled, "status": m.status,
+                 "sigma_in_targets": m.sigma_in_targets,
+                 "coordinates": [[n, w] for n, w in m.coordinates], "advice": m.advice}
+                for m in self.weak_modes
+            ],
+            "segments": [s.__dict__ for s in self.segments],
+            "score_with_priors": self.score_with_priors,
+            "timings_ms": self.timings_ms,
+        }
+
+    def export_npz(self, path: str | Path) -> None:
+        """Write J (sparse, whitened), H = JᵀJ (sparse), Λ_θ, the variable ordering and column map."""
+        if self._problem is None:
+            raise EvaluationError("this report carries no problem to export")
+        prob = self._problem
+        J, rows = information.jacobian(prob)
+        H = (J.T @ J).tocoo()
+        J = J.tocoo()
+        states = information.state_names(prob.n_keyframes, prob.local)
+        params = [c["name"] for c in self._all_columns]
+        np.savez_compressed(
+            path,
+            J_data=J.data, J_row=J.row, J_col=J.col, J_shape=np.array(J.shape),
+            H_data=H.data, H_row=H.row, H_col=H.col, H_shape=np.array(H.shape),
+            row_labels=np.array(rows), variable_order=np.array(states + params),
+            information_all=self._information_all, information=self.information,
+            information_scaled=self.information_scaled,
+            column_names=np.array([c["name"] for c in self.column_map]),
+            column_units=np.array([c["unit"] for c in self.column_map]),
+            column_targets=np.array([c["target"] for c in self.column_map]),
+        )
+
+    _all_columns: list[dict[str, Any]] = field(default_factory=list, repr=False)
+    _information_all: np.ndarray | None = field(default=None, repr=False)
+
+
+def _marginalise_nuisance(Lam: np.ndarray, scored: np.ndarray) -> np.ndarray:
+    """Schur complement of the nuisance coordinates (pseudo-inverse: an unobservable nuisance
+    carries no information to remove)."""
+    nu = ~scored
+    if not nu.any():
+        return Lam
+    A = Lam[np.ix_(scored, scored)]
+    B = Lam[np.ix_(scored, nu)]
+    C = Lam[np.ix_(nu, nu)]
+    d = np.sqrt(np.maximum(np.diag(C), 1e-300))
+    Cn = C / np.outer(d, d)
+    X = np.linalg.pinv(Cn, rcond=1e-12, hermitian=True)
+    out = A - (B / d) @ X @ (B / d).T
+    return 0.5 * (out + out.T)
+
+
+def _scaled(rig: Rig, problem: information.Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Λ over all coordinates, Λ over scored coordinates, S Λ S) of a problem."""
+    Lam_all = information.marginal(problem)
+    scored = np.array([not c.nuisance for c in rig.coordinates])
+    Lam = _marginalise_nuisance(Lam_all, scored)
+    S = np.array([c.target for c in rig.scored])
+    return Lam_all, Lam, Lam * np.outer(S, S)
+
+
+def evaluate(traj: Trajectory, rig: Rig, options: Options = Options()) -> Report:
+    """The report of ``traj`` driven with ``rig`` (see the module docstring)."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    nom = Nominal.of(traj, rig)
+    t1 = time.perf_counter()
+    prob = information.build(nom, rig)
+    t2 = time.perf_counter()
+    Lam_all, Lam, Ls = _scaled(rig, prob)
+    t3 = time.perf_counter()
+    timings.update(sample=(t1 - t0) * 1e3, linearise=(t2 - t1) * 1e3, marginalise=(t3 - t2) * 1e3)
+
+    coords = list(rig.scored)
+    S = np.array([c.target for c in coords])
+    # the scale of the data's information before marginalisation sets the numerical zero
+    scale = _information_scale(prob, rig)
+    tol = options.rank_rtol * scale
+    w, V = np.linalg.eigh(Ls)
+    null = w < tol
+    nullity = int(null.sum())
+    score = float(max(w[0], 0.0)) if nullity == 0 else 0.0
+    cond = float(w[-1] / w[0]) if nullity == 0 and w[0] > 0 else None
+    w_unscaled = np.linalg.eigvalsh(Lam)
+
+    # Cramér–Rao σ: a parameter with any weight on the null space is unobservable.
+    null_weight = (V[:, null] ** 2).sum(axis=1)
+    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
+    sig_scaled = np.sqrt((V**2) @ inv_w)
+    sigma = [None if null_weight[i] > 1e-6 else float(sig_scaled[i] * S[i]) for i in range(len(coords))]
+
+    with_prior: list[float | None] = [None] * len(coords)
+    score_with_priors = None
+    prior_sig = np.array([np.inf if c.prior_sigma is None else c.prior_sigma for c in coords])
+    if np.isfinite(prior_sig).any():
+        Lp = Ls + np.diag((S / prior_sig) ** 2)
+        wp, Vp = np.linalg.eigh(Lp)
+        nullp = wp < tol
+        score_with_priors = float(max(wp[0], 0.0)) if not nullp.any() else 0.0
+        invp = np.where(nullp, 0.0, 1.0 / np.where(nullp, 1.0, wp))
+        sp_ = np.sqrt((Vp**2) @ invp)
+        nwp = (Vp[:, nullp] ** 2).sum(axis=1)
+        with_prior = [None if nwp[i] > 1e-6 else float(sp_[i] * S[i]) for i in range(len(coords))]
+
+    params = [ParameterResult(c.name, c.unit, sigma[i], c.target,
+                              sigma[i] is not None and sigma[i] <= c.target, with_prior[i])
+              for i, c in enumerate(coords)]
+
+    modes = []
+    n_modes = max(1, int(np.sum(w < options.weak_below)))
+    for k in range(min(n_modes, options.max_modes)):
+        v = V[:, k]
+        v = v * np.sign(v[np.argmax(np.abs(v))])
+        order = np.argsort(-np.abs(v))
+        keep = [i for i in order if abs(v[i]) >= 0.1][:6] or [int(order[0])]
+        status = "unobservable" if null[k] else ("weak" if w[k] < options.weak_below else "ok")
+        modes.append(WeakMode(float(w[k]), status, [(coords[i].name, float(v[i])) for i in keep],
+                              advice.describe(rig, [coords[i] for i in keep], v[keep])))
+    t4 = time.perf_counter()
+
+    segments = []
+    if options.segments:
+        edges = np.linspace(0, prob.n_keyframes - 1, options.segments + 1).round().astype(int)
+        v_weak = V[:, 0]
+        for k0, k1 in zip(edges[:-1], edges[1:]):
+            if k1 - k0 < 2:
+                continue
+            _, _, Lseg = _scaled(rig, prob.window(int(k0), int(k1)))
+            ws = np.linalg.eigvalsh(Lseg)
+            segments.append(Segment(float(nom.t[k0]), float(nom.t[k1]),
+                                    float(max(ws[0], 0.0)) if ws[0] >= tol else 0.0,
+                                    float(v_weak @ Lseg @ v_weak),
+                                    {c.name: float(Lseg[i, i]) for i, c in enumerate(coords)}))
+    t5 = time.perf_counter()
+    timings.update(report=(t4 - t3) * 1e3, segments=(t5 - t4) * 1e3, total=(t5 - t0) * 1e3)
+
+    column_map = [{"index": i, "name": c.name, "unit": c.unit, "target": c.target} for i, c in enumerate(coords)]
+    all_columns = [{"index": i, "name": c.name, "unit": c.unit, "nuisance": c.nuisance}
+                   for i, c in enumerate(rig.coordinates)]
+    return Report(
+        route=traj.name, rig=rig.name, duration_s=float(nom.t[-1] - nom.t[0]),
+        length_m=traj.length_m(), n_keyframes=prob.n_keyframes,
+        score=score, passed=all(p.ok for p in params), rank=len(coords) - nullity, nullity=nullity,
+        rank_threshold=float(tol), condition_number=cond,
+        spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],
+        column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
+        score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
+        information=Lam, information_scaled=Ls, _problem=prob, _all_columns=all_columns,
+        _information_all=Lam_all,
+    )
+
+
+def _information_scale(prob: information.Problem, rig: Rig) -> float:
+    """max diag(S H_θθ S): the largest information any single parameter gets before marginalising."""
+    S = np.array([c.target if not c.nuisance else 0.0 for c in rig.coordinates])
+    diag = np.zeros(len(S))
+    for b in prob.blocks:
+        diag += np.einsum("nrj,nrj->j", b.Jt, b.Jt)
+    return float(max((diag * S**2).max(), 1e-300))
