@@ -6,11 +6,11 @@ profile* (how fast). This module holds that math, free of file I/O:
 - :func:`smooth_path` passes a C2 cubic spline (chord-length parameter) through points and
   resamples it uniformly in arc length, with heading, curvature and grade. C2 positions make the
   curvature continuous, so a car can follow the path with finite steering rate.
-- :func:`speed_profile` gives the fastest speed along the path that respects the limits: speed
+- :func:`plan_speed` gives the fastest drive along the path that respects the limits: speed
   cap, lateral acceleration in curves, curvature rate, acceleration/deceleration (forward and
-  backward pass on v²) and jerk (a smoothing of v² in arc length that provably stays below the
-  caps).
-- :func:`profile_from_path` turns path + speed into a time-parametrised
+  backward pass on v²) and jerk (a smoothing in time that never raises the speed);
+  :func:`plan_given_speed` drives it at given speeds instead.
+- :func:`profile_from_plan` turns path + plan into a time-parametrised
   :class:`~excite.vehicle.ControlProfile` that :func:`~excite.vehicle.drive` integrates.
 """
 
@@ -93,76 +93,35 @@ def smooth_path(points_m: np.ndarray, closed: bool = False, step_m: float = 0.2)
     return PathGeometry(s, spline(us), heading, curvature, grade)
 
 
-def speed_profile(s_m: np.ndarray, curvature_1pm: np.ndarray, limits: Limits,
-                  speed_cap_mps: np.ndarray | float | None = None, v_start_mps: float = 0.0,
-                  v_end_mps: float = 0.0, margin: float = 0.9) -> np.ndarray:
-    """The fastest speed [m/s] at each ``s_m`` (uniform grid) within ``margin`` × every limit.
+def speed_caps(s_m: np.ndarray, curvature_1pm: np.ndarray, limits: Limits,
+               speed_cap_mps: np.ndarray | float | None = None,
+               margin: float = 0.9) -> np.ndarray:
+    """The highest v² [m²/s²] allowed at each ``s_m`` (uniform grid) by ``margin`` × the limits.
 
     Caps: ``speed_cap_mps`` (a number or one per point; 0 forces a stop there), the speed limit,
-    lateral acceleration ``v²|κ| ≤ a_lat``, curvature rate ``v|dκ/ds| ≤ κ̇``. Then a forward pass
-    (acceleration) and a backward pass (deceleration) on v², which is linear in s for constant
-    acceleration. Jerk: v² is eroded (running minimum) and then averaged over a window
-    ``L = v_max (a + d) / j`` of arc length; both keep v² below the caps and keep its slope
-    (2 × acceleration) within bounds, and the averaging bounds ``da/ds`` by ``(a + d) / L``, hence
-    the jerk ``v da/ds`` by ``j``. Curvature beyond the curvature limit is not fixed here (speed
-    cannot fix it); :func:`~excite.vehicle.check_limits` reports it.
+    lateral acceleration ``v²|κ| ≤ a_lat`` and curvature rate ``v|dκ/ds| ≤ κ̇``. Curvature beyond
+    the curvature limit is not fixed here (speed cannot fix it):
+    :func:`~excite.vehicle.check_limits` reports it.
     """
     s = np.asarray(s_m, dtype=float)
     kappa = np.asarray(curvature_1pm, dtype=float)
     n = s.size
-    ds = float(s[1] - s[0]) if n > 1 else 1.0
-    v_max = margin * limits.speed_max_mps
-    w_cap = np.full(n, v_max**2)
+    w_cap = np.full(n, (margin * limits.speed_max_mps) ** 2)
     if speed_cap_mps is not None:
         w_cap = np.minimum(w_cap, np.broadcast_to(np.asarray(speed_cap_mps, dtype=float), (n,)) ** 2)
     with np.errstate(divide="ignore"):
         w_cap = np.minimum(w_cap, margin * limits.lat_accel_max_mps2 / np.abs(kappa))
-        dkappa = np.abs(np.gradient(kappa, ds)) if n > 1 else np.zeros(n)
-        w_cap = np.minimum(w_cap, (margin * limits.curvature_rate_max_1pms / dkappa) ** 2)
-    w_cap[0] = min(w_cap[0], v_start_mps**2)
-    w_cap[-1] = min(w_cap[-1], v_end_mps**2)
-    acc, dec = margin * limits.accel_max_mps2, margin * limits.decel_max_mps2
-    # Forward pass w_i = min_{j≤i} (cap_j + 2a(s_i − s_j)), backward pass likewise for braking.
+        if n > 1:
+            dkappa = np.abs(np.gradient(kappa, s[1] - s[0]))
+            w_cap = np.minimum(w_cap, (margin * limits.curvature_rate_max_1pms / dkappa) ** 2)
+    return w_cap
+
+
+def _passes(s: np.ndarray, w_cap: np.ndarray, acc: float, dec: float) -> np.ndarray:
+    """Forward (acceleration) and backward (braking) passes on v², which is linear in s for
+    constant acceleration: ``w_i = min_j (cap_j + 2a(s_i − s_j))`` for j ≤ i, likewise for j ≥ i."""
     w = 2.0 * acc * s + np.minimum.accumulate(w_cap - 2.0 * acc * s)
-    w = np.minimum(w, -2.0 * dec * s + np.minimum.accumulate((w_cap + 2.0 * dec * s)[::-1])[::-1])
-    window_m = float(np.sqrt(w.max())) * (acc + dec) / (margin * limits.jerk_max_mps3)
-    k = int(np.ceil(window_m / ds)) | 1  # odd, so the windows are centred
-    if k > 1:
-        pad = k
-        wp = np.concatenate([np.full(pad, w[0]), w, np.full(pad, w[-1])])
-        wp = uniform_filter1d(minimum_filter1d(wp, k, mode="nearest"), k, mode="nearest")
-        w = np.minimum(wp[pad:-pad], w)
-    return np.sqrt(np.maximum(w, 0.0))
-
-
-def profile_from_path(path: PathGeometry, speed_mps: np.ndarray, knot_rate_hz: float = 10.0,
-                      name: str = "route") -> ControlProfile:
-    """The control profile that drives ``path`` at ``speed_mps`` (one value per path sample).
-
-    Between path samples the acceleration is constant (v² linear in s), so the time to cover a
-    step is ``2 ds / (v_i + v_{i+1})``: stops at single points take finite time, two consecutive
-    zero speeds would take forever and are rejected. Knots are placed uniformly in time.
-    """
-    v = np.asarray(speed_mps, dtype=float)
-    ds = np.diff(path.s_m)
-    vsum = v[1:] + v[:-1]
-    if np.any(vsum <= 0):
-        k = int(np.argmax(vsum <= 0))
-        raise LimitError(f"the speed is zero on both ends of the path step at s={path.s_m[k]:.1f} m: "
-                         "the vehicle would never arrive")
-    t = np.concatenate([[0.0], np.cumsum(2.0 * ds / vsum)])
-    n = max(int(round(t[-1] * knot_rate_hz)) + 1, 2)
-    tk = np.linspace(0.0, t[-1], n)
-    sk = np.interp(tk, t, path.s_m)
-    heading0 = float(path.heading_rad[0])
-    return ControlProfile(
-        t_s=tk,
-        speed_mps=np.interp(tk, t, v),
-        curvature_1pm=np.interp(sk, path.s_m, path.curvature_1pm),
-        grade_rad=np.interp(sk, path.s_m, path.grade_rad),
-        start=(float(path.xyz_m[0, 0]), float(path.xyz_m[0, 1]), heading0),
-        name=name,
-    )
+    return np.minimum(w, -2.0 * dec * s + np.minimum.accumulate((w_cap + 2.0 * dec * s)[::-1])[::-1])
 
 
 def travel_time_s(s_m: np.ndarray, speed_mps: np.ndarray) -> float:
@@ -170,3 +129,119 @@ def travel_time_s(s_m: np.ndarray, speed_mps: np.ndarray) -> float:
     vsum = speed_mps[1:] + speed_mps[:-1]
     with np.errstate(divide="ignore"):
         return float(np.sum(np.where(vsum > 0, 2.0 * np.diff(s_m) / vsum, np.inf)))
+
+
+@dataclass(frozen=True)
+class SpeedPlan:
+    """Progress along a path on a uniform time grid: ``s_m(t_s)`` and ``speed_mps(t_s)``."""
+
+    t_s: np.ndarray
+    s_m: np.ndarray
+    speed_mps: np.ndarray
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+    def with_standstill(self, duration_s: float) -> "SpeedPlan":
+        """The plan followed by a standstill until ``duration_s`` (if it ends at rest earlier)."""
+        dt = float(self.t_s[1] - self.t_s[0])
+        extra = int(np.floor((duration_s - self.duration_s) / dt + 1e-9))
+        if extra <= 0:
+            return self
+        t = np.concatenate([self.t_s, self.t_s[-1] + dt * np.arange(1, extra + 1)])
+        return SpeedPlan(t, np.concatenate([self.s_m, np.full(extra, self.s_m[-1])]),
+                         np.concatenate([self.speed_mps, np.zeros(extra)]))
+
+
+def _timed(s: np.ndarray, v: np.ndarray, step_s: float,
+           dwell_s: np.ndarray | None = None) -> SpeedPlan:
+    """Time-parametrise v(s) (constant acceleration between samples) onto a uniform grid,
+    standing still for ``dwell_s[i]`` at sample i."""
+    vsum = v[1:] + v[:-1]
+    if np.any(vsum <= 0):
+        k = int(np.argmax(vsum <= 0))
+        raise LimitError(f"the speed is zero on both ends of the path step at s={s[k]:.1f} m: "
+                         "the vehicle would never arrive")
+    dwell = np.zeros(s.size) if dwell_s is None else np.asarray(dwell_s, dtype=float)
+    # Knots: arrival at each sample, and departure after a dwell (same place, zero speed).
+    travel = np.concatenate([[0.0], 2.0 * np.diff(s) / vsum])
+    arrive = np.cumsum(travel) + np.concatenate([[0.0], np.cumsum(dwell)[:-1]])
+    has = dwell > 0
+    kt = np.concatenate([arrive, (arrive + dwell)[has]])
+    ks = np.concatenate([s, s[has]])
+    kv = np.concatenate([v, np.zeros(has.sum())])
+    order = np.lexsort((np.concatenate([np.zeros(s.size), np.ones(has.sum())]), kt))
+    kt, ks, kv = kt[order], ks[order], kv[order]
+    grid = np.linspace(0.0, kt[-1], max(int(round(kt[-1] / step_s)) + 1, 2))
+    k = np.clip(np.searchsorted(kt, grid, side="right") - 1, 0, kt.size - 2)
+    span = kt[k + 1] - kt[k]
+    a = np.where(span > 0, (kv[k + 1] - kv[k]) / np.where(span > 0, span, 1.0), 0.0)
+    tau = grid - kt[k]
+    return SpeedPlan(grid, ks[k] + kv[k] * tau + 0.5 * a * tau**2, kv[k] + a * tau)
+
+
+def plan_given_speed(path: PathGeometry, speed_mps: np.ndarray, step_s: float = 0.01) -> SpeedPlan:
+    """Drive ``path`` at the given speed per path sample, accelerating uniformly in between (so a
+    single zero takes finite time; two consecutive zeros raise :class:`LimitError`)."""
+    return _timed(path.s_m, np.asarray(speed_mps, dtype=float), step_s)
+
+
+def plan_speed(path: PathGeometry, limits: Limits, speed_cap_mps: np.ndarray | float | None = None,
+               margin: float = 0.9, step_s: float = 0.01) -> SpeedPlan:
+    """The fastest drive along ``path`` from rest to rest within ``margin`` × every limit.
+
+    v² is capped (:func:`speed_caps`), passed forward and backward for acceleration and braking,
+    and time-parametrised; then the speed is averaged over ``T = (a + d) / j`` in time, which
+    keeps acceleration within bounds, bounds jerk by ``(a + d) / T = j`` and preserves distance
+    (the smoothed car is never far from the unsmoothed one). So that averaging cannot exceed a
+    cap, positive caps are first widened by the distance covered in ``T / 2`` (running minimum
+    in s); every stop (a zero cap, and both ends) gets a standstill of ``T`` (``T / 2`` at the
+    ends), so that the averaged speed still reaches zero there. The result is re-checked
+    against the caps where the smoothed car actually is.
+    """
+    s = path.s_m
+    ds = float(s[1] - s[0])
+    w_cap = speed_caps(s, path.curvature_1pm, limits, speed_cap_mps, margin)
+    w_cap[0] = w_cap[-1] = 0.0
+    stop = w_cap <= 0.0
+    acc, dec = margin * limits.accel_max_mps2, margin * limits.decel_max_mps2
+    # A further 0.8 on jerk: drive() interpolates speed knots shape-preservingly (PCHIP), which
+    # flattens speed extrema at knots and adds up to ~20 % jerk.
+    window_s = (acc + dec) / (0.8 * margin * limits.jerk_max_mps3)
+    k = int(np.ceil(window_s / step_s)) | 1  # odd, so the average is centred
+    window_s = k * step_s
+    dwell = np.where(stop, window_s, 0.0)
+    dwell[0] = dwell[-1] = 0.5 * window_s
+    reach_m = float(np.sqrt(np.max(w_cap))) * 0.5 * window_s + 1.0
+    for _ in range(5):
+        n = 2 * int(np.ceil(reach_m / ds)) + 1
+        w_wide = minimum_filter1d(np.where(stop, np.inf, w_cap), n, mode="nearest")
+        w_wide[stop] = 0.0
+        raw = _timed(s, np.sqrt(np.maximum(_passes(s, w_wide, acc, dec), 0.0)), step_s, dwell)
+        padded = np.concatenate([np.zeros(k), raw.speed_mps, np.zeros(k)])
+        v = np.maximum(uniform_filter1d(padded, k, mode="constant")[k:-k], 0.0)
+        v[0] = v[-1] = 0.0
+        pos = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * step_s)])
+        idx = np.clip(np.round(pos / ds).astype(int), 0, s.size - 1)
+        over = (v**2 > w_cap[idx] * (1.0 + 1e-3) + 1e-6) & ~stop[idx]
+        if not over.any():
+            return SpeedPlan(raw.t_s, np.minimum(pos, s[-1]), v)
+        reach_m += 2.0
+    raise LimitError("no speed profile within the limits was found for this path")
+
+
+def profile_from_plan(path: PathGeometry, plan: SpeedPlan, knot_rate_hz: float = 20.0,
+                      name: str = "route") -> ControlProfile:
+    """The control profile that drives ``path`` as ``plan`` says, with knots uniform in time."""
+    n = max(int(round(plan.duration_s * knot_rate_hz)) + 1, 2)
+    tk = np.linspace(plan.t_s[0], plan.t_s[-1], n)
+    sk = np.interp(tk, plan.t_s, plan.s_m)
+    return ControlProfile(
+        t_s=tk - tk[0],
+        speed_mps=np.interp(tk, plan.t_s, plan.speed_mps),
+        curvature_1pm=np.interp(sk, path.s_m, path.curvature_1pm),
+        grade_rad=np.interp(sk, path.s_m, path.grade_rad),
+        start=(float(path.xyz_m[0, 0]), float(path.xyz_m[0, 1]), float(path.heading_rad[0])),
+        name=name,
+    )

@@ -61,7 +61,7 @@ from scipy.spatial.transform import Rotation
 
 from . import so3
 from .errors import RouteError
-from .paths import profile_from_path, smooth_path, speed_profile
+from .paths import plan_given_speed, plan_speed, profile_from_plan, smooth_path
 from .trajectory import Trajectory
 from .vehicle import ControlProfile, Limits, Suspension, drive
 
@@ -298,19 +298,20 @@ def route_from_waypoints(points_m: np.ndarray, speeds_mps: np.ndarray | None = N
     """The drive along a C2 path through ``points_m`` (n, 2|3).
 
     With ``speeds_mps`` (one per point), v² is linear in arc length between points; without, the
-    fastest speed profile within ``limits`` (from and to rest, see
-    :func:`~excite.paths.speed_profile`). Curvature beyond the limit is not corrected: it is
+    fastest drive within ``limits`` (from and to rest, see
+    :func:`~excite.paths.plan_speed`). Curvature beyond the limit is not corrected: it is
     reported by :func:`~excite.vehicle.check_limits`.
     """
     pts = np.asarray(points_m, dtype=float)
     path = smooth_path(pts)
     if speeds_mps is None:
-        v = speed_profile(path.s_m, path.curvature_1pm, limits)
+        plan = plan_speed(path, limits)
     else:
-        chord = np.linalg.norm(np.diff(pts[:, :2] if pts.shape[1] == 2 else pts, axis=0), axis=1)
+        chord = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         s_pts = np.concatenate([[0.0], np.cumsum(chord)]) * path.length_m / chord.sum()
         v = np.sqrt(np.interp(path.s_m, s_pts, np.asarray(speeds_mps, dtype=float) ** 2))
-    traj = drive(profile_from_path(path, v, name=name), suspension)
+        plan = plan_given_speed(path, v)
+    traj = drive(profile_from_plan(path, plan, name=name), suspension)
     z0 = float(pts[0, 2]) if pts.shape[1] == 3 else 0.0
     return traj if z0 == 0.0 else traj.transformed(np.eye(3), [0.0, 0.0, z0])
 

@@ -168,7 +168,9 @@ def check_limits(traj: Trajectory, limits: Limits, rate_hz: float = 20.0) -> lis
         "jerk_max_mps3": (np.gradient(a_long, t), limits.jerk_max_mps3),
         "lat_accel_max_mps2": (s.accel_lat, limits.lat_accel_max_mps2),
         "curvature_max_1pm": (np.nan_to_num(kappa), limits.curvature_max_1pm),
-        "curvature_rate_max_1pms": (np.nan_to_num(np.gradient(np.nan_to_num(kappa), t)),
+        # Differentiate only where the curvature is defined on both sides: zero-filling first
+        # would report a jump to 0 at the low-speed threshold as a curvature-rate violation.
+        "curvature_rate_max_1pms": (np.nan_to_num(np.gradient(kappa, t)),
                                     limits.curvature_rate_max_1pms),
     }
     # A small tolerance keeps drives generated exactly at a limit from being reported.
