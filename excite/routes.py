@@ -74,7 +74,7 @@ __all__ = [
 QUAT_NORM_TOL = 1e-3
 ROTATION_TOL = 1e-3
 MIN_POSES = 6
-DEFAULT_CUTOFF_HZ = 2.0
+DEFAULT_CUTOFF_HZ = 1.0  # vehicle motion lives below ~1 Hz; logged poses jitter above
 
 # KITTI camera (x right, y down, z forward) → vehicle (x forward, y left, z up): columns are V's
 # axes expressed in camera coordinates.
