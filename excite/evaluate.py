@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -196,13 +196,21 @@ def _scaled(rig: Rig, problem: information.Problem) -> tuple[np.ndarray, np.ndar
     return Lam_all, Lam, Lam * np.outer(S, S)
 
 
-def evaluate(traj: Trajectory, rig: Rig, options: Options = Options()) -> Report:
-    """The report of ``traj`` driven with ``rig`` (see the module docstring)."""
+def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
+    """The report of ``traj`` driven with ``rig`` (see the module docstring).
+
+    Several drives are calibrated together: they share the calibration and nothing else, so
+    their information adds up.
+    """
+    trajs = [traj] if isinstance(traj, Trajectory) else list(traj)
+    if not trajs:
+        raise EvaluationError("no drive to evaluate")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    nom = Nominal.of(traj, rig)
+    noms = [Nominal.of(t, rig) for t in trajs]
     t1 = time.perf_counter()
-    prob = information.build(nom, rig)
+    prob = information.build(noms, rig)
+    t_kf = np.concatenate([n.t for n in noms])
     t2 = time.perf_counter()
     Lam_all, Lam, Ls = _scaled(rig, prob)
     t3 = time.perf_counter()
@@ -264,7 +272,7 @@ def evaluate(traj: Trajectory, rig: Rig, options: Options = Options()) -> Report
                 continue
             _, _, Lseg = _scaled(rig, prob.window(int(k0), int(k1)))
             ws = np.linalg.eigvalsh(Lseg)
-            segments.append(Segment(float(nom.t[k0]), float(nom.t[k1]),
+            segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]),
                                     float(max(ws[0], 0.0)) if ws[0] >= tol else 0.0,
                                     float(v_weak @ Lseg @ v_weak),
                                     {c.name: float(Lseg[i, i]) for i, c in enumerate(coords)}))
@@ -275,8 +283,9 @@ def evaluate(traj: Trajectory, rig: Rig, options: Options = Options()) -> Report
     all_columns = [{"index": i, "name": c.name, "unit": c.unit, "nuisance": c.nuisance}
                    for i, c in enumerate(rig.coordinates)]
     return Report(
-        route=traj.name, rig=rig.name, duration_s=float(nom.t[-1] - nom.t[0]),
-        length_m=traj.length_m(), n_keyframes=prob.n_keyframes,
+        route=" + ".join(t.name for t in trajs), rig=rig.name,
+        duration_s=float(sum(n.t[-1] - n.t[0] for n in noms)),
+        length_m=float(sum(t.length_m() for t in trajs)), n_keyframes=prob.n_keyframes,
         score=score, passed=all(p.ok for p in params), rank=len(coords) - nullity, nullity=nullity,
         rank_threshold=float(tol), condition_number=cond,
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],

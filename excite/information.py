@@ -53,6 +53,7 @@ class Problem:
     blocks: tuple[FactorBlock, ...]
     R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
     local: bool = False  # state parametrisation: local [δθ, δv_body, δd] or world [δθ, δp, δv]
+    chain_starts: tuple[int, ...] = (0,)  # first keyframe of each drive (drives share only θ)
 
     @property
     def n_states(self) -> int:
@@ -63,7 +64,7 @@ class Problem:
         return max(b.stride * (b.n_states - 1) for b in self.blocks)
 
     def window(self, k0: int, k1: int) -> "Problem":
-        """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with a new gauge."""
+        """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with new gauges."""
         out = []
         for b in self.blocks:
             if b.name in ("gauge", "placeholder"):
@@ -73,16 +74,13 @@ class Problem:
             if mask.any():
                 sel = b.select(mask)
                 out.append(FactorBlock(sel.name, sel.first - k0, sel.stride, sel.n_states, sel.Jx, sel.Jt))
-        K = k1 - k0 + 1
-        if self.local:
-            fix = (_yaw_gauge(self.R_W_B[k0], 0, self.n_params), _last_increment_prior(K, self.n_params))
-        else:
-            fix = (gauge_block(self.R_W_B[k0], 0, self.n_params),)
-        return Problem(K, self.n_params, tuple(out) + fix, self.R_W_B[k0:k1 + 1], self.local)
+        starts = sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})
+        return _with_gauges(k1 - k0 + 1, self.n_params, out, self.R_W_B[k0:k1 + 1], self.local,
+                            tuple(s - k0 for s in starts))
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
-                       self.R_W_B, self.local)
+                       self.R_W_B, self.local, self.chain_starts)
 
 
 def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
@@ -94,28 +92,51 @@ def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, n_params)))
 
 
-def build(nom: Nominal, rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
+def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
     """Linearise every factor of ``rig`` on the nominal motion ``nom``.
 
-    ``local`` selects the trajectory parametrisation (see the module docstring); the gauge is
-    fixed at ``gauge_keyframe``.
+    A list of nominal motions is several drives calibrated together: they share the calibration θ
+    and nothing else (each has its own trajectory and gauge). ``local`` selects the trajectory
+    parametrisation (see the module docstring); the gauge of each drive is fixed at its keyframe
+    ``gauge_keyframe``.
     """
-    if nom.n_keyframes < 3:
-        raise EvaluationError(f"the drive is too short: {nom.n_keyframes} keyframes at "
-                              f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
+    noms = nom if isinstance(nom, list) else [nom]
     p = len(rig.coordinates)
-    parts = [imu.blocks(nom, rig), nonholonomic.blocks(nom, rig), wheel.blocks(nom, rig)]
-    parts += [odometry.blocks(nom, rig, s) for s in rig.config.sensors]
-    parts = [b for b in parts if b is not None]
-    if not local:
-        parts.append(gauge_block(nom.R[gauge_keyframe], gauge_keyframe, p))
-        return Problem(nom.n_keyframes, p, tuple(parts), nom.R)
-    v_b = np.einsum("kji,kj->ki", nom.R, nom.v)
-    d = np.einsum("kji,kj->ki", nom.R[:-1], np.diff(nom.p, axis=0))
-    parts = [_to_local(b, nom.R, v_b, d) for b in parts]
-    parts.append(_yaw_gauge(nom.R[gauge_keyframe], gauge_keyframe, p))
-    parts.append(_last_increment_prior(nom.n_keyframes, p))
-    return Problem(nom.n_keyframes, p, tuple(parts), nom.R, local=True)
+    parts: list[FactorBlock] = []
+    starts, R_all, offset = [], [], 0
+    for n in noms:
+        if n.n_keyframes < 3:
+            raise EvaluationError(f"the drive is too short: {n.n_keyframes} keyframes at "
+                                  f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
+        if not -n.n_keyframes <= gauge_keyframe < n.n_keyframes:
+            raise EvaluationError(f"gauge keyframe {gauge_keyframe} is outside the drive")
+        blocks = [imu.blocks(n, rig), nonholonomic.blocks(n, rig), wheel.blocks(n, rig)]
+        blocks += [odometry.blocks(n, rig, s) for s in rig.config.sensors]
+        blocks = [b for b in blocks if b is not None]
+        if local:
+            v_b = np.einsum("kji,kj->ki", n.R, n.v)
+            d = np.einsum("kji,kj->ki", n.R[:-1], np.diff(n.p, axis=0))
+            blocks = [_to_local(b, n.R, v_b, d) for b in blocks]
+        parts += [FactorBlock(b.name, b.first + offset, b.stride, b.n_states, b.Jx, b.Jt) for b in blocks]
+        starts.append(offset)
+        R_all.append(n.R)
+        offset += n.n_keyframes
+    gauges = tuple(s + (gauge_keyframe % n.n_keyframes) for s, n in zip(starts, noms))
+    return _with_gauges(offset, p, parts, np.concatenate(R_all), local, tuple(starts), gauges)
+
+
+def _with_gauges(K: int, p: int, blocks: list[FactorBlock], R: np.ndarray, local: bool,
+                 chain_starts: tuple[int, ...], gauges: tuple[int, ...] | None = None) -> Problem:
+    """A problem with the minimal gauge fix of every chain (at its first keyframe by default)."""
+    gauges = chain_starts if gauges is None else gauges
+    ends = [s - 1 for s in chain_starts[1:]] + [K - 1]
+    fix = []
+    for g, e in zip(gauges, ends):
+        if local:
+            fix += [_yaw_gauge(R[g], g, p), _last_increment_prior(e, p)]
+        else:
+            fix.append(gauge_block(R[g], g, p))
+    return Problem(K, p, tuple(blocks) + tuple(fix), R, local, chain_starts)
 
 
 def _to_local(b: FactorBlock, R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> FactorBlock:
@@ -153,11 +174,11 @@ def _yaw_gauge(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, n_params)))
 
 
-def _last_increment_prior(n_keyframes: int, n_params: int) -> FactorBlock:
-    """The last keyframe has no successor; its increment columns are placeholders held at zero."""
+def _last_increment_prior(keyframe: int, n_params: int) -> FactorBlock:
+    """The last keyframe of a chain has no successor: its increment columns are placeholders held at zero."""
     Jx = np.zeros((1, 3, STATE_DIM))
     Jx[0, :, 6:9] = np.eye(3)
-    return FactorBlock("placeholder", np.array([n_keyframes - 1]), 1, 1, Jx, np.zeros((1, 3, n_params)))
+    return FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 3, n_params)))
 
 
 def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:

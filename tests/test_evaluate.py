@@ -1,0 +1,312 @@
+"""The evaluator against independent computation: degenerate motions, invariances, the dense
+oracle, the Cramér–Rao guarantee, and the JSON/npz exports."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from excite import information, so3
+from excite.evaluate import Options, evaluate
+from excite.factors.base import Nominal
+from excite.rig import RIGS_DIR, build_rig, load_rig
+from excite.vehicle import ControlProfile, Suspension, drive
+
+T = 60.0
+KNOTS = np.linspace(0.0, T, 61)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_rig("robotaxi")
+
+
+def profile(speed, curvature, **kw) -> ControlProfile:
+    return ControlProfile(KNOTS, np.broadcast_to(speed, KNOTS.shape), np.broadcast_to(curvature, KNOTS.shape), **kw)
+
+
+VARIED_SPEED = 6 + 3 * np.sin(KNOTS / 3)
+VARIED_CURV = 0.08 * np.sin(KNOTS / 5)
+
+
+def null_space(rep):
+    w, V = np.linalg.eigh(rep.information_scaled)
+    return V[:, w < rep.rank_threshold]
+
+
+def null_weight(rep, rig):
+    """Per scored coordinate, the squared norm of its unit vector's projection on the null space."""
+    N = null_space(rep)
+    return {c.name: float((N[i] ** 2).sum()) for i, c in enumerate(rig.scored)}
+
+
+def span_angle_cos(rep, rig, names):
+    """Largest cosine between the null space and the span of the named coordinates (1: they share a direction)."""
+    N = null_space(rep)
+    if N.shape[1] == 0:
+        return 0.0
+    idx = [[c.name for c in rig.scored].index(n) for n in names]
+    return float(np.linalg.svd(N[idx], compute_uv=False).max())
+
+
+def assert_null_space_is(rep, rig, expected):
+    """The null space is exactly the span of the named coordinate axes."""
+    weights = null_weight(rep, rig)
+    assert rep.nullity == len(expected), (rep.nullity, {k: round(v, 3) for k, v in weights.items() if v > 1e-6})
+    for name, wgt in weights.items():
+        if name in expected:
+            assert wgt > 1 - 1e-6, f"{name} should be unobservable (null weight {wgt:.3g})"
+        else:
+            assert wgt < 1e-6, f"{name} should be observable (null weight {wgt:.3g})"
+
+
+# --- the degenerate motions of DESIGN.md (suspension off) ------------------------------------
+
+def test_straight_line_constant_speed(rig):
+    rep = evaluate(drive(profile(10.0, 0.0), Suspension.rigid()), rig)
+    # travel direction: lidar x (mounted like the body), camera z (optical axis forward)
+    assert_null_space_is(rep, rig, {
+        "lidar.trans_x", "lidar.trans_y", "lidar.trans_z", "lidar.rot_x", "lidar.time_offset",
+        "cam_front.trans_x", "cam_front.trans_y", "cam_front.trans_z", "cam_front.rot_z",
+        "cam_front.time_offset", "wheel.track", "imu.accel_bias_x", "imu.accel_bias_y"})
+    assert rep.score == 0.0 and not rep.passed
+    unobs = {p.name for p in rep.parameters if p.sigma is None}
+    assert "wheel.track" in unobs and "wheel.radius_left" not in unobs
+
+
+def test_planar_driving_leaves_only_vertical_lever_arms(rig):
+    rep = evaluate(drive(profile(VARIED_SPEED, VARIED_CURV), Suspension.rigid()), rig)
+    assert_null_space_is(rep, rig, {"lidar.trans_z", "cam_front.trans_z"})
+    assert {m.coordinates[0][0] for m in rep.weak_modes if m.status == "unobservable"} == {
+        "lidar.trans_z", "cam_front.trans_z"}
+    assert all("vertical lever arm" in m.advice.lower() for m in rep.weak_modes if m.status == "unobservable")
+
+
+def test_straight_driving_only_leaves_track(rig):
+    rep = evaluate(drive(profile(VARIED_SPEED, 0.0), Suspension.rigid()), rig)
+    # no rotation at all: lever arms and the roll about the travel direction go too; time offsets
+    # come back with the speed changes
+    assert_null_space_is(rep, rig, {
+        "lidar.trans_x", "lidar.trans_y", "lidar.trans_z", "lidar.rot_x",
+        "cam_front.trans_x", "cam_front.trans_y", "cam_front.trans_z", "cam_front.rot_z",
+        "wheel.track", "imu.accel_bias_x", "imu.accel_bias_y"})
+
+
+def test_circle_at_constant_speed(rig):
+    rep = evaluate(drive(profile(6.0, 0.08), Suspension.rigid()), rig)
+    w = null_weight(rep, rig)
+    for name in ("lidar.time_offset", "cam_front.time_offset", "lidar.trans_z", "cam_front.trans_z"):
+        assert w[name] > 1 - 1e-6, name
+    # one combination of wheel radii and track
+    assert span_angle_cos(rep, rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"]) > 1 - 1e-6
+    assert w["imu.gyro_bias_z"] < 1e-6
+    assert rep.nullity >= 6  # several coupled directions, as DESIGN.md warns
+
+
+def test_one_constant_curvature_leaves_a_wheel_combination(rig):
+    rep = evaluate(drive(profile(VARIED_SPEED, 0.08), Suspension.rigid()), rig)
+    w = null_weight(rep, rig)
+    assert span_angle_cos(rep, rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"]) > 1 - 1e-6
+    assert span_angle_cos(rep, rig, ["wheel.radius_left", "wheel.radius_right"]) < 0.5  # not the radii alone
+    assert w["lidar.time_offset"] < 1e-6 and w["cam_front.time_offset"] < 1e-6  # speed varies
+
+
+def test_suspension_makes_vertical_lever_arm_weak_but_finite(rig):
+    rep = evaluate(drive(profile(VARIED_SPEED, VARIED_CURV), rig.suspension), rig)
+    assert rep.nullity == 0
+    lidar_z = next(p for p in rep.parameters if p.name == "lidar.trans_z")
+    assert lidar_z.sigma is not None and lidar_z.sigma > 10 * lidar_z.target
+    weak = rep.weak_modes[:2]
+    assert {m.coordinates[0][0] for m in weak} == {"lidar.trans_z", "cam_front.trans_z"}
+    # orders of magnitude below the rest, and far above the numerical zero
+    assert rep.spectrum_scaled[1] < 1e-2 * np.median(rep.spectrum_scaled)
+    assert rep.spectrum_scaled[0] > 100 * rep.rank_threshold
+
+
+# --- invariances ------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def general_drive(rig):
+    return drive(profile(VARIED_SPEED, VARIED_CURV, grade_rad=0.03 * np.sin(KNOTS / 7)), rig.suspension)
+
+
+def test_global_rotation_and_translation_leave_score_unchanged(rig, general_drive):
+    a = evaluate(general_drive, rig)
+    b = evaluate(general_drive.transformed(so3.rot_z(1.234), np.array([4.6e5, 5.4e6, 120.0])), rig)
+    assert b.score == pytest.approx(a.score, rel=1e-6)
+    np.testing.assert_allclose(b.spectrum_scaled, a.spectrum_scaled, rtol=1e-6)
+
+
+def _scaled_noise(rig, factor):
+    data = rig.config.model_dump()
+    imu = data["imu"]
+    for k in ("accelerometer_noise_density", "gyroscope_noise_density"):
+        imu[k] *= factor
+    for s in data["sensors"]:
+        s["noise"]["rotation_sigma_deg"] *= factor
+        s["noise"]["translation_sigma_m"] *= factor
+    data["wheels"]["sigma_rad"] *= factor
+    nh = data["vehicle"]["nonholonomic"]
+    nh["lateral_sigma_mps"] *= factor
+    nh["vertical_sigma_mps"] *= factor
+    return build_rig(data)
+
+
+def test_halving_every_sigma_quadruples_information(rig, general_drive):
+    a = evaluate(general_drive, rig)
+    b = evaluate(general_drive, _scaled_noise(rig, 0.5))
+    np.testing.assert_allclose(b.information_scaled, 4 * a.information_scaled,
+                               atol=1e-9 * np.abs(a.information_scaled).max())
+    assert b.score == pytest.approx(4 * a.score, rel=1e-6)
+
+
+def test_driving_a_route_twice_doubles_information(rig, general_drive):
+    """Two recordings of the same route, calibrated together, carry exactly twice the information:
+    they share the calibration and nothing else (no leak between the trajectories, one gauge each)."""
+    one = evaluate(general_drive, rig)
+    two = evaluate([general_drive, general_drive.transformed(so3.rot_z(0.3), np.array([50.0, 0, 0]))], rig)
+    np.testing.assert_allclose(two.information_scaled, 2 * one.information_scaled,
+                               atol=1e-9 * np.abs(one.information_scaled).max())
+    assert two.score == pytest.approx(2 * one.score, rel=1e-6)
+    assert two.duration_s == pytest.approx(2 * one.duration_s)
+
+
+def test_segments_of_several_drives_each_get_a_gauge(rig, general_drive):
+    rep = evaluate([general_drive, general_drive], rig, Options(segments=3))
+    assert len(rep.segments) == 3  # the middle segment spans both drives and still evaluates
+    assert all(np.isfinite(s.weakest_mode_information) for s in rep.segments)
+
+
+def test_marginal_does_not_depend_on_the_gauge_fix(rig, general_drive):
+    nom = Nominal.of(general_drive, rig)
+    K = nom.n_keyframes
+    ref = _scaled(information.marginal(information.build(nom, rig, gauge_keyframe=0)), rig)
+    scale = np.abs(ref).max()
+    for g in (K // 2, K - 1):
+        other = _scaled(information.marginal(information.build(nom, rig, gauge_keyframe=g)), rig)
+        assert np.abs(other - ref).max() < 1e-9 * scale
+
+
+def _scaled(L, rig):
+    """Λ in units of the targets (entries commensurate; nuisances unscaled)."""
+    S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
+    return L * np.outer(S, S)
+
+
+def test_fast_path_equals_dense_reference(rig):
+    """Small drive: banded/local fast path vs dense numpy, in both parametrisations and with the
+    gauge removed altogether (pseudo-inverse)."""
+    t = np.linspace(0, 12, 13)
+    traj = drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
+                 rig.suspension)
+    nom = Nominal.of(traj, rig)
+    fast = _scaled(information.marginal(information.build(nom, rig)), rig)
+    scale = np.abs(fast).max()
+    references = [
+        information.marginal_dense(information.build(nom, rig, local=False)),
+        information.marginal_dense(information.build(nom, rig, local=False), gauge=False),
+        information.marginal_dense(information.build(nom, rig)),
+        information.marginal_dense(information.build(nom, rig), gauge=False),
+    ]
+    for ref in map(lambda L: _scaled(L, rig), references):
+        assert np.abs(fast - ref).max() < 1e-8 * scale
+        np.testing.assert_allclose(np.linalg.eigvalsh(fast), np.linalg.eigvalsh(ref), atol=1e-8 * scale)
+
+
+def test_sensor_slower_than_keyframes(rig):
+    """A 5 Hz lidar spans two keyframes per measurement (wider band): fast path still equals dense."""
+    data = rig.config.model_dump()
+    data["sensors"][0]["rate_hz"] = 5.0
+    slow = build_rig(data)
+    t = np.linspace(0, 10, 11)
+    nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), slow.suspension), slow)
+    prob = information.build(nom, slow)
+    assert prob.bandwidth_blocks == 2
+    fast = _scaled(information.marginal(prob), slow)
+    ref = _scaled(information.marginal_dense(information.build(nom, slow, local=False)), slow)
+    assert np.abs(fast - ref).max() < 1e-8 * np.abs(fast).max()
+
+
+# --- the report -------------------------------------------------------------------------------
+
+def test_cramer_rao_sigma_and_the_score_guarantee(rig, general_drive):
+    rep = evaluate(general_drive, rig)
+    assert rep.nullity == 0
+    cov = np.linalg.inv(rep.information)
+    for i, p in enumerate(rep.parameters):
+        assert p.sigma == pytest.approx(np.sqrt(cov[i, i]), rel=1e-6)
+        assert p.ok == (p.sigma <= p.target)
+        # DESIGN.md: σ_i ≤ target_i / √score
+        assert p.sigma <= p.target / np.sqrt(rep.score) * (1 + 1e-9)
+    assert rep.score == pytest.approx(rep.spectrum_scaled[0])
+    assert rep.condition_number == pytest.approx(rep.spectrum_scaled[-1] / rep.spectrum_scaled[0])
+    assert rep.passed == all(p.ok for p in rep.parameters)
+
+
+def test_priors_are_reported_separately(rig, general_drive):
+    data = rig.config.model_dump()
+    data["priors"] = {"*.trans_z": "2 cm"}
+    with_prior = build_rig(data)
+    a = evaluate(general_drive, rig)
+    b = evaluate(general_drive, with_prior)
+    assert b.score == pytest.approx(a.score, rel=1e-12)  # the score is the drive's alone
+    z = next(p for p in b.parameters if p.name == "lidar.trans_z")
+    assert z.sigma_with_prior < 0.02 < z.sigma
+    assert b.score_with_priors > b.score and a.score_with_priors is None
+
+
+def test_json_report_contract(rig, general_drive):
+    rep = evaluate(general_drive, rig, Options(segments=4))
+    d = json.loads(json.dumps(rep.to_dict(), allow_nan=False))
+    for key in ("score", "passed", "duration_s", "rank", "nullity", "condition_number", "spectrum_scaled",
+                "column_map", "parameters", "weak_modes", "timings_ms"):
+        assert key in d
+    assert d["spectrum_scaled"] == sorted(d["spectrum_scaled"])
+    assert [c["name"] for c in d["column_map"]] == [p["name"] for p in d["parameters"]]
+    assert set(d["parameters"][0]) >= {"name", "unit", "sigma", "target", "ok"}
+    mode = d["weak_modes"][0]
+    weights = [abs(w) for _, w in mode["coordinates"]]
+    assert weights == sorted(weights, reverse=True) and mode["advice"]
+    assert len(d["segments"]) == 4
+    # a segment alone knows less than the whole drive along the weakest direction
+    assert all(s["weakest_mode_information"] < rep.spectrum_scaled[0] for s in d["segments"])
+
+
+def test_unobservable_parameters_have_null_sigma_in_json(rig):
+    rep = evaluate(drive(profile(10.0, 0.0), Suspension.rigid()), rig)
+    d = json.loads(json.dumps(rep.to_dict(), allow_nan=False))
+    track = next(p for p in d["parameters"] if p["name"] == "wheel.track")
+    assert track["sigma"] is None and track["ok"] is False
+    assert d["condition_number"] is None and d["nullity"] == 13
+
+
+def test_export_npz_round_trip(rig, tmp_path):
+    import scipy.sparse as sp
+
+    t = np.linspace(0, 8, 9)
+    rep = evaluate(drive(ControlProfile(t, 5 + np.sin(t), 0.05 * np.sin(t)), rig.suspension), rig)
+    path = tmp_path / "dbg.npz"
+    rep.export_npz(path)
+    z = np.load(path)
+    J = sp.coo_matrix((z["J_data"], (z["J_row"], z["J_col"])), shape=tuple(z["J_shape"])).toarray()
+    H = sp.coo_matrix((z["H_data"], (z["H_row"], z["H_col"])), shape=tuple(z["H_shape"])).toarray()
+    np.testing.assert_allclose(J.T @ J, H, atol=1e-9 * np.abs(H).max())
+    order = list(z["variable_order"])
+    assert len(order) == J.shape[1] and order[-1] == "wheel.track" and order[0] == "x0.rot_x"
+    # the exported H reproduces the exported marginal
+    p = len(rig.coordinates)
+    Hxx, Hxt, Htt = H[:-p, :-p], H[:-p, -p:], H[-p:, -p:]
+    Lam = Htt - Hxt.T @ np.linalg.solve(Hxx, Hxt)
+    np.testing.assert_allclose(Lam, z["information_all"], atol=1e-8 * np.abs(Lam).max())
+    assert list(z["column_names"]) == [c.name for c in rig.scored]
+
+
+def test_too_short_drive_is_a_clear_error(rig):
+    from excite.errors import EvaluationError
+
+    t = np.linspace(0, 0.15, 4)
+    with pytest.raises(EvaluationError, match="too short"):
+        evaluate(drive(ControlProfile(t, np.ones(4), np.zeros(4))), rig)
