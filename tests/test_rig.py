@@ -1,0 +1,96 @@
+"""Rig configs: the bundled rig, Kalibr IMU files, units, and errors that name the key."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from excite.cli import main
+from excite.errors import RigError
+from excite.rig import RIGS_DIR, build_rig, load_rig, parse_quantity
+
+
+def base():
+    return yaml.safe_load((RIGS_DIR / "robotaxi.yaml").read_text())
+
+
+def test_bundled_rig_estimates_every_parameter():
+    rig = load_rig("robotaxi")
+    names = [c.name for c in rig.scored]
+    assert names[:7] == ["lidar.rot_x", "lidar.rot_y", "lidar.rot_z", "lidar.trans_x", "lidar.trans_y",
+                         "lidar.trans_z", "lidar.time_offset"]
+    assert {"imu.gyro_bias_z", "imu.accel_bias_x", "wheel.radius_left", "wheel.radius_right",
+            "wheel.track", "cam_front.time_offset"} <= set(names)
+    assert [c.name for c in rig.coordinates if c.nuisance] == ["cam_front.scale"]
+    assert rig.keyframe_rate_hz == 10.0
+    assert next(c for c in rig.scored if c.name == "lidar.rot_x").target == pytest.approx(math.radians(0.05))
+
+
+@pytest.mark.parametrize("text, unit, expected", [
+    ("0.5 cm", "m", 0.005), ("0.05 deg", "rad", math.radians(0.05)), ("0.5 ms", "s", 5e-4),
+    (0.002, "m", 0.002), ("2 mg", "m/s^2", 2 * 9.80665e-3), ("10 deg/h", "rad/s", math.radians(10) / 3600)])
+def test_quantities_with_units(text, unit, expected):
+    assert parse_quantity(text, unit, "k") == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("text, unit, message", [
+    ("1 cm", "rad", "not a unit of rad"), ("-1 cm", "m", "positive"), ("abc", "m", "cannot read"),
+    ("1 furlong", "m", "unknown unit"), ("nan", "m", "cannot read"), (float("nan"), "m", "positive and finite"),
+    (float("inf"), "m", "positive and finite")])
+def test_bad_quantities_name_the_key(text, unit, message):
+    with pytest.raises(RigError, match=message) as e:
+        parse_quantity(text, unit, "targets.x")
+    assert "targets.x" in str(e.value)
+
+
+def test_kalibr_imu_yaml_loads_as_is(tmp_path):
+    (tmp_path / "imu.yaml").write_text(
+        "rostopic: /imu0\nupdate_rate: 200.0\naccelerometer_noise_density: 0.0028\n"
+        "accelerometer_random_walk: 0.00086\ngyroscope_noise_density: 0.00016\n"
+        "gyroscope_random_walk: 2.2e-05\n")
+    data = base()
+    data["imu"] = "imu.yaml"
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(data))
+    rig = load_rig(tmp_path / "rig.yaml")
+    assert rig.config.imu.gyroscope_noise_density == 0.00016
+    assert rig.config.imu.update_rate == 200.0
+
+
+@pytest.mark.parametrize("mutate, key", [
+    (lambda d: d["imu"].pop("gyroscope_noise_density"), "imu.gyroscope_noise_density"),
+    (lambda d: d["imu"].__setitem__("gyroscope_noise_density", -1), "imu.gyroscope_noise_density"),
+    (lambda d: d["sensors"][0].__setitem__("rate_hz", 3.0), "sensors.0.rate_hz"),
+    (lambda d: d["sensors"][0].__setitem__("colour", "red"), "sensors.0.colour"),
+    (lambda d: d["targets"].pop("wheel.track"), "wheel.track"),
+    (lambda d: d["targets"].__setitem__("lidar.rot_w", "1 deg"), "targets.lidar.rot_w"),
+    (lambda d: d["sensors"][1].__setitem__("name", "lidar"), "sensors"),
+    (lambda d: d["imu"].__setitem__("update_rate", 205), "imu.update_rate"),
+    (lambda d: d["sensors"][0]["T_B_S"].__setitem__("matrix", [[1, 0, 0], [0, 1, 0], [0, 0, 1]]), "sensors.0.T_B_S"),
+])
+def test_errors_name_the_key(mutate, key):
+    data = base()
+    mutate(data)
+    with pytest.raises(RigError) as e:
+        build_rig(data)
+    assert key in str(e.value)
+
+
+def test_unknown_bundled_rig_lists_the_bundled_ones():
+    with pytest.raises(RigError, match="bundled: robotaxi"):
+        load_rig("nosuch")
+
+
+def test_bad_yaml_names_file_and_line(tmp_path):
+    p = tmp_path / "rig.yaml"
+    p.write_text("name: x\nimu: [\n")
+    with pytest.raises(RigError, match=r"rig.yaml, line \d+: not valid YAML"):
+        load_rig(p)
+
+
+def test_rig_show_prints_the_bundled_rig(capsys):
+    assert main(["rig", "show", "robotaxi"]) == 0
+    out = capsys.readouterr().out
+    assert yaml.safe_load(out)["name"] == "robotaxi"
+    assert main(["rig", "show", "nosuch"]) == 1
