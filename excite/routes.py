@@ -411,7 +411,7 @@ def read_geojson(path: str | Path, *, limits: Limits = Limits(),
     if np.any(np.abs(ll[:, 0]) > 180) or np.any(np.abs(ll[:, 1]) > 90):
         raise RouteError("coordinates must be [lon, lat] in degrees (|lon| ≤ 180, |lat| ≤ 90)",
                          source=src, line=cline)
-    lon0, lat0 = ll[0, 0], ll[0, 1]
+    lon0, lat0 = float(ll[0, 0]), float(ll[0, 1])
     tm = Transformer.from_crs("EPSG:4326", f"+proj=tmerc +lat_0={lat0!r} +lon_0={lon0!r} +k=1 "
                               "+x_0=0 +y_0=0 +ellps=WGS84 +units=m", always_xy=True)
     x, y = tm.transform(ll[:, 0], ll[:, 1])

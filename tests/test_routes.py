@@ -1,0 +1,223 @@
+"""Route readers: rejections name file and line; writers round-trip through their readers."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from excite import routes
+from excite.cli import main
+from excite.errors import RouteError
+from excite.vehicle import Limits, check_limits, drive
+from helpers import weave_drive, weave_profile
+
+TUM_OK = "\n".join(f"{0.1 * i:.1f} {i:.1f} 0 0 0 0 0 1" for i in range(10)) + "\n"
+KITTI_ROW = "1 0 0 {x} 0 1 0 0 0 0 1 {z}"
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _tum_with(line_no: int, row: str) -> str:
+    rows = TUM_OK.splitlines()
+    rows[line_no - 1] = row
+    return "\n".join(rows) + "\n"
+
+
+REJECTIONS = [
+    # (file name, content, line, words in the problem)
+    ("empty.tum", "", None, "empty"),
+    ("comments.tum", "# only a comment\n", None, "empty"),
+    ("cols.tum", _tum_with(4, "0.3 1 2 3 0 0 0"), 4, "expected 8 columns, got 7"),
+    ("nan.tum", _tum_with(5, "0.4 nan 0 0 0 0 0 1"), 5, "NaN"),
+    ("inf.tum", _tum_with(6, "0.5 inf 0 0 0 0 0 1"), 6, "infinite"),
+    ("word.tum", _tum_with(3, "0.2 one 0 0 0 0 0 1"), 3, "cannot parse 'one'"),
+    ("dup.tum", _tum_with(7, "0.5 6 0 0 0 0 0 1"), 7, "duplicate time"),
+    ("back.tum", _tum_with(7, "0.4 6 0 0 0 0 0 1"), 7, "backwards"),
+    ("quat.tum", _tum_with(8, "0.7 7 0 0 0 0 0 1.01"), 8, "norm"),
+    ("few.tum", "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n", 2, "too few poses"),
+    ("cols.csv", "x,y\n0,0\n1,1,1\n", 3, "expected 2 columns, got 3"),
+    ("header.csv", "x,q\n0,0\n1,1\n", 1, "waypoint header"),
+    ("one.csv", "x,y\n0,0\n", 2, "too few waypoints"),
+    ("repeat.csv", "0,0\n5,0\n5,0\n", 3, "repeats"),
+    ("stall.csv", "x,y,speed\n0,0,0\n5,0,0\n9,0,1\n", 3, "speed is 0"),
+    ("negspeed.csv", "x,y,z,speed\n0,0,0,1\n5,0,0,-1\n", 3, "negative speed"),
+    ("control.csv", "t_s,speed_mps,curvature_1pm\n0,1,0\n1,1,0\n1,2,0\n", 4, "duplicate time"),
+    ("control_neg.csv", "t,speed,curvature\n0,1,0\n1,-1,0\n", 3, "negative speed"),
+    ("control_nan.csv", "t,speed,curvature,grade\n0,1,0,0\n1,1,nan,0\n", 3, "NaN"),
+    ("euroc.csv", "#timestamp,px,py,pz,qw,qx,qy,qz\n" +
+     "".join(f"{i * 5000000},{i},0,0,1,0,0,0\n" for i in range(8)) + "40000000,9,0,0,2,0,0,0\n",
+     10, "norm"),
+    ("euroc_cols.csv", "#timestamp,px,py,pz\n0,1,2,3\n", 2, "at least 8 columns"),
+    ("kitti3.txt", "1 2 3\n", None, "cannot tell the format"),
+]
+
+
+@pytest.mark.parametrize("name,text,line,words", REJECTIONS, ids=[r[0] for r in REJECTIONS])
+def test_reader_rejects_malformed_input_naming_file_and_line(tmp_path, name, text, line, words):
+    path = _write(tmp_path, name, text)
+    with pytest.raises(RouteError) as exc:
+        routes.read_route(path)
+    assert exc.value.source == str(path) and exc.value.line == line
+    assert words in str(exc.value) and str(path) in str(exc.value)
+    if line is not None:
+        assert f"line {line}:" in str(exc.value)
+
+
+def _kitti(tmp_path, n_poses, n_times, bad_row=None):
+    rows = [KITTI_ROW.format(x=0.0, z=float(i)) for i in range(n_poses)]
+    if bad_row is not None:
+        rows[bad_row - 1] = "2 0 0 0 0 1 0 0 0 0 1 5"
+    poses = _write(tmp_path, "poses.txt", "\n".join(rows) + "\n")
+    times = _write(tmp_path, "times.txt", "".join(f"{0.1 * i}\n" for i in range(n_times)))
+    return poses, times
+
+
+def test_kitti_rejects_length_mismatch(tmp_path):
+    poses, times = _kitti(tmp_path, 10, 9)
+    with pytest.raises(RouteError, match=r"times\.txt, line 9: 9 times for 10 poses"):
+        routes.read_route(poses, times=times)
+
+
+def test_kitti_rejects_non_rotation(tmp_path):
+    poses, times = _kitti(tmp_path, 10, 10, bad_row=6)
+    with pytest.raises(RouteError, match=r"poses\.txt, line 6: the 3x3 block is not a rotation"):
+        routes.read_route(poses, times=times)
+
+
+def test_kitti_without_times_is_explained(tmp_path):
+    poses, _ = _kitti(tmp_path, 10, 10)
+    with pytest.raises(RouteError, match="--times"):
+        routes.read_route(poses)
+
+
+def test_kitti_camera_forward_is_vehicle_x(tmp_path):
+    poses, times = _kitti(tmp_path, 20, 20)  # camera moving along its z (forward) at 10 m/s
+    s = routes.read_route(poses, times=times).sample(np.array([1.0]))
+    np.testing.assert_allclose(s.v_W[0], [10.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(s.R_W_V[0], np.eye(3), atol=1e-9)
+
+
+@pytest.mark.parametrize("doc,words", [
+    ({"type": "Point", "coordinates": [8.5, 47.3]}, "not a LineString"),
+    ({"type": "FeatureCollection", "features": []}, "exactly one"),
+    ({"type": "LineString", "coordinates": [[8.5, 47.3]]}, "too few waypoints"),
+    ({"type": "LineString", "coordinates": [[8.5, 47.3], [8.5, 147.3]]}, "degrees"),
+    ({"type": "LineString", "coordinates": [[8.5, 47.3], [8.5]]}, "all alike"),
+])
+def test_geojson_rejections_name_the_line(tmp_path, doc, words):
+    path = _write(tmp_path, "r.geojson", json.dumps(doc, indent=1))
+    with pytest.raises(RouteError, match=words) as exc:
+        routes.read_route(path)
+    assert exc.value.line is not None and exc.value.source == str(path)
+
+
+def test_geojson_syntax_error_names_the_line(tmp_path):
+    path = _write(tmp_path, "bad.geojson", '{\n "type": "LineString",\n "coordinates": [[1, 2],,]\n}')
+    with pytest.raises(RouteError, match="line 3: not valid JSON"):
+        routes.read_route(path)
+
+
+def test_geojson_is_projected_to_metres(tmp_path):
+    # 0.001 deg of latitude ≈ 111 m north; the path starts at the origin.
+    coords = [[8.54, 47.37 + 0.0005 * i, 400.0] for i in range(5)]
+    path = _write(tmp_path, "north.geojson", json.dumps(
+        {"type": "Feature", "properties": {"speed_mps": 5.0},
+         "geometry": {"type": "LineString", "coordinates": coords}}))
+    traj = routes.read_route(path)
+    s = traj.sample(traj.times(10.0))
+    assert traj.length_m() == pytest.approx(4 * 55.6, rel=0.01)
+    assert np.abs(s.p_W_V[:, 0]).max() < 0.5 and s.p_W_V[-1, 1] > 200
+    assert np.abs(s.p_W_V[:, 2]).max() < 1e-6
+
+
+def test_waypoints_speed_from_limits(tmp_path):
+    path = _write(tmp_path, "w.csv", "x,y\n0,0\n40,0\n60,20\n60,60\n")
+    traj = routes.read_route(path)
+    assert check_limits(traj, Limits()) == []
+    s = traj.sample(traj.times(10.0))
+    assert s.speed[0] == pytest.approx(0.0, abs=0.05) and s.speed[-1] == pytest.approx(0.0, abs=0.05)
+    assert np.linalg.norm(s.p_W_V[-1, :2] - [60, 60]) < 1.0
+
+
+# ------------------------------------------------------------------------------------------
+# Round trips
+
+
+def test_tum_round_trip(tmp_path):
+    traj = weave_drive()
+    back = routes.read_route(routes.write_tum(traj, tmp_path / "w.tum", rate_hz=20.0))
+    t = np.linspace(1.0, traj.duration - 1.0, 200)
+    a, b = traj.sample(t), back.sample(t)
+    assert np.abs(a.p_W_V - b.p_W_V).max() < 0.01  # after re-centring: the drive starts at 0
+    ang = np.linalg.norm(routes.so3.log(np.swapaxes(a.R_W_V, 1, 2) @ b.R_W_V), axis=1)
+    assert np.degrees(ang).max() < 0.05
+    assert np.abs(a.speed - b.speed).max() < 0.05
+
+
+def test_control_csv_round_trip(tmp_path):
+    prof = weave_profile()
+    path = routes.write_control_csv(prof, tmp_path / "c.csv")
+    back = routes.read_control_profile(path)
+    for name in ("t_s", "speed_mps", "curvature_1pm", "grade_rad", "bank_rad"):
+        np.testing.assert_allclose(getattr(back, name), getattr(prof, name), rtol=1e-9, atol=1e-12)
+    assert back.start == prof.start
+    a = drive(prof).sample(np.linspace(0, 30, 50))
+    b = routes.read_route(path).sample(np.linspace(0, 30, 50))
+    np.testing.assert_allclose(a.p_W_V, b.p_W_V, atol=1e-6)
+
+
+def test_control_csv_of_a_trajectory_reproduces_it(tmp_path):
+    traj = weave_drive()
+    back = routes.read_route(routes.write_control_csv(traj, tmp_path / "c.csv", rate_hz=10.0))
+    t = np.linspace(0, traj.duration, 100)
+    assert np.abs(traj.sample(t).p_W_V - back.sample(t).p_W_V).max() < 0.1
+
+
+def test_waypoints_round_trip(tmp_path):
+    traj = weave_drive()
+    back = routes.read_route(routes.write_waypoints_csv(traj, tmp_path / "w.csv", spacing_m=2.0))
+    a = traj.sample(traj.times(20.0)).p_W_V
+    b = back.sample(back.times(20.0)).p_W_V
+    # Same path (every point of one is near the other) and about the same timing.
+    d = np.linalg.norm(a[:, None, :2] - b[None, :, :2], axis=2).min(axis=1)
+    assert d.max() < 0.3
+    assert back.duration == pytest.approx(traj.duration, rel=0.02)
+    assert back.length_m() == pytest.approx(traj.length_m(), rel=0.005)
+
+
+# ------------------------------------------------------------------------------------------
+# CLI
+
+
+def test_route_info_prints_ranges_and_violations(data_dir, capsys):
+    code = main(["route", "info", str(data_dir / "kitti_00_poses.txt"), "--times",
+                 str(data_dir / "kitti_00_times.txt")])
+    out = capsys.readouterr().out
+    assert code == 0
+    for words in ("470.6 s", "speed [m/s]", "yaw rate [deg/s]", "pitch [deg]", "roll [deg]",
+                  "limit violation"):
+        assert words in out
+
+
+def test_route_info_error_is_one_line(tmp_path, capsys):
+    path = _write(tmp_path, "bad.tum", _tum_with(5, "0.4 nan 0 0 0 0 0 1"))
+    assert main(["route", "info", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"excite: error: {path}, line 5: column 2 is NaN"
+
+
+def test_route_info_subprocess(tmp_path):
+    path = routes.write_control_csv(weave_profile(), tmp_path / "weave.csv")
+    cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main())"]
+    done = subprocess.run(cmd + ["route", "info", str(path)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "30.0 s" in done.stdout and "within all limits" in done.stdout
