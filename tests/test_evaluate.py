@@ -310,3 +310,20 @@ def test_too_short_drive_is_a_clear_error(rig):
     t = np.linspace(0, 0.15, 4)
     with pytest.raises(EvaluationError, match="too short"):
         evaluate(drive(ControlProfile(t, np.ones(4), np.zeros(4))), rig)
+
+
+def test_kitti_00_report_makes_physical_sense(rig, data_dir):
+    """KITTI 00 is 470 s of urban driving: many turns and stops, nearly planar. Turns determine the
+    wheel track and the time offsets; the vertical lever arms are the weakest directions."""
+    from excite.routes import read_kitti
+
+    traj = read_kitti(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt")
+    rep = evaluate(traj, rig)
+    assert rep.nullity == 0 and 0 < rep.score < 1
+    assert {rep.weak_modes[0].coordinates[0][0], rep.weak_modes[1].coordinates[0][0]} == {
+        "lidar.trans_z", "cam_front.trans_z"}
+    sig = {p.name: p for p in rep.parameters}
+    assert sig["wheel.track"].ok and sig["wheel.radius_left"].ok and sig["imu.gyro_bias_z"].ok
+    assert sig["lidar.time_offset"].sigma < 2e-3
+    assert sig["lidar.trans_z"].sigma > 5 * sig["lidar.trans_x"].sigma
+    assert 3500 < rep.length_m < 3900 and 460 < rep.duration_s < 475
