@@ -1,0 +1,15 @@
+"""Plan a calibration maneuver: maximise the score λ_min(S Λ_θ S) over feasible drives.
+
+:func:`optimize` is the whole pipeline as a plain function (no I/O): choose a start among the
+reference maneuvers and random candidates, maximise the minimum eigenvalue of the evaluator's
+information model with IPOPT (exact derivatives from CasADi), re-score the result with the full
+evaluator and compare it with the baselines. The CLI (``excite optimize``) and the HTTP service
+are thin layers over it.
+"""
+
+from __future__ import annotations
+
+from .settings import OptimizeError, OptimizeResult, OptimizeSettings, Progress
+from .pipeline import optimize
+
+__all__ = ["OptimizeError", "OptimizeResult", "OptimizeSettings", "Progress", "optimize"]

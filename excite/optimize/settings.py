@@ -1,0 +1,114 @@
+"""Settings, progress reports and the result of an optimization (plain data)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import ExciteError
+from ..evaluate import Report
+from ..trajectory import Trajectory
+from ..vehicle import ControlProfile, Limits
+
+
+class OptimizeError(ExciteError, ValueError):
+    """The optimization cannot be set up (bad settings, a lot too small for the limits)."""
+
+
+@dataclass(frozen=True)
+class OptimizeSettings:
+    """What to optimize for. SI units.
+
+    ``duration_s``: length of the maneuver, from rest to rest.
+    ``lot_width_m`` × ``lot_length_m``: the rectangular test lot, the first number along the
+    world x axis (the ``80`` of ``--lot 80x50``), the second along y; centred on the origin.
+    The path of the rear axle stays ``maneuvers.EDGE_MARGIN_M`` (3 m) inside its edges, like the
+    reference maneuvers and the random candidates it is compared with.
+    ``limits``: every vehicle limit (speed, acceleration, deceleration, jerk, lateral
+    acceleration, curvature, curvature rate), enforced at sample points.
+    ``seed``: random candidates and multi-starts; the same seed gives the same result (up to
+    the time budget cutting a run short at a different iteration).
+    ``time_budget_s``: wall-clock budget of the optimization phase (IPOPT, all starts); the
+    derivative-free baseline gets the same budget.
+    ``closed``: the end pose equals the start pose (position and heading).
+    ``n_random``: random candidates drawn for the start and the comparison (0: none).
+    """
+
+    duration_s: float = 90.0
+    lot_width_m: float = 80.0
+    lot_length_m: float = 50.0
+    limits: Limits = field(default_factory=Limits)
+    seed: int = 0
+    time_budget_s: float = 60.0
+    closed: bool = False
+    n_random: int = 200
+
+    def __post_init__(self) -> None:
+        def finite(name: str) -> float:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise OptimizeError(f"{name} must be a finite number, got {value!r}")
+            return float(value)
+
+        if not 10.0 <= finite("duration_s") <= 600.0:
+            raise OptimizeError(f"duration_s must be between 10 and 600 s, got {self.duration_s!r}")
+        for name in ("lot_width_m", "lot_length_m"):
+            if not 15.0 <= finite(name) <= 2000.0:
+                raise OptimizeError(f"{name} must be between 15 and 2000 m, got {getattr(self, name)!r}")
+        if not 0.5 <= finite("time_budget_s") <= 3600.0:
+            raise OptimizeError(f"time_budget_s must be between 0.5 and 3600 s, got {self.time_budget_s!r}")
+        if not isinstance(self.limits, Limits):
+            raise OptimizeError(f"limits must be an excite.vehicle.Limits, got {type(self.limits).__name__}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise OptimizeError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if isinstance(self.n_random, bool) or not isinstance(self.n_random, int) or not 0 <= self.n_random <= 10000:
+            raise OptimizeError(f"n_random must be an integer between 0 and 10000, got {self.n_random!r}")
+        if not isinstance(self.closed, bool):
+            raise OptimizeError(f"closed must be true or false, got {self.closed!r}")
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One progress report: the optimizer's iteration, the current λ_min of its (coarse) model,
+    the largest constraint violation, the wall time since the start, and the phase
+    (``"start"``, ``"optimize"``, ``"baseline"``, ``"rescore"``, ``"done"``)."""
+
+    iteration: int
+    score: float
+    constraint_violation: float
+    elapsed_s: float
+    phase: str
+
+
+@dataclass
+class OptimizeResult:
+    """The optimized maneuver, its full evaluator report, and the comparison with the baselines.
+
+    ``comparison``: one row per candidate, best first: ``{name, kind, score, ratio, feasible,
+    violations}`` with ``kind`` one of ``optimized``, ``reference``, ``random``, ``cobyla``,
+    ``start``; ``score`` from the full evaluator; ``ratio`` = optimized score / this score.
+    ``status``: ``"optimal"`` (converged), ``"time_budget"``, ``"cancelled"`` or
+    ``"start_only"`` (no feasible improvement over the start was found).
+    """
+
+    profile: ControlProfile
+    trajectory: Trajectory
+    report: Report
+    comparison: list[dict[str, Any]]
+    status: str
+    iterations: int
+    elapsed_s: float
+    cancelled: bool
+    model_score: float = float("nan")  # λ_min of the optimizer's coarse model at the result
+    timings_s: dict[str, float] = field(default_factory=dict)
+    message: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (the report is :meth:`Report.to_dict`)."""
+        return {
+            "status": self.status, "iterations": self.iterations, "elapsed_s": self.elapsed_s,
+            "cancelled": self.cancelled, "model_score": self.model_score, "score": self.report.score,
+            "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison,
+            "report": self.report.to_dict(),
+        }
