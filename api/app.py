@@ -1,0 +1,71 @@
+"""The app factory: settings → a FastAPI app with its middleware, routers, store and workers.
+
+Start-up opens the job store, re-queues jobs a dead server left running, starts the job
+dispatcher and the scoring processes; shutdown stops them and puts running jobs back in the
+queue for the next server.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import asynccontextmanager
+from typing import AsyncIterator
+
+import anyio
+from fastapi import FastAPI
+from prometheus_client import CollectorRegistry, Gauge
+
+from . import problems
+from .context import Context
+from .jobs import JobRunner
+from .middleware import BodyLimit, Metrics, TimeLimit
+from .routers import batch, health, jobs, maneuvers, rigs, score
+from .scoring import ScorePool
+from .settings import Settings
+from .store import JobStore
+
+log = logging.getLogger("excite.api")
+
+DESCRIPTION = """\
+Score planned or logged drives for how well they determine every sensor calibration parameter
+of a rig, plan calibration maneuvers, and gate routes in CI. Errors are
+`application/problem+json` (RFC 9457) and name the offending field.
+"""
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The service configured by ``settings`` (default: from the ``EXCITE_*`` environment)."""
+    settings = settings or Settings()
+    store = JobStore(settings.db_path)
+    registry = CollectorRegistry()
+    ctx = Context(
+        settings=settings, store=store,
+        runner=JobRunner(store, settings.workers, settings.job_function, settings.cancel_grace_s,
+                         settings.worker_memory_mb),
+        pool=ScorePool(settings.score_workers, settings.worker_memory_mb),
+        registry=registry,
+        jobs_gauge=Gauge("excite_jobs", "Jobs in the store by status", ["status"], registry=registry),
+        started_at=time.time())
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        ctx.runner.start()
+        await anyio.to_thread.run_sync(ctx.pool.start)
+        log.info("excite service ready (db %s)", settings.db_path)
+        try:
+            yield
+        finally:
+            ctx.runner.stop()
+            ctx.pool.close()
+
+    app = FastAPI(title="excite", version="1", description=DESCRIPTION, lifespan=lifespan)
+    app.state.ctx = ctx
+    problems.install(app)
+    for module in (score, batch, maneuvers, jobs, rigs, health):
+        app.include_router(module.router)
+    # added last = outermost: metrics see every answer, the body limit comes before the clock
+    app.add_middleware(TimeLimit, timeout_s=settings.request_timeout_s)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(Metrics, registry=registry)
+    return app

@@ -1,0 +1,75 @@
+"""What the routers need, carried by dependencies: settings, the job store and runner, the
+scoring pool and the metrics registry."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import time
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+from fastapi import Depends, Request
+from prometheus_client import CollectorRegistry, Gauge
+
+from .jobs import JobRunner
+from .problems import ProblemError
+from .scoring import Bounds, ScorePool, score_task
+from .settings import Settings
+from .store import JobStore
+
+
+@dataclass
+class Context:
+    settings: Settings
+    store: JobStore
+    runner: JobRunner
+    pool: ScorePool
+    registry: CollectorRegistry
+    jobs_gauge: Gauge
+    started_at: float
+
+    @property
+    def bounds(self) -> Bounds:
+        s = self.settings
+        return Bounds(s.max_samples, s.max_route_duration_s, s.max_route_length_m)
+
+    def submit_score(self, route: dict[str, Any], rig: Any, segments: int,
+                     limits: dict[str, float] | None, field: str = "route") -> cf.Future:
+        return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field)
+
+    def wait(self, futures: list[cf.Future], deadline: float) -> list[dict[str, Any]]:
+        """The results of ``futures`` by ``deadline`` (monotonic), else 503 (queued work is
+        dropped)."""
+        out = []
+        for f in futures:
+            try:
+                out.append(f.result(timeout=max(0.0, deadline - time.monotonic())))
+            except cf.TimeoutError:
+                for g in futures:
+                    g.cancel()
+                raise ProblemError(503, "the request exceeded the time limit of "
+                                        f"{self.settings.request_timeout_s:g} s",
+                                   type_="timeout", headers={"Retry-After": "10"}) from None
+            except cf.process.BrokenProcessPool:
+                raise ProblemError(503, "a scoring worker died; retry the request",
+                                   type_="unavailable", headers={"Retry-After": "1"}) from None
+        return out
+
+    def deadline(self) -> float:
+        # a little under the middleware's limit, so the router answers first
+        return time.monotonic() + 0.95 * self.settings.request_timeout_s
+
+
+def get_context(request: Request) -> Context:
+    return request.app.state.ctx
+
+
+Ctx = Annotated[Context, Depends(get_context)]
+
+
+def raise_problem(result: dict[str, Any]) -> None:
+    """Raise the problem a score task returned."""
+    status = result["status"]
+    if status >= 500:
+        raise ProblemError(500, "The server failed to score this route; the error is logged.")
+    raise ProblemError(status, result["detail"], errors=result["errors"])

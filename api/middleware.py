@@ -1,0 +1,142 @@
+"""ASGI middleware: bounded bodies, a time limit per request, request metrics.
+
+Plain ASGI (not ``BaseHTTPMiddleware``) so that the body limit also counts a streamed body
+without buffering it, and so that a timed-out request still gets a problem document.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from typing import Any, Awaitable, Callable
+
+from prometheus_client import CollectorRegistry, Counter, Histogram
+
+from .problems import PROBLEM_JSON, TYPE_BASE
+
+log = logging.getLogger("excite.api")
+
+ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
+
+
+async def send_problem(send: Callable, status: int, title: str, type_: str, detail: str,
+                       instance: str, headers: list[tuple[bytes, bytes]] | None = None) -> None:
+    body = json.dumps({"type": TYPE_BASE + type_, "title": title, "status": status,
+                       "detail": detail, "instance": instance}).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", PROBLEM_JSON.encode()),
+                            (b"content-length", str(len(body)).encode()), *(headers or [])]})
+    await send({"type": "http.response.body", "body": body})
+
+
+class _TooLarge(Exception):
+    pass
+
+
+class BodyLimit:
+    """413 when Content-Length or the streamed body exceeds ``max_bytes``."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int):
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        detail = f"the request body exceeds the limit of {self.max_bytes} bytes"
+        for name, value in scope.get("headers", []):
+            if name == b"content-length":
+                try:
+                    too_big = int(value) > self.max_bytes
+                except ValueError:
+                    too_big = False
+                if too_big:
+                    return await send_problem(send, 413, "Content too large", "too-large", detail,
+                                              scope.get("path", ""), [(b"connection", b"close")])
+        seen = 0
+        started = False
+
+        async def counted() -> dict:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.max_bytes:
+                    raise _TooLarge
+            return message
+
+        async def tracked(message: dict) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, counted, tracked)
+        except _TooLarge:
+            if not started:
+                await send_problem(send, 413, "Content too large", "too-large", detail,
+                                   scope.get("path", ""), [(b"connection", b"close")])
+
+
+class TimeLimit:
+    """503 when a request takes longer than ``timeout_s`` (the work itself is bounded by the
+    input limits; this bounds the client's wait)."""
+
+    def __init__(self, app: ASGIApp, timeout_s: float):
+        self.app, self.timeout_s = app, timeout_s
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def tracked(message: dict) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await asyncio.wait_for(self.app(scope, receive, tracked), self.timeout_s)
+        except asyncio.TimeoutError:
+            log.warning("%s %s exceeded the time limit of %g s", scope.get("method"),
+                        scope.get("path"), self.timeout_s)
+            if not started:
+                await send_problem(send, 503, "Service unavailable", "timeout",
+                                   f"the request exceeded the time limit of {self.timeout_s:g} s",
+                                   scope.get("path", ""), [(b"retry-after", b"10")])
+
+
+class Metrics:
+    """Prometheus counters and latency histograms per route template, method and status."""
+
+    def __init__(self, app: ASGIApp, registry: CollectorRegistry):
+        self.app = app
+        self.requests = Counter("excite_http_requests_total", "HTTP requests",
+                                ["method", "route", "status"], registry=registry)
+        self.latency = Histogram("excite_http_request_duration_seconds", "HTTP request latency",
+                                 ["method", "route"], registry=registry,
+                                 buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10,
+                                          30, 60))
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        status = {"code": 500}
+        t0 = time.perf_counter()
+
+        async def tracked(message: dict[str, Any]) -> None:
+            if message["type"] == "http.response.start":
+                status["code"] = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracked)
+        finally:
+            route = scope.get("route")
+            name = getattr(route, "path", None) or "unmatched"
+            method = scope.get("method", "")
+            self.requests.labels(method, name, str(status["code"])).inc()
+            self.latency.labels(method, name).observe(time.perf_counter() - t0)

@@ -1,0 +1,21 @@
+"""Problem responses every operation documents."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..problems import PROBLEM_JSON
+from ..schemas import Problem
+
+
+def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    text = {404: "Unknown resource", 409: "Conflict with the resource's state",
+            413: "Body, route or batch too large (the bound is in the detail)",
+            422: "Invalid input (the offending field is named in `errors`)",
+            500: "Internal error (no details; logged server-side)",
+            503: "Time limit exceeded or not ready"}
+    return {s: {"model": Problem, "description": text[s], "content": {PROBLEM_JSON: {}}}
+            for s in statuses}
+
+
+BODY = problems(413, 422, 500, 503)

@@ -1,0 +1,96 @@
+"""``/v1/jobs/{id}``: status, progress and result of a job; cancel it; download its maneuver."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Path, Query, Response
+
+from ..context import Ctx
+from ..export import MEDIA, maneuver_file
+from ..problems import ProblemError
+from ..schemas import Job
+from ..scoring import resolve_rig
+from .common import problems
+
+router = APIRouter(prefix="/v1", tags=["jobs"])
+
+JobId = Annotated[str, Path(max_length=64, description="The id returned by POST /v1/maneuvers.")]
+
+
+def job_view(job: dict[str, Any]) -> dict[str, Any]:
+    """The public view of a stored job (the request and the raw profile stay inside)."""
+    result = job["result"]
+    if result is not None:
+        result = {k: v for k, v in result.items() if k != "profile"}
+    links = {"self": f"/v1/jobs/{job['id']}"}
+    if job["result"] is not None and job["result"].get("profile") is not None:
+        links["maneuver"] = f"/v1/jobs/{job['id']}/maneuver?format=tum"
+    return {"id": job["id"], "kind": job["kind"], "status": job["status"],
+            "cancel_requested": bool(job["cancel_requested"]), "created_at": job["created_at"],
+            "started_at": job["started_at"], "finished_at": job["finished_at"],
+            "attempts": job["attempt"], "progress": job["progress"], "result": result,
+            "error": job["error"], "links": links}
+
+
+def _get(ctx: Ctx, job_id: str) -> dict[str, Any]:
+    job = ctx.store.get(job_id)
+    if job is None:
+        raise ProblemError(404, f"no job with id {job_id!r}")
+    return job
+
+
+@router.get("/jobs/{job_id}", response_model=Job, responses=problems(404, 422, 500),
+            summary="A job: status, progress (iteration, current score), result when done")
+def get_job(job_id: JobId, ctx: Ctx) -> Any:
+    return job_view(_get(ctx, job_id))
+
+
+@router.delete("/jobs/{job_id}", response_model=Job, responses=problems(404, 409, 422, 500),
+               summary="Cancel a job",
+               description="A queued job is cancelled at once (200). A running job is asked to "
+                           "stop (202): it finishes as `cancelled`, with the best maneuver so far "
+                           "when the optimizer has one. A finished job cannot be cancelled (409).")
+def cancel_job(job_id: JobId, ctx: Ctx, response: Response) -> Any:
+    status = ctx.store.cancel(job_id)
+    if status is None:
+        raise ProblemError(404, f"no job with id {job_id!r}")
+    if status in ("succeeded", "failed"):
+        raise ProblemError(409, f"job {job_id} already {status}")
+    if status == "running":
+        response.status_code = 202
+        ctx.runner.wake()
+    return job_view(_get(ctx, job_id))
+
+
+@router.get("/jobs/{job_id}/maneuver", response_class=Response,
+            responses={200: {"description": "The maneuver file",
+                             "content": {m: {"schema": {"type": "string"}} for m in sorted(set(MEDIA.values()))}},
+                       **problems(404, 409, 422, 500)},
+            summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON")
+def download_maneuver(job_id: JobId, ctx: Ctx,
+                      format: Annotated[Literal["tum", "csv", "control", "geojson"], Query(
+                          description="tum: poses of V; csv: waypoints x,y,z,speed; control: "
+                                      "t,speed,curvature CSV; geojson: WGS84 LineString")] = "tum",
+                      lon_deg: Annotated[float | None, Query(ge=-180, le=180)] = None,
+                      lat_deg: Annotated[float | None, Query(ge=-85, le=85)] = None) -> Response:
+    """GeoJSON needs the lot's origin: from the request's ``origin`` or ``lon_deg``/``lat_deg``."""
+    job = _get(ctx, job_id)
+    result = job["result"]
+    if result is None or result.get("profile") is None:
+        raise ProblemError(409, f"job {job_id} has no maneuver (status {job['status']})")
+    req = job["request"]
+    origin = None
+    if lon_deg is not None and lat_deg is not None:
+        origin = (lon_deg, lat_deg)
+    elif req.get("origin"):
+        origin = (req["origin"]["lon_deg"], req["origin"]["lat_deg"])
+    if format == "geojson" and origin is None:
+        raise ProblemError(422, "lon_deg/lat_deg: GeoJSON needs the lot's origin: give lon_deg "
+                                "and lat_deg, or origin in the request",
+                           errors=[{"field": "lon_deg", "message": "required for geojson"}])
+    name = req.get("name") or "maneuver"
+    text = maneuver_file(result["profile"], resolve_rig(req["rig"]), format, name, origin)
+    ext = {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]
+    return Response(text, media_type=MEDIA[format],
+                    headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})

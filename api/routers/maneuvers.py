@@ -1,0 +1,40 @@
+"""``POST /v1/maneuvers``: plan a calibration maneuver (an asynchronous job)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Response
+
+from ..context import Ctx
+from ..problems import ProblemError
+from ..schemas import Job, ManeuverRequest
+from ..scoring import Rejected, resolve_rig
+from .common import BODY
+from .jobs import job_view
+
+router = APIRouter(prefix="/v1", tags=["maneuvers"])
+
+
+@router.post("/maneuvers", status_code=202, response_model=Job, responses=BODY,
+             summary="Plan a maneuver: accepted as a job, persisted before the answer")
+def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
+    """Returns ``202`` with the job and its ``Location``; poll ``GET /v1/jobs/{id}``."""
+    s = ctx.settings
+    if body.duration_s > s.max_route_duration_s:
+        raise ProblemError(422, f"duration_s: {body.duration_s:g} s is over the limit of "
+                                f"{s.max_route_duration_s:g} s",
+                           errors=[{"field": "duration_s", "message": f"at most {s.max_route_duration_s:g} s"}])
+    if body.time_budget_s > s.max_job_time_budget_s:
+        raise ProblemError(422, f"time_budget_s: {body.time_budget_s:g} s is over the limit of "
+                                f"{s.max_job_time_budget_s:g} s",
+                           errors=[{"field": "time_budget_s", "message": f"at most {s.max_job_time_budget_s:g} s"}])
+    try:
+        resolve_rig(body.rig)  # reject a bad rig now rather than in a failed job
+    except Rejected as exc:
+        raise ProblemError(exc.status, f"{exc.field}: {exc.message}",
+                           errors=[{"field": exc.field, "message": exc.message}]) from None
+    job_id = ctx.store.create("maneuver", body.model_dump())
+    ctx.runner.wake()
+    response.headers["Location"] = f"/v1/jobs/{job_id}"
+    return job_view(ctx.store.get(job_id))

@@ -1,0 +1,26 @@
+"""``POST /v1/score``: one route and a rig → the evaluator's report."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from ..context import Ctx, raise_problem
+from ..schemas import Report, ScoreRequest
+from .common import BODY
+
+router = APIRouter(prefix="/v1", tags=["score"])
+
+
+@router.post("/score", response_model=Report, responses=BODY,
+             summary="Score a route: how well does it determine every calibration parameter?")
+def score(body: ScoreRequest, ctx: Ctx) -> Any:
+    """The route is given inline (file text with its format, JSON waypoints, timed poses or a
+    control profile); the rig by bundled name or inline. CPU-bound: runs in a worker process."""
+    limits = body.limits.model_dump() if body.limits else None
+    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits)
+    (result,) = ctx.wait([fut], ctx.deadline())
+    if not result["ok"]:
+        raise_problem(result)
+    return result["report"]

@@ -1,0 +1,289 @@
+"""Request and response bodies: one family per resource, all from two bases.
+
+Inputs forbid unknown keys and non-finite numbers (NaN, ±inf are rejected with 422). Bounds that
+depend on the settings (samples, duration, batch size) are checked by the routers and quoted in
+the error; the static ones are here.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+ROUTE_FORMATS = ("tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv")
+RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv"]
+RigName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$",
+                               description="Name of a bundled rig (GET /v1/rigs).")]
+RouteName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")]
+
+# Static sanity bounds: beyond them the numbers are not a drive on Earth.
+Coord = Annotated[float, Field(ge=-1e8, le=1e8)]
+Time = Annotated[float, Field(ge=-1e11, le=1e11)]
+Speed = Annotated[float, Field(ge=0, le=100)]
+
+
+class In(BaseModel):
+    """Base of every request body: unknown keys and NaN/inf are errors."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Out(BaseModel):
+    """Base of every response body."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+# --------------------------------------------------------------------------------------------
+# Inputs
+
+
+class TimedPose(In):
+    t: Time = Field(description="Time [s].")
+    position: tuple[Coord, Coord, Coord] = Field(description="Position of V in W [m].")
+    quaternion_xyzw: tuple[Annotated[float, Field(ge=-2, le=2)], Annotated[float, Field(ge=-2, le=2)],
+                           Annotated[float, Field(ge=-2, le=2)], Annotated[float, Field(ge=-2, le=2)]] = \
+        Field(description="Orientation of V in W, x-y-z-w, unit norm.")
+
+
+class StartPose(In):
+    x_m: Coord = 0.0
+    y_m: Coord = 0.0
+    heading_rad: Annotated[float, Field(ge=-100, le=100)] = 0.0
+
+
+class ControlIn(In):
+    """Controls at knots, interpolated shape-preserving in between."""
+
+    t_s: list[Time] = Field(min_length=2)
+    speed_mps: list[Speed]
+    curvature_1pm: list[Annotated[float, Field(ge=-10, le=10)]]
+    grade_rad: list[Annotated[float, Field(ge=-1.5, le=1.5)]] | None = None
+    bank_rad: list[Annotated[float, Field(ge=-1.5, le=1.5)]] | None = None
+    start: StartPose = StartPose()
+
+
+Waypoint = Annotated[list[Annotated[float, Field(ge=-1e8, le=1e8)]], Field(min_length=2, max_length=4)]
+
+
+class RouteIn(In):
+    """A route, given in exactly one way: ``text`` of a route file with its ``format``, JSON
+    ``waypoints``, timed ``poses`` or a ``control`` profile."""
+
+    name: RouteName | None = Field(None, description="Route name shown in the report.")
+    format: RouteFormat | None = Field(None, description="Format of `text` (required with it).")
+    text: str | None = Field(None, description="Contents of a route file.")
+    times_text: str | None = Field(None, description="KITTI times file (one time per line).")
+    waypoints: list[Waypoint] | None = Field(
+        None, min_length=2, description="[x, y(, z)(, speed)] in metres and m/s; all rows alike "
+                                        "(3 columns are x, y, z).")
+    poses: list[TimedPose] | None = Field(None, min_length=6)
+    control: ControlIn | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> "RouteIn":
+        given = [k for k in ("text", "waypoints", "poses", "control") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give the route in exactly one of text, waypoints, poses, control "
+                             f"(got {', '.join(given) or 'none'})")
+        if self.text is not None and self.format is None:
+            raise ValueError("format is required with text")
+        if self.text is None and self.format is not None:
+            raise ValueError("format applies to text only")
+        if (self.format == "kitti") != (self.times_text is not None):
+            raise ValueError("times_text is required with format kitti and only then")
+        return self
+
+
+class LimitsIn(In):
+    """Vehicle and test limits. Positive, SI units."""
+
+    speed_max_mps: Annotated[float, Field(gt=0, le=100)] = 15.0
+    accel_max_mps2: Annotated[float, Field(gt=0, le=50)] = 3.0
+    decel_max_mps2: Annotated[float, Field(gt=0, le=50)] = 4.0
+    jerk_max_mps3: Annotated[float, Field(gt=0, le=500)] = 6.0
+    lat_accel_max_mps2: Annotated[float, Field(gt=0, le=50)] = 4.0
+    curvature_max_1pm: Annotated[float, Field(gt=0, le=10)] = 0.18
+    curvature_rate_max_1pms: Annotated[float, Field(gt=0, le=100)] = 0.25
+
+
+RigIn = RigName | dict[str, Any]
+RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's structure; the IMU "
+                   "block inline).")
+
+
+class ScoreRequest(In):
+    route: RouteIn
+    rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
+    segments: int = Field(0, ge=0, le=100, description="Report this many route segments' information.")
+    limits: LimitsIn | None = Field(None, description="Limits that shape waypoint routes without speeds.")
+
+
+class BatchRequest(In):
+    routes: list[RouteIn] = Field(min_length=1)
+    rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
+    segments: int = Field(0, ge=0, le=100)
+    limits: LimitsIn | None = None
+
+
+class Origin(In):
+    lon_deg: Annotated[float, Field(ge=-180, le=180)]
+    lat_deg: Annotated[float, Field(ge=-85, le=85)]
+
+
+class ManeuverRequest(In):
+    """What to plan: a drive within the lot and the limits that maximises the score."""
+
+    rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
+    name: RouteName = "maneuver"
+    duration_s: float = Field(90.0, gt=1, description="Length of the maneuver [s].")
+    lot_width_m: float = Field(50.0, gt=1, le=10_000)
+    lot_length_m: float = Field(80.0, gt=1, le=10_000)
+    limits: LimitsIn = LimitsIn()
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    time_budget_s: float = Field(60.0, gt=0, description="Optimizer wall-time budget [s].")
+    closed: bool = Field(False, description="End where it started.")
+    n_random: int = Field(200, ge=0, le=5000, description="Random candidates compared.")
+    origin: Origin | None = Field(None, description="Lot origin in WGS84, for GeoJSON downloads.")
+
+
+# --------------------------------------------------------------------------------------------
+# Outputs
+
+
+class FieldError(Out):
+    field: str
+    message: str
+
+
+class Problem(Out):
+    """RFC 9457 problem details."""
+
+    type: str
+    title: str
+    status: int
+    detail: str
+    instance: str
+    errors: list[FieldError] | None = None
+
+
+class Column(Out):
+    index: int
+    name: str
+    unit: str
+    target: float
+
+
+class ParameterOut(Out):
+    name: str
+    unit: str
+    sigma: float | None
+    target: float
+    ok: bool
+    sigma_with_prior: float | None = None
+
+
+class WeakModeOut(Out):
+    eigenvalue_scaled: float
+    status: Literal["unobservable", "weak", "ok"]
+    sigma_in_targets: float | None
+    coordinates: list[tuple[str, float]]
+    advice: str
+
+
+class SegmentOut(Out):
+    t_start_s: float
+    t_end_s: float
+    score: float
+    weakest_mode_information: float
+    parameter_information: dict[str, float]
+
+
+class Report(Out):
+    """The evaluator's report (excite.evaluate.Report.to_dict)."""
+
+    version: int
+    route: str
+    rig: str
+    score: float
+    passed: bool
+    duration_s: float
+    length_m: float
+    n_keyframes: int
+    rank: int
+    nullity: int
+    rank_threshold: float
+    condition_number: float | None
+    spectrum_scaled: list[float]
+    spectrum_unscaled: list[float]
+    column_map: list[Column]
+    parameters: list[ParameterOut]
+    weak_modes: list[WeakModeOut]
+    segments: list[SegmentOut]
+    score_with_priors: float | None
+    timings_ms: dict[str, float]
+
+
+class BatchItem(Out):
+    index: int
+    name: str | None
+    report: Report | None
+    error: Problem | None
+
+
+class BatchSummary(Out):
+    count: int
+    passed: int
+    failed: int
+    errors: int = Field(description="Routes that could not be scored.")
+    min_score: float | None
+
+
+class BatchResponse(Out):
+    summary: BatchSummary
+    results: list[BatchItem]
+
+
+class RigsResponse(Out):
+    rigs: list[dict[str, Any]]
+
+
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class JobProgress(Out):
+    iteration: int | None = None
+    score: float | None = None
+    constraint_violation: float | None = None
+    elapsed_s: float | None = None
+    phase: str | None = None
+
+
+class JobResult(Out):
+    report: Report
+    comparison: list[dict[str, Any]]
+    status: str
+    iterations: int
+    elapsed_s: float
+    cancelled: bool
+
+
+class Job(Out):
+    id: str
+    kind: str
+    status: JobStatus
+    cancel_requested: bool
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    attempts: int
+    progress: JobProgress | None
+    result: JobResult | None
+    error: Problem | None
+    links: dict[str, str]
+
+
+class Health(Out):
+    status: str
+    detail: dict[str, Any] = {}

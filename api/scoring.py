@@ -1,0 +1,350 @@
+"""Scoring in worker processes: a request's route and rig → the evaluator's JSON report.
+
+Everything here runs inside a :class:`ScorePool` process and returns plain data (a report or a
+problem), never raises to the caller: the parent turns problems into responses. Route text is
+written to a temporary file and read by :mod:`excite.routes`; JSON routes are written in the
+matching file format first, so every route passes the same readers and the same checks.
+Reader errors name the request field (``route.waypoints[3]``, ``route.text`` line N), never a
+server path.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import logging
+import math
+import multiprocessing
+import os
+import resource
+import tempfile
+import threading
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from excite import routes
+from excite.errors import ExciteError, RigError, RouteError
+from excite.evaluate import Options, evaluate
+from excite.rig import Rig, build_rig, bundled_rigs, load_rig
+from excite.trajectory import Trajectory
+from excite.vehicle import Limits
+
+log = logging.getLogger("excite.api")
+
+_EXT = {"tum": ".tum", "kitti": ".txt", "euroc": ".csv", "waypoints_csv": ".csv",
+        "geojson": ".geojson", "control_csv": ".csv"}
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """The settings' bounds on one route (picklable)."""
+
+    max_samples: int
+    max_route_duration_s: float
+    max_route_length_m: float
+
+
+class Rejected(Exception):
+    """Input the service refuses: (status, field, message)."""
+
+    def __init__(self, status: int, field: str, message: str):
+        super().__init__(message)
+        self.status, self.field, self.message = status, field, message
+
+
+def problem_data(status: int, field: str, message: str) -> dict[str, Any]:
+    return {"ok": False, "status": status, "detail": f"{field}: {message}",
+            "errors": [{"field": field, "message": message}]}
+
+
+# --------------------------------------------------------------------------------------------
+# Rigs
+
+
+@lru_cache(maxsize=16)
+def _bundled(name: str) -> Rig:
+    return load_rig(name)
+
+
+def _has_non_finite(x: Any) -> bool:
+    if isinstance(x, float):
+        return not math.isfinite(x)
+    if isinstance(x, dict):
+        return any(_has_non_finite(v) for v in x.values())
+    if isinstance(x, (list, tuple)):
+        return any(_has_non_finite(v) for v in x)
+    return False
+
+
+def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
+    """A bundled rig by name or an inline rig config; never reads a path the client names."""
+    if isinstance(rig, str):
+        if rig not in bundled_rigs():
+            raise Rejected(422, field, f"no bundled rig named {rig!r} (bundled: {', '.join(bundled_rigs())})")
+        return _bundled(rig)
+    if not isinstance(rig.get("imu"), dict):
+        raise Rejected(422, f"{field}.imu", "give the IMU block inline as an object (the service "
+                                            "reads no files)")
+    if _has_non_finite(rig):
+        raise Rejected(422, field, "contains NaN or infinity")
+    try:
+        return build_rig(rig)
+    except RigError as exc:
+        # rig errors start with the offending key ("imu.update_rate: …")
+        msg = str(exc)
+        key = msg.split(":", 1)[0] if ":" in msg else ""
+        named = key and " " not in key and key != "rig"
+        raise Rejected(422, f"{field}.{key}" if named else field, msg) from None
+
+
+# --------------------------------------------------------------------------------------------
+# Routes
+
+
+def _count_bound(n: int, bounds: Bounds, field: str, what: str) -> None:
+    if n > bounds.max_samples:
+        raise Rejected(413, field, f"{n} {what} exceed the limit of {bounds.max_samples}")
+
+
+def _where(exc: RouteError, field: str, line_to_index: Callable[[int], str] | None) -> tuple[str, str]:
+    """(field, message) of a reader error, located in the request rather than a temp file."""
+    if exc.line is None:
+        return field, exc.problem
+    if line_to_index is None:
+        return field, f"line {exc.line}: {exc.problem}"
+    return field + line_to_index(exc.line), exc.problem
+
+
+def route_trajectory(route: dict[str, Any], rig: Rig, limits: Limits, bounds: Bounds,
+                     field: str = "route") -> Trajectory:
+    """The trajectory of a validated :class:`~api.schemas.RouteIn` (as a dict)."""
+    name = route.get("name") or "route"
+    with tempfile.TemporaryDirectory(prefix="excite-") as tmp:
+        tmpdir = Path(tmp)
+        try:
+            if route.get("text") is not None:
+                return _from_text(route, name, tmpdir, rig, limits, bounds, field)
+            if route.get("waypoints") is not None:
+                return _from_waypoints(route["waypoints"], name, tmpdir, rig, limits, bounds, field)
+            if route.get("poses") is not None:
+                return _from_poses(route["poses"], name, tmpdir, bounds, field)
+            return _from_control(route["control"], name, tmpdir, rig, bounds, field)
+        except UnicodeEncodeError:
+            raise Rejected(422, field, "the text is not valid UTF-8") from None
+
+
+def _from_text(route: dict[str, Any], name: str, tmpdir: Path, rig: Rig, limits: Limits,
+               bounds: Bounds, field: str) -> Trajectory:
+    fmt, text = route["format"], route["text"]
+    # A cheap upper bound on the rows (lines; brackets for single-line GeoJSON).
+    n = text.count("[") if fmt == "geojson" else text.count("\n") + 1
+    _count_bound(n, bounds, f"{field}.text", "lines" if fmt != "geojson" else "coordinates")
+    path = tmpdir / f"{name}{_EXT[fmt]}"
+    path.write_text(text, encoding="utf-8")
+    try:
+        if fmt == "tum":
+            return routes.read_tum(path)
+        if fmt == "euroc":
+            return routes.read_euroc(path)
+        if fmt == "kitti":
+            times = tmpdir / f"{name}.times.txt"
+            times.write_text(route["times_text"], encoding="utf-8")
+            try:
+                return routes.read_kitti(path, times)
+            except RouteError as exc:
+                if exc.source == str(times):
+                    raise Rejected(422, *_where(exc, f"{field}.times_text", None)) from None
+                raise
+        if fmt == "waypoints_csv":
+            return routes.read_waypoints_csv(path, limits=limits, suspension=rig.suspension)
+        if fmt == "geojson":
+            return routes.read_geojson(path, limits=limits, suspension=rig.suspension)
+        return routes.read_control_csv(path, suspension=rig.suspension)
+    except RouteError as exc:
+        raise Rejected(422, *_where(exc, f"{field}.text", None)) from None
+
+
+def _from_waypoints(rows: list[list[float]], name: str, tmpdir: Path, rig: Rig, limits: Limits,
+                    bounds: Bounds, field: str) -> Trajectory:
+    f = f"{field}.waypoints"
+    _count_bound(len(rows), bounds, f, "waypoints")
+    width = len(rows[0])
+    for i, r in enumerate(rows):
+        if len(r) != width:
+            raise Rejected(422, f"{f}[{i}]", f"has {len(r)} numbers, the first waypoint {width}: "
+                                             "all rows must be alike")
+    pts = np.asarray(rows, dtype=float)
+    xyz = pts[:, :3] if width >= 3 else pts[:, :2]
+    length = float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum())
+    if length > bounds.max_route_length_m:
+        raise Rejected(422, f, f"the route is {length:.0f} m long, over the limit of "
+                               f"{bounds.max_route_length_m:g} m")
+    cols = ["x", "y", "z", "speed"][:width]
+    path = tmpdir / f"{name}.csv"
+    np.savetxt(path, pts, fmt="%.17g", delimiter=",", header=",".join(cols), comments="")
+    try:
+        return routes.read_waypoints_csv(path, limits=limits, suspension=rig.suspension)
+    except RouteError as exc:
+        raise Rejected(422, *_where(exc, f, lambda line: f"[{line - 2}]")) from None
+
+
+def _from_poses(poses: list[dict[str, Any]], name: str, tmpdir: Path, bounds: Bounds,
+                field: str) -> Trajectory:
+    f = f"{field}.poses"
+    _count_bound(len(poses), bounds, f, "poses")
+    t = [p["t"] for p in poses]
+    if t[-1] - t[0] > bounds.max_route_duration_s:
+        raise Rejected(422, f, f"the poses span {t[-1] - t[0]:.1f} s, over the limit of "
+                               f"{bounds.max_route_duration_s:g} s")
+    data = np.array([[p["t"], *p["position"], *p["quaternion_xyzw"]] for p in poses], dtype=float)
+    path = tmpdir / f"{name}.tum"
+    np.savetxt(path, data, fmt="%.17g")
+    try:
+        return routes.read_tum(path)
+    except RouteError as exc:
+        raise Rejected(422, *_where(exc, f, lambda line: f"[{line - 1}]")) from None
+
+
+def _from_control(control: dict[str, Any], name: str, tmpdir: Path, rig: Rig, bounds: Bounds,
+                  field: str) -> Trajectory:
+    f = f"{field}.control"
+    t = control["t_s"]
+    _count_bound(len(t), bounds, f"{f}.t_s", "knots")
+    for key in ("speed_mps", "curvature_1pm", "grade_rad", "bank_rad"):
+        v = control.get(key)
+        if v is not None and len(v) != len(t):
+            raise Rejected(422, f"{f}.{key}", f"has {len(v)} values for {len(t)} knots (t_s)")
+    if t[-1] - t[0] > bounds.max_route_duration_s:
+        raise Rejected(422, f"{f}.t_s", f"the profile spans {t[-1] - t[0]:.1f} s, over the limit "
+                                        f"of {bounds.max_route_duration_s:g} s")
+    zeros = [0.0] * len(t)
+    data = np.column_stack([t, control["speed_mps"], control["curvature_1pm"],
+                            control.get("grade_rad") or zeros, control.get("bank_rad") or zeros])
+    start = control.get("start") or {}
+    path = tmpdir / f"{name}.csv"
+    with path.open("w", encoding="utf-8") as fh:
+        fh.write(f"# start: x_m={float(start.get('x_m', 0.0))!r} y_m={float(start.get('y_m', 0.0))!r} "
+                 f"heading_rad={float(start.get('heading_rad', 0.0))!r}\n")
+        fh.write("t_s,speed_mps,curvature_1pm,grade_rad,bank_rad\n")
+        np.savetxt(fh, data, fmt="%.17g", delimiter=",")
+    try:
+        return routes.read_control_csv(path, suspension=rig.suspension)
+    except RouteError as exc:
+        raise Rejected(422, *_where(exc, f, lambda line: f" (knot {line - 3})")) from None
+
+
+# --------------------------------------------------------------------------------------------
+# The task a worker runs
+
+
+def _finite(x: Any) -> Any:
+    """The report with non-finite floats as None (the JSON contract; logged: it is a bug)."""
+    if isinstance(x, float) and not math.isfinite(x):
+        log.warning("non-finite number in a report replaced by null")
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return x
+
+
+def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
+               limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
+               rig_field: str = "rig") -> dict[str, Any]:
+    """``{"ok": True, "report": …}`` or a problem as data (status, detail, errors)."""
+    try:
+        r = resolve_rig(rig, rig_field)
+        lim = Limits(**limits) if limits else Limits()
+        traj = route_trajectory(route, r, lim, bounds, field)
+        if traj.duration > bounds.max_route_duration_s:
+            raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
+                                       f"{bounds.max_route_duration_s:g} s")
+        report = evaluate(traj, r, Options(segments=segments))
+        return {"ok": True, "report": _finite(report.to_dict())}
+    except Rejected as exc:
+        return problem_data(exc.status, exc.field, exc.message)
+    except RouteError as exc:
+        return problem_data(422, field, exc.problem)
+    except ExciteError as exc:
+        kind = "rig" if isinstance(exc, RigError) else field
+        return problem_data(422, kind, str(exc))
+    except MemoryError:
+        return problem_data(413, field, "the route needs more memory than a worker may use "
+                                        "(make it shorter or sparser)")
+    except Exception:  # a bug: logged here, a bare 500 for the client
+        log.exception("scoring failed")
+        return {"ok": False, "status": 500, "detail": "internal error", "errors": []}
+
+
+def warm() -> bool:
+    """Load the bundled rigs (the pool's first task, so the first request is not slow)."""
+    for n in bundled_rigs():
+        _bundled(n)
+    return True
+
+
+# --------------------------------------------------------------------------------------------
+# The pool
+
+
+def _init_worker(memory_mb: int) -> None:
+    if memory_mb:
+        limit = memory_mb * 1024 * 1024
+        try:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        except (ValueError, OSError):
+            log.warning("cannot limit worker memory to %d MiB", memory_mb)
+
+
+class ScorePool:
+    """Processes that score routes: CPU-bound work off the request threads and the GIL."""
+
+    def __init__(self, workers: int, memory_mb: int):
+        self.workers, self.memory_mb = workers, memory_mb
+        self._lock = threading.Lock()
+        self._pool: cf.ProcessPoolExecutor | None = None
+        self.ready = False
+
+    def _make(self) -> cf.ProcessPoolExecutor:
+        # forkserver: the server process has threads, and forking it would copy held locks.
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["excite.evaluate", "excite.routes", "api.scoring"])
+        return cf.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
+                                      initargs=(self.memory_mb,))
+
+    def start(self) -> None:
+        with self._lock:
+            if self._pool is None:
+                self._pool = self._make()
+        futures = [self._pool.submit(warm) for _ in range(self.workers)]
+        for f in futures:
+            f.result(timeout=300)
+        self.ready = True
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> cf.Future:
+        with self._lock:
+            if self._pool is None:
+                self._pool = self._make()
+            try:
+                return self._pool.submit(fn, *args)
+            except cf.process.BrokenProcessPool:
+                # a worker died (e.g. killed for memory): replace the pool, keep serving
+                log.error("score pool broken; restarting it")
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = self._make()
+                return self._pool.submit(fn, *args)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._pool is not None:
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = None
+        self.ready = False
+
+
+def cpu_count() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

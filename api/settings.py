@@ -1,0 +1,52 @@
+"""Service settings, read from the environment (``EXCITE_`` prefix) and validated at start-up.
+
+Every bound a client can hit is here, so that a 413/422 can quote it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """How the service runs and what it accepts. ``EXCITE_<NAME>`` sets each field."""
+
+    model_config = SettingsConfigDict(env_prefix="EXCITE_", extra="ignore", frozen=True)
+
+    db_path: Path = Field(Path("excite-jobs.sqlite3"),
+                          description="SQLite file holding accepted optimization jobs.")
+    workers: int = Field(1, ge=0, le=64,
+                         description="Optimization jobs run at once, each in its own process "
+                                     "(0: accept and persist jobs but run none).")
+    score_workers: int = Field(2, ge=1, le=64,
+                               description="Processes that score routes for /v1/score and /v1/batch.")
+    max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, le=1024**3,
+                                description="Largest request body accepted [bytes].")
+    max_route_duration_s: float = Field(3600.0, gt=0, le=86400, allow_inf_nan=False,
+                                        description="Longest route scored or maneuver planned [s].")
+    max_route_length_m: float = Field(100_000.0, gt=0, le=1e7, allow_inf_nan=False,
+                                      description="Longest waypoint route (sum of chords) [m].")
+    max_samples: int = Field(200_000, ge=10, le=10_000_000,
+                             description="Most poses, waypoints, knots or text lines in one route.")
+    max_batch_routes: int = Field(64, ge=1, le=10_000, description="Most routes in one batch.")
+    request_timeout_s: float = Field(60.0, gt=0, le=3600, allow_inf_nan=False,
+                                     description="Time limit of one request [s].")
+    max_job_time_budget_s: float = Field(900.0, gt=0, le=86400, allow_inf_nan=False,
+                                         description="Largest optimizer time budget a job may ask for [s].")
+    cancel_grace_s: float = Field(15.0, gt=0, le=600, allow_inf_nan=False,
+                                  description="A cancelled job that has not stopped by then is killed [s].")
+    worker_memory_mb: int = Field(6144, ge=0, le=1_048_576,
+                                  description="Address-space limit of each worker process [MiB] (0: none).")
+    job_function: str = Field("api.jobs:run_optimization", pattern=r"^[\w.]+:\w+$",
+                              description="module:function that runs one job (tests inject others).")
+
+    @field_validator("db_path")
+    @classmethod
+    def _db_dir_exists(cls, v: Path) -> Path:
+        parent = v.expanduser().resolve().parent
+        if not parent.is_dir():
+            raise ValueError(f"directory {parent} does not exist")
+        return v.expanduser().resolve()
