@@ -50,7 +50,8 @@ def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> 
     job = store.get(job_id)
     if job is None or job["attempt"] != attempt or job["status"] != "running":
         return 0
-    last = {"progress": 0.0, "stop": 0.0, "stopped": False}
+    last: dict[str, Any] = {"progress": 0.0, "stop": 0.0, "stopped": False, "latest": None,
+                            "written": None}
 
     def alive() -> None:
         if os.getppid() != parent:
@@ -58,9 +59,10 @@ def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> 
 
     def progress(p: dict[str, Any]) -> None:
         alive()
+        last["latest"] = p
         now = time.monotonic()
         if now - last["progress"] >= PROGRESS_EVERY_S:
-            last["progress"] = now
+            last["progress"], last["written"] = now, p
             store.progress(job_id, attempt, p)
 
     def should_stop() -> bool:
@@ -86,6 +88,8 @@ def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> 
             "status": 500, "detail": "The job failed; the error is logged.",
             "instance": f"/v1/jobs/{job_id}"})
         return 1
+    if last["latest"] is not None and last["latest"] is not last["written"]:
+        store.progress(job_id, attempt, last["latest"])  # the last word, not the last throttled one
     status = "cancelled" if result.get("cancelled") else "succeeded"
     store.finish(job_id, attempt, status, result=result)
     return 0

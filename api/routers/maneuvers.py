@@ -6,6 +6,10 @@ from typing import Any
 
 from fastapi import APIRouter, Response
 
+from excite.errors import ExciteError
+from excite.optimize import OptimizeSettings
+from excite.vehicle import Limits
+
 from ..context import Ctx
 from ..problems import ProblemError
 from ..schemas import Job, ManeuverRequest
@@ -30,7 +34,15 @@ def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
                                 f"{s.max_job_time_budget_s:g} s",
                            errors=[{"field": "time_budget_s", "message": f"at most {s.max_job_time_budget_s:g} s"}])
     try:
-        resolve_rig(body.rig)  # reject a bad rig now rather than in a failed job
+        OptimizeSettings(duration_s=body.duration_s, lot_width_m=body.lot_width_m,
+                         lot_length_m=body.lot_length_m, limits=Limits(**body.limits.model_dump()),
+                         seed=body.seed, time_budget_s=body.time_budget_s, closed=body.closed,
+                         n_random=body.n_random)
+    except ExciteError as exc:  # the optimizer's own bounds, checked now rather than in a failed job
+        field = str(exc).split(" ", 1)[0]
+        raise ProblemError(422, str(exc), errors=[{"field": field, "message": str(exc)}]) from None
+    try:
+        resolve_rig(body.rig)
     except Rejected as exc:
         raise ProblemError(exc.status, f"{exc.field}: {exc.message}",
                            errors=[{"field": exc.field, "message": exc.message}]) from None

@@ -1,0 +1,133 @@
+"""Helpers for the API tests (no tests here): a live uvicorn server on a loopback port, and
+job functions injected through EXCITE_JOB_FUNCTION."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import httpx
+
+TESTS_DIR = Path(__file__).resolve().parent
+REPO = TESTS_DIR.parent
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class LiveServer:
+    """``excite serve`` in a subprocess on 127.0.0.1, settings from the environment."""
+
+    def __init__(self, tmp: Path, **settings: Any):
+        self.tmp = tmp
+        self.settings = {"db_path": str(tmp / "jobs.sqlite3"), "score_workers": 1, **settings}
+        self.port = free_port()
+        self.proc: subprocess.Popen | None = None
+        self.log = tmp / f"server-{self.port}.log"
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self, timeout_s: float = 90.0) -> "LiveServer":
+        env = dict(os.environ)
+        env.update({f"EXCITE_{k.upper()}": str(v) for k, v in self.settings.items()})
+        env["PYTHONPATH"] = os.pathsep.join([str(TESTS_DIR), str(REPO), env.get("PYTHONPATH", "")])
+        cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main(sys.argv[1:]))",
+               "serve", "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "warning"]
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=self.tmp)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log.read_text()}")
+            try:
+                if httpx.get(self.url + "/readyz", timeout=2).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        self.stop()
+        raise RuntimeError(f"server not ready in {timeout_s} s:\n{self.log.read_text()}")
+
+    def kill9(self) -> None:
+        assert self.proc is not None
+        os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def client(self, **kw: Any) -> httpx.Client:
+        return httpx.Client(base_url=self.url, timeout=kw.pop("timeout", 120), **kw)
+
+
+def wait_job(client: httpx.Client, location: str, done: Callable[[dict], bool] | None = None,
+             timeout_s: float = 120.0) -> dict[str, Any]:
+    """Poll a job until ``done(job)`` (default: a final status)."""
+    done = done or (lambda j: j["status"] in ("succeeded", "failed", "cancelled"))
+    deadline = time.monotonic() + timeout_s
+    while True:
+        r = client.get(location)
+        assert r.status_code == 200, r.text
+        job = r.json()
+        if done(job):
+            return job
+        if time.monotonic() > deadline:
+            raise AssertionError(f"job not done in {timeout_s} s: {job}")
+        time.sleep(0.2)
+
+
+def processes_with(text: str) -> list[int]:
+    """Pids whose command line contains ``text`` (a job id: its worker)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if text.encode() in (d / "cmdline").read_bytes():
+                    out.append(int(d.name))
+            except OSError:
+                pass
+    return out
+
+
+def slow_job(request: dict[str, Any], progress: Callable[[dict], None],
+             should_stop: Callable[[], bool]) -> dict[str, Any]:
+    """A stand-in optimizer: ``time_budget_s`` of 0.1 s iterations, then a real report of the
+    reference figure eight (so downloads work)."""
+    from api.jobs import plain, profile_data
+    from excite.evaluate import evaluate
+    from excite.maneuvers import figure_eight
+    from excite.rig import load_rig
+    from excite.vehicle import drive
+
+    n = int(request["time_budget_s"] / 0.1)
+    cancelled = False
+    for i in range(n):
+        if should_stop():
+            cancelled = True
+            break
+        progress({"iteration": i, "score": 1e-3 * i, "constraint_violation": 0.0,
+                  "elapsed_s": 0.1 * i, "phase": "optimize"})
+        time.sleep(0.1)
+    rig = load_rig("robotaxi")
+    prof = figure_eight(duration_s=request["duration_s"])
+    rep = evaluate(drive(prof, rig.suspension), rig)
+    return {"report": plain(rep.to_dict()), "comparison": [{"name": "figure_eight", "score": rep.score}],
+            "status": "cancelled" if cancelled else "optimal", "iterations": i, "elapsed_s": 0.1 * i,
+            "cancelled": cancelled, "profile": profile_data(prof)}
