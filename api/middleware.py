@@ -31,10 +31,6 @@ async def send_problem(send: Callable, status: int, title: str, type_: str, deta
     await send({"type": "http.response.body", "body": body})
 
 
-class _TooLarge(Exception):
-    pass
-
-
 class BodyLimit:
     """413 when Content-Length or the streamed body exceeds ``max_bytes``."""
 
@@ -54,30 +50,29 @@ class BodyLimit:
                 if too_big:
                     return await send_problem(send, 413, "Content too large", "too-large", detail,
                                               scope.get("path", ""), [(b"connection", b"close")])
-        seen = 0
-        started = False
-
-        async def counted() -> dict:
-            nonlocal seen
+        # Read the body here (at most max_bytes are held), then replay it: an exception raised
+        # from inside a streamed receive would surface as a parse error, not a 413.
+        body = bytearray()
+        while True:
             message = await receive()
-            if message["type"] == "http.request":
-                seen += len(message.get("body", b""))
-                if seen > self.max_bytes:
-                    raise _TooLarge
-            return message
+            if message["type"] != "http.request":
+                return  # the client went away
+            body += message.get("body", b"")
+            if len(body) > self.max_bytes:
+                return await send_problem(send, 413, "Content too large", "too-large", detail,
+                                          scope.get("path", ""), [(b"connection", b"close")])
+            if not message.get("more_body", False):
+                break
+        replayed = False
 
-        async def tracked(message: dict) -> None:
-            nonlocal started
-            if message["type"] == "http.response.start":
-                started = True
-            await send(message)
+        async def replay() -> dict:
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": bytes(body), "more_body": False}
+            return await receive()
 
-        try:
-            await self.app(scope, counted, tracked)
-        except _TooLarge:
-            if not started:
-                await send_problem(send, 413, "Content too large", "too-large", detail,
-                                   scope.get("path", ""), [(b"connection", b"close")])
+        await self.app(scope, replay, send)
 
 
 class TimeLimit:
