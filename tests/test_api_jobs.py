@@ -1,0 +1,81 @@
+"""Jobs are durable and cancellable: cancel a running job; a job survives `kill -9` of the
+server and completes after a restart (with a stand-in optimizer and with the real one)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from api.store import JobStore
+from test_api_support import LiveServer, processes_with, wait_job
+
+SLOW = {"job_function": "test_api_support:slow_job", "workers": 1, "cancel_grace_s": 5}
+
+
+def test_cancel_a_running_job(tmp_path):
+    srv = LiveServer(tmp_path, **SLOW).start()
+    try:
+        with srv.client() as c:
+            r = c.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 60})
+            loc = r.headers["location"]
+            wait_job(c, loc, lambda j: (j["progress"] or {}).get("iteration", -1) >= 2)
+            t0 = time.monotonic()
+            d = c.delete(loc)
+            assert d.status_code == 202 and d.json()["cancel_requested"] is True, d.text
+            job = wait_job(c, loc, timeout_s=30)
+            assert job["status"] == "cancelled" and time.monotonic() - t0 < 10
+            assert job["result"]["cancelled"] is True  # the best so far is kept
+            assert c.get(f"{loc}/maneuver", params={"format": "tum"}).status_code == 200
+            assert c.delete(loc).status_code == 200  # cancelling again changes nothing
+    finally:
+        srv.stop()
+
+
+def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
+    srv = LiveServer(tmp_path, **SLOW).start()
+    with srv.client() as c:
+        running = c.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 3})
+        queued = c.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 1})
+        assert running.status_code == queued.status_code == 202
+        job = wait_job(c, running.headers["location"],
+                       lambda j: (j["progress"] or {}).get("iteration", -1) >= 3)
+        assert job["status"] == "running"
+    srv.kill9()
+    # the worker dies with the server; the job is left running in the store
+    job_id = running.json()["id"]
+    deadline = time.monotonic() + 10
+    while processes_with(job_id) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not processes_with(job_id)
+    stored = JobStore(tmp_path / "jobs.sqlite3")
+    assert stored.get(job_id)["status"] == "running"
+    assert stored.get(queued.json()["id"])["status"] == "queued"
+
+    srv2 = LiveServer(tmp_path, **SLOW).start()
+    try:
+        with srv2.client() as c:
+            first = wait_job(c, running.headers["location"], timeout_s=60)
+            second = wait_job(c, queued.headers["location"], timeout_s=60)
+        assert first["status"] == "succeeded" and first["attempts"] == 2
+        assert second["status"] == "succeeded" and second["attempts"] == 1
+        assert first["result"]["report"]["score"] > 0
+    finally:
+        srv2.stop()
+
+
+def test_real_optimizer_job_survives_kill_9(tmp_path):
+    pytest.importorskip("excite.optimize")
+    srv = LiveServer(tmp_path, workers=1).start()
+    with srv.client() as c:
+        r = c.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 5, "n_random": 4})
+        assert r.status_code == 202
+    srv.kill9()  # right after the 202: accepted means persisted
+    srv2 = LiveServer(tmp_path, workers=1).start()
+    try:
+        with srv2.client() as c:
+            job = wait_job(c, r.headers["location"], timeout_s=150)
+        assert job["status"] == "succeeded", job
+        assert job["result"]["report"]["score"] > 0
+    finally:
+        srv2.stop()
