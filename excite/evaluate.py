@@ -301,5 +301,5 @@ def _information_scale(prob: information.Problem, rig: Rig) -> float:
     S = np.array([c.target if not c.nuisance else 0.0 for c in rig.coordinates])
     diag = np.zeros(len(S))
     for b in prob.blocks:
-        diag += np.einsum("nrj,nrj->j", b.Jt, b.Jt)
+        diag[b.cols] += (b.Jt**2).sum(axis=(0, 1))
     return float(max((diag * S**2).max(), 1e-300))

@@ -42,6 +42,7 @@ from .rig import Rig
 # well conditioned.
 _GAUGE_SIGMA_POS_M = 1.0
 _GAUGE_SIGMA_YAW_RAD = 0.01
+_NO_COLS = np.zeros(0, dtype=int)
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class Problem:
             mask = (b.first >= k0) & (last <= k1)
             if mask.any():
                 sel = b.select(mask)
-                out.append(FactorBlock(sel.name, sel.first - k0, sel.stride, sel.n_states, sel.Jx, sel.Jt))
+                out.append(sel.shifted(-k0))
         starts = sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})
         return _with_gauges(k1 - k0 + 1, self.n_params, out, self.R_W_B[k0:k1 + 1], self.local,
                             tuple(s - k0 for s in starts))
@@ -89,7 +90,7 @@ def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     Jx[0, 0:3, POS] = np.eye(3) / _GAUGE_SIGMA_POS_M
     # world yaw of a right perturbation: e_zᵀ R δθ
     Jx[0, 3, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
-    return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, n_params)))
+    return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, 0)), _NO_COLS)
 
 
 def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
@@ -117,7 +118,7 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
             v_b = np.einsum("kji,kj->ki", n.R, n.v)
             d = np.einsum("kji,kj->ki", n.R[:-1], np.diff(n.p, axis=0))
             blocks = [_to_local(b, n.R, v_b, d) for b in blocks]
-        parts += [FactorBlock(b.name, b.first + offset, b.stride, b.n_states, b.Jx, b.Jt) for b in blocks]
+        parts += [b.shifted(offset) for b in blocks]
         starts.append(offset)
         R_all.append(n.R)
         offset += n.n_keyframes
@@ -164,21 +165,45 @@ def _to_local(b: FactorBlock, R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> 
             JpR = Jp @ R[kq]
             out[:, :, cq + 0: cq + 3] -= JpR @ so3.hat(d[kq])
             out[:, :, cq + 6: cq + 9] += JpR
-    return FactorBlock(b.name, b.first, 1, n_new, out, b.Jt)
+    return FactorBlock(b.name, b.first, 1, n_new, out, b.Jt, b.cols)
 
 
 def _yaw_gauge(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     """A prior on the world yaw of ``keyframe``: the one gauge of the local parametrisation."""
     Jx = np.zeros((1, 1, STATE_DIM))
     Jx[0, 0, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
-    return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, n_params)))
+    return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, 0)), _NO_COLS)
 
 
 def _last_increment_prior(keyframe: int, n_params: int) -> FactorBlock:
     """The last keyframe of a chain has no successor: its increment columns are placeholders held at zero."""
     Jx = np.zeros((1, 3, STATE_DIM))
     Jx[0, :, 6:9] = np.eye(3)
-    return FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 3, n_params)))
+    return FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 3, 0)), _NO_COLS)
+
+
+def _rows(first: np.ndarray, shift: int):
+    """Index of ``first + shift``: a slice when ``first`` is an arithmetic progression (no copies)."""
+    f = first + shift
+    if f.size == 1:
+        return slice(int(f[0]), int(f[0]) + 1)
+    step = int(f[1] - f[0])
+    if step > 0 and np.all(np.diff(f) == step):
+        return slice(int(f[0]), int(f[-1]) + 1, step)
+    return f
+
+
+def _scatter(target: np.ndarray, rows, values: np.ndarray, cols: np.ndarray | None = None) -> None:
+    """``target[rows(, :, cols)] += values`` (rows a slice or, possibly repeated, indices)."""
+    if cols is not None:
+        if isinstance(rows, slice):
+            rows = np.arange(target.shape[0])[rows]
+        np.add.at(target, (rows[:, None, None], np.arange(target.shape[1])[None, :, None], cols[None, None, :]),
+                  values)
+    elif isinstance(rows, slice):
+        target[rows] += values
+    else:
+        np.add.at(target, rows, values)
 
 
 def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -190,15 +215,18 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
     for b in problem.blocks:
         JxT = np.swapaxes(b.Jx, 1, 2)
         Hxx = JxT @ b.Jx
-        Hxt_f = JxT @ b.Jt
-        Htt += np.einsum("nri,nrj->ij", b.Jt, b.Jt)
+        k = b.cols.size
+        if k:
+            Hxt_f = JxT @ b.Jt
+            Jt2 = b.Jt.reshape(-1, k)
+            Htt[np.ix_(b.cols, b.cols)] += Jt2.T @ Jt2
         for a in range(b.n_states):
-            ka = b.first + a * b.stride
             sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
-            Hxt[ka] += Hxt_f[:, sa]
+            if k:
+                _scatter(Hxt, _rows(b.first, a * b.stride), Hxt_f[:, sa], b.cols)
             for c in range(a + 1):
                 sc = slice(STATE_DIM * c, STATE_DIM * (c + 1))
-                B[(a - c) * b.stride][b.first + c * b.stride] += Hxx[:, sa, sc]
+                _scatter(B[(a - c) * b.stride], _rows(b.first, c * b.stride), Hxx[:, sa, sc])
     return B, Hxt, Htt
 
 
@@ -247,7 +275,7 @@ def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:
             cols.append(np.broadcast_to(c[:, None, :], blk.shape).ravel())
             vals.append(blk.ravel())
         rows.append(np.broadcast_to(rid[:, :, None], b.Jt.shape).ravel())
-        cols.append(np.broadcast_to(nx + np.arange(problem.n_params), b.Jt.shape).ravel())
+        cols.append(np.broadcast_to(nx + b.cols, b.Jt.shape).ravel())
         vals.append(b.Jt.ravel())
         labels += [f"{b.name}[{k}].{i}" for k in b.first for i in range(r)]
         r0 += N * r

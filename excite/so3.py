@@ -10,6 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 _SMALL = 1e-8
+_SERIES = 1e-2
 
 
 def hat(v: np.ndarray) -> np.ndarray:
@@ -25,11 +26,69 @@ def hat(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def _coefficients(theta: np.ndarray):
+    """(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³), by series below 1e-2 rad (exact to 1e-16)."""
+    t2 = theta * theta
+    a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0
+    b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0
+    c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0
+    big = theta >= _SERIES
+    if big.any():
+        t = theta[big]
+        a[big], b[big], c[big] = np.sin(t) / t, (1.0 - np.cos(t)) / t**2, (t - np.sin(t)) / t**3
+    return a, b, c
+
+
 def exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` from rotation vectors ``(..., 3)``."""
+    """Rotation matrices ``(..., 3, 3)`` from rotation vectors ``(..., 3)`` (Rodrigues:
+    ``cos θ·I + sin θ/θ·[φ]× + (1 − cos θ)/θ²·φφᵀ``)."""
     phi = np.asarray(phi, dtype=float)
-    flat = phi.reshape(-1, 3)
-    return Rotation.from_rotvec(flat).as_matrix().reshape(phi.shape[:-1] + (3, 3))
+    theta = np.linalg.norm(phi, axis=-1)
+    a, b, _ = _coefficients(theta)
+    R = (b[..., None, None] * phi[..., :, None]) * phi[..., None, :]
+    cos = 1.0 - b * theta * theta
+    ax, ay, az = (a * phi[..., i] for i in range(3))
+    R[..., 0, 0] += cos
+    R[..., 1, 1] += cos
+    R[..., 2, 2] += cos
+    R[..., 0, 1] -= az
+    R[..., 1, 0] += az
+    R[..., 0, 2] += ay
+    R[..., 2, 0] -= ay
+    R[..., 1, 2] -= ax
+    R[..., 2, 1] += ax
+    return R
+
+
+def body_rate(phi: np.ndarray, phi_dot: np.ndarray, phi_ddot: np.ndarray | None = None):
+    """Body rate ``ω = J_r(φ) φ̇`` of ``Exp(φ(t))`` and, given ``φ̈``, its derivative
+    ``J_r φ̈ + J̇_r φ̇``, with vector algebra only (``[φ]×x = φ × x``)."""
+    theta = np.linalg.norm(phi, axis=-1)
+    _, b, c = _coefficients(theta)
+    pxd = np.cross(phi, phi_dot)
+    ppxd = np.cross(phi, pxd)
+    w = phi_dot - b[..., None] * pxd + c[..., None] * ppxd
+    if phi_ddot is None:
+        return w
+    eb, ec = _derivative_coefficients(theta)
+    pd = np.einsum("...i,...i->...", phi, phi_dot)[..., None]
+    pxdd = np.cross(phi, phi_ddot)
+    alpha = (phi_ddot - b[..., None] * pxdd + c[..., None] * np.cross(phi, pxdd)
+             - (eb[..., None] * pd) * pxd + (ec[..., None] * pd) * ppxd + c[..., None] * np.cross(phi_dot, pxd))
+    return w, alpha
+
+
+def _derivative_coefficients(theta: np.ndarray):
+    """(b′(θ)/θ, c′(θ)/θ) for b, c of :func:`_coefficients` (the θ̇θ = φ·φ̇ factor is the caller's)."""
+    t2 = theta * theta
+    eb = -1.0 / 12.0 + t2 / 180.0
+    ec = -1.0 / 60.0 + t2 / 1260.0
+    big = theta >= _SERIES
+    if big.any():
+        t = theta[big]
+        eb[big] = (t * np.sin(t) - 2.0 * (1.0 - np.cos(t))) / t**4
+        ec[big] = (t * (1.0 - np.cos(t)) - 3.0 * (t - np.sin(t))) / t**5
+    return eb, ec
 
 
 def log(R: np.ndarray) -> np.ndarray:
@@ -37,6 +96,27 @@ def log(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=float)
     flat = R.reshape(-1, 3, 3)
     return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def right_jacobian(phi: np.ndarray) -> np.ndarray:
+    """``J_r(φ)``: ``Exp(φ + δ) ≈ Exp(φ)·Exp(J_r(φ) δ)``; the body rate of ``Exp(φ(t))`` is ``J_r φ̇``."""
+    phi = np.asarray(phi, dtype=float)
+    theta = np.linalg.norm(phi, axis=-1)
+    _, b, c = _coefficients(theta)
+    K = hat(phi)
+    return np.eye(3) - b[..., None, None] * K + c[..., None, None] * (K @ K)
+
+
+def right_jacobian_dot(phi: np.ndarray, phi_dot: np.ndarray) -> np.ndarray:
+    """Time derivative of ``J_r(φ(t))`` given ``φ̇``."""
+    phi = np.asarray(phi, dtype=float)
+    theta = np.linalg.norm(phi, axis=-1)
+    _, b, c = _coefficients(theta)
+    eb, ec = _derivative_coefficients(theta)
+    pd = np.einsum("...i,...i->...", phi, phi_dot)[..., None, None]
+    K, Kd = hat(phi), hat(phi_dot)
+    b, c, eb, ec = (x[..., None, None] for x in (b, c, eb, ec))
+    return -(eb * pd) * K - b * Kd + (ec * pd) * (K @ K) + c * (Kd @ K + K @ Kd)
 
 
 def right_jacobian_inv(phi: np.ndarray) -> np.ndarray:

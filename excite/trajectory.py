@@ -166,12 +166,27 @@ class Trajectory:
         n = int(np.floor(self.duration * rate_hz + 1e-9)) + 1
         return self.t_start + np.arange(n) / rate_hz
 
+    def _rotation(self, t: np.ndarray, order: int):
+        """Orientation of V at ``t`` and, for ``order`` ≥ 1/2, body rate and angular acceleration.
+
+        The same cubic rotation-vector spline as ``RotationSpline`` (R = R_k·Exp(φ(t)) on
+        segment k), evaluated with batched Rodrigues and ``ω = J_r(φ) φ̇``,
+        ``α = J_r φ̈ + J̇_r φ̇`` (:func:`so3.body_rate`) rather than through scipy's rotation objects.
+        """
+        interp = self._rot.interpolator
+        phi = interp(t)
+        k = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, self._t.size - 2)
+        out = [self._R[k] @ so3.exp(phi)]
+        if order == 1:
+            out.append(so3.body_rate(phi, interp(t, 1)))
+        elif order >= 2:
+            out += list(so3.body_rate(phi, interp(t, 1), interp(t, 2)))
+        return out
+
     def sample(self, t: np.ndarray) -> MotionSamples:
         """The motion at times ``t`` (clipped to the drive)."""
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
-        R = self._rot(t).as_matrix()
-        omega = self._rot(t, 1)
-        alpha = self._rot(t, 2)
+        R, omega, alpha = self._rotation(t, 2)
         if self._tilt is None:
             R_V_A = np.broadcast_to(np.eye(3), (t.size, 3, 3)).copy()
         else:
@@ -179,6 +194,17 @@ class Trajectory:
             R_V_A = np.swapaxes(so3.rot_y(pr[:, 0]) @ so3.rot_x(pr[:, 1]), 1, 2)
         return MotionSamples(t=t, R_W_V=R, p_W_V=self._pos(t), v_W=self._vel(t), a_W=self._acc(t),
                              omega_V=omega, alpha_V=alpha, R_V_A=R_V_A)
+
+    def imu(self, t: np.ndarray, R_V_B: np.ndarray, p_V_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What a perfect IMU at pose ``(R_V_B, p_V_B)`` in V sees at ``t``: its orientation
+        ``R_W_B``, body rate ``ω_B`` and specific force ``f_B`` (only what the IMU factor needs, so
+        that sampling at the IMU rate stays cheap)."""
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
+        R, w, al = self._rotation(t, 2)
+        # specific force of the IMU point, first in V: Rᵀ(a − g) + α × p + ω × (ω × p)
+        f_V = (np.einsum("nji,nj->ni", R, self._acc(t) - GRAVITY) + np.cross(al, p_V_B)
+               + np.cross(w, np.cross(w, p_V_B)))
+        return R @ R_V_B, w @ R_V_B, f_V @ R_V_B
 
     def transformed(self, R: np.ndarray, p: np.ndarray, name: str | None = None) -> "Trajectory":
         """The same drive moved rigidly in the world: ``x ↦ R x + p``.

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rig import Rig
-from ..trajectory import BodySamples, Trajectory
+from ..trajectory import Trajectory
 
 STATE_DIM = 9
 ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -22,45 +22,31 @@ ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
 @dataclass(frozen=True)
 class Nominal:
-    """The nominal motion a rig sees on a drive, at the IMU rate and at the keyframes.
+    """The nominal motion a rig sees on a drive: the IMU's at every IMU sample, the body's at the
+    keyframes.
 
-    ``imu`` holds the body (IMU frame) motion at every IMU sample; keyframe ``k`` is IMU sample
-    ``k · imu_per_keyframe``. ``R_V_A`` is the suspension tilt at the keyframes, ``R_V_B, p_V_B``
-    the IMU pose in the vehicle frame.
+    Keyframe ``k`` is IMU sample ``k · imu_per_keyframe``. At the keyframes: time ``t``, body
+    (IMU frame) orientation ``R``, world position ``p`` and velocity ``v``, body rate ``omega``
+    and the suspension tilt ``R_V_A``. At the IMU rate: orientation ``imu_R``, body rate
+    ``imu_omega`` and specific force ``imu_f``. ``R_V_B, p_V_B`` is the IMU pose in the vehicle frame.
     """
 
-    imu: BodySamples
-    imu_per_keyframe: int
+    t: np.ndarray
+    R: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    omega: np.ndarray
     R_V_A: np.ndarray
+    imu_R: np.ndarray
+    imu_omega: np.ndarray
+    imu_f: np.ndarray
+    imu_per_keyframe: int
     R_V_B: np.ndarray
     p_V_B: np.ndarray
 
     @property
     def n_keyframes(self) -> int:
-        return (self.imu.t.size - 1) // self.imu_per_keyframe + 1
-
-    def _kf(self, a: np.ndarray) -> np.ndarray:
-        return a[:: self.imu_per_keyframe]
-
-    @property
-    def t(self) -> np.ndarray:
-        return self._kf(self.imu.t)
-
-    @property
-    def R(self) -> np.ndarray:
-        return self._kf(self.imu.R_W_B)
-
-    @property
-    def p(self) -> np.ndarray:
-        return self._kf(self.imu.p_W_B)
-
-    @property
-    def v(self) -> np.ndarray:
-        return self._kf(self.imu.v_W)
-
-    @property
-    def omega(self) -> np.ndarray:
-        return self._kf(self.imu.omega_B)
+        return self.t.size
 
     @classmethod
     def of(cls, traj: Trajectory, rig: Rig, t_start: float | None = None,
@@ -71,11 +57,13 @@ class Nominal:
         t0 = traj.t_start if t_start is None else max(t_start, traj.t_start)
         t1 = traj.t_end if t_end is None else min(t_end, traj.t_end)
         n_intervals = int(np.floor((t1 - t0) * rig.keyframe_rate_hz + 1e-9))
-        t = t0 + np.arange(n_intervals * n + 1) / imu_rate
-        s = traj.sample(t)
+        t_imu = t0 + np.arange(n_intervals * n + 1) / imu_rate
         pose = rig.config.vehicle.T_V_B
+        imu_R, imu_w, imu_f = traj.imu(t_imu, pose.R, pose.p)
+        s = traj.sample(t_imu[::n])
         body = s.body(pose.R, pose.p)
-        return cls(imu=body, imu_per_keyframe=n, R_V_A=s.R_V_A[::n], R_V_B=pose.R, p_V_B=pose.p)
+        return cls(t=body.t, R=body.R_W_B, p=body.p_W_B, v=body.v_W, omega=body.omega_B, R_V_A=s.R_V_A,
+                   imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f, imu_per_keyframe=n, R_V_B=pose.R, p_V_B=pose.p)
 
 
 @dataclass(frozen=True)
@@ -83,7 +71,8 @@ class FactorBlock:
     """Whitened Jacobians of N factors of one kind.
 
     Factor ``f`` touches the keyframes ``first[f] + stride · m`` for ``m < n_states`` through
-    ``Jx[f]`` (r × 9·n_states) and the calibration vector through ``Jt[f]`` (r × len(θ)).
+    ``Jx[f]`` (r × 9·n_states), and the calibration columns ``cols`` through ``Jt[f]``
+    (r × len(cols)).
     """
 
     name: str
@@ -92,6 +81,7 @@ class FactorBlock:
     n_states: int
     Jx: np.ndarray
     Jt: np.ndarray
+    cols: np.ndarray
 
     @property
     def n_factors(self) -> int:
@@ -101,5 +91,21 @@ class FactorBlock:
     def n_rows(self) -> int:
         return self.Jx.shape[1]
 
+    def Jt_full(self, n_params: int) -> np.ndarray:
+        """The calibration Jacobian over all ``n_params`` columns (N × r × n_params)."""
+        out = np.zeros(self.Jt.shape[:2] + (n_params,))
+        out[:, :, self.cols] = self.Jt
+        return out
+
     def select(self, mask: np.ndarray) -> "FactorBlock":
-        return FactorBlock(self.name, self.first[mask], self.stride, self.n_states, self.Jx[mask], self.Jt[mask])
+        return FactorBlock(self.name, self.first[mask], self.stride, self.n_states, self.Jx[mask],
+                           self.Jt[mask], self.cols)
+
+    def shifted(self, by: int) -> "FactorBlock":
+        """The same factors with keyframe indices moved by ``by``."""
+        return FactorBlock(self.name, self.first + by, self.stride, self.n_states, self.Jx, self.Jt, self.cols)
+
+
+def theta_columns(rig: Rig, names: list[str]) -> np.ndarray:
+    """Column indices of the named calibration coordinates."""
+    return np.array([rig.index(n) for n in names], dtype=int)

@@ -20,16 +20,10 @@ import numpy as np
 from .. import so3
 from ..rig import Rig
 from ..trajectory import GRAVITY
-from .base import ROT, FactorBlock, Nominal
+from .base import ROT, FactorBlock, Nominal, theta_columns
 
 # residual row order: rotation, velocity, position (state columns are rotation, position, velocity)
 VEL_R, POS_R = slice(3, 6), slice(6, 9)
-
-
-def _excl_cumsum(a: np.ndarray, axis: int = 1) -> np.ndarray:
-    """Exclusive cumulative sum: ``out[s] = Σ_{q<s} a[q]``."""
-    c = np.cumsum(a, axis=axis)
-    return c - a
 
 
 def preintegration(nom: Nominal, sigma_g: float, sigma_a: float) -> dict[str, np.ndarray]:
@@ -37,61 +31,57 @@ def preintegration(nom: Nominal, sigma_g: float, sigma_a: float) -> dict[str, np
 
     Returns ``dR (N,3,3) = R_iᵀR_j``, ``G_R = ∂r_R/∂b_g``, ``V_g, V_a, P_g, P_a`` (∂Δv, ∂Δp
     w.r.t. gyro and accelerometer bias) and ``cov (N,9,9)`` ordered (rotation, velocity, position).
+
+    Sample s of an interval (n samples of dt) acts over ``[τ_s, τ_s + dt)`` with ``ΔR_s = R_iᵀR(τ_s)``
+    and ``A_s = [ΔR_s f_s]× dt``. A rotation error w entering after sample s (gyro noise, or
+    ``−ΔR_s dt δb_g``) reaches the end of the interval as ``[−I; SA_{s+1}; SP_{s+1}] w`` with
+    ``SA_m = Σ_{q≥m} A_q`` and ``SP_m = Σ_{q≥m} w_q A_q``, ``w_q = (n − 1 − q + ½) dt``; an
+    accelerometer error u as ``[0; −I; −w_s I] u``. Every Jacobian and the covariance are sums
+    over s of these terms.
     """
     n = nom.imu_per_keyframe
     N = nom.n_keyframes - 1
     dt = (nom.t[1] - nom.t[0]) / n
-    R_all = nom.imu.R_W_B
-    f_all = nom.imu.specific_force_B
+    R_all = nom.imu_R
     R_i = R_all[: N * n : n]  # (N,3,3)
-    # samples s = 0..n-1 of each interval
     Rs = R_all[: N * n].reshape(N, n, 3, 3)
-    fs = f_all[: N * n].reshape(N, n, 3)
-    dRs = np.einsum("nji,nsjk->nsik", R_i, Rs)  # ΔR_s = R_iᵀ R(τ_s)
-    a_i = np.einsum("nsij,nsj->nsi", dRs, fs)  # specific force in frame i
-    A = so3.hat(a_i) * dt  # [a]× dt
-
-    # Bias Jacobians (left-rectangle scheme: sample s acts over [τ_s, τ_s + dt)).
-    G_s = _excl_cumsum(dRs * dt)  # ∂(rotation error in frame i)/∂b_g before sample s (negated)
-    G_R = G_s[:, -1] + dRs[:, -1] * dt
-    AG = A @ G_s
-    Vg_s = _excl_cumsum(AG)
-    V_g = Vg_s[:, -1] + AG[:, -1]
-    P_g = (Vg_s * dt + 0.5 * dt * AG).sum(axis=1)
-    V_a = -G_R
-    Va_s = -G_s
-    P_a = (Va_s * dt - 0.5 * dt * dt * dRs).sum(axis=1)
-
-    # Covariance. Gyro noise w entering at sample s reaches the end as
-    # [−I; SA_{s+1}; SP_{s+1}] w with SA_m = Σ_{q≥m} A_q and SP_m = dt Σ_{q≥m} (n−1−q+½) A_q.
+    fs = nom.imu_f[: N * n].reshape(N, n, 3, 1)
+    dRs = np.swapaxes(R_i, 1, 2)[:, None] @ Rs  # ΔR_s = R_iᵀ R(τ_s)
+    a = (dRs @ fs)[..., 0] * dt  # A_s = [a_s]×: specific force in frame i, times dt
+    w = (n - 1 - np.arange(n) + 0.5) * dt
     q = np.arange(n)
-    SA = np.cumsum(A[:, ::-1], axis=1)[:, ::-1]  # SA_s = Σ_{q≥s}
-    w = (n - 1 - q + 0.5) * dt
-    SP = np.cumsum((A * w[None, :, None, None])[:, ::-1], axis=1)[:, ::-1]
-    zero = np.zeros((N, 1, 3, 3))
-    SA1 = np.concatenate([SA[:, 1:], zero], axis=1)  # SA_{s+1}
-    SP1 = np.concatenate([SP[:, 1:], zero], axis=1)
-    # stack as (N, 3, 3n) so that Σ_s X_s Y_sᵀ is one batched product
-    flatA = SA1.transpose(0, 2, 1, 3).reshape(N, 3, 3 * n)
-    flatP = SP1.transpose(0, 2, 1, 3).reshape(N, 3, 3 * n)
+    # SA_{s+1} = [c_s]×, SP_{s+1} = [e_s]× with c_s = Σ_{q>s} a_q, e_s = Σ_{q>s} w_q a_q
+    c = np.zeros_like(a)
+    e = np.zeros_like(a)
+    c[:, :-1] = np.cumsum(a[:, :0:-1], axis=1)[:, ::-1]
+    e[:, :-1] = np.cumsum((a * w[:, None])[:, :0:-1], axis=1)[:, ::-1]
+
+    G_R = dRs.sum(axis=1) * dt
+    # Σ_q [c_q]× ΔR_q: cross products of c_q with ΔR_q's columns
+    V_g = np.cross(c[:, :, :, None], dRs, axis=2).sum(axis=1) * dt
+    P_g = np.cross(e[:, :, :, None], dRs, axis=2).sum(axis=1) * dt
+    V_a = -G_R
+    P_a = -np.tensordot(w, dRs, axes=([0], [1])) * dt
+
+    # [x]×[y]×ᵀ = (x·y) I − y xᵀ summed over the samples
+    cT = np.swapaxes(c, 1, 2)
+    eT = np.swapaxes(e, 1, 2)
+    Mcc, Mce, Mee = cT @ c, cT @ e, eT @ e  # Σ_s c cᵀ, Σ_s c eᵀ, Σ_s e eᵀ
+    tr = lambda M: np.trace(M, axis1=1, axis2=2)[:, None, None]
     g2 = sigma_g**2 * dt
-    cov = np.zeros((N, 9, 9))
-    eye = np.eye(3)
-    cov[:, ROT, ROT] = g2 * n * eye
-    cov[:, VEL_R, ROT] = -g2 * SA1.sum(axis=1)
-    cov[:, POS_R, ROT] = -g2 * SP1.sum(axis=1)
-    cov[:, VEL_R, VEL_R] = g2 * flatA @ flatA.transpose(0, 2, 1)
-    cov[:, POS_R, VEL_R] = g2 * flatP @ flatA.transpose(0, 2, 1)
-    cov[:, POS_R, POS_R] = g2 * flatP @ flatP.transpose(0, 2, 1)
-    # Accelerometer noise u = ΔR_s η dt (isotropic) reaches the end as [0; −I; −(n−1−s+½) dt I] u.
     a2 = sigma_a**2 * dt
-    cov[:, VEL_R, VEL_R] += a2 * n * eye
-    cov[:, POS_R, VEL_R] += a2 * w.sum() * eye
-    cov[:, POS_R, POS_R] += a2 * (w**2).sum() * eye
+    eye = np.eye(3)
+    cov = np.empty((N, 9, 9))
+    cov[:, ROT, ROT] = g2 * n * eye
+    cov[:, VEL_R, ROT] = -g2 * so3.hat(np.tensordot(q, a, axes=([0], [1])))  # Σ_s SA_{s+1} = [Σ_q q a_q]×
+    cov[:, POS_R, ROT] = -g2 * so3.hat(np.tensordot(q * w, a, axes=([0], [1])))
+    cov[:, VEL_R, VEL_R] = g2 * (tr(Mcc) * eye - Mcc) + a2 * n * eye
+    cov[:, POS_R, VEL_R] = g2 * (tr(Mce) * eye - Mce) + a2 * w.sum() * eye
+    cov[:, POS_R, POS_R] = g2 * (tr(Mee) * eye - Mee) + a2 * (w**2).sum() * eye
     cov[:, ROT, VEL_R] = np.swapaxes(cov[:, VEL_R, ROT], 1, 2)
     cov[:, ROT, POS_R] = np.swapaxes(cov[:, POS_R, ROT], 1, 2)
     cov[:, VEL_R, POS_R] = np.swapaxes(cov[:, POS_R, VEL_R], 1, 2)
-    dR = np.einsum("nji,njk->nik", R_i, R_all[n::n][:N])
+    dR = np.swapaxes(R_i, 1, 2) @ R_all[n::n][:N]
     return dict(dR=dR, G_R=G_R, V_g=V_g, V_a=V_a, P_g=P_g, P_a=P_a, cov=cov)
 
 
@@ -104,8 +94,8 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     R, p, v = nom.R, nom.p, nom.v
     Ri, Rj = R[:-1], R[1:]
     RiT = np.swapaxes(Ri, 1, 2)
-    dv = np.einsum("nji,nj->ni", Ri, v[1:] - v[:-1] - GRAVITY * dT)
-    dp = np.einsum("nji,nj->ni", Ri, p[1:] - p[:-1] - v[:-1] * dT - 0.5 * GRAVITY * dT**2)
+    dv = (RiT @ (v[1:] - v[:-1] - GRAVITY * dT)[:, :, None])[..., 0]
+    dp = (RiT @ (p[1:] - p[:-1] - v[:-1] * dT - 0.5 * GRAVITY * dT**2)[:, :, None])[..., 0]
 
     Jx = np.zeros((N, 9, 18))
     eye = np.eye(3)
@@ -120,21 +110,22 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     Jx[:, POS_R, 6:9] = -RiT * dT
     Jx[:, POS_R, 12:15] = RiT
 
-    Jt = np.zeros((N, 9, len(rig.coordinates)))
     if imu.estimate_biases:
-        g = rig.index("imu.gyro_bias_x")
-        a = rig.index("imu.accel_bias_x")
-        Jt[:, ROT, g:g + 3] = pre["G_R"]
-        Jt[:, VEL_R, g:g + 3] = -pre["V_g"]
-        Jt[:, POS_R, g:g + 3] = -pre["P_g"]
-        Jt[:, VEL_R, a:a + 3] = -pre["V_a"]
-        Jt[:, POS_R, a:a + 3] = -pre["P_a"]
+        cols = theta_columns(rig, [f"imu.{k}_bias_{a}" for k in ("gyro", "accel") for a in "xyz"])
+        Jt = np.zeros((N, 9, 6))
+        Jt[:, ROT, 0:3] = pre["G_R"]
+        Jt[:, VEL_R, 0:3] = -pre["V_g"]
+        Jt[:, POS_R, 0:3] = -pre["P_g"]
+        Jt[:, VEL_R, 3:6] = -pre["V_a"]
+        Jt[:, POS_R, 3:6] = -pre["P_a"]
+    else:
+        cols, Jt = np.zeros(0, dtype=int), np.zeros((N, 9, 0))
 
     # whiten with the inverse Cholesky factor of the covariance: W = L⁻¹, WᵀW = Σ⁻¹
-    L = np.linalg.cholesky(pre["cov"])
-    Jx = np.linalg.solve(L, Jx)
-    Jt = np.linalg.solve(L, Jt)
-    return FactorBlock("imu", np.arange(N), 1, 2, Jx, Jt)
+    W = np.linalg.inv(np.linalg.cholesky(pre["cov"]))
+    Jx = W @ Jx
+    Jt = W @ Jt
+    return FactorBlock("imu", np.arange(N), 1, 2, Jx, Jt, cols)
 
 
 # --- nonlinear model (finite-difference tests, simulation, batch calibration) -----------------

@@ -31,7 +31,7 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     J[:, :, 0:3] = R_AB @ so3.hat(v_body)
     J[:, :, 6:9] = R_AB @ np.swapaxes(R, 1, 2)
     Jx = J[:, 1:3] / np.array([nh.lateral_sigma_mps, nh.vertical_sigma_mps])[None, :, None]
-    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, len(rig.coordinates))))
+    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, 0)), np.zeros(0, dtype=int))
 
 
 def residual(R, v, omega_B, R_BA, p_BV) -> np.ndarray:

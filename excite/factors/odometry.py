@@ -17,7 +17,7 @@ import numpy as np
 
 from .. import so3
 from ..rig import Rig, SensorConfig
-from .base import FactorBlock, Nominal
+from .base import FactorBlock, Nominal, theta_columns
 
 
 def blocks(nom: Nominal, rig: Rig, sensor: SensorConfig) -> FactorBlock | None:
@@ -48,23 +48,25 @@ def blocks(nom: Nominal, rig: Rig, sensor: SensorConfig) -> FactorBlock | None:
     Jx[:, 3:6, 9:12] = -R_SB @ Rij @ hat_pBS
     Jx[:, 3:6, 12:15] = R_SB @ RiT
 
-    Jt = np.zeros((N, 6, len(rig.coordinates)))
     name = sensor.name
+    names = [c.name for c in rig.coordinates if c.block == name]
+    cols = theta_columns(rig, names)
+    Jt = np.zeros((N, 6, len(names)))
     if sensor.estimate.extrinsic:
-        r0 = rig.index(f"{name}.rot_x")
-        t0 = rig.index(f"{name}.trans_x")
+        r0 = names.index(f"{name}.rot_x")
+        t0 = names.index(f"{name}.trans_x")
         Jt[:, 0:3, r0:r0 + 3] = np.eye(3) - np.swapaxes(R_rel, 1, 2)
         Jt[:, 3:6, r0:r0 + 3] = so3.hat(t_rel)
         Jt[:, 3:6, t0:t0 + 3] = R_SB @ (Rij - np.eye(3))
     if sensor.estimate.time_offset:
-        k = rig.index(f"{name}.time_offset")
+        k = names.index(f"{name}.time_offset")
         wi, wj = w[i], w[j]
         Jt[:, 0:3, k] = (wj - np.einsum("nji,nj->ni", Rij, wi)) @ R_SB.T
         dt_t = (np.cross(e, wi) + np.einsum("nji,nj->ni", Ri, v[j] - v[i])
                 + np.einsum("nij,nj->ni", Rij, np.cross(wj, p_BS)))
         Jt[:, 3:6, k] = dt_t @ R_SB.T
     if sensor.monocular:
-        Jt[:, 3:6, rig.index(f"{name}.scale")] = t_rel
+        Jt[:, 3:6, names.index(f"{name}.scale")] = t_rel
 
     sig_r = np.deg2rad(sensor.noise.rotation_sigma_deg)
     sig_t = sensor.noise.translation_sigma_m
@@ -72,7 +74,7 @@ def blocks(nom: Nominal, rig: Rig, sensor: SensorConfig) -> FactorBlock | None:
     Jt[:, 0:3] /= sig_r
     Jx[:, 3:6] /= sig_t
     Jt[:, 3:6] /= sig_t
-    return FactorBlock(name, i, stride, 2, Jx, Jt)
+    return FactorBlock(name, i, stride, 2, Jx, Jt, cols)
 
 
 # --- nonlinear model ---------------------------------------------------------------------------

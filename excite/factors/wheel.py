@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import so3
 from ..rig import Rig
-from .base import FactorBlock, Nominal
+from .base import FactorBlock, Nominal, theta_columns
 
 
 def _geometry(nom: Nominal):
@@ -62,14 +62,16 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
 
     rl, rr, b = wc.radius_left_m, wc.radius_right_m, wc.track_m
     Jx = np.stack([(Js - 0.5 * b * Jpsi) / rl, (Js + 0.5 * b * Jpsi) / rr], axis=1)
-    Jt = np.zeros((N, 2, len(rig.coordinates)))
     if wc.estimate:
-        il, ir, it = (rig.index(f"wheel.{k}") for k in ("radius_left", "radius_right", "track"))
-        Jt[:, 0, il] = -(ds - 0.5 * b * dpsi) / rl**2
-        Jt[:, 1, ir] = -(ds + 0.5 * b * dpsi) / rr**2
-        Jt[:, 0, it] = -0.5 * dpsi / rl
-        Jt[:, 1, it] = 0.5 * dpsi / rr
-    return FactorBlock("wheel", np.arange(N), 1, 2, Jx / wc.sigma_rad, Jt / wc.sigma_rad)
+        cols = theta_columns(rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"])
+        Jt = np.zeros((N, 2, 3))
+        Jt[:, 0, 0] = -(ds - 0.5 * b * dpsi) / rl**2
+        Jt[:, 1, 1] = -(ds + 0.5 * b * dpsi) / rr**2
+        Jt[:, 0, 2] = -0.5 * dpsi / rl
+        Jt[:, 1, 2] = 0.5 * dpsi / rr
+    else:
+        cols, Jt = np.zeros(0, dtype=int), np.zeros((N, 2, 0))
+    return FactorBlock("wheel", np.arange(N), 1, 2, Jx / wc.sigma_rad, Jt / wc.sigma_rad, cols)
 
 
 def increments(Ri, pi, Rj, pj, R_BA_i, R_BA_j, p_BV, radius_left, radius_right, track) -> np.ndarray:
