@@ -113,7 +113,15 @@ RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's str
                    "block inline).")
 
 
+_LOOP = {"name": "loop", "waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
+
+
 class ScoreRequest(In):
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"route": _LOOP, "rig": "robotaxi"},
+        {"route": {"control": {"t_s": [0, 10, 20], "speed_mps": [0, 5, 0],
+                               "curvature_1pm": [0, 0.1, 0]}}, "segments": 2}]})
+
     route: RouteIn
     rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
     segments: int = Field(0, ge=0, le=100, description="Report this many route segments' information.")
@@ -121,6 +129,8 @@ class ScoreRequest(In):
 
 
 class BatchRequest(In):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"routes": [_LOOP]}]})
+
     routes: list[RouteIn] = Field(min_length=1)
     rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
     segments: int = Field(0, ge=0, le=100)
