@@ -85,23 +85,28 @@ class TimeLimit:
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        started = False
+        state = {"started": False, "timed_out": False}
 
         async def tracked(message: dict) -> None:
-            nonlocal started
+            if state["timed_out"]:
+                return  # the 503 went out: the late answer is dropped
             if message["type"] == "http.response.start":
-                started = True
+                state["started"] = True
             await send(message)
 
-        try:
-            await asyncio.wait_for(self.app(scope, receive, tracked), self.timeout_s)
-        except asyncio.TimeoutError:
-            log.warning("%s %s exceeded the time limit of %g s", scope.get("method"),
-                        scope.get("path"), self.timeout_s)
-            if not started:
-                await send_problem(send, 503, "Service unavailable", "timeout",
-                                   f"the request exceeded the time limit of {self.timeout_s:g} s",
-                                   scope.get("path", ""), [(b"retry-after", b"10")])
+        task = asyncio.ensure_future(self.app(scope, receive, tracked))
+        done, _ = await asyncio.wait({task}, timeout=self.timeout_s)
+        if done:
+            return task.result()
+        if state["started"]:
+            return await task  # an answer is already on its way: let it finish
+        state["timed_out"] = True
+        task.cancel()
+        log.warning("%s %s exceeded the time limit of %g s", scope.get("method"),
+                    scope.get("path"), self.timeout_s)
+        await send_problem(send, 503, "Service unavailable", "timeout",
+                           f"the request exceeded the time limit of {self.timeout_s:g} s",
+                           scope.get("path", ""), [(b"retry-after", b"10")])
 
 
 class Metrics:

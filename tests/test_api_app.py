@@ -1,0 +1,67 @@
+"""In-process checks of the service's pieces: public names, settings, the job store's
+durability rules, the time limit and the catch-all handler."""
+
+from __future__ import annotations
+
+import pytest
+from pydantic import ValidationError
+
+import api
+from api import Settings, create_app
+from api.store import JobStore
+
+
+def test_public_names():
+    assert sorted(api.__all__) == ["Settings", "create_app"]
+
+
+def test_settings_from_environment_are_validated(monkeypatch, tmp_path):
+    monkeypatch.setenv("EXCITE_DB_PATH", str(tmp_path / "j.sqlite3"))
+    monkeypatch.setenv("EXCITE_MAX_SAMPLES", "1234")
+    s = Settings()
+    assert s.max_samples == 1234 and s.db_path == tmp_path / "j.sqlite3"
+    monkeypatch.setenv("EXCITE_REQUEST_TIMEOUT_S", "nan")
+    with pytest.raises(ValidationError):
+        Settings()
+    monkeypatch.delenv("EXCITE_REQUEST_TIMEOUT_S")
+    monkeypatch.setenv("EXCITE_DB_PATH", str(tmp_path / "missing" / "j.sqlite3"))
+    with pytest.raises(ValidationError, match="does not exist"):
+        Settings()
+
+
+def test_store_re_queues_jobs_of_a_dead_server_and_ignores_stale_workers(tmp_path):
+    store = JobStore(tmp_path / "j.sqlite3")
+    a = store.create("maneuver", {"x": 1})
+    b = store.create("maneuver", {"x": 2})
+    assert store.claim() == (a, 1)
+    store.progress(a, 1, {"iteration": 3})
+    # the server dies; the next one re-queues a (b was never started)
+    assert store.recover() == 1
+    assert store.get(a)["status"] == "queued" and store.get(a)["progress"] == {"iteration": 3}
+    assert store.claim() == (a, 2)
+    # the first run's straggler can neither write nor finish
+    assert store.should_stop(a, 1) and not store.should_stop(a, 2)
+    assert not store.finish(a, 1, "succeeded", result={"stale": True})
+    assert store.finish(a, 2, "succeeded", result={"ok": True})
+    assert store.get(a)["result"] == {"ok": True}
+    assert store.cancel(b) == "cancelled" and store.claim() is None
+    assert store.counts() == {"succeeded": 1, "cancelled": 1}
+
+
+def test_time_limit_and_no_traceback(tmp_path):
+    from fastapi.testclient import TestClient
+
+    app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1,
+                              request_timeout_s=0.05))
+
+    @app.get("/boom")
+    def boom():
+        raise RuntimeError("secret internals")
+
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.post("/v1/score", json={"route": {"waypoints": [[0, 0], [300, 0], [300, 200], [0, 200]]}})
+        assert r.status_code == 503 and "0.05 s" in r.json()["detail"]
+        assert r.headers["content-type"].startswith("application/problem+json")
+        r = c.get("/boom")
+        assert r.status_code == 500 and "secret" not in r.text and "Traceback" not in r.text
+        assert r.json()["title"] == "Internal server error"
