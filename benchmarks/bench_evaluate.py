@@ -1,0 +1,96 @@
+"""Time the evaluator: the score of a drive with every parameter of the default rig estimated.
+
+    python benchmarks/bench_evaluate.py [--runs 7] [--skip-dense]
+
+The default rig (robotaxi) has an IMU at 200 Hz, keyframes at 10 Hz, a lidar and a monocular
+camera at 10 Hz, wheel encoders; all 24 calibration coordinates are estimated. Drives are
+generated (varying speed and curvature, suspension on). Timed: trajectory → report, i.e.
+sampling the motion, linearising every factor, marginalising, eigen-analysis and the report.
+
+Figures: median of ``--runs`` for a 10-minute and a 60-minute drive and KITTI 00 (loading the
+file excluded), and the dense numpy reference against the fast path on a 2-minute drive.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from excite import information
+from excite.evaluate import evaluate
+from excite.factors.base import Nominal
+from excite.rig import load_rig
+from excite.routes import read_kitti
+from excite.vehicle import ControlProfile, drive
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def cpu_model() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown CPU"
+
+
+def generated(duration_s: float, rig):
+    t = np.linspace(0.0, duration_s, int(duration_s / 2) + 1)
+    prof = ControlProfile(t, 8 + 3 * np.sin(t / 7), 0.05 * np.sin(t / 5) + 0.02 * np.sin(t / 1.7),
+                          grade_rad=0.02 * np.sin(t / 23), name=f"generated {duration_s / 60:.0f} min")
+    return drive(prof, rig.suspension)
+
+
+def median_ms(fn, runs: int) -> tuple[float, float]:
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times), min(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=7)
+    parser.add_argument("--skip-dense", action="store_true", help="skip the (slow) dense reference")
+    args = parser.parse_args()
+    rig = load_rig("robotaxi")
+    print(f"machine: {cpu_model()}, {os.cpu_count()} cores; rig robotaxi "
+          f"({len(rig.coordinates)} coordinates, IMU {rig.config.imu.update_rate:g} Hz, keyframes "
+          f"{rig.keyframe_rate_hz:g} Hz)")
+
+    rows = []
+    for minutes in (10, 60):
+        traj = generated(60.0 * minutes, rig)
+        evaluate(traj, rig)  # warm up
+        med, best = median_ms(lambda: evaluate(traj, rig), args.runs if minutes == 10 else max(3, args.runs // 2))
+        rows.append((f"{minutes}-minute drive", med, best))
+    if DATA.is_dir():
+        kitti = read_kitti(DATA / "kitti_00_poses.txt", DATA / "kitti_00_times.txt")
+        med, best = median_ms(lambda: evaluate(kitti, rig), args.runs)
+        rows.append(("KITTI 00 (470 s)", med, best))
+    for name, med, best in rows:
+        print(f"{name:22s} median {med:8.1f} ms   min {best:8.1f} ms")
+    print(f"60 min / 10 min: {rows[1][1] / rows[0][1]:.2f}x")
+
+    if not args.skip_dense:
+        traj = generated(120.0, rig)
+        nom = Nominal.of(traj, rig)
+        t0 = time.perf_counter()
+        dense = information.marginal_dense(information.build(nom, rig))
+        t_dense = time.perf_counter() - t0
+        t_fast, _ = median_ms(lambda: information.marginal(information.build(Nominal.of(traj, rig), rig)), 5)
+        fast = information.marginal(information.build(nom, rig))
+        S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
+        rel = np.abs((fast - dense) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
+        print(f"2-minute drive: dense reference {t_dense * 1e3:.0f} ms, fast path {t_fast:.1f} ms "
+              f"→ {t_dense * 1e3 / t_fast:.0f}x faster; max relative difference {rel:.1e}")
+
+
+if __name__ == "__main__":
+    main()
