@@ -1,0 +1,325 @@
+"""The NLP: maximise λ_min(S Λ S) of the coarse information model over feasible control splines.
+
+Statement (:class:`Transcription`): decision vector z (:mod:`.kinematics`), constraints at the
+sample points (speed, acceleration, deceleration, jerk, lateral acceleration, curvature,
+curvature rate, the lot's inner rectangle, optionally the end pose equal to the start pose) and
+the objective. Solution (:func:`solve`): IPOPT with exact first derivatives (CasADi) and
+limited-memory Hessian approximation.
+
+The max-λ_min objective is made smooth by an epigraph restricted to the weakest eigenspace
+(a spectral bundle / cutting-plane scheme): with V the m weakest eigenvectors of S Λ S at the
+current point,
+
+    maximise t   subject to   Vᵀ (S Λ(z) S) V / μ − t·I = L Lᵀ,  diag(L) ≥ 0,
+
+which says Vᵀ S Λ S V ⪰ t·μ·I on that subspace and handles eigenvalues that cross. An outer loop
+re-computes V at each accepted point, inside a trust region on z, and accepts a step only if
+the true λ_min improved (and the constraints hold).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from ..rig import Rig
+from ..vehicle import Limits
+from .kinematics import Grid, Scales, body_samples, layout, path
+from .model import build_model, coarse_rig
+
+SUBSPACE = 2  # weakest eigenvectors in the epigraph
+LIMIT_MARGIN = 0.97  # fraction of every limit the optimizer may use (sampling, PCHIP playback)
+JERK_MARGIN = 0.8  # drive() plays speed back shape-preservingly (PCHIP), which adds up to ~20 % jerk
+CONSTRAINT_EVERY = 2  # constraints at every 2nd IMU sample of the model (4 Hz)
+
+
+@dataclass
+class Transcription:
+    """The optimal-control problem on a grid, its CasADi functions and its IPOPT solver."""
+
+    grid: Grid
+    scales: Scales
+    limits: Limits
+    half_x_m: float
+    half_y_m: float
+    closed: bool
+    M: ca.Function  # z → S Λ S (coarse model)
+    kin: ca.Function  # z → (u, a, j, κ, κ', x, y, ψ) at the constraint samples
+    g_kin: ca.Function
+    lbg_kin: np.ndarray
+    ubg_kin: np.ndarray
+    lbz: np.ndarray
+    ubz: np.ndarray
+    n_params: int
+    solver: ca.Function | None = None
+    _cb: object | None = None
+
+    @property
+    def n_z(self) -> int:
+        return layout(self.grid).size
+
+
+def transcribe(rig: Rig, duration_s: float, limits: Limits, half_x_m: float, half_y_m: float,
+               closed: bool = False, knot_step_s: float = 1.5, keyframe_rate_hz: float = 2.0,
+               imu_substeps: int = 4) -> Transcription:
+    """State the problem for ``rig`` (the model runs on :func:`coarse_rig` of it)."""
+    grid = Grid.make(duration_s, knot_step_s, keyframe_rate_hz, imu_substeps)
+    crig = coarse_rig(rig, keyframe_rate_hz, imu_substeps)
+    sc = Scales.of(limits, max(half_x_m, half_y_m))
+    lay = layout(grid)
+    model = build_model(crig, grid.n_keyframes)
+    z = ca.MX.sym("z", lay.size)
+    pose = crig.config.vehicle.T_V_B
+    M = model.scaled(*body_samples(grid, sc, z, crig.suspension, pose.R, pose.p))
+    M_fun = ca.Function("M", [z], [M])
+
+    u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
+    e = CONSTRAINT_EVERY
+    sel = lambda q: q[::e]  # noqa: E731
+    m = LIMIT_MARGIN
+    n = grid.n_samples
+    ns = len(range(0, n, e))
+    rows, lb, ub = [], [], []
+
+    def add(expr, lo, hi):
+        rows.append(expr)
+        lb.append(np.broadcast_to(lo, (expr.shape[0],)))
+        ub.append(np.broadcast_to(hi, (expr.shape[0],)))
+
+    add(sel(u), 0.0, m * limits.speed_max_mps)
+    add(sel(a), -m * limits.decel_max_mps2, m * limits.accel_max_mps2)
+    add(sel(j), -JERK_MARGIN * limits.jerk_max_mps3, JERK_MARGIN * limits.jerk_max_mps3)
+    add(sel(k), -m * limits.curvature_max_1pm, m * limits.curvature_max_1pm)
+    add(sel(kd), -m * limits.curvature_rate_max_1pms, m * limits.curvature_rate_max_1pms)
+    add(sel(u * u * k), -m * limits.lat_accel_max_mps2, m * limits.lat_accel_max_mps2)
+    add(sel(x), -half_x_m, half_x_m)
+    add(sel(y), -half_y_m, half_y_m)
+    if closed:
+        p0 = z[lay.pose]
+        add(ca.vertcat(x[-1] - p0[0] * sc.position_m, y[-1] - p0[1] * sc.position_m), 0.0, 0.0)
+        # heading: the winding number is fixed by the start (see solve); compared via sin/cos
+        add(ca.sin(psi[-1] - p0[2]), 0.0, 0.0)
+        add(ca.cos(psi[-1] - p0[2]), 0.99, 1.0)
+    g = ca.vertcat(*rows)
+    g_kin = ca.Function("g_kin", [z], [g])
+    kin = ca.Function("kin", [z], [ca.horzcat(u, a, j, k, kd, x, y, psi)])
+
+    lbz = np.full(lay.size, -np.inf)
+    ubz = np.full(lay.size, np.inf)
+    lbz[lay.speed], ubz[lay.speed] = 0.0, m
+    lbz[lay.curv], ubz[lay.curv] = -m, m
+    lbz[lay.pose] = [-half_x_m / sc.position_m, -half_y_m / sc.position_m, -4 * np.pi]
+    ubz[lay.pose] = [half_x_m / sc.position_m, half_y_m / sc.position_m, 4 * np.pi]
+    del ns
+    return Transcription(grid, sc, limits, half_x_m, half_y_m, closed, M_fun, kin, g_kin,
+                         np.concatenate(lb), np.concatenate(ub), lbz, ubz, len(crig.scored))
+
+
+def _vech_idx(m: int) -> list[tuple[int, int]]:
+    return [(i, j) for j in range(m) for i in range(j, m)]
+
+
+def build_solver(tr: Transcription, iteration_callback=None) -> ca.Function:
+    """IPOPT on the epigraph NLP; parameters: V (p × m, flattened) and μ."""
+    m = SUBSPACE
+    p = tr.n_params
+    nz = tr.n_z
+    nl = m * (m + 1) // 2
+    x = ca.MX.sym("x", nz + 1 + nl)
+    z, t, lv = x[:nz], x[nz], x[nz + 1:]
+    par = ca.MX.sym("par", p * m + 1)
+    V = ca.reshape(par[:p * m], p, m)
+    mu = par[p * m]
+    # the projected information as its own function, differentiated through its Jacobian
+    # (reverse mode over its few outputs) rather than forward over every z direction
+    zs = ca.MX.sym("z", nz)
+    Vs = ca.MX.sym("V", p, m)
+    Ms = tr.M(zs)
+    Ps = ca.mtimes([Vs.T, Ms, Vs])
+    idx = _vech_idx(m)
+    proj = ca.Function("proj", [zs, Vs], [ca.vertcat(*[Ps[i, j] for i, j in idx])],
+                       {"never_inline": True,
+                        "jac_penalty": 0, "jacobian_options": {"ad_weight": 1.0}})
+    L = ca.MX(m, m)
+    for q, (i, j) in enumerate(idx):
+        L[i, j] = lv[q]
+    LL = ca.mtimes(L, L.T)
+    epi = proj(z, V) / mu - ca.vertcat(*[t * (1.0 if i == j else 0.0) + LL[i, j] for i, j in idx])
+    g = ca.vertcat(tr.g_kin(z), epi)
+    opts = {
+        "ipopt.hessian_approximation": "limited-memory",
+        "ipopt.limited_memory_max_history": 12,
+        "ipopt.print_level": 0,
+        "ipopt.sb": "yes",
+        "ipopt.tol": 1e-6,
+        "ipopt.acceptable_tol": 1e-4,
+        "ipopt.acceptable_iter": 5,
+        "ipopt.mu_strategy": "adaptive",
+        "ipopt.nlp_scaling_method": "gradient-based",
+        "print_time": False,
+    }
+    if iteration_callback is not None:
+        opts["iteration_callback"] = iteration_callback
+    return ca.nlpsol("maxmin", "ipopt", {"x": x, "p": par, "f": -t, "g": g}, opts)
+
+
+class _IterationCallback(ca.Callback):
+    """Forwards IPOPT's iterations to a Python function; a True return stops IPOPT."""
+
+    def __init__(self, nx: int, ng: int, np_: int, fn: Callable[[np.ndarray, float, np.ndarray], bool]):
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.np_ = nx, ng, np_
+        self.fn = fn
+        self.construct("iter_cb", {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        n = ca.nlpsol_out(i)
+        if n in ("f",):
+            return ca.Sparsity.scalar()
+        if n in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if n in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity.dense(self.np_)
+
+    def eval(self, arg):
+        stop = self.fn(np.array(arg[0]).ravel(), float(arg[1]), np.array(arg[2]).ravel())
+        return [1 if stop else 0]
+
+
+@dataclass
+class Outcome:
+    """What :func:`solve` returns: the best feasible z (None if none), its model score, the
+    number of IPOPT iterations, and why it stopped."""
+
+    z: np.ndarray | None
+    score: float
+    iterations: int
+    status: str
+    history: list[tuple[int, float, float, float]]  # (iteration, λ_min, violation, elapsed)
+
+
+def violation(tr: Transcription, z: np.ndarray) -> float:
+    """Largest violation of the kinematic constraints and the variable bounds at z."""
+    gv = np.array(tr.g_kin(z)).ravel()
+    v = np.maximum(tr.lbg_kin - gv, 0.0).max(initial=0.0)
+    v = max(v, np.maximum(gv - tr.ubg_kin, 0.0).max(initial=0.0))
+    v = max(v, np.maximum(tr.lbz - z, 0.0).max(initial=0.0), np.maximum(z - tr.ubz, 0.0).max(initial=0.0))
+    return float(v)
+
+
+def score(tr: Transcription, z: np.ndarray) -> float:
+    """λ_min of the coarse model at z."""
+    return float(np.linalg.eigvalsh(np.array(tr.M(z)))[0])
+
+
+FEASIBLE_TOL = 1e-5
+
+
+def solve(tr: Transcription, z0: np.ndarray, deadline: float, should_stop: Callable[[], bool] | None = None,
+          progress: Callable[[int, float, float, float], None] | None = None, t_start: float | None = None,
+          iters_per_round: int = 30, max_rounds: int = 100) -> Outcome:
+    """Maximise the coarse model's λ_min from z0 until converged, ``deadline`` (perf_counter)
+    or ``should_stop()``; return the best feasible point seen."""
+    t_start = time.perf_counter() if t_start is None else t_start
+    m = SUBSPACE
+    p = tr.n_params
+    nz = tr.n_z
+    nl = m * (m + 1) // 2
+    ng = tr.lbg_kin.size + nl
+    state = {"it": 0, "stop": False, "mu": 1.0, "round_start_it": 0}
+    hist: list[tuple[int, float, float, float]] = []
+
+    def on_iter(x, f, g):
+        state["it"] += 1
+        gk = g[: tr.lbg_kin.size]
+        viol = float(max(np.maximum(tr.lbg_kin - gk, 0).max(initial=0), np.maximum(gk - tr.ubg_kin, 0).max(initial=0)))
+        est = -f * state["mu"]
+        el = time.perf_counter() - t_start
+        hist.append((state["it"], est, viol, el))
+        if progress is not None:
+            progress(state["it"], est, viol, el)
+        if should_stop is not None and should_stop():
+            state["stop"] = True
+        round_over = state["it"] - state["round_start_it"] >= iters_per_round
+        return state["stop"] or round_over or time.perf_counter() > deadline
+
+    cb = _IterationCallback(nz + 1 + nl, ng, p * m + 1, on_iter)
+    if tr.solver is None:
+        tr.solver = build_solver(tr, cb)
+        tr._cb = cb
+    else:
+        tr._cb.fn = on_iter  # reuse the compiled solver
+    solver = tr.solver
+
+    z = np.array(z0, dtype=float)
+    cur = score(tr, z)
+    cur_v = violation(tr, z)
+    best_z = z.copy() if cur_v <= FEASIBLE_TOL else None
+    best = cur if best_z is not None else -np.inf
+    radius = 0.5
+    status = "optimal"
+    for _ in range(max_rounds):
+        if state["stop"]:
+            status = "cancelled"
+            break
+        if time.perf_counter() > deadline:
+            status = "time_budget"
+            break
+        Mv = np.array(tr.M(z))
+        w, U = np.linalg.eigh(Mv)
+        V = U[:, :m]
+        mu = max(w[0], 1e-12)
+        state["mu"] = mu
+        t0 = w[0] / mu - 1e-3
+        L0 = np.diag(np.sqrt(np.maximum(w[:m] / mu - t0, 1e-9)))
+        x0 = np.concatenate([z, [t0], [L0[i, j] for i, j in _vech_idx(m)]])
+        lbx = np.concatenate([np.maximum(tr.lbz, z - radius), [-np.inf],
+                              [0.0 if i == j else -np.inf for i, j in _vech_idx(m)]])
+        ubx = np.concatenate([np.minimum(tr.ubz, z + radius), [np.inf], [np.inf] * nl])
+        lbx[:nz] = np.minimum(lbx[:nz], z)
+        ubx[:nz] = np.maximum(ubx[:nz], z)
+        par = np.concatenate([V.ravel(order="F"), [mu]])
+        lbg = np.concatenate([tr.lbg_kin, np.zeros(nl)])
+        ubg = np.concatenate([tr.ubg_kin, np.zeros(nl)])
+        state["round_start_it"] = state["it"]
+        sol = solver(x0=x0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        zn = np.array(sol["x"]).ravel()[:nz]
+        sn = score(tr, zn)
+        vn = violation(tr, zn)
+        feasible_n = vn <= FEASIBLE_TOL
+        improved = (feasible_n and sn > cur * (1 + 1e-6)) or (cur_v > FEASIBLE_TOL and vn < cur_v)
+        if feasible_n and sn > best:
+            best, best_z = sn, zn.copy()
+        if improved:
+            step = np.abs(zn - z).max()
+            z, cur, cur_v = zn, sn, vn
+            radius = min(2.0, max(radius, 1.5 * step))
+        else:
+            radius *= 0.3
+            if radius < 1e-4:
+                status = "optimal"
+                break
+        stats = solver.stats()
+        if improved and stats.get("return_status") == "Solve_Succeeded" and step < 1e-4:
+            status = "optimal"
+            break
+    if state["stop"]:
+        status = "cancelled"
+    return Outcome(best_z, best, state["it"], status, hist)
