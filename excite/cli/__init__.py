@@ -19,7 +19,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 
 def _register() -> None:
     # Sub-command modules register themselves on `app` when imported.
-    from . import route, score, serve  # noqa: F401
+    from . import optimize, route, score, serve  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:

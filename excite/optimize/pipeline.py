@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import LimitError
 from ..evaluate import evaluate
-from ..maneuvers import EDGE_MARGIN_M, Lot, random_candidates, reference_maneuvers
+from ..maneuvers import EDGE_MARGIN_M, REFERENCE_MANEUVERS, Lot, random_candidates
 from ..rig import Rig
 from ..vehicle import ControlProfile, check_limits, drive
 from . import baselines
@@ -46,11 +46,18 @@ def feasibility(traj, settings: OptimizeSettings, lot: Lot | None = None) -> lis
 
 
 def _references(settings: OptimizeSettings) -> dict[str, ControlProfile]:
-    try:
-        return reference_maneuvers(settings.duration_s, width_m=settings.lot_length_m,
-                                   length_m=settings.lot_width_m, limits=settings.limits)
-    except LimitError:
-        return {}
+    """Every reference maneuver that fits the lot and the limits."""
+    out = {}
+    for name, gen in REFERENCE_MANEUVERS.items():
+        try:
+            if name == "highway_run":
+                out[name] = gen(settings.duration_s, limits=settings.limits)
+            else:
+                out[name] = gen(settings.duration_s, width_m=settings.lot_length_m,
+                                length_m=settings.lot_width_m, limits=settings.limits)
+        except LimitError:
+            continue
+    return out
 
 
 def _randoms(settings: OptimizeSettings, rig: Rig, n: int) -> list[ControlProfile]:
