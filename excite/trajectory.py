@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import BSpline, make_interp_spline
+from scipy.interpolate import BSpline, PPoly, make_interp_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from . import so3
@@ -148,6 +148,7 @@ class Trajectory:
         self._acc = self._pos.derivative(2)
         self._rot = RotationSpline(t, Rotation.from_matrix(self._R))
         self._tilt = None if self._tilt_samples is None else make_interp_spline(t, self._tilt_samples, k=3)
+        self._acc_pp = None  # acceleration as PPoly (breakpoints, coefficients), built on first use
         self.t_start = float(t[0])
         self.t_end = float(t[-1])
         self.name = name
@@ -197,14 +198,21 @@ class Trajectory:
 
     def imu(self, t: np.ndarray, R_V_B: np.ndarray, p_V_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What a perfect IMU at pose ``(R_V_B, p_V_B)`` in V sees at ``t``: its orientation
-        ``R_W_B``, body rate ``ω_B`` and specific force ``f_B`` (only what the IMU factor needs, so
-        that sampling at the IMU rate stays cheap)."""
+        ``R_W_B``, body rate ``ω_B`` and specific force ``f_B = R_W_Bᵀ(a_B − g)`` with the lever-arm
+        acceleration ``α × p + ω × (ω × p)``. The same splines as :meth:`sample`, evaluated in one
+        compiled loop (:func:`excite.kernels.imu_samples`): this runs at the IMU rate."""
+        from . import kernels
+
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
-        R, w, al = self._rotation(t, 2)
-        # specific force of the IMU point, first in V: Rᵀ(a − g) + α × p + ω × (ω × p)
-        f_V = (np.einsum("nji,nj->ni", R, self._acc(t) - GRAVITY) + np.cross(al, p_V_B)
-               + np.cross(w, np.cross(w, p_V_B)))
-        return R @ R_V_B, w @ R_V_B, f_V @ R_V_B
+        rot = self._rot.interpolator
+        if self._acc_pp is None:
+            parts = [PPoly.from_spline(BSpline(self._acc.t, self._acc.c[:, j], self._acc.k)) for j in range(3)]
+            self._acc_pp = (parts[0].x, np.stack([pp.c for pp in parts], axis=-1))
+        x_acc, c_acc = self._acc_pp
+        seg_rot = np.clip(np.searchsorted(rot.x, t, side="right") - 1, 0, rot.x.size - 2)
+        seg_acc = np.clip(np.searchsorted(x_acc, t, side="right") - 1, 0, x_acc.size - 2)
+        return kernels.imu_samples(t, seg_rot, rot.x, rot.c, self._R, seg_acc, x_acc, c_acc, GRAVITY,
+                                   np.ascontiguousarray(R_V_B, dtype=float), np.asarray(p_V_B, dtype=float))
 
     def transformed(self, R: np.ndarray, p: np.ndarray, name: str | None = None) -> "Trajectory":
         """The same drive moved rigidly in the world: ``x ↦ R x + p``.

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import kernels, so3
 from ..rig import Rig
 from ..trajectory import GRAVITY
 from .base import ROT, FactorBlock, Nominal, theta_columns
@@ -42,46 +42,8 @@ def preintegration(nom: Nominal, sigma_g: float, sigma_a: float) -> dict[str, np
     n = nom.imu_per_keyframe
     N = nom.n_keyframes - 1
     dt = (nom.t[1] - nom.t[0]) / n
-    R_all = nom.imu_R
-    R_i = R_all[: N * n : n]  # (N,3,3)
-    Rs = R_all[: N * n].reshape(N, n, 3, 3)
-    fs = nom.imu_f[: N * n].reshape(N, n, 3, 1)
-    dRs = np.swapaxes(R_i, 1, 2)[:, None] @ Rs  # ΔR_s = R_iᵀ R(τ_s)
-    a = (dRs @ fs)[..., 0] * dt  # A_s = [a_s]×: specific force in frame i, times dt
-    w = (n - 1 - np.arange(n) + 0.5) * dt
-    q = np.arange(n)
-    # SA_{s+1} = [c_s]×, SP_{s+1} = [e_s]× with c_s = Σ_{q>s} a_q, e_s = Σ_{q>s} w_q a_q
-    c = np.zeros_like(a)
-    e = np.zeros_like(a)
-    c[:, :-1] = np.cumsum(a[:, :0:-1], axis=1)[:, ::-1]
-    e[:, :-1] = np.cumsum((a * w[:, None])[:, :0:-1], axis=1)[:, ::-1]
-
-    G_R = dRs.sum(axis=1) * dt
-    # Σ_q [c_q]× ΔR_q: cross products of c_q with ΔR_q's columns
-    V_g = np.cross(c[:, :, :, None], dRs, axis=2).sum(axis=1) * dt
-    P_g = np.cross(e[:, :, :, None], dRs, axis=2).sum(axis=1) * dt
+    dR, G_R, V_g, P_g, P_a, cov = kernels.preintegration(nom.imu_R, nom.imu_f, n, N, dt, sigma_g, sigma_a)
     V_a = -G_R
-    P_a = -np.tensordot(w, dRs, axes=([0], [1])) * dt
-
-    # [x]×[y]×ᵀ = (x·y) I − y xᵀ summed over the samples
-    cT = np.swapaxes(c, 1, 2)
-    eT = np.swapaxes(e, 1, 2)
-    Mcc, Mce, Mee = cT @ c, cT @ e, eT @ e  # Σ_s c cᵀ, Σ_s c eᵀ, Σ_s e eᵀ
-    tr = lambda M: np.trace(M, axis1=1, axis2=2)[:, None, None]
-    g2 = sigma_g**2 * dt
-    a2 = sigma_a**2 * dt
-    eye = np.eye(3)
-    cov = np.empty((N, 9, 9))
-    cov[:, ROT, ROT] = g2 * n * eye
-    cov[:, VEL_R, ROT] = -g2 * so3.hat(np.tensordot(q, a, axes=([0], [1])))  # Σ_s SA_{s+1} = [Σ_q q a_q]×
-    cov[:, POS_R, ROT] = -g2 * so3.hat(np.tensordot(q * w, a, axes=([0], [1])))
-    cov[:, VEL_R, VEL_R] = g2 * (tr(Mcc) * eye - Mcc) + a2 * n * eye
-    cov[:, POS_R, VEL_R] = g2 * (tr(Mce) * eye - Mce) + a2 * w.sum() * eye
-    cov[:, POS_R, POS_R] = g2 * (tr(Mee) * eye - Mee) + a2 * (w**2).sum() * eye
-    cov[:, ROT, VEL_R] = np.swapaxes(cov[:, VEL_R, ROT], 1, 2)
-    cov[:, ROT, POS_R] = np.swapaxes(cov[:, POS_R, ROT], 1, 2)
-    cov[:, VEL_R, POS_R] = np.swapaxes(cov[:, POS_R, VEL_R], 1, 2)
-    dR = np.swapaxes(R_i, 1, 2) @ R_all[n::n][:N]
     return dict(dR=dR, G_R=G_R, V_g=V_g, V_a=V_a, P_g=P_g, P_a=P_a, cov=cov)
 
 

@@ -1,0 +1,229 @@
+"""Compiled inner loops over IMU samples (numba).
+
+A 10-minute drive has 120 000 IMU samples at 200 Hz; evaluated with numpy, every formula below is
+a pass over arrays of that length. Fused per sample, with 3-vectors and 3×3 matrices kept in
+scalars (no allocation in the loops), they cost a few milliseconds. The math is the same as
+documented at the call sites (:meth:`excite.trajectory.Trajectory.imu` and
+:func:`excite.factors.imu.preintegration`); the tests hold both to independent references
+(scipy's RotationSpline, finite differences, a Monte Carlo of noisy preintegration).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+_SERIES = 1e-2  # below this rotation angle, series expansions (exact to ~1e-16)
+
+
+@nb.njit(cache=True, inline="always")
+def _cross(ux, uy, uz, vx, vy, vz):
+    return uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+
+
+@nb.njit(cache=True, inline="always")
+def _coeffs(theta):
+    """sin θ/θ, (1−cos θ)/θ², (θ−sin θ)/θ³ and (b′/θ, c′/θ) of the last two."""
+    t2 = theta * theta
+    if theta < _SERIES:
+        a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0
+        b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0
+        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0
+        eb = -1.0 / 12.0 + t2 / 180.0
+        ec = -1.0 / 60.0 + t2 / 1260.0
+    else:
+        s, co = np.sin(theta), np.cos(theta)
+        a = s / theta
+        b = (1.0 - co) / t2
+        c = (theta - s) / (t2 * theta)
+        eb = (theta * s - 2.0 * (1.0 - co)) / (t2 * t2)
+        ec = (theta * (1.0 - co) - 3.0 * (theta - s)) / (t2 * t2 * theta)
+    return a, b, c, eb, ec
+
+
+@nb.njit(cache=True, inline="always")
+def _horner(c, k, j, tau, deriv):
+    """Component j of the value (deriv 0), first or second derivative of PPoly segment k at tau."""
+    deg = c.shape[0] - 1
+    out = 0.0
+    for m in range(deg + 1 - deriv):
+        p = deg - m
+        coef = 1.0
+        for d in range(deriv):
+            coef *= p - d
+        out = out * tau + coef * c[m, k, j]
+    return out
+
+
+@nb.njit(cache=True)
+def imu_samples(t, seg_rot, x_rot, c_rot, R_key, seg_acc, x_acc, c_acc, gravity, R_V_B, p_V_B):
+    """Orientation R_W_B, body rate ω_B and specific force f_B of an IMU at ``(R_V_B, p_V_B)`` in V.
+
+    V's orientation is ``R_key[k] · Exp(φ(t))`` with φ a cubic PPoly (``x_rot, c_rot``); its
+    acceleration a PPoly (``x_acc, c_acc``); ``seg_*`` the segment of every time. Body rate
+    ``ω = J_r(φ) φ̇`` and angular acceleration ``α = J_r φ̈ + J̇_r φ̇`` in vector form.
+    """
+    n = t.size
+    out_R = np.empty((n, 3, 3))
+    out_w = np.empty((n, 3))
+    out_f = np.empty((n, 3))
+    px, py, pz = p_V_B[0], p_V_B[1], p_V_B[2]
+    E = np.empty((3, 3))
+    R = np.empty((3, 3))
+    for i in range(n):
+        k = seg_rot[i]
+        tau = t[i] - x_rot[k]
+        fx, fy, fz = _horner(c_rot, k, 0, tau, 0), _horner(c_rot, k, 1, tau, 0), _horner(c_rot, k, 2, tau, 0)
+        dx, dy, dz = _horner(c_rot, k, 0, tau, 1), _horner(c_rot, k, 1, tau, 1), _horner(c_rot, k, 2, tau, 1)
+        ddx, ddy, ddz = _horner(c_rot, k, 0, tau, 2), _horner(c_rot, k, 1, tau, 2), _horner(c_rot, k, 2, tau, 2)
+        theta = np.sqrt(fx * fx + fy * fy + fz * fz)
+        a, b, c, eb, ec = _coeffs(theta)
+        cos = 1.0 - b * theta * theta
+        # Exp(φ) = cos θ I + a [φ]× + b φ φᵀ
+        E[0, 0] = cos + b * fx * fx
+        E[0, 1] = b * fx * fy - a * fz
+        E[0, 2] = b * fx * fz + a * fy
+        E[1, 0] = b * fy * fx + a * fz
+        E[1, 1] = cos + b * fy * fy
+        E[1, 2] = b * fy * fz - a * fx
+        E[2, 0] = b * fz * fx - a * fy
+        E[2, 1] = b * fz * fy + a * fx
+        E[2, 2] = cos + b * fz * fz
+        for r in range(3):
+            for q in range(3):
+                R[r, q] = R_key[k, r, 0] * E[0, q] + R_key[k, r, 1] * E[1, q] + R_key[k, r, 2] * E[2, q]
+        pdx, pdy, pdz = _cross(fx, fy, fz, dx, dy, dz)
+        ppx, ppy, ppz = _cross(fx, fy, fz, pdx, pdy, pdz)
+        wx, wy, wz = dx - b * pdx + c * ppx, dy - b * pdy + c * ppy, dz - b * pdz + c * ppz
+        pd = fx * dx + fy * dy + fz * dz
+        qx, qy, qz = _cross(fx, fy, fz, ddx, ddy, ddz)
+        qqx, qqy, qqz = _cross(fx, fy, fz, qx, qy, qz)
+        rx, ry, rz = _cross(dx, dy, dz, pdx, pdy, pdz)
+        alx = ddx - b * qx + c * qqx - eb * pd * pdx + ec * pd * ppx + c * rx
+        aly = ddy - b * qy + c * qqy - eb * pd * pdy + ec * pd * ppy + c * ry
+        alz = ddz - b * qz + c * qqz - eb * pd * pdz + ec * pd * ppz + c * rz
+        j = seg_acc[i]
+        tj = t[i] - x_acc[j]
+        ax = _horner(c_acc, j, 0, tj, 0) - gravity[0]
+        ay = _horner(c_acc, j, 1, tj, 0) - gravity[1]
+        az = _horner(c_acc, j, 2, tj, 0) - gravity[2]
+        # specific force at the IMU point, in V: Rᵀ(a − g) + α × p + ω × (ω × p)
+        l1x, l1y, l1z = _cross(alx, aly, alz, px, py, pz)
+        wpx, wpy, wpz = _cross(wx, wy, wz, px, py, pz)
+        l2x, l2y, l2z = _cross(wx, wy, wz, wpx, wpy, wpz)
+        fVx = R[0, 0] * ax + R[1, 0] * ay + R[2, 0] * az + l1x + l2x
+        fVy = R[0, 1] * ax + R[1, 1] * ay + R[2, 1] * az + l1y + l2y
+        fVz = R[0, 2] * ax + R[1, 2] * ay + R[2, 2] * az + l1z + l2z
+        for r in range(3):
+            for q in range(3):
+                out_R[i, r, q] = R[r, 0] * R_V_B[0, q] + R[r, 1] * R_V_B[1, q] + R[r, 2] * R_V_B[2, q]
+            out_w[i, r] = R_V_B[0, r] * wx + R_V_B[1, r] * wy + R_V_B[2, r] * wz
+            out_f[i, r] = R_V_B[0, r] * fVx + R_V_B[1, r] * fVy + R_V_B[2, r] * fVz
+    return out_R, out_w, out_f
+
+
+@nb.njit(cache=True)
+def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
+    """Per interval: ΔR = R_iᵀR_j, bias Jacobians G_R, V_g, P_g, P_a and the 9×9 covariance
+    (rotation, velocity, position) of the preintegrated measurement; see
+    :func:`excite.factors.imu.preintegration` for the formulas."""
+    N = n_intervals
+    dR = np.empty((N, 3, 3))
+    G_R = np.zeros((N, 3, 3))
+    V_g = np.zeros((N, 3, 3))
+    P_g = np.zeros((N, 3, 3))
+    P_a = np.zeros((N, 3, 3))
+    cov = np.zeros((N, 9, 9))
+    w = np.empty(n)
+    for s in range(n):
+        w[s] = (n - 1 - s + 0.5) * dt
+    sw = w.sum()
+    sw2 = (w * w).sum()
+    g2 = sigma_g * sigma_g * dt
+    a2 = sigma_a * sigma_a * dt
+    dRs = np.empty((n, 3, 3))
+    av = np.empty((n, 3))
+    Mcc = np.empty((3, 3))
+    Mce = np.empty((3, 3))
+    Mee = np.empty((3, 3))
+    for i in range(N):
+        i0 = i * n
+        for s in range(n):
+            for r in range(3):
+                for q in range(3):
+                    dRs[s, r, q] = (imu_R[i0, 0, r] * imu_R[i0 + s, 0, q] + imu_R[i0, 1, r] * imu_R[i0 + s, 1, q]
+                                    + imu_R[i0, 2, r] * imu_R[i0 + s, 2, q])
+            for r in range(3):
+                av[s, r] = (dRs[s, r, 0] * imu_f[i0 + s, 0] + dRs[s, r, 1] * imu_f[i0 + s, 1]
+                            + dRs[s, r, 2] * imu_f[i0 + s, 2]) * dt
+        for r in range(3):
+            for q in range(3):
+                dR[i, r, q] = (imu_R[i0, 0, r] * imu_R[i0 + n, 0, q] + imu_R[i0, 1, r] * imu_R[i0 + n, 1, q]
+                               + imu_R[i0, 2, r] * imu_R[i0 + n, 2, q])
+        cx = cy = cz = 0.0  # c = Σ_{q>s} a_q
+        ex = ey = ez = 0.0  # e = Σ_{q>s} w_q a_q
+        sqx = sqy = sqz = 0.0  # Σ_q q a_q
+        swx = swy = swz = 0.0  # Σ_q q w_q a_q
+        Mcc[:] = 0.0
+        Mce[:] = 0.0
+        Mee[:] = 0.0
+        for s in range(n - 1, -1, -1):
+            for q in range(3):
+                d0, d1, d2 = dRs[s, 0, q], dRs[s, 1, q], dRs[s, 2, q]
+                G_R[i, 0, q] += d0 * dt
+                G_R[i, 1, q] += d1 * dt
+                G_R[i, 2, q] += d2 * dt
+                P_a[i, 0, q] -= d0 * w[s] * dt
+                P_a[i, 1, q] -= d1 * w[s] * dt
+                P_a[i, 2, q] -= d2 * w[s] * dt
+                # [c]× and [e]× times column q of ΔR_s
+                x0, x1, x2 = _cross(cx, cy, cz, d0, d1, d2)
+                V_g[i, 0, q] += x0 * dt
+                V_g[i, 1, q] += x1 * dt
+                V_g[i, 2, q] += x2 * dt
+                y0, y1, y2 = _cross(ex, ey, ez, d0, d1, d2)
+                P_g[i, 0, q] += y0 * dt
+                P_g[i, 1, q] += y1 * dt
+                P_g[i, 2, q] += y2 * dt
+            cv = (cx, cy, cz)
+            ev = (ex, ey, ez)
+            for r in range(3):
+                for q in range(3):
+                    Mcc[r, q] += cv[r] * cv[q]
+                    Mce[r, q] += cv[r] * ev[q]
+                    Mee[r, q] += ev[r] * ev[q]
+            ax, ay, az = av[s, 0], av[s, 1], av[s, 2]
+            sqx += s * ax
+            sqy += s * ay
+            sqz += s * az
+            swx += s * w[s] * ax
+            swy += s * w[s] * ay
+            swz += s * w[s] * az
+            cx += ax
+            cy += ay
+            cz += az
+            ex += w[s] * ax
+            ey += w[s] * ay
+            ez += w[s] * az
+        C = cov[i]
+        tcc = Mcc[0, 0] + Mcc[1, 1] + Mcc[2, 2]
+        tce = Mce[0, 0] + Mce[1, 1] + Mce[2, 2]
+        tee = Mee[0, 0] + Mee[1, 1] + Mee[2, 2]
+        # rotation–velocity and rotation–position: −g2 [Σ q a_q]×, −g2 [Σ q w_q a_q]×
+        for (row, vx, vy, vz) in ((3, sqx, sqy, sqz), (6, swx, swy, swz)):
+            C[row + 0, 1], C[row + 0, 2] = g2 * vz, -g2 * vy
+            C[row + 1, 0], C[row + 1, 2] = -g2 * vz, g2 * vx
+            C[row + 2, 0], C[row + 2, 1] = g2 * vy, -g2 * vx
+        for r in range(3):
+            C[r, r] = g2 * n
+            for q in range(3):
+                C[3 + r, 3 + q] = -g2 * Mcc[r, q]
+                C[6 + r, 3 + q] = -g2 * Mce[r, q]
+                C[6 + r, 6 + q] = -g2 * Mee[r, q]
+            C[3 + r, 3 + r] += g2 * tcc + a2 * n
+            C[6 + r, 3 + r] += g2 * tce + a2 * sw
+            C[6 + r, 6 + r] += g2 * tee + a2 * sw2
+        for r in range(9):
+            for q in range(r + 1, 9):
+                C[r, q] = C[q, r]
+    return dR, G_R, V_g, P_g, P_a, cov
