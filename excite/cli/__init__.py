@@ -19,14 +19,17 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 
 def _register() -> None:
     # Sub-command modules register themselves on `app` when imported.
-    from . import optimize, route, score, serve  # noqa: F401
+    from . import batch, optimize, route, score, serve  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     _register()
     try:
-        app(args=argv, standalone_mode=False)
+        # without standalone mode click returns a command's exit code instead of exiting
+        rc = app(args=argv, standalone_mode=False)
+        if isinstance(rc, int):
+            return rc
     except ExciteError as exc:
         print(f"excite: error: {exc}", file=sys.stderr)
         return 1

@@ -1,0 +1,79 @@
+"""``excite batch``: the CI gate over many routes (logic in :mod:`excite.batch`)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from .. import batch as gate
+from . import app
+
+_MAX_SHOWN = 4  # failing parameters listed per route in the table
+
+
+def _table(results: list[gate.RouteResult]) -> Table:
+    t = Table(title="excite batch", title_justify="left")
+    t.add_column("route", overflow="fold")
+    t.add_column("rig", overflow="fold")
+    t.add_column("score", justify="right")
+    t.add_column("result")
+    t.add_column("not met (σ > bound) / error", overflow="fold")
+    for r in results:
+        verdict = {"passed": "[green]pass[/]", "failed": "[red]FAIL[/]", "error": "[red]ERROR[/]"}[r.status]
+        shown = [f.short() for f in r.failures[:_MAX_SHOWN]]
+        if len(r.failures) > _MAX_SHOWN:
+            shown.append(f"… {len(r.failures) - _MAX_SHOWN} more (JUnit/--json list all)")
+        detail = r.error if r.error is not None else "\n".join(shown)
+        t.add_row(r.name, r.rig, "—" if r.score is None else f"{r.score:.3g}", verdict, detail or "")
+    return t
+
+
+@app.command()
+def batch(
+    paths: Annotated[list[str], typer.Argument(help="Route files, folders, globs and routes manifests (.yaml).")],
+    rig: Annotated[str, typer.Option(help="Rig of the routes given directly (and of manifest routes "
+                                          "whose manifest names none).")] = "robotaxi",
+    min_score: Annotated[Optional[float], typer.Option(
+        help="Routes given directly pass when their score reaches this; without it, when every "
+             "parameter is within its target. Manifest routes carry their own expectations.")] = None,
+    junit: Annotated[Optional[Path], typer.Option(help="Write JUnit XML here (one test case per route).")] = None,
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="Write every result and report as JSON here.")] = None,
+    jobs: Annotated[Optional[int], typer.Option(help="Parallel processes (default: one per core).")] = None,
+) -> None:
+    """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
+    specs = gate.collect(paths, rig=rig, min_score=min_score)
+    err = Console(stderr=True)
+    t0 = time.perf_counter()
+    with Progress(TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  TextColumn("{task.description}"), console=err, transient=True) as progress:
+        task = progress.add_task("", total=len(specs))
+
+        def done(r: gate.RouteResult) -> None:
+            progress.update(task, advance=1, description=f"{r.name}: {r.status}")
+
+        results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, on_result=done)
+    total_s = time.perf_counter() - t0
+    console = Console()
+    console.print(_table(results))
+    n_fail = sum(r.status == "failed" for r in results)
+    n_err = sum(r.status == "error" for r in results)
+    n_pass = len(results) - n_fail - n_err
+    colour = "green" if n_fail + n_err == 0 else "red"
+    console.print(f"[{colour}]{n_pass} passed, {n_fail} failed, {n_err} errors[/] in {total_s:.1f} s")
+    for r in results:
+        if r.advice:
+            console.print(f"[bold]{r.name}[/]: what it takes")
+            for a in r.advice[:2]:
+                console.print(f"  {a}", overflow="fold")
+    if junit is not None:
+        gate.write_text(junit, gate.junit_xml(results, total_s))
+    if json_out is not None:
+        gate.write_text(json_out, gate.dumps(results))
+    if n_fail + n_err:
+        raise typer.Exit(1)
