@@ -18,9 +18,12 @@ _MAX_SHOWN = 4  # failing parameters listed per route in the table
 
 
 def _table(results: list[gate.RouteResult]) -> Table:
-    t = Table(title="excite batch", title_justify="left")
-    t.add_column("route", overflow="fold")
-    t.add_column("rig", overflow="fold")
+    rigs = sorted({r.rig for r in results})
+    one_rig = len(rigs) == 1
+    t = Table(title=f"excite batch, rig {rigs[0]}" if one_rig else "excite batch", title_justify="left")
+    t.add_column("route", overflow="fold", min_width=min(30, max(len(r.name) for r in results)))
+    if not one_rig:
+        t.add_column("rig", overflow="fold")
     t.add_column("score", justify="right")
     t.add_column("result")
     t.add_column("not met (σ > bound) / error", overflow="fold")
@@ -30,7 +33,8 @@ def _table(results: list[gate.RouteResult]) -> Table:
         if len(r.failures) > _MAX_SHOWN:
             shown.append(f"… {len(r.failures) - _MAX_SHOWN} more (JUnit/--json list all)")
         detail = r.error if r.error is not None else "\n".join(shown)
-        t.add_row(r.name, r.rig, "—" if r.score is None else f"{r.score:.3g}", verdict, detail or "")
+        rig = [] if one_rig else [r.rig]
+        t.add_row(r.name, *rig, "—" if r.score is None else f"{r.score:.3g}", verdict, detail or "")
     return t
 
 
