@@ -285,7 +285,7 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     return Report(
         route=" + ".join(t.name for t in trajs), rig=rig.name,
         duration_s=float(sum(n.t[-1] - n.t[0] for n in noms)),
-        length_m=float(sum(t.length_m() for t in trajs)), n_keyframes=prob.n_keyframes,
+        length_m=float(sum(n.length_m for n in noms)), n_keyframes=prob.n_keyframes,
         score=score, passed=all(p.ok for p in params), rank=len(coords) - nullity, nullity=nullity,
         rank_threshold=float(tol), condition_number=cond,
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],

@@ -117,7 +117,8 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
         if local:
             v_b = np.einsum("kji,kj->ki", n.R, n.v)
             d = np.einsum("kji,kj->ki", n.R[:-1], np.diff(n.p, axis=0))
-            blocks = [_to_local(b, n.R, v_b, d) for b in blocks]
+            V, P = _local_maps(n.R, v_b, d)
+            blocks = [_to_local(b, V, P) for b in blocks]
         parts += [b.shifted(offset) for b in blocks]
         starts.append(offset)
         R_all.append(n.R)
@@ -140,31 +141,42 @@ def _with_gauges(K: int, p: int, blocks: list[FactorBlock], R: np.ndarray, local
     return Problem(K, p, tuple(blocks) + tuple(fix), R, local, chain_starts)
 
 
-def _to_local(b: FactorBlock, R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> FactorBlock:
-    """Re-express a block's world-state Jacobian in local states.
+def _local_maps(R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per keyframe, how world velocity and position perturbations follow from local ones:
+    ``δv_world = V_k [δθ_k; δv_k]`` with ``V_k = [−R_k[v_k]×, R_k]`` and
+    ``δ(p_{k+1} − p_k) = P_k [δθ_k; δd_k]`` with ``P_k = [−R_k[d_k]×, R_k]`` (each 3 × 6)."""
+    V = np.concatenate([-R @ so3.hat(v_b), R], axis=2)
+    P = np.zeros_like(V)
+    P[:-1] = np.concatenate([-R[:-1] @ so3.hat(d), R[:-1]], axis=2)
+    return V, P
 
-    ``δv_world = R_k δv_k − R_k [v_k]× δθ_k`` and ``δ(p_j − p_i) = Σ_{i≤q<j} (R_q δd_q − R_q [d_q]× δθ_q)``.
+
+def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray) -> FactorBlock:
+    """Re-express a block's world-state Jacobian in local states (maps from :func:`_local_maps`).
+
     Positions enter every factor only through differences (its position Jacobians sum to zero),
-    so the position of the factor's first keyframe drops out.
+    so ``Σ_a J_p,a δp_{k_a} = Σ_a J_p,a Σ_{first ≤ q < k_a} δ(p_{q+1} − p_q)`` and the position of
+    the factor's first keyframe drops out.
     """
     span = b.stride * (b.n_states - 1)
     n_new = span + 1
     N, r, _ = b.Jx.shape
     out = np.zeros((N, r, STATE_DIM * n_new))
+    Jp = [b.Jx[:, :, STATE_DIM * a + 3: STATE_DIM * a + 6] for a in range(b.n_states)]
     for a in range(b.n_states):
         k = b.first + a * b.stride
         Ja = b.Jx[:, :, STATE_DIM * a: STATE_DIM * (a + 1)]
-        Jr, Jp, Jv = Ja[:, :, ROT], Ja[:, :, POS], Ja[:, :, VEL]
         col = STATE_DIM * a * b.stride
-        Rk = R[k]
-        out[:, :, col + 0: col + 3] += Jr - Jv @ Rk @ so3.hat(v_b[k])
-        out[:, :, col + 3: col + 6] += Jv @ Rk
-        for q in range(a * b.stride):  # increments from the first keyframe up to k
-            kq = b.first + q
-            cq = STATE_DIM * q
-            JpR = Jp @ R[kq]
-            out[:, :, cq + 0: cq + 3] -= JpR @ so3.hat(d[kq])
-            out[:, :, cq + 6: cq + 9] += JpR
+        out[:, :, col + 0: col + 3] += Ja[:, :, ROT]
+        vel = Ja[:, :, VEL] @ V[k]  # → [δθ_k, δv_k]
+        out[:, :, col + 0: col + 3] += vel[:, :, 0:3]
+        out[:, :, col + 3: col + 6] += vel[:, :, 3:6]
+    for q in range(span):  # increment q (from keyframe first+q) moves every state after it
+        Jp_cum = sum(Jp[a] for a in range(b.n_states) if a * b.stride > q)
+        pos = Jp_cum @ P[b.first + q]
+        cq = STATE_DIM * q
+        out[:, :, cq + 0: cq + 3] += pos[:, :, 0:3]
+        out[:, :, cq + 6: cq + 9] += pos[:, :, 3:6]
     return FactorBlock(b.name, b.first, 1, n_new, out, b.Jt, b.cols)
 
 
@@ -197,13 +209,40 @@ def _scatter(target: np.ndarray, rows, values: np.ndarray, cols: np.ndarray | No
     """``target[rows(, :, cols)] += values`` (rows a slice or, possibly repeated, indices)."""
     if cols is not None:
         if isinstance(rows, slice):
-            rows = np.arange(target.shape[0])[rows]
-        np.add.at(target, (rows[:, None, None], np.arange(target.shape[1])[None, :, None], cols[None, None, :]),
-                  values)
+            view = target[rows]  # a view: the fancy-indexed += below writes through (cols are unique)
+            view[:, :, cols] += values
+        else:
+            np.add.at(target, (rows[:, None, None], np.arange(target.shape[1])[None, :, None], cols[None, None, :]),
+                      values)
     elif isinstance(rows, slice):
         target[rows] += values
     else:
         np.add.at(target, rows, values)
+
+
+def _merged(blocks: tuple[FactorBlock, ...]) -> list[FactorBlock]:
+    """Blocks that touch the same keyframes stacked row-wise: one product and one scatter each."""
+    groups: dict[tuple, list[FactorBlock]] = {}
+    for b in blocks:
+        key = (b.stride, b.n_states, b.first.size, int(b.first[0]), int(b.first[-1]))
+        groups.setdefault(key, []).append(b)
+    out = []
+    for group in groups.values():
+        if len(group) == 1 or any(not np.array_equal(g.first, group[0].first) for g in group):
+            out += group
+            continue
+        cols = np.unique(np.concatenate([g.cols for g in group]))
+        rows = sum(g.n_rows for g in group)
+        N = group[0].n_factors
+        Jt = np.zeros((N, rows, cols.size))
+        r0 = 0
+        for g in group:
+            Jt[:, r0:r0 + g.n_rows, np.searchsorted(cols, g.cols)] = g.Jt
+            r0 += g.n_rows
+        Jx = np.concatenate([g.Jx for g in group], axis=1)
+        out.append(FactorBlock("+".join(g.name for g in group), group[0].first, group[0].stride,
+                               group[0].n_states, Jx, Jt, cols))
+    return out
 
 
 def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -212,8 +251,8 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
     B = [np.zeros((K - d, STATE_DIM, STATE_DIM)) for d in range(D + 1)]
     Hxt = np.zeros((K, STATE_DIM, p))
     Htt = np.zeros((p, p))
-    for b in problem.blocks:
-        JxT = np.swapaxes(b.Jx, 1, 2)
+    for b in _merged(problem.blocks):
+        JxT = np.ascontiguousarray(np.swapaxes(b.Jx, 1, 2))  # contiguous: 3x faster batched matmul
         Hxx = JxT @ b.Jx
         k = b.cols.size
         if k:

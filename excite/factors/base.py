@@ -43,6 +43,7 @@ class Nominal:
     imu_per_keyframe: int
     R_V_B: np.ndarray
     p_V_B: np.ndarray
+    length_m: float = 0.0  # path length of the rear axle (trapezoid over the keyframes)
 
     @property
     def n_keyframes(self) -> int:
@@ -62,8 +63,10 @@ class Nominal:
         imu_R, imu_w, imu_f = traj.imu(t_imu, pose.R, pose.p)
         s = traj.sample(t_imu[::n])
         body = s.body(pose.R, pose.p)
+        length = float(np.trapezoid(np.linalg.norm(s.v_W, axis=1), s.t))
         return cls(t=body.t, R=body.R_W_B, p=body.p_W_B, v=body.v_W, omega=body.omega_B, R_V_A=s.R_V_A,
-                   imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f, imu_per_keyframe=n, R_V_B=pose.R, p_V_B=pose.p)
+                   imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f, imu_per_keyframe=n, R_V_B=pose.R, p_V_B=pose.p,
+                   length_m=length)
 
 
 @dataclass(frozen=True)
