@@ -98,27 +98,6 @@ def log(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
-def right_jacobian(phi: np.ndarray) -> np.ndarray:
-    """``J_r(φ)``: ``Exp(φ + δ) ≈ Exp(φ)·Exp(J_r(φ) δ)``; the body rate of ``Exp(φ(t))`` is ``J_r φ̇``."""
-    phi = np.asarray(phi, dtype=float)
-    theta = np.linalg.norm(phi, axis=-1)
-    _, b, c = _coefficients(theta)
-    K = hat(phi)
-    return np.eye(3) - b[..., None, None] * K + c[..., None, None] * (K @ K)
-
-
-def right_jacobian_dot(phi: np.ndarray, phi_dot: np.ndarray) -> np.ndarray:
-    """Time derivative of ``J_r(φ(t))`` given ``φ̇``."""
-    phi = np.asarray(phi, dtype=float)
-    theta = np.linalg.norm(phi, axis=-1)
-    _, b, c = _coefficients(theta)
-    eb, ec = _derivative_coefficients(theta)
-    pd = np.einsum("...i,...i->...", phi, phi_dot)[..., None, None]
-    K, Kd = hat(phi), hat(phi_dot)
-    b, c, eb, ec = (x[..., None, None] for x in (b, c, eb, ec))
-    return -(eb * pd) * K - b * Kd + (ec * pd) * (K @ K) + c * (Kd @ K + K @ Kd)
-
-
 def right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     """``J_r⁻¹(φ)``: ``Log(Exp(φ)·Exp(δ)) ≈ φ + J_r⁻¹(φ) δ``."""
     phi = np.asarray(phi, dtype=float)
