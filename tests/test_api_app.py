@@ -53,15 +53,18 @@ def test_time_limit_and_no_traceback(tmp_path):
 
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1,
                               request_timeout_s=0.05))
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.post("/v1/score", json={"route": {"waypoints": [[0, 0], [300, 0], [300, 200], [0, 200]]}})
+        assert r.status_code == 503 and "0.05 s" in r.json()["detail"], r.text
+        assert r.headers["content-type"].startswith("application/problem+json")
+
+    app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1))
 
     @app.get("/boom")
     def boom():
         raise RuntimeError("secret internals")
 
     with TestClient(app, raise_server_exceptions=False) as c:
-        r = c.post("/v1/score", json={"route": {"waypoints": [[0, 0], [300, 0], [300, 200], [0, 200]]}})
-        assert r.status_code == 503 and "0.05 s" in r.json()["detail"]
-        assert r.headers["content-type"].startswith("application/problem+json")
         r = c.get("/boom")
         assert r.status_code == 500 and "secret" not in r.text and "Traceback" not in r.text
         assert r.json()["title"] == "Internal server error"

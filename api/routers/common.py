@@ -9,7 +9,7 @@ from ..schemas import Problem
 
 
 def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    text = {404: "Unknown resource", 409: "Conflict with the resource's state",
+    text = {400: "The body cannot be parsed (not UTF-8 JSON)", 404: "Unknown resource", 409: "Conflict with the resource's state",
             413: "Body, route or batch too large (the bound is in the detail)",
             422: "Invalid input (the offending field is named in `errors`)",
             500: "Internal error (no details; logged server-side)",
@@ -18,4 +18,4 @@ def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
             for s in statuses}
 
 
-BODY = problems(413, 422, 500, 503)
+BODY = problems(400, 413, 422, 500, 503)
