@@ -409,19 +409,30 @@ def _worst_first(fails: list[Failure]) -> list[Failure]:
 
 
 def _advice(report: Report, fails: list[Failure]) -> list[str]:
-    """Motion advice of the weak modes the failing parameters live in (the weakest mode for a
-    score failure), one line per mode: 'λ … on a +w, b +w: advice'."""
-    wanted = {f.parameter for f in fails}
-    modes = [m for m in report.weak_modes if m.status != "ok" and any(n in wanted for n, _ in m.coordinates)]
-    if not modes or "score" in wanted:
-        modes = report.weak_modes[:1] + [m for m in modes if m is not report.weak_modes[0]]
-    out, seen = [], set()
-    for m in modes[:4]:
-        if m.advice in seen:
+    """Motion advice for the failing parameters, worst first: for each, the weak mode that
+    contributes most to its σ² (weight² / eigenvalue; an unobservable mode first), and for a score
+    failure the weakest mode. One line per distinct mode: 'for p: λ … on a +w, b +w: advice'."""
+    def share(m: Any, name: str) -> float:
+        w = dict(m.coordinates).get(name)
+        if w is None:
+            return 0.0
+        return math.inf if m.status == "unobservable" else w * w / max(m.eigenvalue_scaled, 1e-300)
+
+    out, used = [], set()
+    for f in fails:
+        if f.parameter == "score":
+            mode = report.weak_modes[0] if report.weak_modes else None
+        else:
+            ranked = sorted(report.weak_modes, key=lambda m: -share(m, f.parameter))
+            mode = ranked[0] if ranked and share(ranked[0], f.parameter) > 0 else None
+        if mode is None or id(mode) in used:
             continue
-        seen.add(m.advice)
-        coords = ", ".join(f"{n} {w:+.2f}" for n, w in m.coordinates[:3])
-        out.append(f"{m.status} mode (λ {m.eigenvalue_scaled:.3g}) on {coords}: {m.advice}")
+        used.add(id(mode))
+        coords = ", ".join(f"{n} {w:+.2f}" for n, w in mode.coordinates[:3])
+        out.append(f"{f.parameter}: {mode.status} mode (λ {mode.eigenvalue_scaled:.3g}) on {coords}: "
+                   f"{mode.advice}")
+        if len(out) == 4:
+            break
     return out
 
 
@@ -468,7 +479,8 @@ def run(specs: Sequence[RouteSpec], jobs: int | None = None, keep_reports: bool 
     """Evaluate every route, ``jobs`` processes at a time (default: one per core; 1 runs in this
     process). Results come back in the order of ``specs``; ``on_result`` is called as each one
     finishes (a progress bar)."""
-    jobs = jobs or os.cpu_count() or 1
+    if jobs is None:
+        jobs = os.cpu_count() or 1
     if jobs < 1:
         raise ManifestError(f"--jobs must be ≥ 1, got {jobs}")
     todo = [i for i, s in enumerate(specs) if s.error is None]

@@ -21,12 +21,12 @@ def _table(results: list[gate.RouteResult]) -> Table:
     rigs = sorted({r.rig for r in results})
     one_rig = len(rigs) == 1
     t = Table(title=f"excite batch, rig {rigs[0]}" if one_rig else "excite batch", title_justify="left")
-    t.add_column("route", overflow="fold", min_width=min(30, max(len(r.name) for r in results)))
+    t.add_column("route", overflow="fold", ratio=1)
     if not one_rig:
         t.add_column("rig", overflow="fold")
     t.add_column("score", justify="right")
     t.add_column("result")
-    t.add_column("not met (σ > bound) / error", overflow="fold")
+    t.add_column("not met (σ > bound) / error", overflow="fold", ratio=1)
     for r in results:
         verdict = {"passed": "[green]pass[/]", "failed": "[red]FAIL[/]", "error": "[red]ERROR[/]"}[r.status]
         shown = [f.short() for f in r.failures[:_MAX_SHOWN]]
