@@ -282,9 +282,15 @@ def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
 
 
 def warm() -> bool:
-    """Load the bundled rigs (the pool's first task, so the first request is not slow)."""
+    """Load the bundled rigs and score a short drive (the pool's first task: imports, caches and
+    any compiled kernels are ready before /readyz says so, not in the first request)."""
     for n in bundled_rigs():
         _bundled(n)
+    route = {"control": {"t_s": [0.0, 5.0, 10.0], "speed_mps": [0.0, 4.0, 0.0],
+                         "curvature_1pm": [0.0, 0.1, 0.0]}}
+    out = score_task(route, bundled_rigs()[0], 0, None, Bounds(1000, 60.0, 1000.0))
+    if not out["ok"]:
+        log.warning("warm-up scoring failed: %s", out.get("detail"))
     return True
 
 
