@@ -107,6 +107,7 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
     if not ranked:
         raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits")
     # prefer starts that nearly satisfy the optimizer's constraints; among those the best score
+    # (a little over a limit or the lot's inner edge: IPOPT restores that)
     near = [r for r in ranked if -r[1] < 1.0] or ranked
     near.sort(key=lambda r: (-r[0], r[2]))
     start_score, _, _, z_start, start_prof = near[0]

@@ -60,7 +60,7 @@ class Transcription:
 
     @property
     def n_z(self) -> int:
-        return layout(self.grid).size
+        return self.lbz.size
 
 
 def transcribe(rig: Rig, duration_s: float, limits: Limits, half_x_m: float, half_y_m: float,
