@@ -6,7 +6,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
     PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
-    EXCITE_DB_PATH=/data/excite-jobs.sqlite3
+    EXCITE_DB_PATH=/data/excite-jobs.sqlite3 \
+    NUMBA_CACHE_DIR=/tmp/numba-cache
 
 WORKDIR /app
 COPY pyproject.toml README.md ./
