@@ -22,6 +22,20 @@ def _register() -> None:
     from . import batch, optimize, route, score, serve  # noqa: F401
 
 
+def _click_exceptions() -> tuple[type[Exception], ...]:
+    # typer ≥ 0.26 vendors click as typer._click: its usage errors are not click's
+    import click
+
+    types: list[type[Exception]] = [click.ClickException]
+    try:
+        from typer._click.exceptions import ClickException as Vendored
+    except ImportError:
+        pass
+    else:
+        types.append(Vendored)
+    return tuple(types)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     _register()
@@ -42,9 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         print("excite: aborted", file=sys.stderr)
         return 130
     except Exception as exc:  # click usage errors carry their own exit code
-        import click
-
-        if isinstance(exc, click.ClickException):
+        if isinstance(exc, _click_exceptions()):
             exc.show()
             return exc.exit_code
         raise

@@ -86,11 +86,25 @@ def score(
     json_out: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
     export: Annotated[Optional[Path], typer.Option(help="Write J, H, Λ and the column map to .npz.")] = None,
     segments: Annotated[int, typer.Option(help="Report the information of this many route segments.")] = 0,
+    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG: the route coloured by information, "
+                                                      "the scaled spectrum, σ/target per parameter.")] = None,
+    plot_parameter: Annotated[Optional[str], typer.Option(
+        help="Colour the route by the information on this parameter (default: the weakest mode).")] = None,
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
     r = load_rig(rig)
+    if plot_parameter is not None and plot_parameter not in [c.name for c in r.scored]:
+        raise typer.BadParameter(f"no parameter {plot_parameter!r} in rig {r.name} "
+                                 f"(parameters: {', '.join(c.name for c in r.scored)})",
+                                 param_hint="--plot-parameter")
     traj = read_route(route, times=times, suspension=r.suspension)
     rep = evaluate(traj, r, Options(segments=segments))
+    if plot is not None:
+        from .. import plots
+
+        # the route panel needs segments; they are printed only when asked for
+        with_segments = rep if segments else evaluate(traj, r, Options(segments=plots.segment_count(traj.duration)))
+        plot.write_bytes(plots.report_figure(with_segments, traj, plot_parameter))
     if export is not None:
         rep.export_npz(export)
     if json_out:
