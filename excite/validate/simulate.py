@@ -1,0 +1,334 @@
+"""Raw noisy sensor data of a drive, from a true rig, through the factors' own measurement models.
+
+:func:`simulate` turns a nominal drive and a true :class:`Calibration` into what the rig's
+sensors record:
+
+- **IMU** samples at its rate: gyro and accelerometer with white noise of discrete σ =
+  density·√rate (Kalibr keys) and the true bias, constant by default, optionally a random walk per
+  the Kalibr random-walk keys. Sample ``s`` is the *increment-equivalent* rate over
+  ``[τ_s, τ_s + dt)`` (``ω_s = Log(R_sᵀR_{s+1})/dt``, ``f_s = R_sᵀ((v_{s+1} − v_s)/dt − g)``), as an
+  IMU that outputs delta-angles and delta-velocities does: the preintegration of
+  :mod:`excite.factors.imu` (samples held over dt) then reproduces the true rotation and velocity
+  between keyframes exactly and the position to ``dt²·Δa/12`` (trapezoid), far below the noise.
+  Instantaneous samples would leave an O(dt) discretisation error ten times the noise.
+- **Each exteroceptive sensor**: the relative pose between its consecutive frames with its
+  rotation/translation noise, at its own clock: the frame stamped ``t`` shows the body at
+  ``t + t_d`` (the exact pose from the drive; the factor takes it to first order). A monocular
+  camera's translations carry its true scale.
+- **Wheel encoders**: cumulative ticks (quantisation ``2π/ticks_per_rev``) of the wheel angle
+  predicted by :func:`excite.factors.wheel.increments` plus white slip noise, so that the total
+  noise of one increment (white + two quantisation errors) equals the rig's ``sigma_rad``.
+- **Non-holonomic constraint**: a pseudo-measurement of zero lateral/vertical axle velocity with
+  white slip of the configured σ (the information model treats it as a measurement with that σ;
+  a drive that never slips would make the evaluator conservative along what it determines).
+
+The suspension tilt ``R_V_A`` and the IMU pose in the vehicle frame are known inputs, as in the
+information model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import so3
+from ..errors import ExciteError
+from ..factors import wheel
+from ..factors.base import Nominal
+from ..rig import Rig, build_rig
+from ..trajectory import GRAVITY, Trajectory
+
+
+class ValidateError(ExciteError, ValueError):
+    """A simulation, calibration or Monte Carlo validation cannot be run as asked."""
+
+
+# ------------------------------------------------------------------------------------------------
+# The calibration as a value (nominal rig ⊞ offset)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Values of every calibration quantity of a rig.
+
+    ``extrinsics[name] = (R_B_S, p_B_S)``, ``time_offsets[name]`` [s] (stamp t shows the body at
+    t + t_d), ``scales[name]`` (monocular cameras; 1 otherwise), IMU biases [rad/s, m/s²] and
+    ``wheel = (radius_left, radius_right, track)`` [m] (None without wheels). Offsets over the
+    rig's coordinates follow the library's conventions: right perturbation of ``R_B_S``, additive
+    elsewhere (:meth:`plus`, :meth:`minus`).
+    """
+
+    extrinsics: dict[str, tuple[np.ndarray, np.ndarray]]
+    time_offsets: dict[str, float]
+    scales: dict[str, float]
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    wheel: tuple[float, float, float] | None
+
+    @classmethod
+    def nominal(cls, rig: Rig) -> "Calibration":
+        """The rig's configured values: zero time offsets and biases, unit scales."""
+        cfg = rig.config
+        w = cfg.wheels
+        return cls(extrinsics={s.name: (s.T_B_S.R, s.T_B_S.p) for s in cfg.sensors},
+                   time_offsets={s.name: 0.0 for s in cfg.sensors},
+                   scales={s.name: 1.0 for s in cfg.sensors},
+                   gyro_bias=np.zeros(3), accel_bias=np.zeros(3),
+                   wheel=None if w is None else (w.radius_left_m, w.radius_right_m, w.track_m))
+
+    def plus(self, rig: Rig, delta: np.ndarray) -> "Calibration":
+        """This calibration moved by ``delta`` (one entry per ``rig.coordinates``)."""
+        delta = np.asarray(delta, dtype=float)
+        if delta.shape != (len(rig.coordinates),):
+            raise ValidateError(f"a calibration offset needs {len(rig.coordinates)} entries, got {delta.shape}")
+        ext = {k: (R.copy(), p.copy()) for k, (R, p) in self.extrinsics.items()}
+        t_d, scale = dict(self.time_offsets), dict(self.scales)
+        bg, ba = self.gyro_bias.copy(), self.accel_bias.copy()
+        wh = None if self.wheel is None else list(self.wheel)
+        rot: dict[str, np.ndarray] = {}
+        for c, d in zip(rig.coordinates, delta):
+            if c.kind == "rot":
+                rot.setdefault(c.block, np.zeros(3))[c.axis] = d
+            elif c.kind == "trans":
+                ext[c.block][1][c.axis] += d
+            elif c.kind == "time_offset":
+                t_d[c.block] += d
+            elif c.kind == "scale":
+                scale[c.block] += d
+            elif c.kind == "gyro_bias":
+                bg[c.axis] += d
+            elif c.kind == "accel_bias":
+                ba[c.axis] += d
+            elif c.kind == "radius":
+                wh[c.axis] += d
+            elif c.kind == "track":
+                wh[2] += d
+        for name, phi in rot.items():
+            R, p = ext[name]
+            ext[name] = (R @ so3.exp(phi[None])[0], p)  # (so3.exp needs a batch axis)
+        return Calibration(ext, t_d, scale, bg, ba, None if wh is None else tuple(wh))
+
+    def minus(self, other: "Calibration", rig: Rig) -> np.ndarray:
+        """``self ⊟ other`` over ``rig.coordinates`` (rotations: ``Log(R_otherᵀ R_self)``)."""
+        out = np.zeros(len(rig.coordinates))
+        rot = {k: so3.log(other.extrinsics[k][0].T @ R) for k, (R, _) in self.extrinsics.items()}
+        for i, c in enumerate(rig.coordinates):
+            if c.kind == "rot":
+                out[i] = rot[c.block][c.axis]
+            elif c.kind == "trans":
+                out[i] = self.extrinsics[c.block][1][c.axis] - other.extrinsics[c.block][1][c.axis]
+            elif c.kind == "time_offset":
+                out[i] = self.time_offsets[c.block] - other.time_offsets[c.block]
+            elif c.kind == "scale":
+                out[i] = self.scales[c.block] - other.scales[c.block]
+            elif c.kind == "gyro_bias":
+                out[i] = self.gyro_bias[c.axis] - other.gyro_bias[c.axis]
+            elif c.kind == "accel_bias":
+                out[i] = self.accel_bias[c.axis] - other.accel_bias[c.axis]
+            elif c.kind == "radius":
+                out[i] = self.wheel[c.axis] - other.wheel[c.axis]
+            elif c.kind == "track":
+                out[i] = self.wheel[2] - other.wheel[2]
+        return out
+
+    def rig(self, rig: Rig) -> Rig:
+        """``rig`` with these extrinsics and wheel values (time offsets, scales and biases are not
+        rig fields: the factors take them as zero, one and zero)."""
+        data = rig.config.model_dump()
+        for s in data["sensors"]:
+            R, p = self.extrinsics[s["name"]]
+            s["T_B_S"] = {"translation_m": [float(x) for x in p], "matrix": R.tolist()}
+        if self.wheel is not None:
+            data["wheels"].update(radius_left_m=self.wheel[0], radius_right_m=self.wheel[1],
+                                  track_m=self.wheel[2])
+        return build_rig(data)
+
+
+def offset_sigma(rig: Rig, in_targets: float, scale_sigma: float = 0.01) -> np.ndarray:
+    """σ per coordinate of a random calibration offset: ``in_targets`` × target (scale: ``scale_sigma``)."""
+    return np.array([scale_sigma if c.nuisance else in_targets * c.target for c in rig.coordinates])
+
+
+# ------------------------------------------------------------------------------------------------
+# Simulation
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """What the simulator adds to the ideal measurements.
+
+    ``bias_random_walk``: let the IMU biases random-walk per the Kalibr random-walk keys (the
+    information model takes them constant: leave off for a consistency check).
+    ``slip_noise``: draw the non-holonomic pseudo-measurement with its σ (see the module docstring).
+    ``wheel_ticks_per_rev``: encoder resolution (0: no quantisation); the white part of the wheel
+    noise is reduced so that the total per increment equals the rig's ``sigma_rad``.
+    ``noise``: False gives noise-free data (the estimator must then return the truth).
+    """
+
+    noise: bool = True
+    bias_random_walk: bool = False
+    slip_noise: bool = True
+    wheel_ticks_per_rev: int = 2048
+
+    def __post_init__(self) -> None:
+        if self.wheel_ticks_per_rev < 0:
+            raise ValidateError(f"wheel_ticks_per_rev must be ≥ 0, got {self.wheel_ticks_per_rev}")
+
+
+@dataclass(frozen=True)
+class OdometryData:
+    """Relative poses of one sensor between its consecutive frames (keyframe indices ``frames``)."""
+
+    frames: np.ndarray
+    R_rel: np.ndarray  # (F−1, 3, 3)
+    t_rel: np.ndarray  # (F−1, 3)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """What the data was generated from: body states at the keyframes and the calibration."""
+
+    R: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    calibration: Calibration
+    gyro_bias: np.ndarray  # (samples, 3): the bias track (constant unless random walk)
+    accel_bias: np.ndarray
+
+
+@dataclass(frozen=True)
+class SensorData:
+    """Raw data of one drive, on the keyframe grid of the rig (IMU sample ``k·n`` is keyframe k).
+
+    ``gyro``/``accel`` (n_intervals·n, 3): sample s acts over ``[t_imu[s], t_imu[s] + dt)``.
+    ``wheel_ticks`` (K, 2) cumulative left/right counts at the keyframes (None without wheels),
+    ``slip`` (K, 2) the non-holonomic pseudo-measurement, ``R_V_A`` (K, 3, 3) the known suspension
+    tilt, ``R_V_B, p_V_B`` the known IMU pose in the vehicle frame.
+    """
+
+    t: np.ndarray
+    t_imu: np.ndarray
+    imu_per_keyframe: int
+    gyro: np.ndarray
+    accel: np.ndarray
+    odometry: dict[str, OdometryData]
+    wheel_ticks: np.ndarray | None
+    ticks_per_rev: int
+    slip: np.ndarray
+    R_V_A: np.ndarray
+    R_V_B: np.ndarray
+    p_V_B: np.ndarray
+    truth: Truth = field(repr=False)
+
+    @property
+    def n_keyframes(self) -> int:
+        return self.t.size
+
+    @property
+    def dt_imu(self) -> float:
+        return float(self.t[1] - self.t[0]) / self.imu_per_keyframe
+
+    @property
+    def wheel_increments(self) -> np.ndarray | None:
+        """Left/right wheel rotation [rad] over each keyframe interval, from the ticks."""
+        if self.wheel_ticks is None:
+            return None
+        q = 2 * np.pi / self.ticks_per_rev if self.ticks_per_rev else 1.0
+        return np.diff(self.wheel_ticks, axis=0) * q
+
+
+def _body(traj: Trajectory, t: np.ndarray, R_V_B: np.ndarray, p_V_B: np.ndarray):
+    return traj.sample(t).body(R_V_B, p_V_B)
+
+
+def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Generator,
+             settings: SimulationSettings = SimulationSettings()) -> SensorData:
+    """Noisy raw data of ``traj`` driven with ``rig`` whose true calibration is ``truth``.
+
+    ``rig`` gives the noise levels, rates and known geometry; ``truth`` the values the data is
+    generated with. Same ``rng`` state, same data.
+    """
+    nom = Nominal.of(traj, rig)
+    if nom.n_keyframes < 3:
+        raise ValidateError(f"the drive is too short to simulate: {nom.n_keyframes} keyframes")
+    cfg = rig.config
+    n = nom.imu_per_keyframe
+    K = nom.n_keyframes
+    rate = cfg.imu.update_rate
+    dt = 1.0 / rate
+    t_imu = nom.t[0] + np.arange((K - 1) * n + 1) * dt
+    R_V_B, p_V_B = nom.R_V_B, nom.p_V_B
+    noisy = settings.noise
+
+    # IMU: increment-equivalent rates over each sample interval
+    b = _body(traj, t_imu, R_V_B, p_V_B)
+    R_s, v_s = b.R_W_B, b.v_W
+    omega = so3.log(np.swapaxes(R_s[:-1], 1, 2) @ R_s[1:]) / dt
+    f = np.einsum("nji,nj->ni", R_s[:-1], (v_s[1:] - v_s[:-1]) / dt - GRAVITY)
+    m = omega.shape[0]
+    imu = cfg.imu
+    bg = np.broadcast_to(truth.gyro_bias, (m, 3)).copy()
+    ba = np.broadcast_to(truth.accel_bias, (m, 3)).copy()
+    if settings.bias_random_walk and noisy:
+        bg += np.cumsum(rng.normal(0.0, imu.gyroscope_random_walk * np.sqrt(dt), (m, 3)), axis=0)
+        ba += np.cumsum(rng.normal(0.0, imu.accelerometer_random_walk * np.sqrt(dt), (m, 3)), axis=0)
+    gyro = omega + bg
+    accel = f + ba
+    if noisy:
+        gyro += rng.normal(0.0, imu.gyroscope_noise_density * np.sqrt(rate), (m, 3))
+        accel += rng.normal(0.0, imu.accelerometer_noise_density * np.sqrt(rate), (m, 3))
+
+    # exteroceptive sensors: relative poses at their own (offset) clocks
+    odo: dict[str, OdometryData] = {}
+    for s in cfg.sensors:
+        stride = int(round(rig.keyframe_rate_hz / s.rate_hz))
+        frames = np.arange(0, K, stride)
+        if frames.size < 2:
+            continue
+        R_BS, p_BS = truth.extrinsics[s.name]
+        bs = _body(traj, nom.t[frames] + truth.time_offsets[s.name], R_V_B, p_V_B)
+        R_S = bs.R_W_B @ R_BS
+        p_S = bs.p_W_B + bs.R_W_B @ p_BS
+        R_iT = np.swapaxes(R_S[:-1], 1, 2)
+        R_rel = R_iT @ R_S[1:]
+        t_rel = np.einsum("nij,nj->ni", R_iT, p_S[1:] - p_S[:-1]) * truth.scales[s.name]
+        if noisy:
+            F = frames.size - 1
+            R_rel = R_rel @ so3.exp(rng.normal(0.0, np.deg2rad(s.noise.rotation_sigma_deg), (F, 3)))
+            t_rel = t_rel + rng.normal(0.0, s.noise.translation_sigma_m, (F, 3))
+        odo[s.name] = OdometryData(frames, R_rel, t_rel)
+
+    # wheel encoders: ticks of the cumulative wheel angle
+    R_BV = R_V_B.T
+    p_BV = -R_BV @ p_V_B
+    R_BA = R_BV @ nom.R_V_A
+    ticks, tpr = None, settings.wheel_ticks_per_rev
+    wc = cfg.wheels
+    if wc is not None:
+        rl, rr, track = truth.wheel
+        inc = np.stack([wheel.increments(nom.R[k], nom.p[k], nom.R[k + 1], nom.p[k + 1], R_BA[k], R_BA[k + 1],
+                                         p_BV, rl, rr, track) for k in range(K - 1)])
+        q = 2 * np.pi / tpr if tpr else 0.0
+        white2 = wc.sigma_rad**2 - q**2 / 6.0  # an increment differences two quantisation errors
+        if white2 <= 0:
+            raise ValidateError(f"wheel quantisation of {tpr} ticks/rev alone exceeds wheels.sigma_rad "
+                                f"= {wc.sigma_rad:g} rad: use more ticks per revolution")
+        if noisy:
+            inc = inc + rng.normal(0.0, np.sqrt(white2), inc.shape)
+        angle = np.vstack([np.zeros((1, 2)), np.cumsum(inc, axis=0)])
+        if tpr:
+            phase = rng.uniform(0.0, 1.0, 2) if noisy else np.full(2, 0.5)
+            ticks = np.floor(angle / q + phase) - np.floor(phase)
+        else:
+            ticks = angle
+
+    nh = cfg.vehicle.nonholonomic
+    slip = np.zeros((K, 2))
+    if noisy and settings.slip_noise:
+        slip = rng.normal(0.0, 1.0, (K, 2)) * np.array([nh.lateral_sigma_mps, nh.vertical_sigma_mps])
+
+    return SensorData(t=nom.t, t_imu=t_imu, imu_per_keyframe=n, gyro=gyro, accel=accel, odometry=odo,
+                      wheel_ticks=ticks, ticks_per_rev=tpr, slip=slip, R_V_A=nom.R_V_A, R_V_B=R_V_B,
+                      p_V_B=p_V_B,
+                      truth=Truth(nom.R, nom.p, nom.v, truth, bg, ba))
