@@ -19,7 +19,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 
 def _register() -> None:
     # Sub-command modules register themselves on `app` when imported.
-    from . import batch, optimize, route, score, serve  # noqa: F401
+    from . import batch, optimize, route, score, serve, validate  # noqa: F401
 
 
 def _click_exceptions() -> tuple[type[Exception], ...]:

@@ -49,8 +49,14 @@ class SolverSettings:
     units of each state's conditional σ and of each target: the solver stops once no unknown moves
     by more than that, or the cost decreases by less than ``cost_tolerance`` (relative).
     ``lambda_initial/min/max``: Marquardt damping (× diag H). ``rank_rtol``: directions of the
-    calibration whose information (in targets) is below ``rank_rtol`` × the largest single
-    parameter's are not moved (the evaluator's rank rule). ``scale_sigma``: the scale unit of a
+    calibration whose information (in targets, trajectory eliminated) is below ``rank_rtol`` × the
+    largest single parameter's are not moved (a truncated solve, as observability-aware
+    calibration does). The evaluator counts information below 1e-10 of that scale as zero at the
+    *nominal* motion; at a noisy estimate, exact null directions pick up spurious information of
+    about that size from the estimated trajectory's noise (measured ~1e-10 on a planar drive,
+    against ~2e-8 for a vertical lever arm seen through suspension pitch), so the solver's default
+    sits at 1e-9. With a smaller value an unobservable direction is "estimated" from that noise
+    and wanders (metres for a vertical lever arm on a planar drive). ``scale_sigma``: the scale unit of a
     monocular camera's scale (it has no target).
     """
 
@@ -60,7 +66,7 @@ class SolverSettings:
     lambda_initial: float = 1e-12
     lambda_min: float = 1e-15
     lambda_max: float = 1e8
-    rank_rtol: float = 1e-10
+    rank_rtol: float = 1e-9
     scale_sigma: float = 0.01
 
     def __post_init__(self) -> None:
@@ -282,8 +288,8 @@ def _step(J: sp.csr_matrix, r: np.ndarray, n_x: int, theta_scale: np.ndarray, la
     Unknowns are scaled first: states to unit column norm of J, θ by ``theta_scale`` (the targets,
     as the evaluator scales). ``(H + λ·diag H) y = −Jᵀr`` is solved by banded Cholesky of the
     state block and an eigendecomposition of the θ Schur complement, whose eigenvalues below
-    ``rank_rtol · max diag(H_θθ)`` (the evaluator's rank rule) count as zero: along directions the
-    data does not determine, the step is zero, so the estimate stays where it started.
+    ``rank_rtol · max diag(H_θθ)`` count as zero: along directions the data does not determine,
+    the step is zero, so the estimate stays where it started.
     Returns the step (unscaled), the scaled step, and the undamped scaled Schur complement.
     """
     col = np.sqrt(np.asarray(J[:, :n_x].multiply(J[:, :n_x]).sum(axis=0)).ravel())

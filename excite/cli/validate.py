@@ -1,0 +1,133 @@
+"""``excite validate``: Monte Carlo check of the evaluator's predicted σ on a route."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from .. import so3
+from ..rig import Rig, load_rig
+from ..routes import read_route
+from ..trajectory import Trajectory
+from ..validate.calibrate import SolverSettings
+from ..validate.monte_carlo import MonteCarloResult, MonteCarloSettings, Trial, monte_carlo
+from ..validate.simulate import SimulationSettings, ValidateError
+from . import app
+from .score import _DISPLAY
+
+
+def crop(traj: Trajectory, duration_s: float, rate_hz: float = 100.0) -> Trajectory:
+    """The first ``duration_s`` of a drive (re-fitted from samples at ``rate_hz``, tilt kept)."""
+    if duration_s >= traj.duration:
+        return traj
+    if duration_s <= 0:
+        raise ValidateError(f"--duration must be positive, got {duration_s:g}")
+    t = traj.t_start + np.arange(int(np.floor(duration_s * rate_hz)) + 1) / rate_hz
+    s = traj.sample(t)
+    tilt = None
+    if traj.has_tilt:
+        ypr = so3.yaw_pitch_roll(np.swapaxes(s.R_V_A, 1, 2))  # R_A_V = Ry(pitch)·Rx(roll)
+        tilt = ypr[:, 1:3]
+    return Trajectory(t, s.R_W_V, s.p_W_V, tilt_pitch_roll=tilt, velocity=s.v_W, name=traj.name)
+
+
+def with_imu_rate(rig: Rig, rate_hz: float) -> Rig:
+    imu = rig.config.imu.model_dump()
+    imu["update_rate"] = rate_hz
+    return rig.with_config(imu=imu)
+
+
+def _fmt(value: float | None, unit: str) -> str:
+    if value is None:
+        return "—"
+    f, _ = _DISPLAY.get(unit, (1.0, unit))
+    return f"{value * f:.3g}"
+
+
+def print_result(res: MonteCarloResult, console: Console) -> None:
+    """The Monte Carlo comparison as tables for a terminal."""
+    rep = res.report
+    n = len(res.trials)
+    conf = int(round(100 * res.settings.confidence))
+    console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]: {rep.duration_s:.1f} s, "
+                  f"{rep.n_keyframes} keyframes, rank {rep.rank}/{rep.rank + rep.nullity}; "
+                  f"{n} trials (seed {res.settings.seed}), true offsets "
+                  f"{res.settings.offset_in_targets:g} × target, {res.seconds:.0f} s")
+    t = Table(title=f"Predicted (Cramér–Rao) vs Monte Carlo σ; {conf} % interval of the empirical σ",
+              title_justify="left")
+    for col, just in (("parameter", "left"), ("unit", "left"), ("pred. σ", "right"), ("emp. σ", "right"),
+                      (f"{conf} % interval", "right"), ("emp/pred", "right"), ("bias ± s.e.", "right"),
+                      ("", "left")):
+        t.add_column(col, justify=just, no_wrap=True)
+    for p in res.parameters:
+        lo, hi = p.sigma_interval
+        if p.predicted_sigma is None:
+            ratio, verdict = "—", "[yellow]unobservable[/]"
+        else:
+            ratio = f"{p.ratio:.2f}"
+            verdict = "[green]ok[/]" if p.consistent else "[red]outside[/]"
+        t.add_row(p.name, _DISPLAY.get(p.unit, (1.0, p.unit))[1], _fmt(p.predicted_sigma, p.unit),
+                  _fmt(p.empirical_sigma, p.unit), f"{_fmt(lo, p.unit)}–{_fmt(hi, p.unit)}", ratio,
+                  f"{_fmt(p.bias, p.unit)} ± {_fmt(p.bias_standard_error, p.unit)}", verdict)
+    console.print(t)
+    ok = "[green]consistent[/]" if res.nees_consistent else "[red]inconsistent[/]"
+    what = "scored parameters" if res.null_space is None else "observable directions (the rank)"
+    console.print(f"NEES: mean {res.nees_mean:.2f} over {n} trials, dof {res.dof} ({what}); "
+                  f"{conf} % interval {res.nees_interval[0]:.2f}–{res.nees_interval[1]:.2f}: {ok}")
+    if res.null_space is not None:
+        ns = res.null_space
+        console.print(f"Unobservable directions (null space of SΛS, {ns.nullity}), errors in targets: "
+                      f"RMS {ns.null_rms:.3g} after calibrating, {ns.initial_null_rms:.3g} before, moved "
+                      f"{ns.null_moved_rms:.2g}; the observable complement's whitened RMS error is "
+                      f"{ns.observable_whitened_rms:.3f} (1 if the prediction holds)")
+        for c in ns.coordinates:
+            console.print("  " + ", ".join(f"{name} {w:+.2f}" for name, w in c))
+    if res.failures:
+        console.print(f"[yellow]{res.failures} of {n} trials did not converge (kept in the statistics)[/]")
+
+
+@app.command()
+def validate(
+    route: Annotated[Path, typer.Argument(help="Route file (any format `excite score` reads).")],
+    runs: Annotated[int, typer.Option(help="Number of Monte Carlo trials.")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed; trial i uses default_rng([seed, i]).")] = 0,
+    rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
+    times: Annotated[Optional[Path], typer.Option(help="KITTI times file.")] = None,
+    duration: Annotated[Optional[float], typer.Option(help="Use only the first this many seconds [s].")] = None,
+    imu_rate: Annotated[Optional[float], typer.Option(help="Override the rig's IMU rate [Hz] (coarser: faster).")] = None,
+    offset: Annotated[float, typer.Option(help="σ of the true calibration offsets, in targets.")] = 2.0,
+    rank_rtol: Annotated[float, typer.Option(help="Solver: relative information below which a "
+                                                   "direction is left where it started.")] = 1e-9,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No progress line.")] = False,
+) -> None:
+    """Simulate the rig's sensors on the route, calibrate N times, compare with the predicted σ."""
+    r = load_rig(rig)
+    if imu_rate is not None:
+        r = with_imu_rate(r, imu_rate)
+    traj = read_route(route, times=times, suspension=r.suspension)
+    if duration is not None:
+        traj = crop(traj, duration)
+    settings = MonteCarloSettings(runs=runs, seed=seed, offset_in_targets=offset,
+                                  simulation=SimulationSettings(), solver=SolverSettings(rank_rtol=rank_rtol))
+    err = Console(stderr=True)
+    show = not quiet and not json_out and err.is_terminal
+
+    def progress(trial: Trial) -> None:
+        if show:
+            err.print(f"trial {trial.index + 1}/{runs}: {trial.status} in {trial.iterations} iterations, "
+                      f"{trial.seconds:.2f} s", end="\r")
+
+    res = monte_carlo(traj, r, settings, progress)
+    if json_out:
+        typer.echo(json.dumps(res.to_dict(), indent=2))
+    else:
+        if show:
+            err.print(" " * 70, end="\r")
+        print_result(res, Console())
