@@ -138,10 +138,10 @@ class Failure:
         if self.kind == "observable":
             return f"{self.parameter}: unobservable (must be observable)"
         what = "target" if self.kind == "target" else "bound"
-        sig = human(self.value, self.unit)
-        sig = "unobservable" if self.value is None else f"σ {sig}"
-        ratio = "" if self.value is None else f", {self.value / self.bound:.2f}×"
-        return f"{self.parameter}: {sig} > {human(self.bound, self.unit)} ({what}{ratio})"
+        if self.value is None:
+            return f"{self.parameter}: unobservable, must be ≤ {human(self.bound, self.unit)} ({what})"
+        return (f"{self.parameter}: σ {human(self.value, self.unit)} > {human(self.bound, self.unit)} "
+                f"({what}, {self.value / self.bound:.2f}×)")
 
 
 @dataclass
@@ -195,7 +195,7 @@ def _display(p: Path | str) -> str:
     try:
         return str(p.resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
-        return str(p)
+        return os.path.normpath(p)
 
 
 def _expand(pattern: str, base: Path | None = None) -> list[Path]:
@@ -549,7 +549,7 @@ def junit_xml(results: Sequence[RouteResult], total_s: float | None = None) -> s
                 el.text = r.error_detail or r.error
             elif r.status == "failed":
                 el = ET.SubElement(case, "failure", type="ExpectationNotMet", message=_failure_message(r))
-                lines = [f"route {r.path} with rig {r.rig}: score {r.score:.4g}", "not met:"]
+                lines = [f"route {_display(r.path)} with rig {r.rig}: score {r.score:.4g}", "not met:"]
                 lines += [f"  {f.text()}" for f in r.failures]
                 if r.advice:
                     lines.append("what it takes:")

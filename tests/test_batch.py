@@ -115,7 +115,7 @@ routes:
     assert names[0] == "score"  # then the unobservable ones, then the rest by σ/bound
     assert set(names) == {"score", "wheel.track", "lidar.time_offset", "imu.accel_bias_y"}
     text = {f.parameter: f.text() for f in res.failures}
-    assert text["wheel.track"] == "wheel.track: unobservable > 0.5 cm (target)"
+    assert text["wheel.track"] == "wheel.track: unobservable, must be ≤ 0.5 cm (target)"
     assert text["lidar.time_offset"].startswith("lidar.time_offset: σ ") and "> 2 ms (bound, " in text["lidar.time_offset"]
     assert text["imu.accel_bias_y"] == "imu.accel_bias_y: unobservable (must be observable)"
     assert any("Wheel track: turn both ways" in a for a in res.advice)
