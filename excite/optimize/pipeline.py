@@ -20,7 +20,7 @@ from ..vehicle import ControlProfile, check_limits, drive
 from . import baselines
 from .kinematics import profile_from_z, z_from_profile
 from .settings import OptimizeError, OptimizeResult, OptimizeSettings, Progress
-from .solver import FEASIBLE_TOL, score, solve, transcribe, violation
+from .solver import score, solve_softmin, transcribe, violation
 
 START_RANDOM = 20  # random candidates considered as starts (the comparison scores all n_random)
 _FINISH_S = 2.0  # kept from the budget for turning the result into a drive
@@ -122,7 +122,7 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
         if stop():
             break
         share = (deadline - time.perf_counter()) / (n_starts - k)
-        out = solve(tr, near[k][3], time.perf_counter() + share, should_stop=stop, t_start=t0,
+        out = solve_softmin(tr, near[k][3], time.perf_counter() + share, should_stop=stop, t_start=t0,
                     progress=lambda it, s, v, el, base=iterations: report(base + it, s, v, "optimize"))
         iterations += out.iterations
         if out.z is not None and out.score > best_s:
