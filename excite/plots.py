@@ -148,7 +148,9 @@ def plot_spectrum(ax: Axes, report: Report) -> None:
     if n_null:
         names = ", ".join(m.coordinates[0][0] for m in report.weak_modes[:n_null])
         ax.semilogy(k[null], shown[null], "x", color=_NULL, ms=8, mew=2,
-                    label=f"unobservable (λ < threshold; ≤ 0 drawn at threshold/100):\n  {names}")
+                    label="unobservable (λ < threshold; ≤ 0 drawn at threshold/100)")
+        ax.annotate(names, (n_null, floor), xytext=(10, 0), textcoords="offset points", va="center",
+                    fontsize=8, color=_NULL)
     ax.axhline(1.0, color=_OK, ls="--", lw=1.2)
     ax.text(w.size + 0.5, 1.0, " pass: λ = 1", va="bottom", ha="right", fontsize=8, color=_OK)
     ax.axhline(thr, color=_NULL, ls=":", lw=1.2)
@@ -165,7 +167,7 @@ def plot_spectrum(ax: Axes, report: Report) -> None:
     ax.set_ylabel("eigenvalue λ of S·Λ·S\n[dimensionless: (target/σ)² along the mode]")
     ax.set_title(f"scaled spectrum: score λ_min = {report.score:.3g}, rank {report.rank}/{w.size}", fontsize=10)
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="best", fontsize=8, framealpha=0.9)
 
 
 def plot_sigmas(ax: Axes, report: Report) -> None:
