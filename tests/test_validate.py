@@ -17,7 +17,6 @@ import pytest
 import yaml
 from scipy.stats import chi2
 
-from excite import so3
 from excite.cli import main as cli
 from excite.evaluate import evaluate
 from excite.factors import imu, nonholonomic, odometry, wheel

@@ -100,7 +100,8 @@ def validate(
     rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
     times: Annotated[Optional[Path], typer.Option(help="KITTI times file.")] = None,
     duration: Annotated[Optional[float], typer.Option(help="Use only the first this many seconds [s].")] = None,
-    imu_rate: Annotated[Optional[float], typer.Option(help="Override the rig's IMU rate [Hz] (coarser: faster).")] = None,
+    imu_rate: Annotated[Optional[float], typer.Option(help="Override the rig's IMU rate [Hz] "
+                                                          "(coarser: faster).")] = None,
     offset: Annotated[float, typer.Option(help="σ of the true calibration offsets, in targets.")] = 2.0,
     rank_rtol: Annotated[float, typer.Option(help="Solver: relative information below which a "
                                                    "direction is left where it started.")] = 1e-9,

@@ -6,3 +6,13 @@ a nonlinear batch estimator, and compare the Monte Carlo spread with the evaluat
 - :mod:`.monte_carlo`: seeded trials and their statistics (empirical σ with confidence
   intervals, bias, NEES), and the null-space split of a degenerate drive.
 """
+
+from .calibrate import CalibrationResult, SolverSettings, States, calibrate, dead_reckoning
+from .monte_carlo import MonteCarloResult, MonteCarloSettings, monte_carlo, run_trial, statistics
+from .simulate import Calibration, SensorData, SimulationSettings, ValidateError, simulate
+
+__all__ = [
+    "Calibration", "CalibrationResult", "MonteCarloResult", "MonteCarloSettings", "SensorData",
+    "SimulationSettings", "SolverSettings", "States", "ValidateError", "calibrate", "dead_reckoning",
+    "monte_carlo", "run_trial", "simulate", "statistics",
+]
