@@ -4,7 +4,9 @@
     ├── RouteError              a route file or route data is malformed (names file, line, problem)
     ├── RigError                a rig config is malformed (names the key)
     ├── LimitError              a request for a drive cannot be met within the vehicle's limits
-    └── EvaluationError         the information model cannot be evaluated for this input
+    ├── EvaluationError         the information model cannot be evaluated for this input
+    ├── OptimizeError           an optimization request is invalid (excite.optimize)
+    └── ValidateError           a Monte Carlo validation request is invalid (excite.validate)
 
 The CLI maps every ExciteError to a one-line message and exit code 1; the HTTP service maps them
 to problem+json 4xx responses. Anything else is a bug and keeps its traceback.

@@ -28,10 +28,11 @@ def hat(v: np.ndarray) -> np.ndarray:
 
 def _coefficients(theta: np.ndarray):
     """(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³), by series below 1e-2 rad (exact to 1e-16)."""
+    theta = np.asarray(theta, dtype=float)
     t2 = theta * theta
-    a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0
-    b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0
-    c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0
+    a = np.array(1.0 - t2 / 6.0 + t2 * t2 / 120.0)  # 0-d arrays too: masked assignment below
+    b = np.array(0.5 - t2 / 24.0 + t2 * t2 / 720.0)
+    c = np.array(1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0)
     big = theta >= _SERIES
     if big.any():
         t = theta[big]
@@ -80,9 +81,10 @@ def body_rate(phi: np.ndarray, phi_dot: np.ndarray, phi_ddot: np.ndarray | None 
 
 def _derivative_coefficients(theta: np.ndarray):
     """(b′(θ)/θ, c′(θ)/θ) for b, c of :func:`_coefficients` (the θ̇θ = φ·φ̇ factor is the caller's)."""
+    theta = np.asarray(theta, dtype=float)
     t2 = theta * theta
-    eb = -1.0 / 12.0 + t2 / 180.0
-    ec = -1.0 / 60.0 + t2 / 1260.0
+    eb = np.array(-1.0 / 12.0 + t2 / 180.0)
+    ec = np.array(-1.0 / 60.0 + t2 / 1260.0)
     big = theta >= _SERIES
     if big.any():
         t = theta[big]

@@ -18,6 +18,14 @@ def test_exp_log_match_scipy(scale):
     np.testing.assert_allclose(so3.log(so3.exp(phi[inside])), phi[inside], atol=1e-12)
 
 
+@pytest.mark.parametrize("phi", [[0.0, 0.0, 0.0], [1e-3, -2e-3, 0.0], [0.3, -0.2, 1.1]])
+def test_single_rotation_vector(phi):
+    """Unbatched input (as the nonlinear IMU model uses it), on both sides of the series switch."""
+    np.testing.assert_allclose(so3.exp(np.array(phi)), Rotation.from_rotvec(phi).as_matrix(), atol=1e-15)
+    w, al = so3.body_rate(np.array(phi), np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.1, 0.0]))
+    assert w.shape == (3,) and al.shape == (3,)
+
+
 @pytest.mark.parametrize("scale", [1e-6, 5e-3, 0.02, 1.0])
 def test_body_rate_and_acceleration_are_derivatives_of_exp(scale):
     """For R(t) = Exp(φ(t)), ω = (RᵀṘ)∨ and α = ω̇ by central differences in t."""
