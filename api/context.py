@@ -13,7 +13,7 @@ from prometheus_client import CollectorRegistry, Gauge
 
 from .jobs import JobRunner
 from .problems import ProblemError
-from .scoring import Bounds, ScorePool, score_task
+from .scoring import Bounds, ScorePool, plot_task, score_task
 from .settings import Settings
 from .store import JobStore
 
@@ -36,6 +36,10 @@ class Context:
     def submit_score(self, route: dict[str, Any], rig: Any, segments: int,
                      limits: dict[str, float] | None, field: str = "route") -> cf.Future:
         return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field)
+
+    def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
+                    limits: dict[str, float] | None, parameter: str | None) -> cf.Future:
+        return self.pool.submit(plot_task, route, rig, segments, limits, self.bounds, parameter)
 
     def wait(self, futures: list[cf.Future], deadline: float) -> list[dict[str, Any]]:
         """The results of ``futures`` by ``deadline`` (monotonic), else 503 (queued work is

@@ -128,6 +128,12 @@ class ScoreRequest(In):
     limits: LimitsIn | None = Field(None, description="Limits that shape waypoint routes without speeds.")
 
 
+class PlotRequest(ScoreRequest):
+    parameter: str | None = Field(None, max_length=100,
+                                  description="Colour the route by the information on this parameter "
+                                              "(default: on the route's weakest mode).")
+
+
 class BatchRequest(In):
     model_config = ConfigDict(json_schema_extra={"examples": [{"routes": [_LOOP]}]})
 

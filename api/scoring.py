@@ -253,19 +253,21 @@ def _finite(x: Any) -> Any:
     return x
 
 
-def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-               limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
-               rig_field: str = "rig") -> dict[str, Any]:
-    """``{"ok": True, "report": …}`` or a problem as data (status, detail, errors)."""
+def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
+               limits: dict[str, float] | None, bounds: Bounds, field: str, rig_field: str):
+    r = resolve_rig(rig, rig_field)
+    lim = Limits(**limits) if limits else Limits()
+    traj = route_trajectory(route, r, lim, bounds, field)
+    if traj.duration > bounds.max_route_duration_s:
+        raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
+                                   f"{bounds.max_route_duration_s:g} s")
+    return r, traj, evaluate(traj, r, Options(segments=segments))
+
+
+def _as_problem(fn: Callable[[], dict[str, Any]], field: str) -> dict[str, Any]:
+    """``fn()``, with every refusal and failure turned into a problem as data."""
     try:
-        r = resolve_rig(rig, rig_field)
-        lim = Limits(**limits) if limits else Limits()
-        traj = route_trajectory(route, r, lim, bounds, field)
-        if traj.duration > bounds.max_route_duration_s:
-            raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
-                                       f"{bounds.max_route_duration_s:g} s")
-        report = evaluate(traj, r, Options(segments=segments))
-        return {"ok": True, "report": _finite(report.to_dict())}
+        return fn()
     except Rejected as exc:
         return problem_data(exc.status, exc.field, exc.message)
     except RouteError as exc:
@@ -279,6 +281,32 @@ def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
     except Exception:  # a bug: logged here, a bare 500 for the client
         log.exception("scoring failed")
         return {"ok": False, "status": 500, "detail": "internal error", "errors": []}
+
+
+def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
+               limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
+               rig_field: str = "rig") -> dict[str, Any]:
+    """``{"ok": True, "report": …}`` or a problem as data (status, detail, errors)."""
+    def run() -> dict[str, Any]:
+        _, _, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field)
+        return {"ok": True, "report": _finite(report.to_dict())}
+
+    return _as_problem(run, field)
+
+
+def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
+              limits: dict[str, float] | None, bounds: Bounds, parameter: str | None) -> dict[str, Any]:
+    """``{"ok": True, "png": bytes}``: the figure of ``excite score --plot`` for this route."""
+    from excite import plots
+
+    def run() -> dict[str, Any]:
+        r, traj, report = _evaluated(route, rig, segments, limits, bounds, "route", "rig")
+        if parameter is not None and parameter not in [c.name for c in r.scored]:
+            raise Rejected(422, "parameter", f"{parameter!r} is not a parameter of rig {r.name} "
+                                             f"(parameters: {', '.join(c.name for c in r.scored)})")
+        return {"ok": True, "png": plots.report_figure(report, traj, parameter)}
+
+    return _as_problem(run, "route")
 
 
 def warm() -> bool:

@@ -61,6 +61,7 @@ import yaml
 from .errors import ExciteError, RigError
 from .evaluate import Report, evaluate
 from .rig import Rig, load_rig, parse_quantity
+from .units import human
 
 __all__ = [
     "ManifestError", "Bound", "RouteSpec", "Failure", "RouteResult", "load_manifest", "collect",
@@ -121,7 +122,6 @@ class Failure:
 
     def short(self) -> str:
         """``wheel.track 1.49 cm > 0.5 cm`` (a table cell)."""
-        from .cli.score import human  # the one place SI values are shown to people
 
         if self.parameter == "score":
             return f"score {self.value:.3g} < {self.bound:.3g}"
@@ -131,7 +131,6 @@ class Failure:
 
     def text(self) -> str:
         """``wheel.track: σ 1.49 cm > 0.5 cm (target, 2.98×)`` (a failure message)."""
-        from .cli.score import human
 
         if self.parameter == "score":
             return f"score {self.value:.3g} < {self.bound:.3g} (min_score)"

@@ -40,6 +40,7 @@ from matplotlib.patches import Patch
 from .errors import ExciteError
 from .evaluate import Report
 from .trajectory import Trajectory
+from .units import human
 
 __all__ = ["PlotError", "segment_count", "plot_route", "plot_spectrum", "plot_sigmas", "report_figure",
            "build_figure", "WEAKEST_MODE"]
@@ -56,12 +57,6 @@ def segment_count(duration_s: float, seconds_per_segment: float = 2.0) -> int:
     """How many route segments to evaluate for the route panel: one per ~2 s (a keyframe
     window long enough to see a turn or a brake), between 10 and 200."""
     return int(min(200, max(10, round(duration_s / seconds_per_segment))))
-
-
-def _human(value: float | None, unit: str) -> str:
-    from .cli.score import human  # the one table of display units
-
-    return human(value, unit)
 
 
 def _segment_values(report: Report, parameter: str | None) -> tuple[np.ndarray, str]:
@@ -185,13 +180,13 @@ def plot_sigmas(ax: Axes, report: Report) -> None:
                     color="black", zorder=5, bbox=dict(facecolor="white", edgecolor="none", pad=0.5))
         else:
             ax.barh(yi, r - lo, left=lo, color=_OK if p.ok else _FAIL, height=0.7)
-            ax.text(r * 1.08, yi, _human(p.sigma, p.unit), va="center", ha="left", fontsize=7.5, zorder=5,
+            ax.text(r * 1.08, yi, human(p.sigma, p.unit), va="center", ha="left", fontsize=7.5, zorder=5,
                     bbox=dict(facecolor="white", edgecolor="none", alpha=0.8, pad=0.3))
     ax.set_xscale("log")
     ax.set_xlim(lo, hi)
     ax.set_ylim(-0.6, len(params) - 0.4)
     ax.set_yticks(y)
-    ax.set_yticklabels([f"{p.name}  (target {_human(p.target, p.unit)})" for p in params], fontsize=8.5)
+    ax.set_yticklabels([f"{p.name}  (target {human(p.target, p.unit)})" for p in params], fontsize=8.5)
     ax.axvline(1.0, color="black", ls="--", lw=1.2)
     ax.set_xlabel("Cramér–Rao σ / target  [dimensionless, log; ≤ 1 passes]")
     ax.set_title("σ per parameter from the drive alone (bar end: σ)", fontsize=10)

@@ -68,6 +68,14 @@ def test_score_kitti_00_uploaded_inline(client, data_dir):
     assert rep["score"] == pytest.approx(lib.score, rel=1e-9)
 
 
+def test_score_plot_returns_the_report_figure(client):
+    route = {"control": {"t_s": [0, 10, 20, 30], "speed_mps": [0, 6, 6, 0], "curvature_1pm": [0, 0.1, -0.1, 0]}}
+    r = client.post("/v1/score/plot", json={"route": route, "parameter": "wheel.track"})
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/png" and r.content[:8] == b"\x89PNG\r\n\x1a\n"
+    _problem(client.post("/v1/score/plot", json={"route": route, "parameter": "wheel.trak"}), 422, "parameter")
+
+
 def test_score_json_waypoints_poses_and_control(client):
     wp = {"route": {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}}
     r = client.post("/v1/score", json=wp)

@@ -5,9 +5,10 @@ from __future__ import annotations
 from typing import Any
 
 from fastapi import APIRouter
+from fastapi.responses import Response
 
 from ..context import Ctx, raise_problem
-from ..schemas import Report, ScoreRequest
+from ..schemas import PlotRequest, Report, ScoreRequest
 from .common import BODY
 
 router = APIRouter(prefix="/v1", tags=["score"])
@@ -24,3 +25,18 @@ def score(body: ScoreRequest, ctx: Ctx) -> Any:
     if not result["ok"]:
         raise_problem(result)
     return result["report"]
+
+
+@router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
+             responses={**BODY, 200: {"content": {"image/png": {}},
+                                      "description": "route coloured by information, scaled spectrum, σ/target"}})
+def score_plot(body: PlotRequest, ctx: Ctx) -> Response:
+    """The same figure as ``excite score ROUTE --plot FILE.png``: the route coloured by the
+    information it carries on ``parameter`` (or the weakest mode), the scaled spectrum with the
+    pass line, and σ against target per parameter."""
+    limits = body.limits.model_dump() if body.limits else None
+    fut = ctx.submit_plot(body.route.model_dump(), body.rig, body.segments, limits, body.parameter)
+    (result,) = ctx.wait([fut], ctx.deadline())
+    if not result["ok"]:
+        raise_problem(result)
+    return Response(content=result["png"], media_type="image/png")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -13,21 +12,9 @@ from rich.table import Table
 
 from ..evaluate import Options, Report, evaluate
 from ..rig import bundled_rigs, load_rig, rig_text
+from ..units import human
 from ..routes import read_route
 from . import app
-
-# how SI units are shown to people
-_DISPLAY = {"rad": (180 / math.pi, "deg"), "m": (100.0, "cm"), "s": (1e3, "ms"),
-            "rad/s": (180 / math.pi, "deg/s"), "m/s^2": (1.0, "m/s²"), "1": (1.0, "")}
-
-
-def human(value: float | None, unit: str) -> str:
-    """A value in SI ``unit`` in the unit an engineer reads it in (``0.5 cm``, ``0.05 deg``)."""
-    if value is None:
-        return "unobservable"
-    f, u = _DISPLAY.get(unit, (1.0, unit))
-    return f"{value * f:.3g} {u}".strip()
-
 
 def print_report(rep: Report, console: Console) -> None:
     """The report as tables for a terminal."""

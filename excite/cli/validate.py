@@ -19,7 +19,7 @@ from ..validate.calibrate import SolverSettings
 from ..validate.monte_carlo import MonteCarloResult, MonteCarloSettings, Trial, monte_carlo
 from ..validate.simulate import SimulationSettings, ValidateError
 from . import app
-from .score import _DISPLAY
+from ..units import display_unit
 
 
 def crop(traj: Trajectory, duration_s: float, rate_hz: float = 100.0) -> Trajectory:
@@ -46,7 +46,7 @@ def with_imu_rate(rig: Rig, rate_hz: float) -> Rig:
 def _fmt(value: float | None, unit: str) -> str:
     if value is None:
         return "—"
-    f, _ = _DISPLAY.get(unit, (1.0, unit))
+    f, _ = display_unit(unit)
     return f"{value * f:.3g}"
 
 
@@ -72,7 +72,7 @@ def print_result(res: MonteCarloResult, console: Console) -> None:
         else:
             ratio = f"{p.ratio:.2f}"
             verdict = "[green]ok[/]" if p.consistent else "[red]outside[/]"
-        t.add_row(p.name, _DISPLAY.get(p.unit, (1.0, p.unit))[1], _fmt(p.predicted_sigma, p.unit),
+        t.add_row(p.name, display_unit(p.unit)[1], _fmt(p.predicted_sigma, p.unit),
                   _fmt(p.empirical_sigma, p.unit), f"{_fmt(lo, p.unit)}–{_fmt(hi, p.unit)}", ratio,
                   f"{_fmt(p.bias, p.unit)} ± {_fmt(p.bias_standard_error, p.unit)}", verdict)
     console.print(t)
