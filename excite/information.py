@@ -220,7 +220,10 @@ def _scatter(target: np.ndarray, rows, values: np.ndarray, cols: np.ndarray | No
         np.add.at(target, rows, values)
 
 
-def _merged(blocks: tuple[FactorBlock, ...]) -> list[FactorBlock]:
+_CHUNK = 512  # factors per assembly step
+
+
+def _merged(blocks: list[FactorBlock]) -> list[FactorBlock]:
     """Blocks that touch the same keyframes stacked row-wise: one product and one scatter each."""
     groups: dict[tuple, list[FactorBlock]] = {}
     for b in blocks:
@@ -251,22 +254,37 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
     B = [np.zeros((K - d, STATE_DIM, STATE_DIM)) for d in range(D + 1)]
     Hxt = np.zeros((K, STATE_DIM, p))
     Htt = np.zeros((p, p))
-    for b in _merged(problem.blocks):
-        JxT = np.ascontiguousarray(np.swapaxes(b.Jx, 1, 2))  # contiguous: 3x faster batched matmul
-        Hxx = JxT @ b.Jx
-        k = b.cols.size
-        if k:
-            Hxt_f = JxT @ b.Jt
-            Jt2 = b.Jt.reshape(-1, k)
-            Htt[np.ix_(b.cols, b.cols)] += Jt2.T @ Jt2
-        for a in range(b.n_states):
-            sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
+    for piece in _chunks(problem.blocks):
+        for b in _merged(piece):
+            JxT = np.ascontiguousarray(np.swapaxes(b.Jx, 1, 2))  # contiguous: 3x faster batched matmul
+            Hxx = JxT @ b.Jx
+            k = b.cols.size
             if k:
-                _scatter(Hxt, _rows(b.first, a * b.stride), Hxt_f[:, sa], b.cols)
-            for c in range(a + 1):
-                sc = slice(STATE_DIM * c, STATE_DIM * (c + 1))
-                _scatter(B[(a - c) * b.stride], _rows(b.first, c * b.stride), Hxx[:, sa, sc])
+                Hxt_f = JxT @ b.Jt
+                Jt2 = b.Jt.reshape(-1, k)
+                Htt[np.ix_(b.cols, b.cols)] += Jt2.T @ Jt2
+            for a in range(b.n_states):
+                sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
+                if k:
+                    _scatter(Hxt, _rows(b.first, a * b.stride), Hxt_f[:, sa], b.cols)
+                for c in range(a + 1):
+                    sc = slice(STATE_DIM * c, STATE_DIM * (c + 1))
+                    _scatter(B[(a - c) * b.stride], _rows(b.first, c * b.stride), Hxx[:, sa, sc])
     return B, Hxt, Htt
+
+
+def _chunks(blocks: tuple[FactorBlock, ...]):
+    """The blocks cut into pieces of at most ``_CHUNK`` factors; pieces over the same factor
+    range come together (so that :func:`_merged` can stack them). Small temporaries stay in
+    cache: assembly time stays linear in the drive length."""
+    n_max = max(b.n_factors for b in blocks)
+    for start in range(0, n_max, _CHUNK):
+        piece = []
+        for b in blocks:
+            if start < b.n_factors:
+                sl = slice(start, min(start + _CHUNK, b.n_factors))
+                piece.append(FactorBlock(b.name, b.first[sl], b.stride, b.n_states, b.Jx[sl], b.Jt[sl], b.cols))
+        yield piece
 
 
 def _banded(B: list[np.ndarray], K: int) -> np.ndarray:
