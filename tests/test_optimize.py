@@ -139,13 +139,17 @@ def test_cancel_returns_promptly_with_a_feasible_drive(rig):
     assert {r["kind"] for r in res.comparison} <= {"optimized", "reference"}
 
 
-def test_optimized_90s_maneuver_beats_every_baseline_and_is_feasible(rig):
-    """The issue's claim at test scale (50 s budget, 20 random candidates; the benchmark runs 200)."""
-    s = opt.OptimizeSettings(duration_s=90.0, lot_width_m=80.0, lot_length_m=50.0, time_budget_s=50.0,
+def test_optimized_90s_maneuver_beats_every_baseline_and_is_feasible(rig, monkeypatch):
+    """The issue's claim with 20 random candidates (the benchmark runs 200 within the 60 s budget).
+    IPOPT is capped at 120 iterations instead of the wall clock (about 55 s on an idle 2-core
+    machine), so that the outcome does not depend on what else the machine runs; COBYLA gets the
+    same wall time IPOPT took."""
+    monkeypatch.setattr("excite.optimize.solver.MAX_ITERATIONS", 120)
+    s = opt.OptimizeSettings(duration_s=90.0, lot_width_m=80.0, lot_length_m=50.0, time_budget_s=300.0,
                              n_random=20)
     seen = []
     res = opt.optimize(rig, s, progress=seen.append)
-    assert res.status in ("optimal", "time_budget") and not res.cancelled
+    assert res.status in ("optimal", "time_budget") and not res.cancelled, res.message
     assert {p.phase for p in seen} >= {"start", "optimize", "baseline", "done"}
     # independent checks on the sampled result
     traj = drive(res.profile, rig.suspension)

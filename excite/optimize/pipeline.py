@@ -146,6 +146,10 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
         if bad:
             message = "optimized drive failed the independent check (" + "; ".join(bad) + "); returned the start"
             profile = None
+    if profile is not None and evaluate(traj, rig).score < evaluate(drive(start_prof, rig.suspension), rig).score:
+        # cut short before it got past its start (e.g. cancelled early): the start is better
+        message = message or "the optimizer had not improved on its start; returned the start"
+        profile = None
     if profile is None:
         profile, best_s = start_prof, start_score
         traj = drive(profile, rig.suspension)

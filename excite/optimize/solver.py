@@ -333,6 +333,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, should_stop: Calla
 # --- smooth spectral objective ------------------------------------------------------------------
 
 SOFTMIN_BETA = 20.0  # sharpness of the soft minimum, in units of the start's λ_min
+MAX_ITERATIONS: int | None = None  # optional iteration cap (deterministic runs regardless of load)
 
 
 class _SoftMin(ca.Callback):
@@ -394,7 +395,7 @@ def solve_softmin(tr: Transcription, z0: np.ndarray, deadline: float,
     t_start = time.perf_counter() if t_start is None else t_start
     z0 = np.asarray(z0, dtype=float)
     w0 = np.linalg.eigvalsh(np.array(tr.M(z0)))
-    mu = max(abs(w0[0]), 1e-3 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
+    mu = max(abs(w0[0]), 1e-8 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
     obj = _SoftMin(tr.M, tr.n_z, mu)
     z = ca.MX.sym("z", tr.n_z)
     state = {"it": 0, "stop": False, "best": None, "best_s": -np.inf}
@@ -413,7 +414,8 @@ def solve_softmin(tr: Transcription, z0: np.ndarray, deadline: float,
             progress(state["it"], s, viol, el)
         if should_stop is not None and should_stop():
             state["stop"] = True
-        return state["stop"] or time.perf_counter() > deadline
+        capped = MAX_ITERATIONS is not None and state["it"] >= MAX_ITERATIONS
+        return state["stop"] or capped or time.perf_counter() > deadline
 
     cb = _IterationCallback(tr.n_z, tr.lbg_kin.size, 0, on_iter)
     opts = {
