@@ -24,6 +24,8 @@ drives. The marginal on θ does not depend on the parametrisation (the tests com
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,6 +95,18 @@ def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, 0)), _NO_COLS)
 
 
+_POOL: tuple[int, ThreadPoolExecutor] | None = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    """A thread pool of this process (re-created after a fork: threads do not survive it)."""
+    global _POOL
+    if _POOL is None or _POOL[0] != os.getpid():
+        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
+                                                 thread_name_prefix="excite-linearise"))
+    return _POOL[1]
+
+
 def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
     """Linearise every factor of ``rig`` on the nominal motion ``nom``.
 
@@ -111,14 +125,18 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
                                   f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
         if not -n.n_keyframes <= gauge_keyframe < n.n_keyframes:
             raise EvaluationError(f"gauge keyframe {gauge_keyframe} is outside the drive")
-        blocks = [imu.blocks(n, rig), nonholonomic.blocks(n, rig), wheel.blocks(n, rig)]
-        blocks += [odometry.blocks(n, rig, s) for s in rig.config.sensors]
-        blocks = [b for b in blocks if b is not None]
         if local:
             v_b = np.einsum("kji,kj->ki", n.R, n.v)
             d = np.einsum("kji,kj->ki", n.R[:-1], np.diff(n.p, axis=0))
             V, P = _local_maps(n.R, v_b, d)
-            blocks = [_to_local(b, V, P) for b in blocks]
+            make = lambda f, *a: (lambda b: None if b is None else _to_local(b, V, P))(f(*a))  # noqa: E731
+        else:
+            make = lambda f, *a: f(*a)  # noqa: E731
+        tasks = [(imu.blocks, n, rig), (nonholonomic.blocks, n, rig), (wheel.blocks, n, rig)]
+        tasks += [(odometry.blocks, n, rig, s) for s in rig.config.sensors]
+        # The factor kinds are independent and numpy/numba release the GIL in their loops: on
+        # two cores, linearising them concurrently nearly halves the time.
+        blocks = [b for b in _pool().map(lambda t: make(*t), tasks) if b is not None]
         parts += [b.shifted(offset) for b in blocks]
         starts.append(offset)
         R_all.append(n.R)
@@ -205,12 +223,20 @@ def _rows(first: np.ndarray, shift: int):
     return f
 
 
+def _as_slice(cols: np.ndarray):
+    """``cols`` as a slice when it is a contiguous range (plain slicing is ~10x faster than an
+    index array in an in-place add)."""
+    if cols.size and cols[-1] - cols[0] + 1 == cols.size and np.all(np.diff(cols) == 1):
+        return slice(int(cols[0]), int(cols[-1]) + 1)
+    return cols
+
+
 def _scatter(target: np.ndarray, rows, values: np.ndarray, cols: np.ndarray | None = None) -> None:
     """``target[rows(, :, cols)] += values`` (rows a slice or, possibly repeated, indices)."""
     if cols is not None:
         if isinstance(rows, slice):
-            view = target[rows]  # a view: the fancy-indexed += below writes through (cols are unique)
-            view[:, :, cols] += values
+            view = target[rows]  # a view: the indexed += below writes through (cols are unique)
+            view[:, :, _as_slice(cols)] += values
         else:
             np.add.at(target, (rows[:, None, None], np.arange(target.shape[1])[None, :, None], cols[None, None, :]),
                       values)
@@ -262,7 +288,11 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
             if k:
                 Hxt_f = JxT @ b.Jt
                 Jt2 = b.Jt.reshape(-1, k)
-                Htt[np.ix_(b.cols, b.cols)] += Jt2.T @ Jt2
+                c = _as_slice(b.cols)
+                if isinstance(c, slice):
+                    Htt[c, c] += Jt2.T @ Jt2
+                else:
+                    Htt[np.ix_(b.cols, b.cols)] += Jt2.T @ Jt2
             for a in range(b.n_states):
                 sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
                 if k:

@@ -55,7 +55,7 @@ def _horner(c, k, j, tau, deriv):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def imu_samples(t, seg_rot, x_rot, c_rot, R_key, seg_acc, x_acc, c_acc, gravity, R_V_B, p_V_B):
     """Orientation R_W_B, body rate ω_B and specific force f_B of an IMU at ``(R_V_B, p_V_B)`` in V.
 
@@ -122,7 +122,38 @@ def imu_samples(t, seg_rot, x_rot, c_rot, R_key, seg_acc, x_acc, c_acc, gravity,
     return out_R, out_w, out_f
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
+def inverse_cholesky(cov):
+    """``W = L⁻¹`` with ``L Lᵀ = cov`` for every symmetric positive definite matrix of a stack
+    (``WᵀW = cov⁻¹``: W whitens a residual of covariance cov)."""
+    N, m, _ = cov.shape
+    W = np.zeros((N, m, m))
+    L = np.empty((m, m))
+    for i in range(N):
+        C = cov[i]
+        for r in range(m):
+            for c in range(r + 1):
+                acc = C[r, c]
+                for k in range(c):
+                    acc -= L[r, k] * L[c, k]
+                if r == c:
+                    if acc <= 0.0:
+                        raise ValueError("covariance is not positive definite")
+                    L[r, r] = np.sqrt(acc)
+                else:
+                    L[r, c] = acc / L[c, c]
+        Wi = W[i]
+        for c in range(m):  # forward substitution, column c of L⁻¹
+            Wi[c, c] = 1.0 / L[c, c]
+            for r in range(c + 1, m):
+                acc = 0.0
+                for k in range(c, r):
+                    acc -= L[r, k] * Wi[k, c]
+                Wi[r, c] = acc / L[r, r]
+    return W
+
+
+@nb.njit(cache=True, nogil=True)
 def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
     """Per interval: ΔR = R_iᵀR_j, bias Jacobians G_R, V_g, P_g, P_a and the 9×9 covariance
     (rotation, velocity, position) of the preintegrated measurement; see

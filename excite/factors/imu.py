@@ -84,7 +84,7 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
         cols, Jt = np.zeros(0, dtype=int), np.zeros((N, 9, 0))
 
     # whiten with the inverse Cholesky factor of the covariance: W = L⁻¹, WᵀW = Σ⁻¹
-    W = np.linalg.inv(np.linalg.cholesky(pre["cov"]))
+    W = kernels.inverse_cholesky(pre["cov"])
     Jx = W @ Jx
     Jt = W @ Jt
     return FactorBlock("imu", np.arange(N), 1, 2, Jx, Jt, cols)
