@@ -69,8 +69,8 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
 
         raise RigError(f"{exc.field}: {exc.message}") from None
     settings = OptimizeSettings(
-        duration_s=request["duration_s"], lot_width_m=request["lot_width_m"],
-        lot_length_m=request["lot_length_m"], limits=Limits(**request["limits"]),
+        duration_s=request["duration_s"], lot_x_m=request["lot_x_m"],
+        lot_y_m=request["lot_y_m"], limits=Limits(**request["limits"]),
         seed=request["seed"], time_budget_s=request["time_budget_s"], closed=request["closed"],
         n_random=request["n_random"])
     res = optimize(rig, settings, lambda p: progress(plain(p)), should_stop)

@@ -154,8 +154,8 @@ class ManeuverRequest(In):
     rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
     name: RouteName = "maneuver"
     duration_s: float = Field(90.0, gt=1, description="Length of the maneuver [s].")
-    lot_width_m: float = Field(80.0, gt=1, le=10_000, description="Lot extent along world x [m].")
-    lot_length_m: float = Field(50.0, gt=1, le=10_000, description="Lot extent along world y [m].")
+    lot_x_m: float = Field(80.0, gt=1, le=10_000, description="Lot extent along world x [m].")
+    lot_y_m: float = Field(50.0, gt=1, le=10_000, description="Lot extent along world y [m].")
     limits: LimitsIn = LimitsIn()
     seed: int = Field(0, ge=0, le=2**31 - 1)
     time_budget_s: float = Field(60.0, gt=0, description="Optimizer wall-time budget [s].")

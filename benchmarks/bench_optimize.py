@@ -56,7 +56,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "out")
     args = ap.parse_args()
-    settings = OptimizeSettings(duration_s=90.0, lot_width_m=80.0, lot_length_m=50.0,
+    settings = OptimizeSettings(duration_s=90.0, lot_x_m=80.0, lot_y_m=50.0,
                                 time_budget_s=args.budget, n_random=args.n_random, seed=args.seed)
     rig = load_rig("robotaxi")
     t0 = time.perf_counter()

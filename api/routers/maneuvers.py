@@ -34,8 +34,8 @@ def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
                                 f"{s.max_job_time_budget_s:g} s",
                            errors=[{"field": "time_budget_s", "message": f"at most {s.max_job_time_budget_s:g} s"}])
     try:
-        OptimizeSettings(duration_s=body.duration_s, lot_width_m=body.lot_width_m,
-                         lot_length_m=body.lot_length_m, limits=Limits(**body.limits.model_dump()),
+        OptimizeSettings(duration_s=body.duration_s, lot_x_m=body.lot_x_m,
+                         lot_y_m=body.lot_y_m, limits=Limits(**body.limits.model_dump()),
                          seed=body.seed, time_budget_s=body.time_budget_s, closed=body.closed,
                          n_random=body.n_random)
     except ExciteError as exc:  # the optimizer's own bounds, checked now rather than in a failed job

@@ -25,7 +25,7 @@ def parse_lot(text: str) -> tuple[float, float]:
     """``"80x50"`` → (80.0, 50.0): extent along x, then along y [m]."""
     m = re.fullmatch(r"\s*([0-9.]+)\s*[xX×]\s*([0-9.]+)\s*", text)
     if not m:
-        raise ExciteError(f"--lot: expected WIDTHxLENGTH in metres such as 80x50, got {text!r}")
+        raise ExciteError(f"--lot: expected XxY in metres (extent along x, then y) such as 80x50, got {text!r}")
     return float(m.group(1)), float(m.group(2))
 
 
@@ -59,7 +59,7 @@ def optimize(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output folder.")],
     rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
     duration: Annotated[float, typer.Option(help="Maneuver duration [s], rest to rest.")] = 90.0,
-    lot: Annotated[str, typer.Option(help="Lot size WIDTHxLENGTH [m] (along x, along y).")] = "80x50",
+    lot: Annotated[str, typer.Option(help="Lot size XxY [m]: extent along x, then along y.")] = "80x50",
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
     time_budget: Annotated[float, typer.Option(help="Wall-clock budget of the optimization [s].")] = 60.0,
     closed: Annotated[bool, typer.Option(help="End where it started (position and heading).")] = False,
@@ -70,7 +70,7 @@ def optimize(
     Ctrl-C keeps the best feasible drive found so far and writes it.
     """
     w, length = parse_lot(lot)
-    settings = OptimizeSettings(duration_s=duration, lot_width_m=w, lot_length_m=length, seed=seed,
+    settings = OptimizeSettings(duration_s=duration, lot_x_m=w, lot_y_m=length, seed=seed,
                                 time_budget_s=time_budget, closed=closed, n_random=n_random)
     r = load_rig(rig)
     console = Console()

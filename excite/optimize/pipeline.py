@@ -27,8 +27,8 @@ _FINISH_S = 2.0  # kept from the budget for turning the result into a drive
 
 
 def lot_of(settings: OptimizeSettings) -> Lot:
-    """The settings' lot: ``lot_width_m`` along x, ``lot_length_m`` along y, centred."""
-    return Lot.rectangle(length_m=settings.lot_width_m, width_m=settings.lot_length_m)
+    """The settings' lot: ``lot_x_m`` along x, ``lot_y_m`` along y, centred."""
+    return Lot.rectangle(length_m=settings.lot_x_m, width_m=settings.lot_y_m)
 
 
 def feasibility(traj, settings: OptimizeSettings, lot: Lot | None = None) -> list[str]:
@@ -53,8 +53,8 @@ def _references(settings: OptimizeSettings) -> dict[str, ControlProfile]:
             if name == "highway_run":
                 out[name] = gen(settings.duration_s, limits=settings.limits)
             else:
-                out[name] = gen(settings.duration_s, width_m=settings.lot_length_m,
-                                length_m=settings.lot_width_m, limits=settings.limits)
+                out[name] = gen(settings.duration_s, width_m=settings.lot_y_m,
+                                length_m=settings.lot_x_m, limits=settings.limits)
         except LimitError:
             continue
     return out
@@ -88,10 +88,10 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
             progress(Progress(it, float(s), float(v), time.perf_counter() - t0, phase))
 
     lot = lot_of(settings)
-    half_x = 0.5 * settings.lot_width_m - EDGE_MARGIN_M
-    half_y = 0.5 * settings.lot_length_m - EDGE_MARGIN_M
+    half_x = 0.5 * settings.lot_x_m - EDGE_MARGIN_M
+    half_y = 0.5 * settings.lot_y_m - EDGE_MARGIN_M
     if min(half_x, half_y) < 5.0:
-        raise OptimizeError(f"a {settings.lot_width_m:g} × {settings.lot_length_m:g} m lot leaves less than "
+        raise OptimizeError(f"a {settings.lot_x_m:g} × {settings.lot_y_m:g} m lot leaves less than "
                             f"5 m either side of the centre inside its {EDGE_MARGIN_M:g} m edge margin")
     tr = transcribe(rig, settings.duration_s, settings.limits, half_x, half_y, settings.closed)
 

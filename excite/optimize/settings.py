@@ -21,7 +21,7 @@ class OptimizeSettings:
     """What to optimize for. SI units.
 
     ``duration_s``: length of the maneuver, from rest to rest.
-    ``lot_width_m`` × ``lot_length_m``: the rectangular test lot, the first number along the
+    ``lot_x_m`` × ``lot_y_m``: the rectangular test lot, the first number along the
     world x axis (the ``80`` of ``--lot 80x50``), the second along y; centred on the origin.
     The path of the rear axle stays ``maneuvers.EDGE_MARGIN_M`` (3 m) inside its edges, like the
     reference maneuvers and the random candidates it is compared with.
@@ -36,8 +36,8 @@ class OptimizeSettings:
     """
 
     duration_s: float = 90.0
-    lot_width_m: float = 80.0
-    lot_length_m: float = 50.0
+    lot_x_m: float = 80.0
+    lot_y_m: float = 50.0
     limits: Limits = field(default_factory=Limits)
     seed: int = 0
     time_budget_s: float = 60.0
@@ -53,7 +53,7 @@ class OptimizeSettings:
 
         if not 10.0 <= finite("duration_s") <= 600.0:
             raise OptimizeError(f"duration_s must be between 10 and 600 s, got {self.duration_s!r}")
-        for name in ("lot_width_m", "lot_length_m"):
+        for name in ("lot_x_m", "lot_y_m"):
             if not 15.0 <= finite(name) <= 2000.0:
                 raise OptimizeError(f"{name} must be between 15 and 2000 m, got {getattr(self, name)!r}")
         if not 0.5 <= finite("time_budget_s") <= 3600.0:
