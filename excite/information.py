@@ -33,7 +33,7 @@ import scipy.sparse as sp
 from scipy.linalg import cholesky_banded
 from scipy.linalg.lapack import dtbtrs
 
-from . import so3
+from . import kernels, so3
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
 from .factors.base import POS, ROT, STATE_DIM, VEL, FactorBlock, Nominal
@@ -275,12 +275,28 @@ def _merged(blocks: list[FactorBlock]) -> list[FactorBlock]:
 
 
 def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """``H`` in blocks: ``B[d][k] = H[x_{k+d}, x_k]`` (K−d, 9, 9), ``H_xθ`` (K, 9, p) and ``H_θθ``."""
+    """``H`` in blocks: ``B[d][k] = H[x_{k+d}, x_k]`` (K−d, 9, 9), ``H_xθ`` (K, 9, p) and ``H_θθ``.
+
+    The factors are accumulated in chunks, alternately by the pool's threads into private sums
+    that are added at the end."""
+    pieces = list(_chunks(problem.blocks))
+    n_threads = min(2, len(pieces))
+    parts = list(_pool().map(lambda i: _accumulate(problem, pieces[i::n_threads]), range(n_threads)))
+    B, Hxt, Htt = parts[0]
+    for B2, Hxt2, Htt2 in parts[1:]:
+        for d in range(len(B)):
+            B[d] += B2[d]
+        Hxt += Hxt2
+        Htt += Htt2
+    return B, Hxt, Htt
+
+
+def _accumulate(problem: Problem, pieces: list[list[FactorBlock]]):
     K, p, D = problem.n_keyframes, problem.n_params, problem.bandwidth_blocks
     B = [np.zeros((K - d, STATE_DIM, STATE_DIM)) for d in range(D + 1)]
     Hxt = np.zeros((K, STATE_DIM, p))
     Htt = np.zeros((p, p))
-    for piece in _chunks(problem.blocks):
+    for piece in pieces:
         for b in _merged(piece):
             JxT = np.ascontiguousarray(np.swapaxes(b.Jx, 1, 2))  # contiguous: 3x faster batched matmul
             Hxx = JxT @ b.Jx
@@ -297,9 +313,9 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
                 sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
                 if k:
                     _scatter(Hxt, _rows(b.first, a * b.stride), Hxt_f[:, sa], b.cols)
-                for c in range(a + 1):
-                    sc = slice(STATE_DIM * c, STATE_DIM * (c + 1))
-                    _scatter(B[(a - c) * b.stride], _rows(b.first, c * b.stride), Hxx[:, sa, sc])
+                for c2 in range(a + 1):
+                    sc = slice(STATE_DIM * c2, STATE_DIM * (c2 + 1))
+                    _scatter(B[(a - c2) * b.stride], _rows(b.first, c2 * b.stride), Hxx[:, sa, sc])
     return B, Hxt, Htt
 
 
@@ -317,26 +333,12 @@ def _chunks(blocks: tuple[FactorBlock, ...]):
         yield piece
 
 
-def _banded(B: list[np.ndarray], K: int) -> np.ndarray:
-    """LAPACK lower band storage ``ab[i − j, j] = H[i, j]`` of the block-banded H_xx."""
-    D = len(B) - 1
-    kd = STATE_DIM * (D + 1) - 1
-    ab = np.zeros((kd + 1, STATE_DIM * K))
-    rr, cc = np.meshgrid(np.arange(STATE_DIM), np.arange(STATE_DIM), indexing="ij")
-    for d, Bd in enumerate(B):
-        diag = STATE_DIM * d + rr - cc
-        mask = diag >= 0
-        cols = STATE_DIM * np.arange(K - d)[:, None] + cc[mask][None, :]
-        ab[np.broadcast_to(diag[mask], cols.shape), cols] = Bd[:, rr[mask], cc[mask]]
-    return ab
-
-
 def marginal(problem: Problem) -> np.ndarray:
     """Marginal information ``Λ_θ`` (p × p) of the calibration, trajectory eliminated (fast path)."""
     B, Hxt, Htt = assemble(problem)
     K = problem.n_keyframes
     try:
-        L = cholesky_banded(_banded(B, K), lower=True, check_finite=False)
+        L = cholesky_banded(kernels.band_lower(tuple(B), K, STATE_DIM), lower=True, check_finite=False)
     except np.linalg.LinAlgError:
         raise EvaluationError("the trajectory itself is undetermined by this rig's sensors "
                               "(the keyframe information is singular beyond the gauge)") from None

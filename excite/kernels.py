@@ -258,3 +258,21 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
             for q in range(r + 1, 9):
                 C[r, q] = C[q, r]
     return dR, G_R, V_g, P_g, P_a, cov
+
+
+@nb.njit(cache=True, nogil=True)
+def band_lower(blocks, K, m):
+    """LAPACK lower band storage ``ab[i − j, j] = H[i, j]`` of a block-banded symmetric matrix
+    given by its lower block diagonals ``blocks[d][k] = H[x_{k+d}, x_k]`` (m × m blocks)."""
+    D = len(blocks) - 1
+    kd = m * (D + 1) - 1
+    ab = np.zeros((kd + 1, m * K))
+    for d in range(D + 1):
+        Bd = blocks[d]
+        for k in range(K - d):
+            for r in range(m):
+                for c in range(m):
+                    off = m * d + r - c
+                    if off >= 0:
+                        ab[off, m * k + c] = Bd[k, r, c]
+    return ab
