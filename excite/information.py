@@ -125,24 +125,47 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
                                   f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
         if not -n.n_keyframes <= gauge_keyframe < n.n_keyframes:
             raise EvaluationError(f"gauge keyframe {gauge_keyframe} is outside the drive")
-        if local:
-            v_b = np.einsum("kji,kj->ki", n.R, n.v)
-            d = np.einsum("kji,kj->ki", n.R[:-1], np.diff(n.p, axis=0))
-            V, P = _local_maps(n.R, v_b, d)
-            make = lambda f, *a: (lambda b: None if b is None else _to_local(b, V, P))(f(*a))  # noqa: E731
-        else:
-            make = lambda f, *a: f(*a)  # noqa: E731
-        tasks = [(imu.blocks, n, rig), (nonholonomic.blocks, n, rig), (wheel.blocks, n, rig)]
-        tasks += [(odometry.blocks, n, rig, s) for s in rig.config.sensors]
-        # The factor kinds are independent and numpy/numba release the GIL in their loops: on
-        # two cores, linearising them concurrently nearly halves the time.
-        blocks = [b for b in _pool().map(lambda t: make(*t), tasks) if b is not None]
+        blocks = _linearise(n, rig, local)
         parts += [b.shifted(offset) for b in blocks]
         starts.append(offset)
         R_all.append(n.R)
         offset += n.n_keyframes
     gauges = tuple(s + (gauge_keyframe % n.n_keyframes) for s, n in zip(starts, noms))
     return _with_gauges(offset, p, parts, np.concatenate(R_all), local, tuple(starts), gauges)
+
+
+_CHUNK_KEYFRAMES = 3000  # keyframes linearised per task: bounded temporaries, both cores busy
+
+
+def _linearise(n: Nominal, rig: Rig, local: bool) -> list[FactorBlock]:
+    """Every factor of one drive, linearised in chunks of keyframes on the thread pool.
+
+    Chunks start at multiples of every sensor's frame stride, so each factor falls in exactly
+    one chunk: the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside, the
+    non-holonomic constraint at ``k0 … k1−1`` (and at the drive's last keyframe).
+    """
+    strides = [int(round(rig.keyframe_rate_hz / s.rate_hz)) for s in rig.config.sensors] or [1]
+    step = int(np.lcm.reduce(strides))
+    size = max(step, (_CHUNK_KEYFRAMES // step) * step)
+    K = n.n_keyframes
+    edges = list(range(0, K - 1, size)) + [K - 1]
+
+    def chunk(c: int) -> list[FactorBlock | None]:
+        k0, k1 = edges[c], edges[c + 1]
+        sub = n.window(k0, k1)
+        nhc = nonholonomic.blocks(sub, rig)
+        blocks = [imu.blocks(sub, rig), nhc if k1 == K - 1 else nhc.select(nhc.first < k1 - k0),
+                  wheel.blocks(sub, rig)] + [odometry.blocks(sub, rig, s) for s in rig.config.sensors]
+        if local:
+            v_b = np.einsum("kji,kj->ki", sub.R, sub.v)
+            d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
+            V, P = _local_maps(sub.R, v_b, d)
+            blocks = [None if b is None else _to_local(b, V, P) for b in blocks]
+        return [None if b is None else b.shifted(k0) for b in blocks]
+
+    # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
+    per_chunk = list(_pool().map(chunk, range(len(edges) - 1)))
+    return [b for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
 
 
 def _with_gauges(K: int, p: int, blocks: list[FactorBlock], R: np.ndarray, local: bool,
@@ -279,7 +302,7 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
 
     The factors are accumulated in chunks, alternately by the pool's threads into private sums
     that are added at the end."""
-    pieces = list(_chunks(problem.blocks))
+    pieces = _chunks(problem.blocks)
     n_threads = min(2, len(pieces))
     parts = list(_pool().map(lambda i: _accumulate(problem, pieces[i::n_threads]), range(n_threads)))
     B, Hxt, Htt = parts[0]
@@ -319,18 +342,18 @@ def _accumulate(problem: Problem, pieces: list[list[FactorBlock]]):
     return B, Hxt, Htt
 
 
-def _chunks(blocks: tuple[FactorBlock, ...]):
-    """The blocks cut into pieces of at most ``_CHUNK`` factors; pieces over the same factor
-    range come together (so that :func:`_merged` can stack them). Small temporaries stay in
-    cache: assembly time stays linear in the drive length."""
-    n_max = max(b.n_factors for b in blocks)
-    for start in range(0, n_max, _CHUNK):
-        piece = []
-        for b in blocks:
-            if start < b.n_factors:
-                sl = slice(start, min(start + _CHUNK, b.n_factors))
-                piece.append(FactorBlock(b.name, b.first[sl], b.stride, b.n_states, b.Jx[sl], b.Jt[sl], b.cols))
-        yield piece
+def _chunks(blocks: tuple[FactorBlock, ...]) -> list[list[FactorBlock]]:
+    """The blocks cut into pieces of at most ``_CHUNK`` factors and grouped by the keyframes they
+    start at, so that a group holds the factors of one stretch of the drive (which
+    :func:`_merged` stacks) and groups are independent work for the threads."""
+    groups: dict[int, list[FactorBlock]] = {}
+    for b in blocks:
+        for start in range(0, b.n_factors, _CHUNK):
+            sl = slice(start, min(start + _CHUNK, b.n_factors))
+            key = int(b.first[start]) // _CHUNK
+            groups.setdefault(key, []).append(
+                FactorBlock(b.name, b.first[sl], b.stride, b.n_states, b.Jx[sl], b.Jt[sl], b.cols))
+    return [groups[k] for k in sorted(groups)]
 
 
 def marginal(problem: Problem) -> np.ndarray:

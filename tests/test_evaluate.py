@@ -327,3 +327,23 @@ def test_kitti_00_report_makes_physical_sense(rig, data_dir):
     assert sig["lidar.time_offset"].sigma < 2e-3
     assert sig["lidar.trans_z"].sigma > 5 * sig["lidar.trans_x"].sigma
     assert 3500 < rep.length_m < 3900 and 460 < rep.duration_s < 475
+
+
+def test_linearising_in_chunks_changes_nothing(rig, monkeypatch):
+    """Every factor lands in exactly one chunk (sensor frames spanning two keyframes included):
+    tiny chunks give the same J rows and the same marginal as one chunk."""
+    data = rig.config.model_dump()
+    data["sensors"][0]["rate_hz"] = 5.0  # frames every second keyframe
+    slow = build_rig(data)
+    t = np.linspace(0, 10, 11)
+    nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), slow.suspension), slow)
+    whole = information.build(nom, slow)
+    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)  # → chunks of 6 keyframes (stride 2)
+    chunked = information.build(nom, slow)
+    assert len(chunked.blocks) > len(whole.blocks)
+    names = [b.name for b in chunked.blocks]
+    assert [n for i, n in enumerate(names) if i == 0 or names[i - 1] != n] == [b.name for b in whole.blocks]
+    Jw, Jc = information.jacobian(whole)[0].toarray(), information.jacobian(chunked)[0].toarray()
+    np.testing.assert_allclose(Jc, Jw, atol=1e-12 * np.abs(Jw).max())
+    Lw, Lc = _scaled(information.marginal(whole), slow), _scaled(information.marginal(chunked), slow)
+    assert np.abs(Lc - Lw).max() < 1e-10 * np.abs(Lw).max()

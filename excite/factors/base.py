@@ -49,6 +49,15 @@ class Nominal:
     def n_keyframes(self) -> int:
         return self.t.size
 
+    def window(self, k0: int, k1: int) -> "Nominal":
+        """Keyframes ``k0..k1`` (inclusive) and the IMU samples between them (views, no copies)."""
+        n = self.imu_per_keyframe
+        kf = slice(k0, k1 + 1)
+        imu = slice(k0 * n, k1 * n + 1)
+        return Nominal(t=self.t[kf], R=self.R[kf], p=self.p[kf], v=self.v[kf], omega=self.omega[kf],
+                       R_V_A=self.R_V_A[kf], imu_R=self.imu_R[imu], imu_omega=self.imu_omega[imu],
+                       imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B)
+
     @classmethod
     def of(cls, traj: Trajectory, rig: Rig, t_start: float | None = None,
            t_end: float | None = None) -> "Nominal":
