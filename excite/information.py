@@ -236,7 +236,8 @@ def _last_increment_prior(keyframe: int, n_params: int) -> FactorBlock:
 
 
 def _rows(first: np.ndarray, shift: int):
-    """Index of ``first + shift``: a slice when ``first`` is an arithmetic progression (no copies)."""
+    """Index of ``first + shift``: a slice when ``first`` is an increasing arithmetic progression
+    (no copies; plain slicing is ~10x faster than an index array in an in-place add)."""
     f = first + shift
     if f.size == 1:
         return slice(int(f[0]), int(f[0]) + 1)
@@ -246,20 +247,12 @@ def _rows(first: np.ndarray, shift: int):
     return f
 
 
-def _as_slice(cols: np.ndarray):
-    """``cols`` as a slice when it is a contiguous range (plain slicing is ~10x faster than an
-    index array in an in-place add)."""
-    if cols.size and cols[-1] - cols[0] + 1 == cols.size and np.all(np.diff(cols) == 1):
-        return slice(int(cols[0]), int(cols[-1]) + 1)
-    return cols
-
-
 def _scatter(target: np.ndarray, rows, values: np.ndarray, cols: np.ndarray | None = None) -> None:
     """``target[rows(, :, cols)] += values`` (rows a slice or, possibly repeated, indices)."""
     if cols is not None:
         if isinstance(rows, slice):
             view = target[rows]  # a view: the indexed += below writes through (cols are unique)
-            view[:, :, _as_slice(cols)] += values
+            view[:, :, _rows(cols, 0)] += values
         else:
             np.add.at(target, (rows[:, None, None], np.arange(target.shape[1])[None, :, None], cols[None, None, :]),
                       values)
@@ -327,7 +320,7 @@ def _accumulate(problem: Problem, pieces: list[list[FactorBlock]]):
             if k:
                 Hxt_f = JxT @ b.Jt
                 Jt2 = b.Jt.reshape(-1, k)
-                c = _as_slice(b.cols)
+                c = _rows(b.cols, 0)
                 if isinstance(c, slice):
                     Htt[c, c] += Jt2.T @ Jt2
                 else:
