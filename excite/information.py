@@ -24,8 +24,6 @@ drives. The marginal on θ does not depend on the parametrisation (the tests com
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +32,7 @@ from scipy.linalg import cholesky_banded
 from scipy.linalg.lapack import dtbtrs
 
 from . import kernels, so3
+from .parallel import pool
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
 from .factors.base import POS, ROT, STATE_DIM, VEL, FactorBlock, Nominal
@@ -95,18 +94,6 @@ def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, 0)), _NO_COLS)
 
 
-_POOL: tuple[int, ThreadPoolExecutor] | None = None
-
-
-def _pool() -> ThreadPoolExecutor:
-    """A thread pool of this process (re-created after a fork: threads do not survive it)."""
-    global _POOL
-    if _POOL is None or _POOL[0] != os.getpid():
-        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
-                                                 thread_name_prefix="excite-linearise"))
-    return _POOL[1]
-
-
 def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
     """Linearise every factor of ``rig`` on the nominal motion ``nom``.
 
@@ -164,7 +151,7 @@ def _linearise(n: Nominal, rig: Rig, local: bool) -> list[FactorBlock]:
         return [None if b is None else b.shifted(k0) for b in blocks]
 
     # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
-    per_chunk = list(_pool().map(chunk, range(len(edges) - 1)))
+    per_chunk = list(pool().map(chunk, range(len(edges) - 1)))
     return [b for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
 
 
@@ -297,7 +284,7 @@ def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
     that are added at the end."""
     pieces = _chunks(problem.blocks)
     n_threads = min(2, len(pieces))
-    parts = list(_pool().map(lambda i: _accumulate(problem, pieces[i::n_threads]), range(n_threads)))
+    parts = list(pool().map(lambda i: _accumulate(problem, pieces[i::n_threads]), range(n_threads)))
     B, Hxt, Htt = parts[0]
     for B2, Hxt2, Htt2 in parts[1:]:
         for d in range(len(B)):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..parallel import pool
 from ..rig import Rig
 from ..trajectory import Trajectory
 
@@ -71,10 +72,8 @@ class Nominal:
         pose = rig.config.vehicle.T_V_B
         # the IMU-rate samples in two halves and the keyframes, concurrently (compiled loops and
         # numpy release the GIL)
-        from ..information import _pool
-
         half = t_imu.size // 2
-        jobs = [_pool().submit(traj.imu, part, pose.R, pose.p) for part in (t_imu[:half], t_imu[half:])]
+        jobs = [pool().submit(traj.imu, part, pose.R, pose.p) for part in (t_imu[:half], t_imu[half:])]
         s = traj.sample(t_imu[::n])
         (R1, w1, f1), (R2, w2, f2) = (j.result() for j in jobs)
         imu_R, imu_w, imu_f = np.concatenate([R1, R2]), np.concatenate([w1, w2]), np.concatenate([f1, f2])
