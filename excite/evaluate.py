@@ -114,6 +114,8 @@ class Report:
     information: np.ndarray = field(repr=False)  # Λ_θ over the scored coordinates (SI units)
     information_scaled: np.ndarray = field(repr=False)  # S Λ_θ S
     _problem: information.Problem | None = field(default=None, repr=False)
+    _all_columns: list[dict[str, Any]] = field(default_factory=list, repr=False)  # incl. nuisances
+    _information_all: np.ndarray | None = field(default=None, repr=False)  # Λ over all columns
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report (finite floats, None for ∞/undefined)."""
@@ -166,9 +168,6 @@ class Report:
             column_units=np.array([c["unit"] for c in self.column_map]),
             column_targets=np.array([c["target"] for c in self.column_map]),
         )
-
-    _all_columns: list[dict[str, Any]] = field(default_factory=list, repr=False)
-    _information_all: np.ndarray | None = field(default=None, repr=False)
 
 
 def _marginalise_nuisance(Lam: np.ndarray, scored: np.ndarray) -> np.ndarray:
