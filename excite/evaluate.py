@@ -113,7 +113,7 @@ class Report:
     timings_ms: dict[str, float]
     information: np.ndarray = field(repr=False)  # Λ_θ over the scored coordinates (SI units)
     information_scaled: np.ndarray = field(repr=False)  # S Λ_θ S
-    _problem: information.Problem | None = field(default=None, repr=False)
+    _drives: tuple[list[Trajectory], Rig] | None = field(default=None, repr=False)  # for the export
     _all_columns: list[dict[str, Any]] = field(default_factory=list, repr=False)  # incl. nuisances
     _information_all: np.ndarray | None = field(default=None, repr=False)  # Λ over all columns
 
@@ -149,9 +149,10 @@ class Report:
 
     def export_npz(self, path: str | Path) -> None:
         """Write J (sparse, whitened), H = JᵀJ (sparse), Λ_θ, the variable ordering and column map."""
-        if self._problem is None:
-            raise EvaluationError("this report carries no problem to export")
-        prob = self._problem
+        if self._drives is None:
+            raise EvaluationError("this report carries no drive to export")
+        trajs, rig = self._drives
+        prob = information.build([Nominal.of(t, rig) for t in trajs], rig)
         J, rows = information.jacobian(prob)
         H = (J.T @ J).tocoo()
         J = J.tocoo()
@@ -186,13 +187,12 @@ def _marginalise_nuisance(Lam: np.ndarray, scored: np.ndarray) -> np.ndarray:
     return 0.5 * (out + out.T)
 
 
-def _scaled(rig: Rig, problem: information.Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(Λ over all coordinates, Λ over scored coordinates, S Λ S) of a problem."""
-    Lam_all = information.marginal(problem)
+def _scaled(rig: Rig, Lam_all: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Λ over the scored coordinates, S Λ S) from Λ over all coordinates."""
     scored = np.array([not c.nuisance for c in rig.coordinates])
     Lam = _marginalise_nuisance(Lam_all, scored)
     S = np.array([c.target for c in rig.scored])
-    return Lam_all, Lam, Lam * np.outer(S, S)
+    return Lam, Lam * np.outer(S, S)
 
 
 def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
@@ -204,21 +204,19 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     trajs = [traj] if isinstance(traj, Trajectory) else list(traj)
     if not trajs:
         raise EvaluationError("no drive to evaluate")
-    timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    noms = [Nominal.of(t, rig) for t in trajs]
-    t1 = time.perf_counter()
-    prob = information.build(noms, rig)
-    t_kf = np.concatenate([n.t for n in noms])
-    t2 = time.perf_counter()
-    Lam_all, Lam, Ls = _scaled(rig, prob)
+    drives = information.drive_information(trajs, rig)
+    Lam_all = drives.information
+    Lam, Ls = _scaled(rig, Lam_all)
     t3 = time.perf_counter()
-    timings.update(sample=(t1 - t0) * 1e3, linearise=(t2 - t1) * 1e3, marginalise=(t3 - t2) * 1e3)
+    timings = {f"{k}_thread": v for k, v in drives.thread_ms.items()}
+    timings["information"] = (t3 - t0) * 1e3
 
     coords = list(rig.scored)
     S = np.array([c.target for c in coords])
     # the scale of the data's information before marginalisation sets the numerical zero
-    scale = _information_scale(prob, rig)
+    S_all = np.array([c.target if not c.nuisance else 0.0 for c in rig.coordinates])
+    scale = float(max((drives.diag_tt * S_all**2).max(), 1e-300))
     tol = options.rank_rtol * scale
     w, V = np.linalg.eigh(Ls)
     null = w < tol
@@ -264,12 +262,15 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
 
     segments = []
     if options.segments:
+        noms = [Nominal.of(t, rig) for t in trajs]
+        prob = information.build(noms, rig)
+        t_kf = np.concatenate([n.t for n in noms])
         edges = np.linspace(0, prob.n_keyframes - 1, options.segments + 1).round().astype(int)
         v_weak = V[:, 0]
         for k0, k1 in zip(edges[:-1], edges[1:]):
             if k1 - k0 < 2:
                 continue
-            _, _, Lseg = _scaled(rig, prob.window(int(k0), int(k1)))
+            _, Lseg = _scaled(rig, information.marginal(prob.window(int(k0), int(k1))))
             ws = np.linalg.eigvalsh(Lseg)
             segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]),
                                     float(max(ws[0], 0.0)) if ws[0] >= tol else 0.0,
@@ -283,22 +284,12 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
                    for i, c in enumerate(rig.coordinates)]
     return Report(
         route=" + ".join(t.name for t in trajs), rig=rig.name,
-        duration_s=float(sum(n.t[-1] - n.t[0] for n in noms)),
-        length_m=float(sum(n.length_m for n in noms)), n_keyframes=prob.n_keyframes,
+        duration_s=drives.duration_s, length_m=drives.length_m, n_keyframes=drives.n_keyframes,
         score=score, passed=all(p.ok for p in params), rank=len(coords) - nullity, nullity=nullity,
         rank_threshold=float(tol), condition_number=cond,
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],
         column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
-        information=Lam, information_scaled=Ls, _problem=prob, _all_columns=all_columns,
+        information=Lam, information_scaled=Ls, _drives=(trajs, rig), _all_columns=all_columns,
         _information_all=Lam_all,
     )
-
-
-def _information_scale(prob: information.Problem, rig: Rig) -> float:
-    """max diag(S H_θθ S): the largest information any single parameter gets before marginalising."""
-    S = np.array([c.target if not c.nuisance else 0.0 for c in rig.coordinates])
-    diag = np.zeros(len(S))
-    for b in prob.blocks:
-        diag[b.cols] += (b.Jt**2).sum(axis=(0, 1))
-    return float(max((diag * S**2).max(), 1e-300))

@@ -26,17 +26,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import time
+from collections.abc import Sequence
+
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cholesky_banded
-from scipy.linalg.lapack import dtbtrs
 
 from . import kernels, so3
-from .parallel import pool
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
 from .factors.base import POS, ROT, STATE_DIM, VEL, FactorBlock, Nominal
+from .parallel import n_threads, pool
 from .rig import Rig
+from .trajectory import Trajectory
 
 # The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
 # gives the same marginal (the gauge is an exact symmetry); one near the data's scale keeps H_xx
@@ -76,16 +78,19 @@ class Problem:
             if mask.any():
                 sel = b.select(mask)
                 out.append(sel.shifted(-k0))
-        starts = sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})
-        return _with_gauges(k1 - k0 + 1, self.n_params, out, self.R_W_B[k0:k1 + 1], self.local,
-                            tuple(s - k0 for s in starts))
+        starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
+        ends = [s - 1 for s in starts[1:]] + [k1 - k0]
+        R = self.R_W_B[k0:k1 + 1]
+        for s, e in zip(starts, ends):
+            out += _gauge(R[s], s, self.local) + _chain_end(e, self.local)
+        return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.local, tuple(starts))
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
                        self.R_W_B, self.local, self.chain_starts)
 
 
-def gauge_block(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
+def gauge_block(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
     """A prior on the position (3) and world yaw (1) of ``keyframe``: the minimal gauge fix."""
     Jx = np.zeros((1, 4, STATE_DIM))
     Jx[0, 0:3, POS] = np.eye(3) / _GAUGE_SIGMA_POS_M
@@ -105,68 +110,80 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
     noms = nom if isinstance(nom, list) else [nom]
     p = len(rig.coordinates)
     parts: list[FactorBlock] = []
+    fixes: list[FactorBlock] = []
     starts, R_all, offset = [], [], 0
     for n in noms:
-        if n.n_keyframes < 3:
-            raise EvaluationError(f"the drive is too short: {n.n_keyframes} keyframes at "
-                                  f"{rig.keyframe_rate_hz:g} Hz, need at least 3")
-        if not -n.n_keyframes <= gauge_keyframe < n.n_keyframes:
+        K = _check_length(n.n_keyframes, rig)
+        if not -K <= gauge_keyframe < K:
             raise EvaluationError(f"gauge keyframe {gauge_keyframe} is outside the drive")
-        blocks = _linearise(n, rig, local)
-        parts += [b.shifted(offset) for b in blocks]
+        edges = _chunk_edges(K, rig)
+        per_chunk = pool().map(lambda c: [None if b is None else b.shifted(edges[c]) for b in
+                                          _linearise(n.window(edges[c], edges[c + 1]), rig, local, edges[c + 1] == K - 1)],
+                               range(len(edges) - 1))
+        # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
+        parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
+        g = gauge_keyframe % K
+        fixes += [b.shifted(offset) for b in _gauge(n.R[g], g, local) + _chain_end(K - 1, local)]
         starts.append(offset)
         R_all.append(n.R)
-        offset += n.n_keyframes
-    gauges = tuple(s + (gauge_keyframe % n.n_keyframes) for s, n in zip(starts, noms))
-    return _with_gauges(offset, p, parts, np.concatenate(R_all), local, tuple(starts), gauges)
+        offset += K
+    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), local, tuple(starts))
 
 
-_CHUNK_KEYFRAMES = 3000  # keyframes linearised per task: bounded temporaries, both cores busy
+def _check_length(K: int, rig: Rig) -> int:
+    if K < 3:
+        raise EvaluationError(f"the drive is too short: {K} keyframes at {rig.keyframe_rate_hz:g} Hz, "
+                              f"need at least 3")
+    return K
 
 
-def _linearise(n: Nominal, rig: Rig, local: bool) -> list[FactorBlock]:
-    """Every factor of one drive, linearised in chunks of keyframes on the thread pool.
+_CHUNK_KEYFRAMES = 1000  # keyframes per task at most: a chunk's working set stays in cache
 
-    Chunks start at multiples of every sensor's frame stride, so each factor falls in exactly
-    one chunk: the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside, the
-    non-holonomic constraint at ``k0 … k1−1`` (and at the drive's last keyframe).
-    """
+
+def _chunk_edges(K: int, rig: Rig) -> list[int]:
+    """Keyframes that cut a drive into chunks of at most about ``_CHUNK_KEYFRAMES``, as many as a
+    multiple of the thread count (every thread gets an equal share), at multiples of every
+    sensor's frame stride (so each factor falls in exactly one chunk: see :func:`_linearise`)."""
     strides = [int(round(rig.keyframe_rate_hz / s.rate_hz)) for s in rig.config.sensors] or [1]
     step = int(np.lcm.reduce(strides))
-    size = max(step, (_CHUNK_KEYFRAMES // step) * step)
-    K = n.n_keyframes
-    edges = list(range(0, K - 1, size)) + [K - 1]
-
-    def chunk(c: int) -> list[FactorBlock | None]:
-        k0, k1 = edges[c], edges[c + 1]
-        sub = n.window(k0, k1)
-        nhc = nonholonomic.blocks(sub, rig)
-        blocks = [imu.blocks(sub, rig), nhc if k1 == K - 1 else nhc.select(nhc.first < k1 - k0),
-                  wheel.blocks(sub, rig)] + [odometry.blocks(sub, rig, s) for s in rig.config.sensors]
-        if local:
-            v_b = np.einsum("kji,kj->ki", sub.R, sub.v)
-            d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
-            V, P = _local_maps(sub.R, v_b, d)
-            blocks = [None if b is None else _to_local(b, V, P) for b in blocks]
-        return [None if b is None else b.shifted(k0) for b in blocks]
-
-    # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
-    per_chunk = list(pool().map(chunk, range(len(edges) - 1)))
-    return [b for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
+    n = -(-(K - 1) // _CHUNK_KEYFRAMES)
+    n = -(-n // n_threads()) * n_threads()
+    size = max(step, -(-(K - 1) // (n * step)) * step)
+    return list(range(0, K - 1, size)) + [K - 1]
 
 
-def _with_gauges(K: int, p: int, blocks: list[FactorBlock], R: np.ndarray, local: bool,
-                 chain_starts: tuple[int, ...], gauges: tuple[int, ...] | None = None) -> Problem:
-    """A problem with the minimal gauge fix of every chain (at its first keyframe by default)."""
-    gauges = chain_starts if gauges is None else gauges
-    ends = [s - 1 for s in chain_starts[1:]] + [K - 1]
-    fix = []
-    for g, e in zip(gauges, ends):
-        if local:
-            fix += [_yaw_gauge(R[g], g, p), _last_increment_prior(e, p)]
-        else:
-            fix.append(gauge_block(R[g], g, p))
-    return Problem(K, p, tuple(blocks) + tuple(fix), R, local, chain_starts)
+def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBlock | None]:
+    """Every factor of one chunk ``k0 … k1`` of a drive (indices relative to ``k0``), per kind.
+
+    The chunk owns the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside,
+    and the non-holonomic constraint at ``k0 … k1−1`` (and at ``k1`` if it ends the drive).
+    """
+    m = sub.n_keyframes - 1
+    nhc = nonholonomic.blocks(sub, rig)
+    blocks = [imu.blocks(sub, rig), nhc if last else nhc.select(nhc.first < m),
+              wheel.blocks(sub, rig)] + [odometry.blocks(sub, rig, s) for s in rig.config.sensors]
+    if local:
+        v_b = np.einsum("kji,kj->ki", sub.R, sub.v)
+        d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
+        V, P = _local_maps(sub.R, v_b, d)
+        blocks = [None if b is None else _to_local(b, V, P) for b in blocks]
+    return blocks
+
+
+def _gauge(R_W_B: np.ndarray, keyframe: int, local: bool) -> list[FactorBlock]:
+    """The minimal gauge fix of a drive at ``keyframe``: its yaw (local states) or its position
+    and yaw (world states)."""
+    return [_yaw_gauge(R_W_B, keyframe) if local else gauge_block(R_W_B, keyframe)]
+
+
+def _chain_end(keyframe: int, local: bool) -> list[FactorBlock]:
+    """In local states the last keyframe of a drive has no successor: its increment columns are
+    placeholders held at zero."""
+    if not local:
+        return []
+    Jx = np.zeros((1, 3, STATE_DIM))
+    Jx[0, :, 6:9] = np.eye(3)
+    return [FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 3, 0)), _NO_COLS)]
 
 
 def _local_maps(R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -186,170 +203,177 @@ def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray) -> FactorBlock:
     so ``Σ_a J_p,a δp_{k_a} = Σ_a J_p,a Σ_{first ≤ q < k_a} δ(p_{q+1} − p_q)`` and the position of
     the factor's first keyframe drops out.
     """
-    span = b.stride * (b.n_states - 1)
-    n_new = span + 1
-    N, r, _ = b.Jx.shape
-    out = np.zeros((N, r, STATE_DIM * n_new))
-    Jp = [b.Jx[:, :, STATE_DIM * a + 3: STATE_DIM * a + 6] for a in range(b.n_states)]
-    for a in range(b.n_states):
-        k = b.first + a * b.stride
-        Ja = b.Jx[:, :, STATE_DIM * a: STATE_DIM * (a + 1)]
-        col = STATE_DIM * a * b.stride
-        out[:, :, col + 0: col + 3] += Ja[:, :, ROT]
-        vel = Ja[:, :, VEL] @ V[k]  # → [δθ_k, δv_k]
-        out[:, :, col + 0: col + 3] += vel[:, :, 0:3]
-        out[:, :, col + 3: col + 6] += vel[:, :, 3:6]
-    for q in range(span):  # increment q (from keyframe first+q) moves every state after it
-        Jp_cum = sum(Jp[a] for a in range(b.n_states) if a * b.stride > q)
-        pos = Jp_cum @ P[b.first + q]
-        cq = STATE_DIM * q
-        out[:, :, cq + 0: cq + 3] += pos[:, :, 0:3]
-        out[:, :, cq + 6: cq + 9] += pos[:, :, 3:6]
-    return FactorBlock(b.name, b.first, 1, n_new, out, b.Jt, b.cols)
+    out = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P)
+    return FactorBlock(b.name, b.first, 1, out.shape[2] // STATE_DIM, out, b.Jt, b.cols)
 
 
-def _yaw_gauge(R_W_B: np.ndarray, keyframe: int, n_params: int) -> FactorBlock:
+def _yaw_gauge(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
     """A prior on the world yaw of ``keyframe``: the one gauge of the local parametrisation."""
     Jx = np.zeros((1, 1, STATE_DIM))
     Jx[0, 0, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, 0)), _NO_COLS)
 
 
-def _last_increment_prior(keyframe: int, n_params: int) -> FactorBlock:
-    """The last keyframe of a chain has no successor: its increment columns are placeholders held at zero."""
-    Jx = np.zeros((1, 3, STATE_DIM))
-    Jx[0, :, 6:9] = np.eye(3)
-    return FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 3, 0)), _NO_COLS)
+# --- marginalisation ---------------------------------------------------------------------------
+#
+# The keyframes are eliminated chunk by chunk (a nested dissection of the chain): a chunk
+# ``a … b`` of the drive holds every factor that touches its inner keyframes, so those can be
+# eliminated from the chunk's own information alone, in parallel with every other chunk. What
+# remains of a chunk (a :class:`Piece`) is the Schur complement on its end keyframes a, b and θ;
+# the pieces form a chain over the chunk ends, which is eliminated last.
 
 
-def _rows(first: np.ndarray, shift: int):
-    """Index of ``first + shift``: a slice when ``first`` is an increasing arithmetic progression
-    (no copies; plain slicing is ~10x faster than an index array in an in-place add)."""
-    f = first + shift
-    if f.size == 1:
-        return slice(int(f[0]), int(f[0]) + 1)
-    step = int(f[1] - f[0])
-    if step > 0 and np.all(np.diff(f) == step):
-        return slice(int(f[0]), int(f[-1]) + 1, step)
-    return f
+@dataclass(frozen=True)
+class Piece:
+    """The information of one chunk ``a … b`` with its inner keyframes eliminated.
+
+    ``H_ee`` over ``e = [x_a, θ]``, ``H_be = H[x_b, e]`` and ``H_bb``; ``diag_tt`` is diag H_θθ
+    of the chunk before any elimination (the scale of the data's information)."""
+
+    a: int
+    b: int
+    H_ee: np.ndarray
+    H_be: np.ndarray
+    H_bb: np.ndarray
+    diag_tt: np.ndarray
 
 
-def _scatter(target: np.ndarray, rows, values: np.ndarray, cols: np.ndarray | None = None) -> None:
-    """``target[rows(, :, cols)] += values`` (rows a slice or, possibly repeated, indices)."""
-    if cols is not None:
-        if isinstance(rows, slice):
-            view = target[rows]  # a view: the indexed += below writes through (cols are unique)
-            view[:, :, _rows(cols, 0)] += values
-        else:
-            np.add.at(target, (rows[:, None, None], np.arange(target.shape[1])[None, :, None], cols[None, None, :]),
-                      values)
-    elif isinstance(rows, slice):
-        target[rows] += values
-    else:
-        np.add.at(target, rows, values)
-
-
-_CHUNK = 512  # factors per assembly step
-
-
-def _merged(blocks: list[FactorBlock]) -> list[FactorBlock]:
-    """Blocks that touch the same keyframes stacked row-wise: one product and one scatter each."""
-    groups: dict[tuple, list[FactorBlock]] = {}
-    for b in blocks:
-        key = (b.stride, b.n_states, b.first.size, int(b.first[0]), int(b.first[-1]))
-        groups.setdefault(key, []).append(b)
-    out = []
-    for group in groups.values():
-        if len(group) == 1 or any(not np.array_equal(g.first, group[0].first) for g in group):
-            out += group
-            continue
-        cols = np.unique(np.concatenate([g.cols for g in group]))
-        rows = sum(g.n_rows for g in group)
-        N = group[0].n_factors
-        Jt = np.zeros((N, rows, cols.size))
-        r0 = 0
-        for g in group:
-            Jt[:, r0:r0 + g.n_rows, np.searchsorted(cols, g.cols)] = g.Jt
-            r0 += g.n_rows
-        Jx = np.concatenate([g.Jx for g in group], axis=1)
-        out.append(FactorBlock("+".join(g.name for g in group), group[0].first, group[0].stride,
-                               group[0].n_states, Jx, Jt, cols))
-    return out
-
-
-def assemble(problem: Problem) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """``H`` in blocks: ``B[d][k] = H[x_{k+d}, x_k]`` (K−d, 9, 9), ``H_xθ`` (K, 9, p) and ``H_θθ``.
-
-    The factors are accumulated in chunks, alternately by the pool's threads into private sums
-    that are added at the end."""
-    pieces = _chunks(problem.blocks)
-    n_threads = min(2, len(pieces))
-    parts = list(pool().map(lambda i: _accumulate(problem, pieces[i::n_threads]), range(n_threads)))
-    B, Hxt, Htt = parts[0]
-    for B2, Hxt2, Htt2 in parts[1:]:
-        for d in range(len(B)):
-            B[d] += B2[d]
-        Hxt += Hxt2
-        Htt += Htt2
-    return B, Hxt, Htt
-
-
-def _accumulate(problem: Problem, pieces: list[list[FactorBlock]]):
-    K, p, D = problem.n_keyframes, problem.n_params, problem.bandwidth_blocks
-    B = [np.zeros((K - d, STATE_DIM, STATE_DIM)) for d in range(D + 1)]
-    Hxt = np.zeros((K, STATE_DIM, p))
+def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int) -> Piece:
+    """Accumulate ``JᵀJ`` of the blocks of chunk ``a … b`` (keyframe indices relative to a) and
+    eliminate its inner keyframes (compiled: :func:`excite.kernels.accumulate`, :func:`~excite.kernels.eliminate`)."""
+    m, p = b - a, n_params
+    D = max([1] + [blk.stride * (blk.n_states - 1) for blk in blocks])
+    band = np.zeros((D + 1, m + 1, STATE_DIM, STATE_DIM))
+    Hxt = np.zeros((m + 1, STATE_DIM, p))
     Htt = np.zeros((p, p))
-    for piece in pieces:
-        for b in _merged(piece):
-            JxT = np.ascontiguousarray(np.swapaxes(b.Jx, 1, 2))  # contiguous: 3x faster batched matmul
-            Hxx = JxT @ b.Jx
-            k = b.cols.size
-            if k:
-                Hxt_f = JxT @ b.Jt
-                Jt2 = b.Jt.reshape(-1, k)
-                c = _rows(b.cols, 0)
-                if isinstance(c, slice):
-                    Htt[c, c] += Jt2.T @ Jt2
-                else:
-                    Htt[np.ix_(b.cols, b.cols)] += Jt2.T @ Jt2
-            for a in range(b.n_states):
-                sa = slice(STATE_DIM * a, STATE_DIM * (a + 1))
-                if k:
-                    _scatter(Hxt, _rows(b.first, a * b.stride), Hxt_f[:, sa], b.cols)
-                for c2 in range(a + 1):
-                    sc = slice(STATE_DIM * c2, STATE_DIM * (c2 + 1))
-                    _scatter(B[(a - c2) * b.stride], _rows(b.first, c2 * b.stride), Hxx[:, sa, sc])
-    return B, Hxt, Htt
+    for blk in blocks:
+        kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, band, Hxt, Htt)
+    # the first keyframe joins θ in the border e = [x_a, θ]
+    q = STATE_DIM + p
+    Hxe = np.zeros((m + 1, STATE_DIM, q))
+    Hxe[:, :, STATE_DIM:] = Hxt
+    for d in range(1, min(D, m) + 1):
+        Hxe[d, :, :STATE_DIM] = band[d, 0]
+    H_ee = np.block([[band[0, 0], Hxt[0]], [Hxt[0].T, Htt]])
+    _check_pivot(kernels.eliminate(band, Hxe, H_ee, 1, m), a + 1)
+    return Piece(a, b, H_ee, Hxe[m].copy(), band[0, m].copy(), np.diag(Htt).copy())
 
 
-def _chunks(blocks: tuple[FactorBlock, ...]) -> list[list[FactorBlock]]:
-    """The blocks cut into pieces of at most ``_CHUNK`` factors and grouped by the keyframes they
-    start at, so that a group holds the factors of one stretch of the drive (which
-    :func:`_merged` stacks) and groups are independent work for the threads."""
-    groups: dict[int, list[FactorBlock]] = {}
-    for b in blocks:
-        for start in range(0, b.n_factors, _CHUNK):
-            sl = slice(start, min(start + _CHUNK, b.n_factors))
-            key = int(b.first[start]) // _CHUNK
-            groups.setdefault(key, []).append(
-                FactorBlock(b.name, b.first[sl], b.stride, b.n_states, b.Jx[sl], b.Jt[sl], b.cols))
-    return [groups[k] for k in sorted(groups)]
+def _check_pivot(bad: int, offset: int) -> None:
+    if bad >= 0:
+        raise EvaluationError(f"the trajectory itself is undetermined by this rig's sensors (the "
+                              f"information of keyframe {bad + offset} is singular beyond the gauge)")
+
+
+def _reduce(pieces: Sequence[Piece], n_params: int) -> np.ndarray:
+    """Λ_θ from the pieces: their chain over the chunk ends, eliminated in order."""
+    p = n_params
+    nodes = sorted({pc.a for pc in pieces} | {pc.b for pc in pieces})
+    at = {k: i for i, k in enumerate(nodes)}
+    n = len(nodes)
+    band = np.zeros((2, n, STATE_DIM, STATE_DIM))
+    Hxt = np.zeros((n, STATE_DIM, p))
+    Htt = np.zeros((p, p))
+    for pc in pieces:
+        i, j = at[pc.a], at[pc.b]
+        assert j == i + 1, "pieces overlap"
+        band[0, i] += pc.H_ee[:STATE_DIM, :STATE_DIM]
+        band[0, j] += pc.H_bb
+        band[1, i] += pc.H_be[:, :STATE_DIM]
+        Hxt[i] += pc.H_ee[:STATE_DIM, STATE_DIM:]
+        Hxt[j] += pc.H_be[:, STATE_DIM:]
+        Htt += pc.H_ee[STATE_DIM:, STATE_DIM:]
+    bad = kernels.eliminate(band, Hxt, Htt, 0, n)
+    _check_pivot(-1 if bad < 0 else nodes[bad], 0)
+    return 0.5 * (Htt + Htt.T)
 
 
 def marginal(problem: Problem) -> np.ndarray:
     """Marginal information ``Λ_θ`` (p × p) of the calibration, trajectory eliminated (fast path)."""
-    B, Hxt, Htt = assemble(problem)
+    edges = _separators(problem)
+    C = len(edges) - 1
+    per_chunk: list[list[FactorBlock]] = [[] for _ in range(C)]
+    for blk in problem.blocks:
+        c = np.clip(np.searchsorted(edges, blk.first, side="right") - 1, 0, C - 1)
+        order = np.argsort(c, kind="stable")
+        bounds = np.searchsorted(c[order], np.arange(C + 1))
+        for k in np.flatnonzero(np.diff(bounds)):
+            idx = order[bounds[k]:bounds[k + 1]]
+            sel = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size and np.all(np.diff(idx) == 1) else idx
+            per_chunk[k].append(FactorBlock(blk.name, blk.first[sel] - edges[k], blk.stride, blk.n_states,
+                                            blk.Jx[sel], blk.Jt[sel], blk.cols))
+    pieces = list(pool().map(lambda c: _piece(per_chunk[c], edges[c], edges[c + 1], problem.n_params), range(C)))
+    return _reduce(pieces, problem.n_params)
+
+
+def _separators(problem: Problem) -> np.ndarray:
+    """Chunk ends for :func:`marginal`: keyframes no factor reaches across, about
+    ``_CHUNK_KEYFRAMES`` apart (the first and last keyframe always)."""
     K = problem.n_keyframes
-    try:
-        L = cholesky_banded(kernels.band_lower(tuple(B), K, STATE_DIM), lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
-        raise EvaluationError("the trajectory itself is undetermined by this rig's sensors "
-                              "(the keyframe information is singular beyond the gauge)") from None
-    Z, info = dtbtrs(L, Hxt.reshape(K * STATE_DIM, -1), uplo="L")
-    if info != 0:
-        raise EvaluationError(f"banded triangular solve failed (LAPACK info {info})")
-    Lam = Htt - Z.T @ Z
-    return 0.5 * (Lam + Lam.T)
+    inside = np.zeros(K + 1, dtype=np.int64)  # factors reaching strictly across each keyframe
+    for blk in problem.blocks:
+        span = blk.stride * (blk.n_states - 1)
+        if span > 1:
+            inside += np.bincount(blk.first + 1, minlength=K + 1) - np.bincount(blk.first + span, minlength=K + 1)
+    free = np.flatnonzero(np.cumsum(inside)[:K] == 0)
+    edges = [0]
+    while edges[-1] < K - 1:
+        i = np.searchsorted(free, edges[-1] + _CHUNK_KEYFRAMES, side="right") - 1
+        edges.append(int(free[i]) if free[i] > edges[-1] else int(free[np.searchsorted(free, edges[-1], side="right")]))
+    return np.array(edges)
+
+
+@dataclass(frozen=True)
+class DriveInformation:
+    """What :func:`drive_information` returns: Λ_θ over all rig coordinates and what the report
+    needs of the drives (their keyframe count, duration and length, diag H_θθ), with the thread
+    time spent per stage [ms] summed over chunks."""
+
+    information: np.ndarray
+    diag_tt: np.ndarray
+    n_keyframes: int
+    duration_s: float
+    length_m: float
+    thread_ms: dict[str, float]
+
+
+def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation:
+    """Λ_θ of drives calibrated together, streamed: each chunk of each drive is sampled,
+    linearised and eliminated by one task on the thread pool, so no whole-drive array is ever
+    formed; :func:`marginal` of :func:`build` gives the same Λ_θ from the whole linearised problem."""
+    p = len(rig.coordinates)
+    tasks = []
+    offset = 0
+    for traj in trajs:
+        K = _check_length(Nominal.grid(traj, rig)[1], rig)
+        edges = _chunk_edges(K, rig)
+        tasks += [(traj, K, offset, k0, k1) for k0, k1 in zip(edges[:-1], edges[1:])]
+        offset += K
+
+    def run(task):
+        traj, K, offset, k0, k1 = task
+        c0 = time.perf_counter()
+        sub = Nominal.of(traj, rig, keyframes=(k0, k1))
+        c1 = time.perf_counter()
+        blocks = [b for b in _linearise(sub, rig, True, k1 == K - 1) if b is not None and b.n_factors]
+        if k0 == 0:
+            blocks += _gauge(sub.R[0], 0, True)
+        if k1 == K - 1:
+            blocks += _chain_end(k1 - k0, True)
+        c2 = time.perf_counter()
+        piece = _piece(blocks, offset + k0, offset + k1, p)
+        c3 = time.perf_counter()
+        return piece, sub.length_m, (c1 - c0, c2 - c1, c3 - c2)
+
+    results = list(pool().map(run, tasks))
+    c0 = time.perf_counter()
+    Lam = _reduce([r[0] for r in results], p)
+    spent = np.sum([r[2] for r in results], axis=0) * 1e3
+    return DriveInformation(
+        information=Lam, diag_tt=np.sum([r[0].diag_tt for r in results], axis=0), n_keyframes=offset,
+        duration_s=(offset - len(trajs)) / rig.keyframe_rate_hz,
+        length_m=float(sum(r[1] for r in results)),
+        thread_ms=dict(sample=spent[0], linearise=spent[1], eliminate=spent[2], reduce=(time.perf_counter() - c0) * 1e3))
 
 
 def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:

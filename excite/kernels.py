@@ -261,18 +261,267 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
 
 
 @nb.njit(cache=True, nogil=True)
-def band_lower(blocks, K, m):
-    """LAPACK lower band storage ``ab[i − j, j] = H[i, j]`` of a block-banded symmetric matrix
-    given by its lower block diagonals ``blocks[d][k] = H[x_{k+d}, x_k]`` (m × m blocks)."""
-    D = len(blocks) - 1
-    kd = m * (D + 1) - 1
-    ab = np.zeros((kd + 1, m * K))
-    for d in range(D + 1):
-        Bd = blocks[d]
-        for k in range(K - d):
-            for r in range(m):
-                for c in range(m):
-                    off = m * d + r - c
-                    if off >= 0:
-                        ab[off, m * k + c] = Bd[k, r, c]
-    return ab
+def accumulate(Jx, Jt, cols, first, stride, band, Hxt, Htt):
+    """Add ``JᵀJ`` of a stack of factors to a block-banded information matrix.
+
+    Factor ``f`` touches the states ``first[f] + stride · a`` (9 columns each of ``Jx[f]``) and the
+    calibration columns ``cols`` (``Jt[f]``). Storage: ``band[d, j] = H[x_{j+d}, x_j]`` (9 × 9),
+    ``Hxt[i] = H[x_i, θ]`` (9 × p), ``Htt = H_θθ``."""
+    N, r, nx = Jx.shape
+    ns = nx // 9
+    c = Jt.shape[2]
+    M = nx + c
+    w = np.empty(M)  # one row of [Jx Jt]
+    G = np.empty((M, M))  # lower triangle of [Jx Jt]ᵀ[Jx Jt] of one factor
+    for f in range(N):
+        G[:] = 0.0
+        for row in range(r):  # a sum of outer products: the inner loop runs over contiguous memory
+            for u in range(nx):
+                w[u] = Jx[f, row, u]
+            for u in range(c):
+                w[nx + u] = Jt[f, row, u]
+            for u in range(M):
+                wu = w[u]
+                if wu != 0.0:
+                    for v in range(u + 1):
+                        G[u, v] += wu * w[v]
+        for a in range(ns):
+            i = first[f] + stride * a
+            for b in range(a + 1):
+                blk = band[stride * (a - b), first[f] + stride * b]
+                for u in range(9):
+                    for v in range(9):
+                        x, y = 9 * a + u, 9 * b + v
+                        blk[u, v] += G[x, y] if x >= y else G[y, x]
+            for u in range(9):
+                for v in range(c):
+                    Hxt[i, u, cols[v]] += G[nx + v, 9 * a + u]
+        for u in range(c):
+            for v in range(u + 1):
+                Htt[cols[u], cols[v]] += G[nx + u, nx + v]
+                if u != v:
+                    Htt[cols[v], cols[u]] += G[nx + u, nx + v]
+
+
+@nb.njit(cache=True, nogil=True)
+def eliminate(band, Hxe, Hee, lo, hi):
+    """Eliminate the states ``lo … hi−1`` of a block-banded system with a border, in order (block
+    Cholesky).
+
+    ``band[d, j] = H[x_{j+d}, x_j]`` (9 × 9 blocks, d ≤ D), the border ``Hxe[j] = H[x_j, e]``
+    (9 × q) and ``Hee = H_ee`` are updated in place to the Schur complement on the remaining
+    states and e. Returns −1, or the first state whose pivot block is not positive definite."""
+    D = band.shape[0] - 1
+    n = band.shape[1]
+    q = Hxe.shape[2]
+    L = np.zeros((9, 9))
+    C = np.zeros((D + 1, 9, 9))
+    Zj = np.empty((9, q))
+    for j in range(lo, hi):
+        A = band[0, j]
+        for col in range(9):  # L Lᵀ = A
+            for row in range(col, 9):
+                s = A[row, col]
+                for k in range(col):
+                    s -= L[row, k] * L[col, k]
+                if row == col:
+                    if not s > 0.0:
+                        return j
+                    L[col, col] = np.sqrt(s)
+                else:
+                    L[row, col] = s / L[col, col]
+        for row in range(9):  # Z_j = L⁻¹ Hxe[j]
+            for e in range(q):
+                Zj[row, e] = Hxe[j, row, e]
+            for k in range(row):
+                lk = L[row, k]
+                for e in range(q):
+                    Zj[row, e] -= lk * Zj[k, e]
+            inv = 1.0 / L[row, row]
+            for e in range(q):
+                Zj[row, e] *= inv
+        for k in range(9):  # H_ee −= Z_jᵀ Z_j (lower triangle; mirrored at the end)
+            for e in range(q):
+                z = Zj[k, e]
+                for e2 in range(e + 1):
+                    Hee[e, e2] -= z * Zj[k, e2]
+        nd = min(D, n - 1 - j)
+        for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ
+            B = band[d, j]
+            for row in range(9):
+                for col in range(9):
+                    s = B[row, col]
+                    for k in range(col):
+                        s -= C[d, row, k] * L[col, k]
+                    C[d, row, col] = s / L[col, col]
+        for d in range(1, nd + 1):
+            X = Hxe[j + d]  # H[x_{j+d}, e] −= C_d Z_j
+            for row in range(9):
+                for k in range(9):
+                    ck = C[d, row, k]
+                    for e in range(q):
+                        X[row, e] -= ck * Zj[k, e]
+            for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ
+                Y = band[d2 - d, j + d]
+                for row in range(9):
+                    for col in range(9):
+                        s = 0.0
+                        for k in range(9):
+                            s += C[d2, row, k] * C[d, col, k]
+                        Y[row, col] -= s
+    for e in range(q):
+        for e2 in range(e):
+            Hee[e2, e] = Hee[e, e2]
+    return -1
+
+
+@nb.njit(cache=True, nogil=True)
+def to_local(Jx, first, stride, V, P):
+    """World-state Jacobians ``Jx`` (N × r × 9·n_states) of factors at keyframes ``first + stride·a``
+    re-expressed in local states over every keyframe they span (N × r × 9·(span + 1)); the maps
+    ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information._to_local`."""
+    N, r, nx = Jx.shape
+    ns = nx // 9
+    span = stride * (ns - 1)
+    out = np.zeros((N, r, 9 * (span + 1)))
+    for f in range(N):
+        J = Jx[f]
+        O = out[f]
+        for a in range(ns):
+            k = first[f] + a * stride
+            col = 9 * a * stride
+            for row in range(r):
+                for c in range(3):
+                    O[row, col + c] += J[row, 9 * a + c]
+                for c in range(6):  # velocity: δv_world = V_k [δθ_k; δv_k]
+                    s = 0.0
+                    for m in range(3):
+                        s += J[row, 9 * a + 6 + m] * V[k, m, c]
+                    O[row, col + c] += s
+        for q in range(span):  # increment q moves the position of every later state of the factor
+            k = first[f] + q
+            for row in range(r):
+                j0 = 0.0
+                j1 = 0.0
+                j2 = 0.0
+                for a in range(ns):
+                    if a * stride > q:
+                        j0 += J[row, 9 * a + 3]
+                        j1 += J[row, 9 * a + 4]
+                        j2 += J[row, 9 * a + 5]
+                for c in range(6):
+                    s = j0 * P[k, 0, c] + j1 * P[k, 1, c] + j2 * P[k, 2, c]
+                    O[row, 9 * q + (c if c < 3 else c + 3)] += s
+    return out
+
+
+# --- 3 × 3 helpers of the factor kernels (write into ``out``; no allocation) --------------------
+
+@nb.njit(cache=True, inline="always")
+def mul(A, B, out):
+    """out = A B"""
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
+
+
+@nb.njit(cache=True, inline="always")
+def tmul(A, B, out):
+    """out = Aᵀ B"""
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[0, r] * B[0, c] + A[1, r] * B[1, c] + A[2, r] * B[2, c]
+
+
+@nb.njit(cache=True, inline="always")
+def mulv(A, x, out):
+    """out = A x"""
+    for r in range(3):
+        out[r] = A[r, 0] * x[0] + A[r, 1] * x[1] + A[r, 2] * x[2]
+
+
+@nb.njit(cache=True, inline="always")
+def tmulv(A, x, out):
+    """out = Aᵀ x"""
+    for r in range(3):
+        out[r] = A[0, r] * x[0] + A[1, r] * x[1] + A[2, r] * x[2]
+
+
+@nb.njit(cache=True, inline="always")
+def hat(x, out):
+    """out = [x]×"""
+    out[0, 0] = 0.0
+    out[0, 1] = -x[2]
+    out[0, 2] = x[1]
+    out[1, 0] = x[2]
+    out[1, 1] = 0.0
+    out[1, 2] = -x[0]
+    out[2, 0] = -x[1]
+    out[2, 1] = x[0]
+    out[2, 2] = 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def cross(x, y, out):
+    """out = x × y"""
+    out[0] = x[1] * y[2] - x[2] * y[1]
+    out[1] = x[2] * y[0] - x[0] * y[2]
+    out[2] = x[0] * y[1] - x[1] * y[0]
+
+
+@nb.njit(cache=True, inline="always")
+def put(J, r0, c0, A, scale):
+    """J[r0:r0+3, c0:c0+3] = scale · A"""
+    for r in range(3):
+        for c in range(3):
+            J[r0 + r, c0 + c] = scale * A[r, c]
+
+
+@nb.njit(cache=True, inline="always")
+def mult(A, B, out):
+    """out = A Bᵀ"""
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[r, 0] * B[c, 0] + A[r, 1] * B[c, 1] + A[r, 2] * B[c, 2]
+
+
+@nb.njit(cache=True, inline="always")
+def log(R, out):
+    """out = Log(R), the rotation vector of a rotation matrix (θ from atan2: accurate at every angle)."""
+    vx = 0.5 * (R[2, 1] - R[1, 2])
+    vy = 0.5 * (R[0, 2] - R[2, 0])
+    vz = 0.5 * (R[1, 0] - R[0, 1])
+    s = np.sqrt(vx * vx + vy * vy + vz * vz)  # sin θ
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)  # cos θ
+    theta = np.arctan2(s, c)
+    if c > -0.99:
+        f = 1.0 + theta * theta / 6.0 if theta < _SERIES else theta / s
+        out[0], out[1], out[2] = f * vx, f * vy, f * vz
+        return
+    # near π: (R + Rᵀ)/2 − cos θ I = (1 − cos θ) u uᵀ; the row of its largest diagonal entry ∝ u
+    k = 0
+    if R[1, 1] > R[k, k]:
+        k = 1
+    if R[2, 2] > R[k, k]:
+        k = 2
+    ux = 0.5 * (R[k, 0] + R[0, k]) - (c if k == 0 else 0.0)
+    uy = 0.5 * (R[k, 1] + R[1, k]) - (c if k == 1 else 0.0)
+    uz = 0.5 * (R[k, 2] + R[2, k]) - (c if k == 2 else 0.0)
+    f = theta / np.sqrt(ux * ux + uy * uy + uz * uz)
+    if ux * vx + uy * vy + uz * vz < 0.0:  # the sign of sin θ · u
+        f = -f
+    out[0], out[1], out[2] = f * ux, f * uy, f * uz
+
+
+@nb.njit(cache=True, inline="always")
+def right_jacobian_inv(phi, out):
+    """out = J_r⁻¹(φ) = I + ½[φ]× + (1/θ² − (1 + cos θ)/(2θ sin θ)) [φ]×²  (J_l⁻¹(φ) = J_r⁻¹(−φ))."""
+    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    theta = np.sqrt(t2)
+    coef = 1.0 / 12.0 + t2 / 720.0 if theta < _SERIES else 1.0 / t2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
+    K = np.empty((3, 3))
+    hat(phi, K)
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = (1.0 if r == c else 0.0) + 0.5 * K[r, c] + coef * (
+                K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c])

@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from excite import information, so3
+from excite.errors import EvaluationError
 from excite.evaluate import Options, evaluate
 from excite.factors.base import Nominal
 from excite.rig import RIGS_DIR, build_rig, load_rig
@@ -196,15 +197,20 @@ def _scaled(L, rig):
     return L * np.outer(S, S)
 
 
-def test_fast_path_equals_dense_reference(rig):
-    """Small drive: banded/local fast path vs dense numpy, in both parametrisations and with the
-    gauge removed altogether (pseudo-inverse)."""
+@pytest.mark.parametrize("chunk", [500, 7])
+def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
+    """Small drive: the chunked elimination (one chunk, or chunks of 7 keyframes) in both
+    parametrisations vs dense numpy, with the gauge prior or with the gauge removed altogether
+    (pseudo-inverse)."""
+    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", chunk)
     t = np.linspace(0, 12, 13)
     traj = drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
                  rig.suspension)
     nom = Nominal.of(traj, rig)
     fast = _scaled(information.marginal(information.build(nom, rig)), rig)
+    fast_world = _scaled(information.marginal(information.build(nom, rig, local=False)), rig)
     scale = np.abs(fast).max()
+    assert np.abs(fast_world - fast).max() < 1e-8 * scale
     references = [
         information.marginal_dense(information.build(nom, rig, local=False)),
         information.marginal_dense(information.build(nom, rig, local=False), gauge=False),
@@ -216,11 +222,15 @@ def test_fast_path_equals_dense_reference(rig):
         np.testing.assert_allclose(np.linalg.eigvalsh(fast), np.linalg.eigvalsh(ref), atol=1e-8 * scale)
 
 
+def _five_hz_lidar(rig):
+    data = rig.config.model_dump()
+    data["sensors"][0]["rate_hz"] = 5.0  # frames every second keyframe: a wider band
+    return build_rig(data)
+
+
 def test_sensor_slower_than_keyframes(rig):
     """A 5 Hz lidar spans two keyframes per measurement (wider band): fast path still equals dense."""
-    data = rig.config.model_dump()
-    data["sensors"][0]["rate_hz"] = 5.0
-    slow = build_rig(data)
+    slow = _five_hz_lidar(rig)
     t = np.linspace(0, 10, 11)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), slow.suspension), slow)
     prob = information.build(nom, slow)
@@ -228,6 +238,38 @@ def test_sensor_slower_than_keyframes(rig):
     fast = _scaled(information.marginal(prob), slow)
     ref = _scaled(information.marginal_dense(information.build(nom, slow, local=False)), slow)
     assert np.abs(fast - ref).max() < 1e-8 * np.abs(fast).max()
+
+
+def test_streamed_drives_equal_the_dense_reference(rig, monkeypatch):
+    """The evaluator's streamed path (each chunk sampled, linearised and eliminated on its own)
+    on two drives of different lengths with a 5 Hz lidar and chunks of 6 keyframes, against the
+    dense reference of the whole problem."""
+    slow = _five_hz_lidar(rig)
+    drives = []
+    for T_s in (10.0, 7.3):
+        t = np.linspace(0, T_s, 12)
+        drives.append(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
+                            slow.suspension))
+    noms = [Nominal.of(d, slow) for d in drives]
+    ref = _scaled(information.marginal_dense(information.build(noms, slow, local=False)), slow)
+    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)
+    got = information.drive_information(drives, slow)
+    assert got.n_keyframes == sum(n.n_keyframes for n in noms)
+    assert got.length_m == pytest.approx(sum(n.length_m for n in noms), rel=1e-12)
+    assert got.duration_s == pytest.approx(sum(n.t[-1] - n.t[0] for n in noms), rel=1e-12)
+    assert np.abs(_scaled(got.information, slow) - ref).max() < 1e-8 * np.abs(ref).max()
+
+
+def test_undetermined_trajectory_is_a_clear_error(rig, monkeypatch):
+    """A rig whose sensors leave a keyframe's own state free (no IMU information) is refused by
+    name, not answered with a meaningless Λ."""
+    t = np.linspace(0, 10, 11)
+    nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), rig.suspension), rig)
+    prob = information.build(nom, rig)
+    no_imu = information.Problem(prob.n_keyframes, prob.n_params, tuple(b for b in prob.blocks if b.name != "imu"),
+                                 prob.R_W_B, prob.local, prob.chain_starts)
+    with pytest.raises(EvaluationError, match="trajectory itself is undetermined"):
+        information.marginal(no_imu)
 
 
 # --- the report -------------------------------------------------------------------------------
@@ -329,20 +371,23 @@ def test_kitti_00_report_makes_physical_sense(rig, data_dir):
     assert 3500 < rep.length_m < 3900 and 460 < rep.duration_s < 475
 
 
+def _kinds(prob):
+    """The factor kinds of a problem's blocks in order, repeats collapsed."""
+    names = [b.name for b in prob.blocks]
+    return [n for i, n in enumerate(names) if i == 0 or names[i - 1] != n]
+
+
 def test_linearising_in_chunks_changes_nothing(rig, monkeypatch):
     """Every factor lands in exactly one chunk (sensor frames spanning two keyframes included):
-    tiny chunks give the same J rows and the same marginal as one chunk."""
-    data = rig.config.model_dump()
-    data["sensors"][0]["rate_hz"] = 5.0  # frames every second keyframe
-    slow = build_rig(data)
+    tiny chunks give the same J rows, kind by kind, and the same marginal as big chunks."""
+    slow = _five_hz_lidar(rig)
     t = np.linspace(0, 10, 11)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), slow.suspension), slow)
     whole = information.build(nom, slow)
     monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)  # → chunks of 6 keyframes (stride 2)
     chunked = information.build(nom, slow)
     assert len(chunked.blocks) > len(whole.blocks)
-    names = [b.name for b in chunked.blocks]
-    assert [n for i, n in enumerate(names) if i == 0 or names[i - 1] != n] == [b.name for b in whole.blocks]
+    assert _kinds(chunked) == _kinds(whole)
     Jw, Jc = information.jacobian(whole)[0].toarray(), information.jacobian(chunked)[0].toarray()
     np.testing.assert_allclose(Jc, Jw, atol=1e-12 * np.abs(Jw).max())
     Lw, Lc = _scaled(information.marginal(whole), slow), _scaled(information.marginal(chunked), slow)

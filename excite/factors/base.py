@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..parallel import pool
 from ..rig import Rig
 from ..trajectory import Trajectory
 
@@ -59,24 +58,29 @@ class Nominal:
                        R_V_A=self.R_V_A[kf], imu_R=self.imu_R[imu], imu_omega=self.imu_omega[imu],
                        imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B)
 
-    @classmethod
-    def of(cls, traj: Trajectory, rig: Rig, t_start: float | None = None,
-           t_end: float | None = None) -> "Nominal":
-        """Sample ``traj`` for ``rig`` on whole keyframe intervals within ``[t_start, t_end]``."""
-        imu_rate = rig.config.imu.update_rate
-        n = int(round(imu_rate / rig.keyframe_rate_hz))
+    @staticmethod
+    def grid(traj: Trajectory, rig: Rig, t_start: float | None = None,
+             t_end: float | None = None) -> tuple[float, int]:
+        """Start time and number of keyframes of the whole keyframe intervals of ``traj`` within
+        ``[t_start, t_end]``."""
         t0 = traj.t_start if t_start is None else max(t_start, traj.t_start)
         t1 = traj.t_end if t_end is None else min(t_end, traj.t_end)
-        n_intervals = int(np.floor((t1 - t0) * rig.keyframe_rate_hz + 1e-9))
-        t_imu = t0 + np.arange(n_intervals * n + 1) / imu_rate
+        return t0, int(np.floor((t1 - t0) * rig.keyframe_rate_hz + 1e-9)) + 1
+
+    @classmethod
+    def of(cls, traj: Trajectory, rig: Rig, t_start: float | None = None, t_end: float | None = None,
+           keyframes: tuple[int, int] | None = None) -> "Nominal":
+        """Sample ``traj`` for ``rig`` on the whole keyframe intervals within ``[t_start, t_end]``
+        (:meth:`grid`), or on its keyframes ``k0 … k1`` only: the same samples as those of the
+        whole, bit for bit."""
+        t0, K = cls.grid(traj, rig, t_start, t_end)
+        k0, k1 = (0, K - 1) if keyframes is None else keyframes
+        imu_rate = rig.config.imu.update_rate
+        n = int(round(imu_rate / rig.keyframe_rate_hz))
+        t_imu = t0 + np.arange(k0 * n, k1 * n + 1) / imu_rate
         pose = rig.config.vehicle.T_V_B
-        # the IMU-rate samples in two halves and the keyframes, concurrently (compiled loops and
-        # numpy release the GIL)
-        half = t_imu.size // 2
-        jobs = [pool().submit(traj.imu, part, pose.R, pose.p) for part in (t_imu[:half], t_imu[half:])]
+        imu_R, imu_w, imu_f = traj.imu(t_imu, pose.R, pose.p)
         s = traj.sample(t_imu[::n])
-        (R1, w1, f1), (R2, w2, f2) = (j.result() for j in jobs)
-        imu_R, imu_w, imu_f = np.concatenate([R1, R2]), np.concatenate([w1, w2]), np.concatenate([f1, f2])
         body = s.body(pose.R, pose.p)
         length = float(np.trapezoid(np.linalg.norm(s.v_W, axis=1), s.t))
         return cls(t=body.t, R=body.R_W_B, p=body.p_W_B, v=body.v_W, omega=body.omega_B, R_V_A=s.R_V_A,

@@ -15,15 +15,14 @@ discrete scheme. Both are computed for all intervals at once from running sums o
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from .. import kernels, so3
 from ..rig import Rig
 from ..trajectory import GRAVITY
-from .base import ROT, FactorBlock, Nominal, theta_columns
+from .base import FactorBlock, Nominal, theta_columns
 
-# residual row order: rotation, velocity, position (state columns are rotation, position, velocity)
-VEL_R, POS_R = slice(3, 6), slice(6, 9)
 
 
 def preintegration(nom: Nominal, sigma_g: float, sigma_a: float) -> dict[str, np.ndarray]:
@@ -51,43 +50,74 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     """Whitened Jacobians of every keyframe interval's preintegrated IMU factor."""
     imu = rig.config.imu
     pre = preintegration(nom, imu.gyroscope_noise_density, imu.accelerometer_noise_density)
-    N = nom.n_keyframes - 1
     dT = nom.t[1] - nom.t[0]
-    R, p, v = nom.R, nom.p, nom.v
-    Ri, Rj = R[:-1], R[1:]
-    RiT = np.swapaxes(Ri, 1, 2)
-    dv = (RiT @ (v[1:] - v[:-1] - GRAVITY * dT)[:, :, None])[..., 0]
-    dp = (RiT @ (p[1:] - p[:-1] - v[:-1] * dT - 0.5 * GRAVITY * dT**2)[:, :, None])[..., 0]
-
-    Jx = np.zeros((N, 9, 18))
-    eye = np.eye(3)
-    # state i at columns 0..8, state j at 9..17; within a state: rot, pos, vel
-    Jx[:, ROT, 0:3] = -eye
-    Jx[:, ROT, 9:12] = pre["dR"]
-    Jx[:, VEL_R, 0:3] = so3.hat(dv)
-    Jx[:, VEL_R, 6:9] = -RiT
-    Jx[:, VEL_R, 15:18] = RiT
-    Jx[:, POS_R, 0:3] = so3.hat(dp)
-    Jx[:, POS_R, 3:6] = -RiT
-    Jx[:, POS_R, 6:9] = -RiT * dT
-    Jx[:, POS_R, 12:15] = RiT
-
-    if imu.estimate_biases:
-        cols = theta_columns(rig, [f"imu.{k}_bias_{a}" for k in ("gyro", "accel") for a in "xyz"])
-        Jt = np.zeros((N, 9, 6))
-        Jt[:, ROT, 0:3] = pre["G_R"]
-        Jt[:, VEL_R, 0:3] = -pre["V_g"]
-        Jt[:, POS_R, 0:3] = -pre["P_g"]
-        Jt[:, VEL_R, 3:6] = -pre["V_a"]
-        Jt[:, POS_R, 3:6] = -pre["P_a"]
-    else:
-        cols, Jt = np.zeros(0, dtype=int), np.zeros((N, 9, 0))
-
     # whiten with the inverse Cholesky factor of the covariance: W = L⁻¹, WᵀW = Σ⁻¹
     W = kernels.inverse_cholesky(pre["cov"])
-    Jx = W @ Jx
-    Jt = W @ Jt
-    return FactorBlock("imu", np.arange(N), 1, 2, Jx, Jt, cols)
+    Jx, Jt = _jacobians(nom.R, nom.p, nom.v, dT, GRAVITY, pre["dR"], pre["G_R"], pre["V_g"], pre["P_g"],
+                        pre["P_a"], W, imu.estimate_biases)
+    cols = (theta_columns(rig, [f"imu.{k}_bias_{a}" for k in ("gyro", "accel") for a in "xyz"])
+            if imu.estimate_biases else np.zeros(0, dtype=int))
+    return FactorBlock("imu", np.arange(Jx.shape[0]), 1, 2, Jx, Jt, cols)
+
+
+@nb.njit(cache=True, nogil=True)
+def _jacobians(R, p, v, dT, g, dR, G_R, V_g, P_g, P_a, W, estimate):
+    """Whitened Jacobians ``W J`` of the residuals (rotation, velocity, position rows) w.r.t. the
+    states i, j ``[δθ, δp, δv]`` and the biases (b_g, b_a); with ``Δv' = R_iᵀ(v_j − v_i − g ΔT)``
+    and ``Δp' = R_iᵀ(p_j − p_i − v_i ΔT − ½ g ΔT²)``::
+
+        r_R:  ∂θ_i = −I        ∂θ_j = ΔR              ∂b_g = G_R
+        r_v:  ∂θ_i = [Δv']×    ∂v_i = −R_iᵀ  ∂v_j = R_iᵀ   ∂b_g = −V_g   ∂b_a = −V_a = G_R
+        r_p:  ∂θ_i = [Δp']×    ∂p_i = −R_iᵀ  ∂v_i = −R_iᵀ ΔT   ∂p_j = R_iᵀ   ∂b_g = −P_g   ∂b_a = −P_a
+    """
+    N = R.shape[0] - 1
+    Jx = np.zeros((N, 9, 18))
+    Jt = np.zeros((N, 9, 6 if estimate else 0))
+    A = np.zeros((9, 18))
+    B = np.zeros((9, 6))
+    X = np.empty((3, 3))
+    a, dv, dp = np.empty(3), np.empty(3), np.empty(3)
+    for n in range(N):
+        i, j = n, n + 1
+        Ri = R[i]
+        for k in range(3):
+            a[k] = v[j, k] - v[i, k] - g[k] * dT
+        kernels.tmulv(Ri, a, dv)
+        for k in range(3):
+            a[k] = p[j, k] - p[i, k] - v[i, k] * dT - 0.5 * g[k] * dT * dT
+        kernels.tmulv(Ri, a, dp)
+        for r in range(3):
+            A[r, r] = -1.0
+            for c in range(3):
+                A[r, 9 + c] = dR[n, r, c]
+                A[3 + r, 6 + c] = -Ri[c, r]
+                A[3 + r, 15 + c] = Ri[c, r]
+                A[6 + r, 3 + c] = -Ri[c, r]
+                A[6 + r, 6 + c] = -Ri[c, r] * dT
+                A[6 + r, 12 + c] = Ri[c, r]
+                B[r, c] = G_R[n, r, c]
+                B[3 + r, c] = -V_g[n, r, c]
+                B[6 + r, c] = -P_g[n, r, c]
+                B[3 + r, 3 + c] = G_R[n, r, c]
+                B[6 + r, 3 + c] = -P_a[n, r, c]
+        kernels.hat(dv, X)
+        kernels.put(A, 3, 0, X, 1.0)
+        kernels.hat(dp, X)
+        kernels.put(A, 6, 0, X, 1.0)
+        Wn = W[n]
+        for r in range(9):  # W is lower triangular
+            for c in range(18):
+                s = 0.0
+                for k in range(r + 1):
+                    s += Wn[r, k] * A[k, c]
+                Jx[n, r, c] = s
+            if estimate:
+                for c in range(6):
+                    s = 0.0
+                    for k in range(r + 1):
+                        s += Wn[r, k] * B[k, c]
+                    Jt[n, r, c] = s
+    return Jx, Jt
 
 
 # --- nonlinear model (finite-difference tests, simulation, batch calibration) -----------------

@@ -13,9 +13,10 @@ additive on ``p_B_S``.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
-from .. import so3
+from .. import kernels, so3
 from ..rig import Rig, SensorConfig
 from .base import FactorBlock, Nominal, theta_columns
 
@@ -23,58 +24,108 @@ from .base import FactorBlock, Nominal, theta_columns
 def blocks(nom: Nominal, rig: Rig, sensor: SensorConfig) -> FactorBlock | None:
     """Whitened Jacobians of every relative-pose measurement of ``sensor`` (None if < 2 frames)."""
     stride = int(round(rig.keyframe_rate_hz / sensor.rate_hz))
-    frames = np.arange(0, nom.n_keyframes, stride)
-    if frames.size < 2:
+    N = (nom.n_keyframes - 1) // stride
+    if N < 1:
         return None
-    i, j = frames[:-1], frames[1:]
-    N = i.size
-    R, p, v, w = nom.R, nom.p, nom.v, nom.omega
-    R_BS, p_BS = sensor.T_B_S.R, sensor.T_B_S.p
-    R_SB = R_BS.T
-    Ri, Rj = R[i], R[j]
-    RiT = np.swapaxes(Ri, 1, 2)
-    Rij = RiT @ Rj
-    e = np.einsum("nij,nj->ni", RiT, p[j] - p[i]) + Rij @ p_BS  # d + p_BS
-    d = e - p_BS
-    t_rel = d @ R_SB.T
-    R_rel = R_SB @ Rij @ R_BS
-    hat_pBS = so3.hat(p_BS)
-
-    Jx = np.zeros((N, 6, 18))
-    Jx[:, 0:3, 0:3] = -R_SB @ np.swapaxes(Rij, 1, 2)
-    Jx[:, 0:3, 9:12] = R_SB
-    Jx[:, 3:6, 0:3] = R_SB @ so3.hat(e)
-    Jx[:, 3:6, 3:6] = -R_SB @ RiT
-    Jx[:, 3:6, 9:12] = -R_SB @ Rij @ hat_pBS
-    Jx[:, 3:6, 12:15] = R_SB @ RiT
-
     name = sensor.name
     names = [c.name for c in rig.coordinates if c.block == name]
-    cols = theta_columns(rig, names)
-    Jt = np.zeros((N, 6, len(names)))
-    if sensor.estimate.extrinsic:
-        r0 = names.index(f"{name}.rot_x")
-        t0 = names.index(f"{name}.trans_x")
-        Jt[:, 0:3, r0:r0 + 3] = np.eye(3) - np.swapaxes(R_rel, 1, 2)
-        Jt[:, 3:6, r0:r0 + 3] = so3.hat(t_rel)
-        Jt[:, 3:6, t0:t0 + 3] = R_SB @ (Rij - np.eye(3))
-    if sensor.estimate.time_offset:
-        k = names.index(f"{name}.time_offset")
-        wi, wj = w[i], w[j]
-        Jt[:, 0:3, k] = (wj - np.einsum("nji,nj->ni", Rij, wi)) @ R_SB.T
-        dt_t = (np.cross(e, wi) + np.einsum("nji,nj->ni", Ri, v[j] - v[i])
-                + np.einsum("nij,nj->ni", Rij, np.cross(wj, p_BS)))
-        Jt[:, 3:6, k] = dt_t @ R_SB.T
-    if sensor.monocular:
-        Jt[:, 3:6, names.index(f"{name}.scale")] = t_rel
+    at = lambda key, on: names.index(f"{name}.{key}") if on else -1  # noqa: E731
+    Jx, Jt = _jacobians(nom.R, nom.p, nom.v, nom.omega, stride, sensor.T_B_S.R, sensor.T_B_S.p,
+                        at("rot_x", sensor.estimate.extrinsic), at("trans_x", sensor.estimate.extrinsic),
+                        at("time_offset", sensor.estimate.time_offset), at("scale", sensor.monocular), len(names),
+                        np.deg2rad(sensor.noise.rotation_sigma_deg), sensor.noise.translation_sigma_m)
+    return FactorBlock(name, np.arange(N) * stride, stride, 2, Jx, Jt, theta_columns(rig, names))
 
-    sig_r = np.deg2rad(sensor.noise.rotation_sigma_deg)
-    sig_t = sensor.noise.translation_sigma_m
-    Jx[:, 0:3] /= sig_r
-    Jt[:, 0:3] /= sig_r
-    Jx[:, 3:6] /= sig_t
-    Jt[:, 3:6] /= sig_t
-    return FactorBlock(name, i, stride, 2, Jx, Jt, cols)
+
+@nb.njit(cache=True, nogil=True)
+def _jacobians(R, p, v, w, stride, R_BS, p_BS, c_rot, c_trans, c_time, c_scale, n_cols, sig_r, sig_t):
+    """Per frame pair ``i → j = i + stride``, with ``R_ij = R_iᵀR_j``, ``e = R_iᵀ(p_j − p_i) + R_ij p_BS``
+    and ``t_rel = R_SB (e − p_BS)``: the Jacobians of ``r_R`` and ``r_t`` w.r.t. the states i, j
+    ``[δθ, δp, δv]`` and the sensor's columns (``c_*``: position among them, −1 if not estimated)::
+
+        ∂r_R/∂θ_i = −R_SB R_ijᵀ    ∂r_R/∂θ_j = R_SB
+        ∂r_t/∂θ_i = R_SB [e]×      ∂r_t/∂p_i = −R_SB R_iᵀ
+        ∂r_t/∂θ_j = −R_SB R_ij [p_BS]×    ∂r_t/∂p_j = R_SB R_iᵀ
+        ∂r_R/∂rot = I − R_relᵀ     ∂r_t/∂rot = [t_rel]×     ∂r_t/∂trans = R_SB (R_ij − I)
+        ∂r_R/∂t_d = R_SB (ω_j − R_ijᵀ ω_i)
+        ∂r_t/∂t_d = R_SB (e × ω_i + R_iᵀ(v_j − v_i) + R_ij (ω_j × p_BS))
+        ∂r_t/∂s = t_rel
+
+    rows divided by their σ."""
+    N = (R.shape[0] - 1) // stride
+    Jx = np.zeros((N, 6, 18))
+    Jt = np.zeros((N, 6, n_cols))
+    R_SB = R_BS.T.copy()
+    hp = np.empty((3, 3))
+    kernels.hat(p_BS, hp)
+    Rij, X, Y, M = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    e, t_rel, a, b, c = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    ir, it = 1.0 / sig_r, 1.0 / sig_t
+    for n in range(N):
+        i = n * stride
+        j = i + stride
+        Ri, Rj = R[i], R[j]
+        J, T = Jx[n], Jt[n]
+        kernels.tmul(Ri, Rj, Rij)
+        for k in range(3):
+            a[k] = p[j, k] - p[i, k]
+        kernels.tmulv(Ri, a, e)
+        kernels.mulv(Rij, p_BS, b)
+        for k in range(3):
+            e[k] += b[k]
+            b[k] = e[k] - p_BS[k]
+        kernels.mulv(R_SB, b, t_rel)
+        kernels.mul(Rij, R_BS, X)  # (R_SB R_ijᵀ)ᵀ
+        for r in range(3):
+            for k in range(3):
+                J[r, k] = -X[k, r] * ir
+        kernels.put(J, 0, 9, R_SB, ir)
+        kernels.hat(e, M)
+        kernels.mul(R_SB, M, Y)
+        kernels.put(J, 3, 0, Y, it)
+        kernels.mult(R_SB, Ri, Y)  # R_SB R_iᵀ
+        kernels.put(J, 3, 3, Y, -it)
+        kernels.put(J, 3, 12, Y, it)
+        kernels.mul(R_SB, Rij, M)
+        kernels.mul(M, hp, Y)
+        kernels.put(J, 3, 9, Y, -it)
+        if c_rot >= 0:
+            kernels.mul(M, R_BS, Y)  # R_rel
+            for r in range(3):
+                for k in range(3):
+                    T[r, c_rot + k] = ((1.0 if r == k else 0.0) - Y[k, r]) * ir
+            kernels.hat(t_rel, Y)
+            for r in range(3):
+                for k in range(3):
+                    T[3 + r, c_rot + k] = Y[r, k] * it
+        if c_trans >= 0:
+            for r in range(3):
+                for k in range(3):
+                    T[3 + r, c_trans + k] = (M[r, k] - R_SB[r, k]) * it
+        if c_time >= 0:
+            kernels.tmulv(Rij, w[i], a)
+            for k in range(3):
+                a[k] = w[j, k] - a[k]
+            kernels.mulv(R_SB, a, b)
+            for r in range(3):
+                T[r, c_time] = b[r] * ir
+            kernels.cross(e, w[i], a)
+            for k in range(3):
+                c[k] = v[j, k] - v[i, k]
+            kernels.tmulv(Ri, c, b)
+            for k in range(3):
+                a[k] += b[k]
+            kernels.cross(w[j], p_BS, c)
+            kernels.mulv(Rij, c, b)
+            for k in range(3):
+                a[k] += b[k]
+            kernels.mulv(R_SB, a, b)
+            for r in range(3):
+                T[3 + r, c_time] = b[r] * it
+        if c_scale >= 0:
+            for r in range(3):
+                T[3 + r, c_scale] = t_rel[r] * it
+    return Jx, Jt
 
 
 # --- nonlinear model ---------------------------------------------------------------------------

@@ -12,9 +12,10 @@ turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with n
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
-from .. import so3
+from .. import kernels, so3
 from ..rig import Rig
 from .base import FactorBlock, Nominal, theta_columns
 
@@ -31,47 +32,90 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
     wc = rig.config.wheels
     if wc is None:
         return None
-    R, p = nom.R, nom.p
     _, p_BV, R_BA = _geometry(nom)
-    N = nom.n_keyframes - 1
-    Ri, Rj = R[:-1], R[1:]
-    RAi = Ri @ R_BA[:-1]
-    RAj = Rj @ R_BA[1:]
-    phi = so3.log(np.swapaxes(RAi, 1, 2) @ RAj)
-    dpsi = phi[:, 2]
-    pVi = p[:-1] + Ri @ p_BV
-    pVj = p[1:] + Rj @ p_BV
-    c = np.einsum("nji,nj->ni", RAi, pVj - pVi)
-    m = np.stack([np.cos(dpsi / 2), np.sin(dpsi / 2), np.zeros(N)], axis=1)
-    dm = 0.5 * np.stack([-np.sin(dpsi / 2), np.cos(dpsi / 2), np.zeros(N)], axis=1)
-    ds = np.einsum("ni,ni->n", m, c)
+    Jx, Jt = _jacobians(nom.R, nom.p, np.ascontiguousarray(R_BA), p_BV, wc.radius_left_m, wc.radius_right_m,
+                        wc.track_m, wc.sigma_rad, wc.estimate)
+    cols = (theta_columns(rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"]) if wc.estimate
+            else np.zeros(0, dtype=int))
+    return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
 
-    # Jacobians of φ (3) and c (3) w.r.t. [δθ_i, δp_i, δv_i, δθ_j, δp_j, δv_j]
-    Jphi = np.zeros((N, 3, 18))
-    Jphi[:, :, 0:3] = -so3.left_jacobian_inv(phi) @ np.swapaxes(R_BA[:-1], 1, 2)
-    Jphi[:, :, 9:12] = so3.right_jacobian_inv(phi) @ np.swapaxes(R_BA[1:], 1, 2)
-    q = np.einsum("nji,nj->ni", Ri, p[1:] + Rj @ p_BV - p[:-1])
-    RAiT = np.swapaxes(RAi, 1, 2)
-    Jc = np.zeros((N, 3, 18))
-    Jc[:, :, 0:3] = np.swapaxes(R_BA[:-1], 1, 2) @ so3.hat(q)
-    Jc[:, :, 3:6] = -RAiT
-    Jc[:, :, 9:12] = -RAiT @ Rj @ so3.hat(p_BV)
-    Jc[:, :, 12:15] = RAiT
-    Jpsi = Jphi[:, 2, :]
-    Js = np.einsum("ni,nik->nk", m, Jc) + np.einsum("ni,ni->n", dm, c)[:, None] * Jpsi
 
-    rl, rr, b = wc.radius_left_m, wc.radius_right_m, wc.track_m
-    Jx = np.stack([(Js - 0.5 * b * Jpsi) / rl, (Js + 0.5 * b * Jpsi) / rr], axis=1)
-    if wc.estimate:
-        cols = theta_columns(rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"])
-        Jt = np.zeros((N, 2, 3))
-        Jt[:, 0, 0] = -(ds - 0.5 * b * dpsi) / rl**2
-        Jt[:, 1, 1] = -(ds + 0.5 * b * dpsi) / rr**2
-        Jt[:, 0, 2] = -0.5 * dpsi / rl
-        Jt[:, 1, 2] = 0.5 * dpsi / rr
-    else:
-        cols, Jt = np.zeros(0, dtype=int), np.zeros((N, 2, 0))
-    return FactorBlock("wheel", np.arange(N), 1, 2, Jx / wc.sigma_rad, Jt / wc.sigma_rad, cols)
+@nb.njit(cache=True, nogil=True)
+def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
+    """Per interval i → j, with ``R_A = R R_BA``, ``φ = Log(R_A,iᵀ R_A,j)`` (Δψ = φ_z),
+    ``c = R_A,iᵀ (p_V,j − p_V,i)`` and ``Δs = mᵀc``::
+
+        ∂φ/∂θ_i = −J_l⁻¹(φ) R_BA,iᵀ        ∂φ/∂θ_j = J_r⁻¹(φ) R_BA,jᵀ
+        ∂c/∂θ_i = R_BA,iᵀ [R_iᵀ(p_j + R_j p_BV − p_i)]×    ∂c/∂p_i = −R_A,iᵀ
+        ∂c/∂θ_j = −R_A,iᵀ R_j [p_BV]×       ∂c/∂p_j = R_A,iᵀ
+        ∂Δs = mᵀ ∂c + (m′ᵀ c) ∂Δψ,   m′ = ½(−sin Δψ/2, cos Δψ/2, 0)
+
+    and the wheel angles ``(Δs ∓ ½ b Δψ)/r`` differentiated in the states and in (r_l, r_r, b);
+    everything divided by σ."""
+    N = R.shape[0] - 1
+    Jx = np.zeros((N, 2, 18))
+    Jt = np.zeros((N, 2, 3 if estimate else 0))
+    RAi, RAj, X, Y, M = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    phi, a, cc, q, qb = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    Jpsi = np.empty(18)
+    Js = np.empty(18)
+    Jc = np.empty((3, 18))
+    hp = np.empty((3, 3))
+    kernels.hat(p_BV, hp)
+    for n in range(N):
+        i, j = n, n + 1
+        Ri, Rj = R[i], R[j]
+        kernels.mul(Ri, R_BA[i], RAi)
+        kernels.mul(Rj, R_BA[j], RAj)
+        kernels.tmul(RAi, RAj, X)
+        kernels.log(X, phi)
+        dpsi = phi[2]
+        kernels.mulv(Rj, p_BV, a)
+        for k in range(3):
+            q[k] = p[j, k] + a[k] - p[i, k]  # p_V,j − p_i
+        kernels.mulv(Ri, p_BV, a)
+        for k in range(3):
+            a[k] = q[k] - a[k]  # p_V,j − p_V,i
+        kernels.tmulv(RAi, a, cc)
+        kernels.tmulv(Ri, q, qb)  # R_iᵀ(p_j + R_j p_BV − p_i)
+        # ∂Δψ: row z of ∓J⁻¹(φ) R_BAᵀ
+        for k in range(3):
+            a[k] = -phi[k]
+        kernels.right_jacobian_inv(a, M)  # J_l⁻¹(φ)
+        for k in range(18):
+            Jpsi[k] = 0.0
+        for k in range(3):
+            Jpsi[k] = -(M[2, 0] * R_BA[i, k, 0] + M[2, 1] * R_BA[i, k, 1] + M[2, 2] * R_BA[i, k, 2])
+        kernels.right_jacobian_inv(phi, M)
+        for k in range(3):
+            Jpsi[9 + k] = M[2, 0] * R_BA[j, k, 0] + M[2, 1] * R_BA[j, k, 1] + M[2, 2] * R_BA[j, k, 2]
+        # ∂c
+        for r in range(3):
+            for k in range(18):
+                Jc[r, k] = 0.0
+        kernels.hat(qb, X)
+        kernels.tmul(R_BA[i], X, Y)
+        kernels.put(Jc, 0, 0, Y, 1.0)
+        for r in range(3):
+            for k in range(3):
+                Jc[r, 3 + k] = -RAi[k, r]
+                Jc[r, 12 + k] = RAi[k, r]
+        kernels.tmul(RAi, Rj, X)
+        kernels.mul(X, hp, Y)
+        kernels.put(Jc, 0, 9, Y, -1.0)
+        cs, sn = np.cos(0.5 * dpsi), np.sin(0.5 * dpsi)
+        ds = cs * cc[0] + sn * cc[1]
+        dmc = 0.5 * (-sn * cc[0] + cs * cc[1])
+        for k in range(18):
+            Js[k] = cs * Jc[0, k] + sn * Jc[1, k] + dmc * Jpsi[k]
+            Jx[n, 0, k] = (Js[k] - 0.5 * track * Jpsi[k]) / (rl * sigma)
+            Jx[n, 1, k] = (Js[k] + 0.5 * track * Jpsi[k]) / (rr * sigma)
+        if estimate:
+            Jt[n, 0, 0] = -(ds - 0.5 * track * dpsi) / (rl * rl * sigma)
+            Jt[n, 1, 1] = -(ds + 0.5 * track * dpsi) / (rr * rr * sigma)
+            Jt[n, 0, 2] = -0.5 * dpsi / (rl * sigma)
+            Jt[n, 1, 2] = 0.5 * dpsi / (rr * sigma)
+    return Jx, Jt
 
 
 def increments(Ri, pi, Rj, pj, R_BA_i, R_BA_j, p_BV, radius_left, radius_right, track) -> np.ndarray:
