@@ -6,10 +6,14 @@ minimally. :func:`marginal` eliminates the trajectory from ``H = JᵀJ``:
 
     Λ_θ = H_θθ − H_θx H_xx⁻¹ H_xθ
 
-exploiting that H_xx is block-banded: it is stored in LAPACK band format, factored with a banded
-Cholesky and the border solved by banded triangular substitution. Cost and memory are linear in
-the drive length; a dense H_xx is never formed. :func:`marginal_dense` is the plain-numpy dense
-reference the tests hold the fast path to.
+exploiting that H_xx is block-banded (a keyframe's state meets only its neighbours'): the drive
+is cut into chunks of keyframes that no factor reaches across, every chunk eliminates its inner
+keyframes with a compiled block Cholesky, in parallel with the others, and the chain of chunk
+ends is eliminated last. Cost is linear in the drive length and memory bounded by a chunk; a
+dense H_xx is never formed. :func:`drive_information` streams this from the trajectories
+(each chunk is sampled and linearised where it is eliminated: the evaluator's path);
+:func:`marginal` does it for a linearised :class:`Problem`. :func:`marginal_dense` is the
+plain-numpy dense reference the tests hold both to.
 
 Two parametrisations of the trajectory, one marginal. The factors' Jacobians are derived for the
 *world* state ``[δθ, δp, δv]`` (right rotation perturbation, world position and velocity), whose
@@ -366,14 +370,13 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
         return piece, sub.length_m, (c1 - c0, c2 - c1, c3 - c2)
 
     results = list(pool().map(run, tasks))
-    c0 = time.perf_counter()
     Lam = _reduce([r[0] for r in results], p)
     spent = np.sum([r[2] for r in results], axis=0) * 1e3
     return DriveInformation(
         information=Lam, diag_tt=np.sum([r[0].diag_tt for r in results], axis=0), n_keyframes=offset,
         duration_s=(offset - len(trajs)) / rig.keyframe_rate_hz,
         length_m=float(sum(r[1] for r in results)),
-        thread_ms=dict(sample=spent[0], linearise=spent[1], eliminate=spent[2], reduce=(time.perf_counter() - c0) * 1e3))
+        thread_ms={"sample": float(spent[0]), "linearise": float(spent[1]), "eliminate": float(spent[2])})
 
 
 def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:

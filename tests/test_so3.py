@@ -67,3 +67,22 @@ def test_compiled_imu_sampling_equals_the_vectorised_one(traj):
     np.testing.assert_allclose(R, b.R_W_B, atol=1e-13)
     np.testing.assert_allclose(w, b.omega_B, atol=1e-12)
     np.testing.assert_allclose(f, b.specific_force_B, atol=1e-10)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 9e-3, 0.011, 0.5, 2.0, 3.0, np.pi - 1e-4, np.pi - 1e-8])
+def test_compiled_log_and_inverse_jacobian(angle):
+    """The factor kernels' Log (every angle, including next to π where sin θ vanishes) against
+    scipy, and their J_r⁻¹ against so3's on both sides of the series switch."""
+    from excite import kernels
+
+    axes = np.random.default_rng(1).normal(size=(20, 3))
+    for u in axes / np.linalg.norm(axes, axis=1, keepdims=True):
+        R = Rotation.from_rotvec(angle * u).as_matrix()
+        got = np.empty(3)
+        kernels.log(R, got)
+        np.testing.assert_allclose(so3.exp(got), R, atol=1e-13)
+        assert np.linalg.norm(got) == pytest.approx(angle, abs=1e-12)
+        if angle < 3.0:
+            J = np.empty((3, 3))
+            kernels.right_jacobian_inv(angle * u, J)
+            np.testing.assert_allclose(J, so3.right_jacobian_inv(angle * u), atol=1e-14)
