@@ -499,7 +499,7 @@ def log(R, out):
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)  # cos θ
     theta = np.arctan2(s, c)
     if c > -0.99:
-        f = 1.0 + theta * theta / 6.0 if theta < _SERIES else theta / s
+        f = theta / s if s > 0.0 else 1.0  # θ = atan2(s, c) keeps θ/sin θ accurate down to 0
         out[0], out[1], out[2] = f * vx, f * vy, f * vz
         return
     # near π: (R + Rᵀ)/2 − cos θ I = (1 − cos θ) u uᵀ; the row of its largest diagonal entry ∝ u
