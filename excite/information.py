@@ -39,7 +39,7 @@ import scipy.sparse as sp
 from . import kernels, so3
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
-from .factors.base import POS, ROT, STATE_DIM, VEL, FactorBlock, Nominal
+from .factors.base import POS, ROT, STATE_DIM, FactorBlock, Nominal
 from .parallel import n_threads, pool
 from .rig import Rig
 from .trajectory import Trajectory

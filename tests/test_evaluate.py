@@ -7,13 +7,12 @@ import json
 
 import numpy as np
 import pytest
-import yaml
 
 from excite import information, so3
 from excite.errors import EvaluationError
 from excite.evaluate import Options, evaluate
 from excite.factors.base import Nominal
-from excite.rig import RIGS_DIR, build_rig, load_rig
+from excite.rig import build_rig, load_rig
 from excite.vehicle import ControlProfile, Suspension, drive
 
 T = 60.0
@@ -347,8 +346,6 @@ def test_export_npz_round_trip(rig, tmp_path):
 
 
 def test_too_short_drive_is_a_clear_error(rig):
-    from excite.errors import EvaluationError
-
     t = np.linspace(0, 0.15, 4)
     with pytest.raises(EvaluationError, match="too short"):
         evaluate(drive(ControlProfile(t, np.ones(4), np.zeros(4))), rig)

@@ -135,7 +135,6 @@ def test_imu_jacobian(rig, nom):
 def test_imu_covariance_matches_monte_carlo(rig, nom):
     """The propagated covariance is the covariance of preintegrating noisy samples."""
     cfg = rig.config.imu
-    pre = imu.preintegration(nom, cfg.gyroscope_noise_density, cfg.accelerometer_noise_density)
     f, n = 11, nom.imu_per_keyframe
     dT = nom.t[1] - nom.t[0]
     dt = dT / n
