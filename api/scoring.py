@@ -19,6 +19,7 @@ import os
 import resource
 import tempfile
 import threading
+import time
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -329,13 +330,27 @@ def warm() -> bool:
 _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def _init_worker(memory_mb: int) -> None:
+def _init_worker(memory_mb: int, server_pid: int) -> None:
+    threading.Thread(target=_exit_with_server, args=(server_pid,), daemon=True, name="server-watch").start()
     if memory_mb:
         limit = memory_mb * 1024 * 1024
         try:
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
         except (ValueError, OSError):
             log.warning("cannot limit worker memory to %d MiB", memory_mb)
+
+
+def _exit_with_server(server_pid: int, period_s: float = 1.0) -> None:
+    """End this worker once the server process is gone (e.g. killed with SIGKILL): an orphaned
+    pool worker would otherwise wait for work forever, and keep the forkserver alive with it."""
+    while True:
+        time.sleep(period_s)
+        try:
+            os.kill(server_pid, 0)
+        except ProcessLookupError:
+            os._exit(0)
+        except PermissionError:  # the pid now belongs to another user's process: ours is gone
+            os._exit(0)
 
 
 class ScorePool:
@@ -364,7 +379,7 @@ class ScorePool:
                 if v is None:
                     os.environ.pop(k, None)
         return cf.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
-                                      initargs=(self.memory_mb,))
+                                      initargs=(self.memory_mb, os.getpid()))
 
     def start(self) -> None:
         with self._lock:

@@ -48,6 +48,13 @@ def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
     while processes_with(job_id) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not processes_with(job_id)
+    # so do the scoring pool's forkserver and worker (their command lines name the server's directory)
+    pool = lambda: set(processes_with(str(tmp_path))) & set(processes_with("multiprocessing.forkserver"))  # noqa: E731
+    assert pool(), "the scoring pool should have been running"
+    deadline = time.monotonic() + 15
+    while pool() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not pool(), "orphaned scoring processes outlived the server"
     stored = JobStore(tmp_path / "jobs.sqlite3")
     assert stored.get(job_id)["status"] == "running"
     assert stored.get(queued.json()["id"])["status"] == "queued"
