@@ -59,53 +59,71 @@ def _horner(c, k, j, tau, deriv):
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _rotation_at(c_rot, k, tau, R_key, R):
+    """Write ``R_key[k] · Exp(φ(τ))`` to R (φ: segment k of the cubic PPoly ``c_rot``) and return
+    the body rate ``ω = J_r(φ) φ̇`` and angular acceleration ``α = J_r φ̈ + J̇_r φ̇``, in vector
+    form (``[φ]× x = φ × x``)."""
+    fx, fy, fz = _horner(c_rot, k, 0, tau, 0), _horner(c_rot, k, 1, tau, 0), _horner(c_rot, k, 2, tau, 0)
+    dx, dy, dz = _horner(c_rot, k, 0, tau, 1), _horner(c_rot, k, 1, tau, 1), _horner(c_rot, k, 2, tau, 1)
+    ddx, ddy, ddz = _horner(c_rot, k, 0, tau, 2), _horner(c_rot, k, 1, tau, 2), _horner(c_rot, k, 2, tau, 2)
+    theta = np.sqrt(fx * fx + fy * fy + fz * fz)
+    a, b, c, eb, ec = _coeffs(theta)
+    cos = 1.0 - b * theta * theta
+    # Exp(φ) = cos θ I + a [φ]× + b φ φᵀ
+    e00, e01, e02 = cos + b * fx * fx, b * fx * fy - a * fz, b * fx * fz + a * fy
+    e10, e11, e12 = b * fy * fx + a * fz, cos + b * fy * fy, b * fy * fz - a * fx
+    e20, e21, e22 = b * fz * fx - a * fy, b * fz * fy + a * fx, cos + b * fz * fz
+    for r in range(3):
+        k0, k1, k2 = R_key[k, r, 0], R_key[k, r, 1], R_key[k, r, 2]
+        R[r, 0] = k0 * e00 + k1 * e10 + k2 * e20
+        R[r, 1] = k0 * e01 + k1 * e11 + k2 * e21
+        R[r, 2] = k0 * e02 + k1 * e12 + k2 * e22
+    pdx, pdy, pdz = _cross(fx, fy, fz, dx, dy, dz)
+    ppx, ppy, ppz = _cross(fx, fy, fz, pdx, pdy, pdz)
+    wx, wy, wz = dx - b * pdx + c * ppx, dy - b * pdy + c * ppy, dz - b * pdz + c * ppz
+    pd = fx * dx + fy * dy + fz * dz
+    qx, qy, qz = _cross(fx, fy, fz, ddx, ddy, ddz)
+    qqx, qqy, qqz = _cross(fx, fy, fz, qx, qy, qz)
+    rx, ry, rz = _cross(dx, dy, dz, pdx, pdy, pdz)
+    alx = ddx - b * qx + c * qqx - eb * pd * pdx + ec * pd * ppx + c * rx
+    aly = ddy - b * qy + c * qqy - eb * pd * pdy + ec * pd * ppy + c * ry
+    alz = ddz - b * qz + c * qqz - eb * pd * pdz + ec * pd * ppz + c * rz
+    return wx, wy, wz, alx, aly, alz
+
+
+@nb.njit(cache=True, nogil=True)
+def rotation_samples(t, seg_rot, x_rot, c_rot, R_key):
+    """Orientation, body rate and angular acceleration of a rotation spline ``R_key[k] · Exp(φ(t))``
+    (φ a cubic PPoly ``x_rot, c_rot``; ``seg_rot`` the segment of every time)."""
+    n = t.size
+    out_R = np.empty((n, 3, 3))
+    out_w = np.empty((n, 3))
+    out_a = np.empty((n, 3))
+    for i in range(n):
+        k = seg_rot[i]
+        wx, wy, wz, alx, aly, alz = _rotation_at(c_rot, k, t[i] - x_rot[k], R_key, out_R[i])
+        out_w[i, 0], out_w[i, 1], out_w[i, 2] = wx, wy, wz
+        out_a[i, 0], out_a[i, 1], out_a[i, 2] = alx, aly, alz
+    return out_R, out_w, out_a
+
+
 @nb.njit(cache=True, nogil=True)
 def imu_samples(t, seg_rot, x_rot, c_rot, R_key, seg_acc, x_acc, c_acc, gravity, R_V_B, p_V_B):
     """Orientation R_W_B, body rate ω_B and specific force f_B of an IMU at ``(R_V_B, p_V_B)`` in V.
 
-    V's orientation is ``R_key[k] · Exp(φ(t))`` with φ a cubic PPoly (``x_rot, c_rot``); its
-    acceleration a PPoly (``x_acc, c_acc``); ``seg_*`` the segment of every time. Body rate
-    ``ω = J_r(φ) φ̇`` and angular acceleration ``α = J_r φ̈ + J̇_r φ̇`` in vector form.
+    V's orientation, body rate and angular acceleration as in :func:`rotation_samples`; its
+    acceleration a PPoly (``x_acc, c_acc``; ``seg_acc`` the segment of every time).
     """
     n = t.size
     out_R = np.empty((n, 3, 3))
     out_w = np.empty((n, 3))
     out_f = np.empty((n, 3))
     px, py, pz = p_V_B[0], p_V_B[1], p_V_B[2]
-    E = np.empty((3, 3))
     R = np.empty((3, 3))
     for i in range(n):
         k = seg_rot[i]
-        tau = t[i] - x_rot[k]
-        fx, fy, fz = _horner(c_rot, k, 0, tau, 0), _horner(c_rot, k, 1, tau, 0), _horner(c_rot, k, 2, tau, 0)
-        dx, dy, dz = _horner(c_rot, k, 0, tau, 1), _horner(c_rot, k, 1, tau, 1), _horner(c_rot, k, 2, tau, 1)
-        ddx, ddy, ddz = _horner(c_rot, k, 0, tau, 2), _horner(c_rot, k, 1, tau, 2), _horner(c_rot, k, 2, tau, 2)
-        theta = np.sqrt(fx * fx + fy * fy + fz * fz)
-        a, b, c, eb, ec = _coeffs(theta)
-        cos = 1.0 - b * theta * theta
-        # Exp(φ) = cos θ I + a [φ]× + b φ φᵀ
-        E[0, 0] = cos + b * fx * fx
-        E[0, 1] = b * fx * fy - a * fz
-        E[0, 2] = b * fx * fz + a * fy
-        E[1, 0] = b * fy * fx + a * fz
-        E[1, 1] = cos + b * fy * fy
-        E[1, 2] = b * fy * fz - a * fx
-        E[2, 0] = b * fz * fx - a * fy
-        E[2, 1] = b * fz * fy + a * fx
-        E[2, 2] = cos + b * fz * fz
-        for r in range(3):
-            for q in range(3):
-                R[r, q] = R_key[k, r, 0] * E[0, q] + R_key[k, r, 1] * E[1, q] + R_key[k, r, 2] * E[2, q]
-        pdx, pdy, pdz = _cross(fx, fy, fz, dx, dy, dz)
-        ppx, ppy, ppz = _cross(fx, fy, fz, pdx, pdy, pdz)
-        wx, wy, wz = dx - b * pdx + c * ppx, dy - b * pdy + c * ppy, dz - b * pdz + c * ppz
-        pd = fx * dx + fy * dy + fz * dz
-        qx, qy, qz = _cross(fx, fy, fz, ddx, ddy, ddz)
-        qqx, qqy, qqz = _cross(fx, fy, fz, qx, qy, qz)
-        rx, ry, rz = _cross(dx, dy, dz, pdx, pdy, pdz)
-        alx = ddx - b * qx + c * qqx - eb * pd * pdx + ec * pd * ppx + c * rx
-        aly = ddy - b * qy + c * qqy - eb * pd * pdy + ec * pd * ppy + c * ry
-        alz = ddz - b * qz + c * qqz - eb * pd * pdz + ec * pd * ppz + c * rz
+        wx, wy, wz, alx, aly, alz = _rotation_at(c_rot, k, t[i] - x_rot[k], R_key, R)
         j = seg_acc[i]
         tj = t[i] - x_acc[j]
         ax = _horner(c_acc, j, 0, tj, 0) - gravity[0]

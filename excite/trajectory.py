@@ -167,27 +167,21 @@ class Trajectory:
         n = int(np.floor(self.duration * rate_hz + 1e-9)) + 1
         return self.t_start + np.arange(n) / rate_hz
 
-    def _rotation(self, t: np.ndarray, order: int):
-        """Orientation of V at ``t`` and, for ``order`` ≥ 1/2, body rate and angular acceleration.
+    def _rotation(self, t: np.ndarray):
+        """Orientation of V at ``t``, its body rate and angular acceleration: the cubic
+        rotation-vector spline of ``RotationSpline`` (R = R_k·Exp(φ(t)) on segment k), evaluated
+        in one compiled loop (:func:`excite.kernels.rotation_samples`) rather than through scipy's
+        rotation objects."""
+        from . import kernels
 
-        The same cubic rotation-vector spline as ``RotationSpline`` (R = R_k·Exp(φ(t)) on
-        segment k), evaluated with batched Rodrigues and ``ω = J_r(φ) φ̇``,
-        ``α = J_r φ̈ + J̇_r φ̇`` (:func:`so3.body_rate`) rather than through scipy's rotation objects.
-        """
-        interp = self._rot.interpolator
-        phi = interp(t)
-        k = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, self._t.size - 2)
-        out = [self._R[k] @ so3.exp(phi)]
-        if order == 1:
-            out.append(so3.body_rate(phi, interp(t, 1)))
-        elif order >= 2:
-            out += list(so3.body_rate(phi, interp(t, 1), interp(t, 2)))
-        return out
+        rot = self._rot.interpolator
+        seg = np.clip(np.searchsorted(rot.x, t, side="right") - 1, 0, rot.x.size - 2)
+        return kernels.rotation_samples(t, seg, rot.x, rot.c, self._R)
 
     def sample(self, t: np.ndarray) -> MotionSamples:
         """The motion at times ``t`` (clipped to the drive)."""
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
-        R, omega, alpha = self._rotation(t, 2)
+        R, omega, alpha = self._rotation(t)
         if self._tilt is None:
             R_V_A = np.broadcast_to(np.eye(3), (t.size, 3, 3)).copy()
         else:

@@ -74,7 +74,7 @@ def _log(R):
 
 
 def _right_jacobian_inv(phi):
-    """``J_r⁻¹(φ)``, as :func:`excite.so3.right_jacobian_inv` (series near zero)."""
+    """``J_r⁻¹(φ)``, as :func:`excite.kernels.right_jacobian_inv` (series near zero)."""
     t2 = ca.dot(phi, phi)
     small = t2 < 1e-8
     t = ca.sqrt(ca.if_else(small, 1.0, t2))
