@@ -74,11 +74,9 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
         seed=request["seed"], time_budget_s=request["time_budget_s"], closed=request["closed"],
         n_random=request["n_random"])
     res = optimize(rig, settings, lambda p: progress(plain(p)), should_stop)
-    report = plain(res.report.to_dict())
-    report["route"] = request.get("name") or report.get("route")
-    return {"report": report, "comparison": plain(res.comparison), "status": str(res.status),
-            "iterations": int(res.iterations), "elapsed_s": float(res.elapsed_s),
-            "cancelled": bool(res.cancelled), "profile": profile_data(res.profile)}
+    out = plain(res.to_dict())
+    out["report"]["route"] = request.get("name") or out["report"].get("route")
+    return {**out, "profile": profile_data(res.profile)}
 
 
 class JobRunner:

@@ -277,12 +277,19 @@ class JobProgress(Out):
 
 
 class JobResult(Out):
+    """The optimizer's result (excite.optimize.OptimizeResult.to_dict); the maneuver itself is
+    in the job's download links."""
+
     report: Report
     comparison: list[dict[str, Any]]
     status: str
     iterations: int
     elapsed_s: float
     cancelled: bool
+    score: float
+    model_score: float | None
+    timings_s: dict[str, float]
+    message: str
 
 
 class Job(Out):

@@ -68,3 +68,29 @@ def test_time_limit_and_no_traceback(tmp_path):
         r = c.get("/boom")
         assert r.status_code == 500 and "secret" not in r.text and "Traceback" not in r.text
         assert r.json()["title"] == "Internal server error"
+
+
+def test_response_schemas_declare_exactly_the_library_json():
+    """The OpenAPI response models and the library's JSON (Report.to_dict, OptimizeResult.to_dict)
+    name the same fields, down to the nested rows: neither can drift from the other."""
+    import numpy as np
+
+    from api import schemas
+    from excite.evaluate import Options, evaluate
+    from excite.optimize.settings import OptimizeResult
+    from excite.rig import load_rig
+    from excite.vehicle import ControlProfile, drive
+
+    rig = load_rig("robotaxi")
+    t = np.linspace(0, 20, 21)
+    rep = evaluate(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), rig.suspension), rig,
+                   Options(segments=2))
+    d = rep.to_dict()
+    fields = lambda model: set(model.model_fields)  # noqa: E731
+    assert fields(schemas.Report) == set(d)
+    for model, rows in [(schemas.Column, d["column_map"]), (schemas.ParameterOut, d["parameters"]),
+                        (schemas.WeakModeOut, d["weak_modes"]), (schemas.SegmentOut, d["segments"])]:
+        assert rows and all(fields(model) == set(r) for r in rows), model.__name__
+    result = OptimizeResult(profile=None, trajectory=None, report=rep, comparison=[], status="optimal",
+                            iterations=0, elapsed_s=0.0, cancelled=False)
+    assert fields(schemas.JobResult) == set(result.to_dict())

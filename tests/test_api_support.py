@@ -130,4 +130,5 @@ def slow_job(request: dict[str, Any], progress: Callable[[dict], None],
     rep = evaluate(drive(prof, rig.suspension), rig)
     return {"report": plain(rep.to_dict()), "comparison": [{"name": "figure_eight", "score": rep.score}],
             "status": "cancelled" if cancelled else "optimal", "iterations": i, "elapsed_s": 0.1 * i,
-            "cancelled": cancelled, "profile": profile_data(prof)}
+            "cancelled": cancelled, "score": rep.score, "model_score": None, "timings_s": {},
+            "message": "stand-in", "profile": profile_data(prof)}
