@@ -3,22 +3,14 @@
 Statement (:class:`Transcription`): decision vector z (:mod:`.kinematics`), constraints at the
 sample points (speed, acceleration, deceleration, jerk, lateral acceleration, curvature,
 curvature rate, the lot's inner rectangle, optionally the end pose equal to the start pose) and
-the objective. Solution (:func:`solve`): IPOPT with exact first derivatives (CasADi) and
-limited-memory Hessian approximation.
-
-Two smooth formulations of max λ_min, both with exact derivatives of the CasADi model:
-
-- :func:`solve_softmin` (the default, used by :func:`excite.optimize.optimize`): maximise the soft
-  minimum ``−(μ/β) log Σ exp(−β λ_i/μ)`` of the scaled spectrum, a smooth spectral function of
-  S Λ S (within μ·log(p)/β of λ_min; β = 20, μ = the start's λ_min). Its gradient is one reverse
-  sweep of the model seeded with ``Σ π_i v_i v_iᵀ``. One IPOPT run, ~0.4 s per iteration on the
-  90 s problem; the best feasible iterate by the *true* λ_min is kept.
-- :func:`solve`: an epigraph restricted to the weakest eigenspace (spectral bundle / cutting
-  planes): with V the m weakest eigenvectors at the current point,
-  ``maximise t  s.t.  Vᵀ (S Λ(z) S) V / μ − t·I = L Lᵀ, diag(L) ≥ 0``, re-computing V in an outer
-  trust-region loop that accepts a step only if the true λ_min improved. Exact at coalescing
-  eigenvalues, but each IPOPT iteration needs m(m+1)/2 reverse sweeps (~0.8 s on the 90 s
-  problem), so within a minute it gets less far than the soft minimum.
+the objective. Solution (:func:`solve_softmin`): IPOPT with exact first derivatives (CasADi) and
+limited-memory Hessian approximation, maximising the soft minimum
+``−(μ/β) log Σ exp(−β λ_i/μ)`` of the scaled spectrum: a smooth spectral function of S Λ S
+(within μ·log(p)/β of λ_min; β = 20, μ = the start's λ_min) whose gradient is one reverse sweep
+of the model seeded with ``Σ π_i v_i v_iᵀ``. One IPOPT run, ~0.4 s per iteration on the 90 s
+problem; the best feasible iterate by the *true* λ_min is kept. (An epigraph restricted to the
+weakest eigenspace, exact at coalescing eigenvalues, needed m(m+1)/2 reverse sweeps per
+iteration and got less far within a minute; it was removed.)
 """
 
 from __future__ import annotations
@@ -35,7 +27,6 @@ from ..vehicle import Limits
 from .kinematics import Grid, Scales, body_samples, layout, path
 from .model import build_model, coarse_rig
 
-SUBSPACE = 2  # weakest eigenvectors in the epigraph
 LIMIT_MARGIN = 0.95  # fraction of every limit the optimizer may use (sampling, PCHIP playback)
 JERK_MARGIN = 0.8  # drive() plays speed back shape-preservingly (PCHIP), which adds up to ~20 % jerk
 CONSTRAINT_EVERY = 2  # constraints at every 2nd IMU sample of the model (4 Hz)
@@ -43,7 +34,7 @@ CONSTRAINT_EVERY = 2  # constraints at every 2nd IMU sample of the model (4 Hz)
 
 @dataclass
 class Transcription:
-    """The optimal-control problem on a grid, its CasADi functions and its IPOPT solver."""
+    """The optimal-control problem on a grid and its CasADi functions."""
 
     grid: Grid
     scales: Scales
@@ -59,8 +50,6 @@ class Transcription:
     lbz: np.ndarray
     ubz: np.ndarray
     n_params: int
-    solver: ca.Function | None = None
-    _cb: object | None = None
 
     @property
     def n_z(self) -> int:
@@ -124,54 +113,6 @@ def transcribe(rig: Rig, duration_s: float, limits: Limits, half_x_m: float, hal
                          np.concatenate(lb), np.concatenate(ub), lbz, ubz, len(crig.scored))
 
 
-def _vech_idx(m: int) -> list[tuple[int, int]]:
-    return [(i, j) for j in range(m) for i in range(j, m)]
-
-
-def build_solver(tr: Transcription, iteration_callback=None) -> ca.Function:
-    """IPOPT on the epigraph NLP; parameters: V (p × m, flattened) and μ."""
-    m = SUBSPACE
-    p = tr.n_params
-    nz = tr.n_z
-    nl = m * (m + 1) // 2
-    x = ca.MX.sym("x", nz + 1 + nl)
-    z, t, lv = x[:nz], x[nz], x[nz + 1:]
-    par = ca.MX.sym("par", p * m + 1)
-    V = ca.reshape(par[:p * m], p, m)
-    mu = par[p * m]
-    # the projected information as its own function, differentiated through its Jacobian
-    # (reverse mode over its few outputs) rather than forward over every z direction
-    zs = ca.MX.sym("z", nz)
-    Vs = ca.MX.sym("V", p, m)
-    Ms = tr.M(zs)
-    Ps = ca.mtimes([Vs.T, Ms, Vs])
-    idx = _vech_idx(m)
-    proj = ca.Function("proj", [zs, Vs], [ca.vertcat(*[Ps[i, j] for i, j in idx])],
-                       {"never_inline": True,
-                        "jac_penalty": 0, "jacobian_options": {"ad_weight": 1.0}})
-    L = ca.MX(m, m)
-    for q, (i, j) in enumerate(idx):
-        L[i, j] = lv[q]
-    LL = ca.mtimes(L, L.T)
-    epi = proj(z, V) / mu - ca.vertcat(*[t * (1.0 if i == j else 0.0) + LL[i, j] for i, j in idx])
-    g = ca.vertcat(tr.g_kin(z), epi)
-    opts = {
-        "ipopt.hessian_approximation": "limited-memory",
-        "ipopt.limited_memory_max_history": 12,
-        "ipopt.print_level": 0,
-        "ipopt.sb": "yes",
-        "ipopt.tol": 1e-6,
-        "ipopt.acceptable_tol": 1e-4,
-        "ipopt.acceptable_iter": 5,
-        "ipopt.mu_strategy": "adaptive",
-        "ipopt.nlp_scaling_method": "gradient-based",
-        "print_time": False,
-    }
-    if iteration_callback is not None:
-        opts["iteration_callback"] = iteration_callback
-    return ca.nlpsol("maxmin", "ipopt", {"x": x, "p": par, "f": -t, "g": g}, opts)
-
-
 class _IterationCallback(ca.Callback):
     """Forwards IPOPT's iterations to a Python function; a True return stops IPOPT."""
 
@@ -210,7 +151,7 @@ class _IterationCallback(ca.Callback):
 
 @dataclass
 class Outcome:
-    """What :func:`solve` returns: the best feasible z (None if none), its model score, the
+    """What :func:`solve_softmin` returns: the best feasible z (None if none), its model score, the
     number of IPOPT iterations, and why it stopped."""
 
     z: np.ndarray | None
@@ -235,99 +176,6 @@ def score(tr: Transcription, z: np.ndarray) -> float:
 
 
 FEASIBLE_TOL = 1e-5
-
-
-def solve(tr: Transcription, z0: np.ndarray, deadline: float, should_stop: Callable[[], bool] | None = None,
-          progress: Callable[[int, float, float, float], None] | None = None, t_start: float | None = None,
-          iters_per_round: int = 30, max_rounds: int = 100) -> Outcome:
-    """Maximise the coarse model's λ_min from z0 until converged, ``deadline`` (perf_counter)
-    or ``should_stop()``; return the best feasible point seen."""
-    t_start = time.perf_counter() if t_start is None else t_start
-    m = SUBSPACE
-    p = tr.n_params
-    nz = tr.n_z
-    nl = m * (m + 1) // 2
-    ng = tr.lbg_kin.size + nl
-    state = {"it": 0, "stop": False, "mu": 1.0, "round_start_it": 0}
-    hist: list[tuple[int, float, float, float]] = []
-
-    def on_iter(x, f, g):
-        state["it"] += 1
-        gk = g[: tr.lbg_kin.size]
-        viol = float(max(np.maximum(tr.lbg_kin - gk, 0).max(initial=0), np.maximum(gk - tr.ubg_kin, 0).max(initial=0)))
-        est = -f * state["mu"]
-        el = time.perf_counter() - t_start
-        hist.append((state["it"], est, viol, el))
-        if progress is not None:
-            progress(state["it"], est, viol, el)
-        if should_stop is not None and should_stop():
-            state["stop"] = True
-        round_over = state["it"] - state["round_start_it"] >= iters_per_round
-        return state["stop"] or round_over or time.perf_counter() > deadline
-
-    cb = _IterationCallback(nz + 1 + nl, ng, p * m + 1, on_iter)
-    if tr.solver is None:
-        tr.solver = build_solver(tr, cb)
-        tr._cb = cb
-    else:
-        tr._cb.fn = on_iter  # reuse the compiled solver
-    solver = tr.solver
-
-    z = np.array(z0, dtype=float)
-    cur = score(tr, z)
-    cur_v = violation(tr, z)
-    best_z = z.copy() if cur_v <= FEASIBLE_TOL else None
-    best = cur if best_z is not None else -np.inf
-    radius = 0.5
-    status = "optimal"
-    for _ in range(max_rounds):
-        if state["stop"]:
-            status = "cancelled"
-            break
-        if time.perf_counter() > deadline:
-            status = "time_budget"
-            break
-        Mv = np.array(tr.M(z))
-        w, U = np.linalg.eigh(Mv)
-        V = U[:, :m]
-        mu = max(w[0], 1e-12)
-        state["mu"] = mu
-        t0 = w[0] / mu - 1e-3
-        L0 = np.diag(np.sqrt(np.maximum(w[:m] / mu - t0, 1e-9)))
-        x0 = np.concatenate([z, [t0], [L0[i, j] for i, j in _vech_idx(m)]])
-        lbx = np.concatenate([np.maximum(tr.lbz, z - radius), [-np.inf],
-                              [0.0 if i == j else -np.inf for i, j in _vech_idx(m)]])
-        ubx = np.concatenate([np.minimum(tr.ubz, z + radius), [np.inf], [np.inf] * nl])
-        lbx[:nz] = np.minimum(lbx[:nz], z)
-        ubx[:nz] = np.maximum(ubx[:nz], z)
-        par = np.concatenate([V.ravel(order="F"), [mu]])
-        lbg = np.concatenate([tr.lbg_kin, np.zeros(nl)])
-        ubg = np.concatenate([tr.ubg_kin, np.zeros(nl)])
-        state["round_start_it"] = state["it"]
-        sol = solver(x0=x0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        zn = np.array(sol["x"]).ravel()[:nz]
-        sn = score(tr, zn)
-        vn = violation(tr, zn)
-        feasible_n = vn <= FEASIBLE_TOL
-        improved = (feasible_n and sn > cur * (1 + 1e-6)) or (cur_v > FEASIBLE_TOL and vn < cur_v)
-        if feasible_n and sn > best:
-            best, best_z = sn, zn.copy()
-        if improved:
-            step = np.abs(zn - z).max()
-            z, cur, cur_v = zn, sn, vn
-            radius = min(2.0, max(radius, 1.5 * step))
-        else:
-            radius *= 0.3
-            if radius < 1e-4:
-                status = "optimal"
-                break
-        stats = solver.stats()
-        if improved and stats.get("return_status") == "Solve_Succeeded" and step < 1e-4:
-            status = "optimal"
-            break
-    if state["stop"]:
-        status = "cancelled"
-    return Outcome(best_z, best, state["it"], status, hist)
 
 
 # --- smooth spectral objective ------------------------------------------------------------------
