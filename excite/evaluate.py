@@ -267,10 +267,11 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
         t_kf = np.concatenate([n.t for n in noms])
         edges = np.linspace(0, prob.n_keyframes - 1, options.segments + 1).round().astype(int)
         v_weak = V[:, 0]
-        for k0, k1 in zip(edges[:-1], edges[1:]):
-            if k1 - k0 < 2:
+        for span in (prob.trimmed(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])):
+            if span is None:
                 continue
-            _, Lseg = _scaled(rig, information.marginal(prob.window(int(k0), int(k1))))
+            k0, k1 = span
+            _, Lseg = _scaled(rig, information.marginal(prob.window(k0, k1)))
             ws = np.linalg.eigvalsh(Lseg)
             segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]),
                                     float(max(ws[0], 0.0)) if ws[0] >= tol else 0.0,

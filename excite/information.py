@@ -71,8 +71,22 @@ class Problem:
     def bandwidth_blocks(self) -> int:
         return max(b.stride * (b.n_states - 1) for b in self.blocks)
 
+    def trimmed(self, k0: int, k1: int) -> tuple[int, int] | None:
+        """Keyframes ``k0..k1`` less a piece of fewer than 3 keyframes that a boundary between two
+        drives cuts off at either end (it carries no determinable trajectory of its own); None if
+        less than 3 keyframes remain. Drives themselves have at least 3 (:func:`build`)."""
+        starts = [s for s in self.chain_starts if k0 < s <= k1]
+        if starts and starts[0] - k0 < 3:
+            k0 = starts[0]
+        if starts and k1 - starts[-1] + 1 < 3:
+            k1 = starts[-1] - 1
+        return (k0, k1) if k1 - k0 >= 2 else None
+
     def window(self, k0: int, k1: int) -> "Problem":
-        """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with new gauges."""
+        """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with new gauges
+        (every piece of a drive in it needs 3 keyframes: see :meth:`trimmed`)."""
+        if self.trimmed(k0, k1) != (k0, k1):
+            raise EvaluationError(f"keyframes {k0}..{k1} cut a piece of fewer than 3 keyframes off a drive")
         out = []
         for b in self.blocks:
             if b.name in ("gauge", "placeholder"):
@@ -259,7 +273,7 @@ def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int) -> Piec
     for d in range(1, min(D, m) + 1):
         Hxe[d, :, :STATE_DIM] = band[d, 0]
     H_ee = np.block([[band[0, 0], Hxt[0]], [Hxt[0].T, Htt]])
-    _check_pivot(kernels.eliminate(band, Hxe, H_ee, 1, m), a + 1)
+    _check_pivot(kernels.eliminate(band, Hxe, H_ee, 1, m), a)
     return Piece(a, b, H_ee, Hxe[m].copy(), band[0, m].copy(), np.diag(Htt).copy())
 
 

@@ -11,7 +11,7 @@ import pytest
 from excite import information, so3
 from excite.errors import EvaluationError
 from excite.evaluate import Options, evaluate
-from excite.factors.base import Nominal
+from excite.factors.base import FactorBlock, Nominal
 from excite.rig import build_rig, load_rig
 from excite.vehicle import ControlProfile, Suspension, drive
 
@@ -180,6 +180,27 @@ def test_segments_of_several_drives_each_get_a_gauge(rig, general_drive):
     assert all(np.isfinite(s.weakest_mode_information) for s in rep.segments)
 
 
+@pytest.mark.parametrize("segments", [2, 4, 6, 40, 60])
+def test_segment_edges_next_to_a_drive_boundary(rig, segments):
+    """Segment edges that cut 1–2 keyframes off a drive (two drives of 61 keyframes: edges at 60
+    or 62) drop the fragment instead of failing the whole evaluation as undetermined."""
+    t = np.linspace(0, 6, 7)
+    a, b = (drive(ControlProfile(t, 5 + 2 * np.sin(t + s), 0.1 * np.sin(t / 2 + s)), rig.suspension) for s in (0, 1))
+    rep = evaluate([a, b], rig, Options(segments=segments))
+    assert len(rep.segments) >= segments - 2
+    assert all(s.t_end_s > s.t_start_s and np.isfinite(s.weakest_mode_information) for s in rep.segments)
+
+
+def test_window_trims_drive_fragments():
+    prob = information.Problem(10, 1, (), np.broadcast_to(np.eye(3), (10, 3, 3)), True, (0, 5))
+    assert prob.trimmed(0, 9) == (0, 9)
+    assert prob.trimmed(3, 9) == (5, 9)  # keyframes 3, 4: the last two of the first drive
+    assert prob.trimmed(0, 6) == (0, 4)  # keyframes 5, 6: the first two of the second drive
+    assert prob.trimmed(3, 6) is None
+    with pytest.raises(EvaluationError, match="fewer than 3 keyframes"):
+        prob.window(4, 9)
+
+
 def test_marginal_does_not_depend_on_the_gauge_fix(rig, general_drive):
     nom = Nominal.of(general_drive, rig)
     K = nom.n_keyframes
@@ -269,6 +290,18 @@ def test_undetermined_trajectory_is_a_clear_error(rig, monkeypatch):
                                  prob.R_W_B, prob.local, prob.chain_starts)
     with pytest.raises(EvaluationError, match="trajectory itself is undetermined"):
         information.marginal(no_imu)
+
+
+def test_singular_keyframe_is_named():
+    """Unit priors on every state of keyframes 100..106 but 103, inside one chunk: the error
+    names keyframe 103."""
+    first = np.array([0, 1, 2, 4, 5, 6])
+    Jx = np.broadcast_to(np.eye(9), (first.size, 9, 9)).copy()
+    Jt = np.zeros((first.size, 9, 1))
+    Jt[:, 0, 0] = 1.0
+    prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
+    with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
+        information._piece([prior], 100, 106, 1)
 
 
 # --- the report -------------------------------------------------------------------------------
