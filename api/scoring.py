@@ -347,9 +347,7 @@ def _exit_with_server(server_pid: int, period_s: float = 1.0) -> None:
         time.sleep(period_s)
         try:
             os.kill(server_pid, 0)
-        except ProcessLookupError:
-            os._exit(0)
-        except PermissionError:  # the pid now belongs to another user's process: ours is gone
+        except (ProcessLookupError, PermissionError):  # gone, or the pid now is another user's process
             os._exit(0)
 
 

@@ -541,9 +541,8 @@ def right_jacobian_inv(phi, out):
     t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
     theta = np.sqrt(t2)
     coef = 1.0 / 12.0 + t2 / 720.0 if theta < _SERIES else 1.0 / t2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
-    K = np.empty((3, 3))
-    hat(phi, K)
+    hat(phi, out)  # ½[φ]× below; [φ]×² = φφᵀ − θ²I, so no scratch matrix is needed
     for r in range(3):
         for c in range(3):
-            out[r, c] = (1.0 if r == c else 0.0) + 0.5 * K[r, c] + coef * (
-                K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c])
+            out[r, c] = (1.0 if r == c else 0.0) + 0.5 * out[r, c] + coef * (
+                phi[r] * phi[c] - (t2 if r == c else 0.0))

@@ -175,8 +175,7 @@ class Trajectory:
         from . import kernels
 
         rot = self._rot.interpolator
-        seg = np.clip(np.searchsorted(rot.x, t, side="right") - 1, 0, rot.x.size - 2)
-        return kernels.rotation_samples(t, seg, rot.x, rot.c, self._R)
+        return kernels.rotation_samples(t, _segments(rot.x, t), rot.x, rot.c, self._R)
 
     def sample(self, t: np.ndarray) -> MotionSamples:
         """The motion at times ``t`` (clipped to the drive)."""
@@ -203,9 +202,8 @@ class Trajectory:
             parts = [PPoly.from_spline(BSpline(self._acc.t, self._acc.c[:, j], self._acc.k)) for j in range(3)]
             self._acc_pp = (parts[0].x, np.stack([pp.c for pp in parts], axis=-1))
         x_acc, c_acc = self._acc_pp
-        seg_rot = np.clip(np.searchsorted(rot.x, t, side="right") - 1, 0, rot.x.size - 2)
-        seg_acc = np.clip(np.searchsorted(x_acc, t, side="right") - 1, 0, x_acc.size - 2)
-        return kernels.imu_samples(t, seg_rot, rot.x, rot.c, self._R, seg_acc, x_acc, c_acc, GRAVITY,
+        return kernels.imu_samples(t, _segments(rot.x, t), rot.x, rot.c, self._R, _segments(x_acc, t), x_acc, c_acc,
+                                   GRAVITY,
                                    np.ascontiguousarray(R_V_B, dtype=float), np.asarray(p_V_B, dtype=float))
 
     def transformed(self, R: np.ndarray, p: np.ndarray, name: str | None = None) -> "Trajectory":
@@ -228,3 +226,8 @@ class Trajectory:
         """Path length of the rear axle [m]."""
         s = self.sample(self.times(rate_hz))
         return float(np.trapezoid(np.linalg.norm(s.v_W, axis=1), s.t))
+
+
+def _segments(breaks: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Index of the piecewise-polynomial segment (between ``breaks``) that holds every time."""
+    return np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, breaks.size - 2)
