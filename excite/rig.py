@@ -151,21 +151,24 @@ class SensorConfig(_Model):
 
 
 class WheelConfig(_Model):
-    """Wheel encoders on the rear axle. ``sigma_rad``: noise of one wheel's rotation increment
-    over a keyframe interval (quantisation, slip)."""
+    """Wheel encoders on the rear axle. ``noise_density`` [rad/s/√Hz]: white noise on each
+    wheel's measured rate (quantisation, slip), so that a rotation increment over Δt has
+    σ = noise_density·√Δt whatever the keyframe rate (the gyroscope's convention, Kalibr's units)."""
 
     radius_left_m: PositiveFloat
     radius_right_m: PositiveFloat
     track_m: PositiveFloat
-    sigma_rad: PositiveFloat
+    noise_density: PositiveFloat
     estimate: bool = True
 
 
 class NonHolonomic(_Model):
-    """The rear axle neither slides sideways nor lifts: lateral and vertical velocity ≈ 0."""
+    """The rear axle neither slides sideways nor lifts: lateral and vertical velocity ≈ 0, up to a
+    white slip velocity of density ``*_noise_density`` [m/s/√Hz] (its information per second does
+    not depend on how often the constraint is applied)."""
 
-    lateral_sigma_mps: PositiveFloat = 0.05
-    vertical_sigma_mps: PositiveFloat = 0.05
+    lateral_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
+    vertical_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
 
 
 class SuspensionConfig(_Model):
@@ -236,6 +239,19 @@ class Rig:
         return Suspension(s.pitch_deg_per_mps2, s.roll_deg_per_mps2)
 
     @property
+    def wheel_increment_sigma_rad(self) -> float:
+        """σ of one wheel's rotation increment over a keyframe interval [rad]."""
+        return self.config.wheels.noise_density / math.sqrt(self.keyframe_rate_hz)
+
+    @property
+    def nonholonomic_sigma_mps(self) -> tuple[float, float]:
+        """σ of the lateral and vertical velocity of the rear axle sampled at every keyframe [m/s]:
+        a white slip of density q sampled at rate f has σ = q·√f."""
+        nh = self.config.vehicle.nonholonomic
+        f = math.sqrt(self.keyframe_rate_hz)
+        return nh.lateral_noise_density * f, nh.vertical_noise_density * f
+
+    @property
     def scored(self) -> tuple[Coordinate, ...]:
         return tuple(c for c in self.coordinates if not c.nuisance)
 
@@ -297,6 +313,7 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
         data["imu"] = _read_yaml(path)
+    _refuse_per_keyframe_noise(data)
     try:
         cfg = RigConfig.model_validate(data)
     except ValidationError as exc:
@@ -338,6 +355,33 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     if not coords:
         raise RigError("rig: estimates no parameter at all")
     return Rig(cfg, tuple(coords), float(kf))
+
+
+def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
+    """Rigs written before the noise densities gave wheel and slip noise per keyframe, which made
+    the answer drift with the keyframe rate: name the replacement and its value at this rig's
+    keyframe rate (the conversion that keeps the old numbers)."""
+    kf = data.get("keyframe_rate_hz")
+    kf_text = f"{kf:g} Hz" if isinstance(kf, (int, float)) and not isinstance(kf, bool) and kf > 0 else None
+    wheels = data.get("wheels")
+    if isinstance(wheels, dict) and "sigma_rad" in wheels:
+        v = wheels["sigma_rad"]
+        conv = (f"; at this rig's {kf_text} keyframes, sigma_rad: {v:g} is noise_density: {v * math.sqrt(kf):.4g}"
+                if kf_text and isinstance(v, (int, float)) else " (noise_density = sigma_rad · √keyframe_rate_hz)")
+        raise RigError("wheels.sigma_rad: per-keyframe wheel noise is replaced by wheels.noise_density "
+                       f"[rad/s/√Hz], independent of the keyframe rate{conv}")
+    nh = (data.get("vehicle") or {}).get("nonholonomic") if isinstance(data.get("vehicle"), dict) else None
+    if isinstance(nh, dict):
+        for axis in ("lateral", "vertical"):
+            old = f"{axis}_sigma_mps"
+            if old in nh:
+                v = nh[old]
+                conv = (f"; at this rig's {kf_text} keyframes, {old}: {v:g} is {axis}_noise_density: "
+                        f"{v / math.sqrt(kf):.4g}" if kf_text and isinstance(v, (int, float))
+                        else f" ({axis}_noise_density = {old} / √keyframe_rate_hz)")
+                raise RigError(f"vehicle.nonholonomic.{old}: per-keyframe slip is replaced by "
+                               f"vehicle.nonholonomic.{axis}_noise_density [m/s/√Hz], independent of the "
+                               f"keyframe rate{conv}")
 
 
 def _read_yaml(path: Path) -> Any:

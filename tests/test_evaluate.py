@@ -148,10 +148,10 @@ def _scaled_noise(rig, factor):
     for s in data["sensors"]:
         s["noise"]["rotation_sigma_deg"] *= factor
         s["noise"]["translation_sigma_m"] *= factor
-    data["wheels"]["sigma_rad"] *= factor
+    data["wheels"]["noise_density"] *= factor
     nh = data["vehicle"]["nonholonomic"]
-    nh["lateral_sigma_mps"] *= factor
-    nh["vertical_sigma_mps"] *= factor
+    nh["lateral_noise_density"] *= factor
+    nh["vertical_noise_density"] *= factor
     return build_rig(data)
 
 

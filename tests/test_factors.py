@@ -171,13 +171,13 @@ def test_wheel_jacobian(rig, nom):
         Ri, pi, _ = _perturb(nom.R[i], nom.p[i], nom.v[i], d[:9])
         Rj, pj, _ = _perturb(nom.R[j], nom.p[j], nom.v[j], d[9:])
         return wheel.increments(Ri, pi, Rj, pj, R_BA[i], R_BA[j], p_BV, wc.radius_left_m, wc.radius_right_m,
-                                wc.track_m) / wc.sigma_rad
+                                wc.track_m) / rig.wheel_increment_sigma_rad
 
     _assert_close(blk.Jx[f], _fd(r_x, 18), 1e-6)
 
     def r_t(d):
         return wheel.increments(nom.R[i], nom.p[i], nom.R[j], nom.p[j], R_BA[i], R_BA[j], p_BV,
-                                wc.radius_left_m + d[0], wc.radius_right_m + d[1], wc.track_m + d[2]) / wc.sigma_rad
+                                wc.radius_left_m + d[0], wc.radius_right_m + d[1], wc.track_m + d[2]) / rig.wheel_increment_sigma_rad
 
     cols = [rig.index(f"wheel.{k}") for k in ("radius_left", "radius_right", "track")]
     _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, cols], _fd(r_t, 3), 1e-6)
@@ -206,12 +206,11 @@ def test_wheel_increments_match_wheel_speeds(rig, nom):
 
 def test_nonholonomic_jacobian(rig, nom):
     blk = nonholonomic.blocks(nom, rig)
-    nh = rig.config.vehicle.nonholonomic
     k = 19
     R_BV = nom.R_V_B.T
     p_BV = -R_BV @ nom.p_V_B
     R_BA = R_BV @ nom.R_V_A[k]
-    sig = np.array([nh.lateral_sigma_mps, nh.vertical_sigma_mps])
+    sig = np.array(rig.nonholonomic_sigma_mps)
 
     def r_x(d):
         R, _, v = _perturb(nom.R[k], nom.p[k], nom.v[k], d)

@@ -189,7 +189,7 @@ def test_noise_free_calibration_returns_the_truth(rig):
 # --- the simulator's noise -------------------------------------------------------------------
 
 def test_simulated_noise_levels(rig):
-    """IMU white noise σ = density·√rate, wheel increments σ = sigma_rad (white + quantisation),
+    """IMU white noise σ = density·√rate, wheel increments σ = noise_density/√rate (white + quantisation),
     bias random walk only when asked."""
     traj = drive(figure_eight(20.0), rig.suspension)
     cal = Calibration.nominal(rig)
@@ -200,7 +200,7 @@ def test_simulated_noise_levels(rig):
     assert np.std(noisy.accel - clean.accel) == pytest.approx(ic.accelerometer_noise_density * 10.0, rel=0.03)
     assert np.array_equal(noisy.wheel_ticks, np.round(noisy.wheel_ticks))
     inc_err = noisy.wheel_increments - clean.wheel_increments
-    assert np.std(inc_err) == pytest.approx(rig.config.wheels.sigma_rad, rel=0.06)
+    assert np.std(inc_err) == pytest.approx(rig.wheel_increment_sigma_rad, rel=0.06)
     assert np.ptp(noisy.truth.gyro_bias, axis=0).max() == 0.0
     rw = simulate(traj, rig, cal, np.random.default_rng(5), SimulationSettings(bias_random_walk=True))
     assert np.ptp(rw.truth.gyro_bias, axis=0).min() > 0.0

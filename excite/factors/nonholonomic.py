@@ -21,7 +21,6 @@ from .wheel import _geometry
 
 def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     """Whitened Jacobians of the constraint at every keyframe."""
-    nh = rig.config.vehicle.nonholonomic
     R, v = nom.R, nom.v
     _, _, R_BA = _geometry(nom)
     K = nom.n_keyframes
@@ -30,7 +29,7 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     J = np.zeros((K, 3, 9))
     J[:, :, 0:3] = R_AB @ so3.hat(v_body)
     J[:, :, 6:9] = R_AB @ np.swapaxes(R, 1, 2)
-    Jx = J[:, 1:3] / np.array([nh.lateral_sigma_mps, nh.vertical_sigma_mps])[None, :, None]
+    Jx = J[:, 1:3] / np.array(rig.nonholonomic_sigma_mps)[None, :, None]
     return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, 0)), np.zeros(0, dtype=int))
 
 

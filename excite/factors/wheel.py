@@ -7,7 +7,8 @@ suspension tilt):
     Δψ = e_zᵀ Log(R_W_A,iᵀ R_W_A,j),   Δs = m(Δψ)ᵀ R_W_A,iᵀ (p_V,j − p_V,i),   m = (cos Δψ/2, sin Δψ/2, 0)
 
 (``m`` points along the mean heading, so Δs is the chord of the arc). The left and right wheels
-turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with noise ``sigma_rad``.
+turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with noise
+``noise_density·√Δt`` (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
         return None
     _, p_BV, R_BA = _geometry(nom)
     Jx, Jt = _jacobians(nom.R, nom.p, np.ascontiguousarray(R_BA), p_BV, wc.radius_left_m, wc.radius_right_m,
-                        wc.track_m, wc.sigma_rad, wc.estimate)
+                        wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate)
     cols = (theta_columns(rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"]) if wc.estimate
             else np.zeros(0, dtype=int))
     return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)

@@ -34,12 +34,11 @@ def coarse_rig(rig: Rig, keyframe_rate_hz: float = 2.0, imu_substeps: int = 4) -
     """A copy of ``rig`` at ``keyframe_rate_hz`` with every sensor at that rate and
     ``imu_substeps`` IMU samples per keyframe interval.
 
-    Relative-pose, wheel-increment and non-holonomic σ grow with √(old rate / new rate): chaining
-    the fine measurements over one coarse interval has about that noise. IMU noise densities are
-    kept (preintegration accounts for the rate).
+    Relative-pose σ grow with √(old rate / new rate): chaining the fine measurements over one
+    coarse interval has about that noise. The IMU, wheel and slip noise are densities: they are
+    kept (each factor converts its density to the coarse interval).
     """
     c = rig.config.model_dump()
-    ratio = rig.keyframe_rate_hz / keyframe_rate_hz
     sensors = []
     for s in c["sensors"]:
         f = float(np.sqrt(s["rate_hz"] / keyframe_rate_hz))
@@ -48,11 +47,6 @@ def coarse_rig(rig: Rig, keyframe_rate_hz: float = 2.0, imu_substeps: int = 4) -
             "translation_sigma_m": s["noise"]["translation_sigma_m"] * f}))
     changes = dict(keyframe_rate_hz=keyframe_rate_hz, sensors=sensors,
                    imu=dict(c["imu"], update_rate=keyframe_rate_hz * imu_substeps))
-    if c["wheels"] is not None:
-        changes["wheels"] = dict(c["wheels"], sigma_rad=c["wheels"]["sigma_rad"] * np.sqrt(ratio))
-    veh = dict(c["vehicle"])
-    veh["nonholonomic"] = {k: v * np.sqrt(ratio) for k, v in veh["nonholonomic"].items()}
-    changes["vehicle"] = veh
     return rig.with_config(**changes)
 
 
@@ -243,7 +237,6 @@ def _geometry(rig: Rig):
 
 def _nhc_function(rig: Rig) -> ca.Function:
     """H_xx contribution (vec 9×9, local state) of the non-holonomic constraint at a keyframe."""
-    nh = rig.config.vehicle.nonholonomic
     R_BV, _ = _geometry(rig)
     Rv = ca.SX.sym("R", 9)
     v = ca.SX.sym("v", 3)
@@ -256,7 +249,7 @@ def _nhc_function(rig: Rig) -> ca.Function:
     Jv = ca.mtimes(R_AB, R.T)
     # local: δv_world = R δv_b − R [v_b]× δθ
     Jl = ca.horzcat(Jr - ca.mtimes(ca.mtimes(Jv, R), _hat(vb)), ca.mtimes(Jv, R), ca.SX(3, 3))
-    Jl = Jl[1:3, :] / ca.DM([nh.lateral_sigma_mps, nh.vertical_sigma_mps])
+    Jl = Jl[1:3, :] / ca.DM(list(rig.nonholonomic_sigma_mps))
     return ca.Function("nhc", [Rv, v, RVAv], [ca.vec(ca.mtimes(Jl.T, Jl))])
 
 
@@ -358,7 +351,7 @@ def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
         Jpsi = Jphi[2, :]
         Js = ca.mtimes(m.T, Jc) + ca.dot(dm, c) * Jpsi
         rl, rr, b = wc.radius_left_m, wc.radius_right_m, wc.track_m
-        Jx = ca.vertcat((Js - 0.5 * b * Jpsi) / rl, (Js + 0.5 * b * Jpsi) / rr) / wc.sigma_rad
+        Jx = ca.vertcat((Js - 0.5 * b * Jpsi) / rl, (Js + 0.5 * b * Jpsi) / rr) / rig.wheel_increment_sigma_rad
         Jt = ca.SX(2, P)
         if wc.estimate:
             il, ir, it = (rig.index(f"wheel.{k}") for k in ("radius_left", "radius_right", "track"))
@@ -366,7 +359,7 @@ def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
             Jt[1, ir] = -(ds + 0.5 * b * dpsi) / rr**2
             Jt[0, it] = -0.5 * dpsi / rl
             Jt[1, it] = 0.5 * dpsi / rr
-        world.append((Jx, Jt / wc.sigma_rad))
+        world.append((Jx, Jt / rig.wheel_increment_sigma_rad))
 
     # exteroceptive relative poses (excite.factors.odometry), stride 1
     for sensor in rig.config.sensors:

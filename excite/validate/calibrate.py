@@ -231,13 +231,12 @@ class _Problem:
         cov = imu_factor.preintegration(nom, ic.gyroscope_noise_density, ic.accelerometer_noise_density)["cov"]
         L = np.linalg.cholesky(cov)
         r_imu = np.linalg.solve(L, imu_residuals(X, pre, self.dT)[:, :, None])[..., 0]
-        nh = cfg.vehicle.nonholonomic
         r_nh = (nonholonomic_residuals(X, omega, self.R_BA, self.p_BV) - d.slip) / np.array(
-            [nh.lateral_sigma_mps, nh.vertical_sigma_mps])
+            rig.nonholonomic_sigma_mps)
         parts = [r_imu.ravel(), r_nh.ravel()]
         if cfg.wheels is not None:
-            wc = cfg.wheels
-            parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel) - self.inc) / wc.sigma_rad).ravel())
+            parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel) - self.inc)
+                          / rig.wheel_increment_sigma_rad).ravel())
         for s in self.sensors:
             od = d.odometry[s.name]
             R_BS, p_BS = cal.extrinsics[s.name]

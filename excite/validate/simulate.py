@@ -330,10 +330,10 @@ def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Gene
         inc = np.stack([wheel.increments(nom.R[k], nom.p[k], nom.R[k + 1], nom.p[k + 1], R_BA[k], R_BA[k + 1],
                                          p_BV, rl, rr, track) for k in range(K - 1)])
         q = 2 * np.pi / tpr if tpr else 0.0
-        white2 = wc.sigma_rad**2 - q**2 / 6.0  # an increment differences two quantisation errors
+        white2 = rig.wheel_increment_sigma_rad**2 - q**2 / 6.0  # an increment differences two quantisation errors
         if white2 <= 0:
-            raise ValidateError(f"wheel quantisation of {tpr} ticks/rev alone exceeds wheels.sigma_rad "
-                                f"= {wc.sigma_rad:g} rad: use more ticks per revolution")
+            raise ValidateError(f"wheel quantisation of {tpr} ticks/rev alone exceeds the wheel noise "
+                                f"per keyframe ({rig.wheel_increment_sigma_rad:g} rad): use more ticks per revolution")
         if noisy:
             inc = inc + rng.normal(0.0, np.sqrt(white2), inc.shape)
         angle = np.vstack([np.zeros((1, 2)), np.cumsum(inc, axis=0)])
@@ -343,10 +343,9 @@ def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Gene
         else:
             ticks = angle
 
-    nh = cfg.vehicle.nonholonomic
     slip = np.zeros((K, 2))
     if noisy and settings.slip_noise:
-        slip = rng.normal(0.0, 1.0, (K, 2)) * np.array([nh.lateral_sigma_mps, nh.vertical_sigma_mps])
+        slip = rng.normal(0.0, 1.0, (K, 2)) * np.array(rig.nonholonomic_sigma_mps)
 
     return SensorData(t=nom.t, t_imu=t_imu, imu_per_keyframe=n, gyro=gyro, accel=accel, odometry=odo,
                       wheel_ticks=ticks, ticks_per_rev=tpr, slip=slip, R_V_A=nom.R_V_A, R_V_B=R_V_B,
