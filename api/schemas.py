@@ -230,9 +230,11 @@ class Report(Out):
     rank: int
     nullity: int
     rank_threshold: float
+    rank_normalisation: str
     condition_number: float | None
     spectrum_scaled: list[float]
     spectrum_unscaled: list[float]
+    spectrum_normalised: list[float]
     column_map: list[Column]
     parameters: list[ParameterOut]
     weak_modes: list[WeakModeOut]

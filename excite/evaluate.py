@@ -23,13 +23,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from . import advice, information
+from . import advice, information, spectrum
 from .errors import EvaluationError
 from .factors.base import Nominal
 from .rig import Rig
 from .trajectory import Trajectory
 
-REPORT_VERSION = 1
+REPORT_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -38,15 +38,15 @@ class Options:
 
     ``segments``: number of equal route segments whose own information is reported (0: none).
     ``weak_below``: scaled eigenvalue under which a mode is reported as weak (1 = its σ reaches
-    the targets). ``rank_rtol``: eigenvalues of ``SΛS`` below ``rank_rtol · max diag(S H_θθ S)``
-    count as zero; the Schur complement is accurate to ~1e-13 of that scale, so 1e-10 separates
-    numerical zeros from weak but real information (which is what a calibration must fight for).
+    the targets). ``rank_rtol``: eigenvalues of the normalised information
+    ``diag(H_θθ)^-½ Λ_θ diag(H_θθ)^-½`` below it are unobservable directions (see
+    :mod:`excite.spectrum`: a property of the drive and sensors, not of the targets).
     ``max_modes``: at most this many weak modes are listed.
     """
 
     segments: int = 0
     weak_below: float = 1.0
-    rank_rtol: float = 1e-10
+    rank_rtol: float = spectrum.RANK_RTOL
     max_modes: int = 12
 
     def __post_init__(self) -> None:
@@ -101,10 +101,12 @@ class Report:
     passed: bool
     rank: int
     nullity: int
-    rank_threshold: float
+    rank_threshold: float  # on spectrum_normalised
+    rank_normalisation: str
     condition_number: float | None
     spectrum_scaled: list[float]
     spectrum_unscaled: list[float]
+    spectrum_normalised: list[float]
     column_map: list[dict[str, Any]]
     parameters: list[ParameterResult]
     weak_modes: list[WeakMode]
@@ -113,9 +115,15 @@ class Report:
     timings_ms: dict[str, float]
     information: np.ndarray = field(repr=False)  # Λ_θ over the scored coordinates (SI units)
     information_scaled: np.ndarray = field(repr=False)  # S Λ_θ S
+    eigenvectors_scaled: np.ndarray = field(repr=False)  # columns, as spectrum_scaled: the null space first
     _drives: tuple[list[Trajectory], Rig] | None = field(default=None, repr=False)  # for the export
     _all_columns: list[dict[str, Any]] = field(default_factory=list, repr=False)  # incl. nuisances
     _information_all: np.ndarray | None = field(default=None, repr=False)  # Λ over all columns
+
+    @property
+    def null_space(self) -> np.ndarray:
+        """Orthonormal basis of the unobservable directions in scaled coordinates (p × nullity)."""
+        return self.eigenvectors_scaled[:, :self.nullity]
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON report (finite floats, None for ∞/undefined)."""
@@ -131,9 +139,11 @@ class Report:
             "rank": self.rank,
             "nullity": self.nullity,
             "rank_threshold": self.rank_threshold,
+            "rank_normalisation": self.rank_normalisation,
             "condition_number": self.condition_number,
             "spectrum_scaled": self.spectrum_scaled,
             "spectrum_unscaled": self.spectrum_unscaled,
+            "spectrum_normalised": self.spectrum_normalised,
             "column_map": self.column_map,
             "parameters": [p.__dict__ for p in self.parameters],
             "weak_modes": [
@@ -214,35 +224,22 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
 
     coords = list(rig.scored)
     S = np.array([c.target for c in coords])
-    # the scale of the data's information before marginalisation sets the numerical zero
-    S_all = np.array([c.target if not c.nuisance else 0.0 for c in rig.coordinates])
-    scale = float(max((drives.diag_tt * S_all**2).max(), 1e-300))
-    tol = options.rank_rtol * scale
-    w, V = np.linalg.eigh(Ls)
-    null = w < tol
-    nullity = int(null.sum())
-    score = float(max(w[0], 0.0)) if nullity == 0 else 0.0
-    cond = float(w[-1] / w[0]) if nullity == 0 and w[0] > 0 else None
+    scored = np.array([not c.nuisance for c in rig.coordinates])
+    before = drives.diag_tt[scored]
+    spec = spectrum.analyse(Lam, before, S, options.rank_rtol)
+    w, V = spec.values, spec.vectors
+    null = np.arange(w.size) < spec.nullity
+    sigma = [None if np.isnan(x) else float(x) for x in spec.sigma]
     w_unscaled = np.linalg.eigvalsh(Lam)
-
-    # Cramér–Rao σ: a parameter with any weight on the null space is unobservable.
-    null_weight = (V[:, null] ** 2).sum(axis=1)
-    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    sig_scaled = np.sqrt((V**2) @ inv_w)
-    sigma = [None if null_weight[i] > 1e-6 else float(sig_scaled[i] * S[i]) for i in range(len(coords))]
 
     with_prior: list[float | None] = [None] * len(coords)
     score_with_priors = None
     prior_sig = np.array([np.inf if c.prior_sigma is None else c.prior_sigma for c in coords])
     if np.isfinite(prior_sig).any():
-        Lp = Ls + np.diag((S / prior_sig) ** 2)
-        wp, Vp = np.linalg.eigh(Lp)
-        nullp = wp < tol
-        score_with_priors = float(max(wp[0], 0.0)) if not nullp.any() else 0.0
-        invp = np.where(nullp, 0.0, 1.0 / np.where(nullp, 1.0, wp))
-        sp_ = np.sqrt((Vp**2) @ invp)
-        nwp = (Vp[:, nullp] ** 2).sum(axis=1)
-        with_prior = [None if nwp[i] > 1e-6 else float(sp_[i] * S[i]) for i in range(len(coords))]
+        prior = 1.0 / prior_sig**2
+        spec_p = spectrum.analyse(Lam + np.diag(prior), before + prior, S, options.rank_rtol)
+        score_with_priors = spec_p.score
+        with_prior = [None if np.isnan(x) else float(x) for x in spec_p.sigma]
 
     params = [ParameterResult(c.name, c.unit, sigma[i], c.target,
                               sigma[i] is not None and sigma[i] <= c.target, with_prior[i])
@@ -271,10 +268,10 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
             if span is None:
                 continue
             k0, k1 = span
-            _, Lseg = _scaled(rig, information.marginal(prob.window(k0, k1)))
-            ws = np.linalg.eigvalsh(Lseg)
-            segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]),
-                                    float(max(ws[0], 0.0)) if ws[0] >= tol else 0.0,
+            win = prob.window(k0, k1)
+            Lam_seg, Lseg = _scaled(rig, information.marginal(win))
+            seg = spectrum.analyse(Lam_seg, information.theta_diagonal(win)[scored], S, options.rank_rtol)
+            segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]), seg.score,
                                     float(v_weak @ Lseg @ v_weak),
                                     {c.name: float(Lseg[i, i]) for i, c in enumerate(coords)}))
     t5 = time.perf_counter()
@@ -286,11 +283,13 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     return Report(
         route=" + ".join(t.name for t in trajs), rig=rig.name,
         duration_s=drives.duration_s, length_m=drives.length_m, n_keyframes=drives.n_keyframes,
-        score=score, passed=all(p.ok for p in params), rank=len(coords) - nullity, nullity=nullity,
-        rank_threshold=float(tol), condition_number=cond,
+        score=spec.score, passed=all(p.ok for p in params), rank=spec.rank, nullity=spec.nullity,
+        rank_threshold=spec.threshold, rank_normalisation=spectrum.NORMALISATION,
+        condition_number=spec.condition,
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],
+        spectrum_normalised=[float(x) for x in spec.normalised],
         column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
-        information=Lam, information_scaled=Ls, _drives=(trajs, rig), _all_columns=all_columns,
+        information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig), _all_columns=all_columns,
         _information_all=Lam_all,
     )

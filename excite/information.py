@@ -393,6 +393,16 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
         thread_ms={"sample": float(spent[0]), "linearise": float(spent[1]), "eliminate": float(spent[2])})
 
 
+def theta_diagonal(problem: Problem) -> np.ndarray:
+    """diag H_θθ of a linearised problem: each calibration coordinate's information before the
+    trajectory is eliminated (the normalisation of the rank test, :mod:`excite.spectrum`)."""
+    out = np.zeros(problem.n_params)
+    for b in problem.blocks:
+        if b.cols.size:
+            out += np.bincount(b.cols, weights=(b.Jt ** 2).sum(axis=(0, 1)), minlength=problem.n_params)
+    return out
+
+
 def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:
     """The whitened Jacobian ``J`` (sparse, columns: states then θ) and a label per row."""
     rows, cols, vals, labels = [], [], [], []

@@ -128,12 +128,12 @@ def plot_route(ax: Axes, report: Report, traj: Trajectory, parameter: str | None
 
 
 def plot_spectrum(ax: Axes, report: Report) -> None:
-    """Eigenvalues of S·Λ·S, weakest first (log), with the pass line and the rank threshold."""
+    """Eigenvalues of S·Λ·S, weakest first (log), with the pass line; the unobservable directions
+    (found by the rank test on the normalised information) drawn at a floor below the rest."""
     w = np.asarray(report.spectrum_scaled, dtype=float)
     k = np.arange(1, w.size + 1)
-    thr = report.rank_threshold
-    floor = thr / 100.0
-    null = w < thr
+    null = k <= report.nullity
+    floor = min(1.0, float(w[~null].min()) if (~null).any() else 1.0) / 100.0
     shown = np.where(null, np.maximum(w, floor), w)
     ok = ~null & (w >= 1.0)
     weak = ~null & (w < 1.0)
@@ -143,13 +143,11 @@ def plot_spectrum(ax: Axes, report: Report) -> None:
     if n_null:
         names = ", ".join(m.coordinates[0][0] for m in report.weak_modes[:n_null])
         ax.semilogy(k[null], shown[null], "x", color=_NULL, ms=8, mew=2,
-                    label="unobservable (λ < threshold; ≤ 0 drawn at threshold/100)")
+                    label="unobservable (rank test; drawn at the floor)")
         ax.annotate(names, (n_null, floor), xytext=(10, 0), textcoords="offset points", va="center",
                     fontsize=8, color=_NULL)
     ax.axhline(1.0, color=_OK, ls="--", lw=1.2)
     ax.text(w.size + 0.5, 1.0, " pass: λ = 1", va="bottom", ha="right", fontsize=8, color=_OK)
-    ax.axhline(thr, color=_NULL, ls=":", lw=1.2)
-    ax.text(w.size + 0.5, thr, f" rank threshold {thr:.2g}", va="bottom", ha="right", fontsize=8, color=_NULL)
     # the weakest observable modes by their dominant coordinates, in the legend (labels on the
     # points would collide: weak eigenvalues come in close pairs)
     for kk, mode in enumerate(report.weak_modes[n_null:n_null + 3], start=n_null + 1):

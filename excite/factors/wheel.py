@@ -4,9 +4,13 @@ The rear axle (origin of V) travels ``Δs`` forward and turns ``Δψ`` about the
 keyframes i and j, both taken in the road-aligned axle frame A (the body frame without its
 suspension tilt):
 
-    Δψ = e_zᵀ Log(R_W_A,iᵀ R_W_A,j),   Δs = m(Δψ)ᵀ R_W_A,iᵀ (p_V,j − p_V,i),   m = (cos Δψ/2, sin Δψ/2, 0)
+    Δψ = e_zᵀ Log(R_W_A,iᵀ R_W_A,j),   Δs = a(Δψ) · m(Δψ)ᵀ R_W_A,iᵀ (p_V,j − p_V,i)
 
-(``m`` points along the mean heading, so Δs is the chord of the arc). The left and right wheels
+with ``m = (cos Δψ/2, sin Δψ/2, 0)`` along the mean heading (``mᵀc`` is the chord) and
+``a(Δψ) = (Δψ/2) / sin(Δψ/2)`` the ratio of a circular arc to its chord: wheels roll along the arc.
+(With the chord, a constant-curvature drive — whose radii/track combination is exactly
+undetermined — came out weakly determined by an O(Δψ²) artefact that shrank with the keyframe
+rate.) The left and right wheels
 turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with noise
 ``noise_density·√Δt`` (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`).
 """
@@ -41,6 +45,17 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
     return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
 
 
+@nb.njit(cache=True, inline="always")
+def arc_ratio(x):
+    """``a(x) = (x/2)/sin(x/2)`` (arc over chord of a turn by x) and its derivative ``a′(x)``."""
+    h = 0.5 * x
+    if abs(h) < 1e-3:
+        h2 = h * h
+        return 1.0 + h2 / 6.0 + 7.0 * h2 * h2 / 360.0, 0.5 * (h / 3.0 + 7.0 * h2 * h / 90.0)
+    s, c = np.sin(h), np.cos(h)
+    return h / s, 0.5 * (s - h * c) / (s * s)
+
+
 @nb.njit(cache=True, nogil=True)
 def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
     """Per interval i → j, with ``R_A = R R_BA``, ``φ = Log(R_A,iᵀ R_A,j)`` (Δψ = φ_z),
@@ -49,7 +64,8 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
         ∂φ/∂θ_i = −J_l⁻¹(φ) R_BA,iᵀ        ∂φ/∂θ_j = J_r⁻¹(φ) R_BA,jᵀ
         ∂c/∂θ_i = R_BA,iᵀ [R_iᵀ(p_j + R_j p_BV − p_i)]×    ∂c/∂p_i = −R_A,iᵀ
         ∂c/∂θ_j = −R_A,iᵀ R_j [p_BV]×       ∂c/∂p_j = R_A,iᵀ
-        ∂Δs = mᵀ ∂c + (m′ᵀ c) ∂Δψ,   m′ = ½(−sin Δψ/2, cos Δψ/2, 0)
+        ∂(mᵀc) = mᵀ ∂c + (m′ᵀ c) ∂Δψ,   m′ = ½(−sin Δψ/2, cos Δψ/2, 0)
+        ∂Δs = a ∂(mᵀc) + a′ (mᵀc) ∂Δψ
 
     and the wheel angles ``(Δs ∓ ½ b Δψ)/r`` differentiated in the states and in (r_l, r_r, b);
     everything divided by σ."""
@@ -105,10 +121,12 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
         kernels.mul(X, hp, Y)
         kernels.put(Jc, 0, 9, Y, -1.0)
         cs, sn = np.cos(0.5 * dpsi), np.sin(0.5 * dpsi)
-        ds = cs * cc[0] + sn * cc[1]
+        chord = cs * cc[0] + sn * cc[1]
         dmc = 0.5 * (-sn * cc[0] + cs * cc[1])
+        ar, dar = arc_ratio(dpsi)
+        ds = ar * chord
         for k in range(18):
-            Js[k] = cs * Jc[0, k] + sn * Jc[1, k] + dmc * Jpsi[k]
+            Js[k] = ar * (cs * Jc[0, k] + sn * Jc[1, k] + dmc * Jpsi[k]) + dar * chord * Jpsi[k]
             Jx[n, 0, k] = (Js[k] - 0.5 * track * Jpsi[k]) / (rl * sigma)
             Jx[n, 1, k] = (Js[k] + 0.5 * track * Jpsi[k]) / (rr * sigma)
         if estimate:
@@ -120,9 +138,13 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
 
 
 def increments(Ri, pi, Rj, pj, R_BA_i, R_BA_j, p_BV, radius_left, radius_right, track) -> np.ndarray:
-    """Left and right wheel rotation [rad] between two body poses (the nonlinear model)."""
+    """Left and right wheel rotation [rad] between two body poses (the nonlinear model); poses
+    may be stacks (N,3,3), (N,3), giving (N, 2)."""
     RAi, RAj = Ri @ R_BA_i, Rj @ R_BA_j
-    dpsi = so3.log(RAi.T @ RAj)[2]
-    c = RAi.T @ (pj + Rj @ p_BV - pi - Ri @ p_BV)
-    ds = np.cos(dpsi / 2) * c[0] + np.sin(dpsi / 2) * c[1]
-    return np.array([(ds - 0.5 * track * dpsi) / radius_left, (ds + 0.5 * track * dpsi) / radius_right])
+    dpsi = so3.log(np.swapaxes(RAi, -1, -2) @ RAj)[..., 2]
+    c = np.einsum("...ji,...j->...i", RAi, pj + Rj @ p_BV - pi - Ri @ p_BV)
+    h = 0.5 * dpsi
+    safe = np.where(np.abs(h) < 1e-3, 1.0, h)
+    arc = np.where(np.abs(h) < 1e-3, 1.0 + h * h / 6.0 + 7.0 * h**4 / 360.0, safe / np.sin(safe))
+    ds = arc * (np.cos(h) * c[..., 0] + np.sin(h) * c[..., 1])
+    return np.stack([(ds - 0.5 * track * dpsi) / radius_left, (ds + 0.5 * track * dpsi) / radius_right], axis=-1)

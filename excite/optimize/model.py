@@ -341,7 +341,13 @@ def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
         c = ca.mtimes(RAi.T, pVj - pVi)
         m = ca.vertcat(ca.cos(dpsi / 2), ca.sin(dpsi / 2), 0)
         dm = 0.5 * ca.vertcat(-ca.sin(dpsi / 2), ca.cos(dpsi / 2), 0)
-        ds = ca.dot(m, c)
+        small = ca.fabs(dpsi) < 2e-3
+        h = ca.if_else(small, 1.0, 0.5 * dpsi)
+        arc = ca.if_else(small, 1.0 + dpsi**2 / 24.0 + 7.0 * dpsi**4 / 5760.0, h / ca.sin(h))
+        darc = ca.if_else(small, dpsi / 12.0 + 7.0 * dpsi**3 / 1440.0,
+                          0.5 * (ca.sin(h) - h * ca.cos(h)) / ca.sin(h)**2)
+        chord = ca.dot(m, c)
+        ds = arc * chord
         Jl_inv = _right_jacobian_inv(-phi)
         Jr_inv = _right_jacobian_inv(phi)
         Jphi = ca.horzcat(-ca.mtimes(Jl_inv, R_BA_i.T), Z, Z, ca.mtimes(Jr_inv, R_BA_j.T), Z, Z)
@@ -349,7 +355,7 @@ def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
         Jc = ca.horzcat(ca.mtimes(R_BA_i.T, _hat(q)), -RAi.T, Z,
                         -ca.mtimes(ca.mtimes(RAi.T, Rj), _hat(pBV)), RAi.T, Z)
         Jpsi = Jphi[2, :]
-        Js = ca.mtimes(m.T, Jc) + ca.dot(dm, c) * Jpsi
+        Js = arc * (ca.mtimes(m.T, Jc) + ca.dot(dm, c) * Jpsi) + darc * chord * Jpsi
         rl, rr, b = wc.radius_left_m, wc.radius_right_m, wc.track_m
         Jx = ca.vertcat((Js - 0.5 * b * Jpsi) / rl, (Js + 0.5 * b * Jpsi) / rr) / rig.wheel_increment_sigma_rad
         Jt = ca.SX(2, P)

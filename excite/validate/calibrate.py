@@ -31,6 +31,7 @@ from scipy.linalg.lapack import dtbtrs
 
 from .. import information, so3
 from ..factors import imu as imu_factor
+from ..factors import wheel
 from ..factors.base import Nominal
 from ..rig import Rig
 from ..trajectory import GRAVITY
@@ -166,11 +167,8 @@ def odometry_residuals(X: States, omega: np.ndarray, frames: np.ndarray, R_BS: n
 def wheel_increments(X: States, R_BA: np.ndarray, p_BV: np.ndarray, radius_left: float, radius_right: float,
                      track: float) -> np.ndarray:
     """:func:`excite.factors.wheel.increments` of every keyframe interval (N, 2)."""
-    RAi, RAj = X.R[:-1] @ R_BA[:-1], X.R[1:] @ R_BA[1:]
-    dpsi = so3.log(np.swapaxes(RAi, 1, 2) @ RAj)[:, 2]
-    c = np.einsum("nji,nj->ni", RAi, X.p[1:] + X.R[1:] @ p_BV - X.p[:-1] - X.R[:-1] @ p_BV)
-    ds = np.cos(dpsi / 2) * c[:, 0] + np.sin(dpsi / 2) * c[:, 1]
-    return np.stack([(ds - 0.5 * track * dpsi) / radius_left, (ds + 0.5 * track * dpsi) / radius_right], axis=1)
+    return wheel.increments(X.R[:-1], X.p[:-1], X.R[1:], X.p[1:], R_BA[:-1], R_BA[1:], p_BV,
+                            radius_left, radius_right, track)
 
 
 def nonholonomic_residuals(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray) -> np.ndarray:
@@ -232,11 +230,11 @@ class _Problem:
         L = np.linalg.cholesky(cov)
         r_imu = np.linalg.solve(L, imu_residuals(X, pre, self.dT)[:, :, None])[..., 0]
         r_nh = (nonholonomic_residuals(X, omega, self.R_BA, self.p_BV) - d.slip) / np.array(
-            rig.nonholonomic_sigma_mps)
+            self.rig.nonholonomic_sigma_mps)
         parts = [r_imu.ravel(), r_nh.ravel()]
         if cfg.wheels is not None:
             parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel) - self.inc)
-                          / rig.wheel_increment_sigma_rad).ravel())
+                          / self.rig.wheel_increment_sigma_rad).ravel())
         for s in self.sensors:
             od = d.odometry[s.name]
             R_BS, p_BS = cal.extrinsics[s.name]

@@ -194,8 +194,8 @@ def statistics(report: Report, rig: Rig, trials: list[Trial], settings: MonteCar
                                      float(e.std(ddof=1) / np.sqrt(N))))
     S = np.array([c.target for c in rig.scored])
     Z, Z0 = E / S, E0 / S
-    w, V = np.linalg.eigh(report.information_scaled)
-    null = w < report.rank_threshold
+    w, V = np.asarray(report.spectrum_scaled), report.eigenvectors_scaled
+    null = np.arange(w.size) < report.nullity
     Vo, Vn = V[:, ~null], V[:, null]
     # NEES on the observable complement (all of it on a full-rank drive)
     nees = ((Z @ Vo) ** 2 * w[~null]).sum(axis=1)
