@@ -18,7 +18,9 @@ none: normalising it would make rounding noise look like information.
 
 The score and σ stay in target units: ``S Λ S`` with ``S = diag(targets)``, restricted to the
 observable subspace (the complement of the null space the test found), so a target changes the
-score and σ/target but never which directions are unobservable.
+score and σ/target but never which directions are unobservable. σ itself is computed from ``N``
+(the pseudo-inverse on its observable subspace, scaled back by ``D``): it does not depend on the
+targets even in rounding, however far apart they are.
 """
 
 from __future__ import annotations
@@ -109,9 +111,12 @@ def analyse(information: np.ndarray, information_before: np.ndarray, targets: np
     Q = _complement(Zx, p)
     w, E = np.linalg.eigh(Q.T @ M @ Q)
     V = Q @ E
-    w_safe = np.maximum(w, np.finfo(float).tiny)
-    sig_scaled = np.sqrt((V ** 2) @ (1.0 / w_safe))
-    sigma = np.where(unobservable, np.nan, sig_scaled * S)
+    # σ from the normalised information, whose conditioning no target can spoil:
+    # σ_i² = d_i² (N⁺)_ii on the observable subspace
+    Uo, wo = U[:, ~null_N], wN[~null_N]
+    sigma = np.full(p, np.nan)
+    sigma[C] = d * np.sqrt((Uo ** 2) @ (1.0 / wo))
+    sigma[unobservable] = np.nan
     return Spectrum(values=np.concatenate([np.zeros(nullity), w]), vectors=np.hstack([Zx, V]),
                     nullity=nullity, normalised=normalised, sigma=sigma, threshold=rtol)
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 import pytest
 
 from excite.errors import RigError
@@ -73,3 +75,57 @@ def test_per_keyframe_noise_keys_get_a_migration_error(rig, where, old, new, fac
     msg = str(err.value)
     assert msg.startswith(".".join(where) + "." + old), msg
     assert f"{new}: {0.02 * factor:.4g}" in msg, msg
+
+
+# --- the rank test does not depend on the targets ------------------------------------------
+
+def _with_targets(rig, scale: dict[str, float]):
+    """The rig with each named coordinate's target multiplied by ``scale[name]`` (exact names)."""
+    data = rig.config.model_dump()
+    data["targets"] = {**data["targets"], **{c.name: c.target * scale[c.name] for c in rig.scored if c.name in scale}}
+    return build_rig(data)
+
+
+def _verdict(rep):
+    return rep.rank, {p.name for p in rep.parameters if p.sigma is None}, {p.name: p.sigma for p in rep.parameters}
+
+
+def _assert_targets_change_nothing_observable(traj, rig, seed):
+    rng = np.random.default_rng(seed)
+    rank, unobs, sigma = _verdict(evaluate(traj, rig))
+    names = [c.name for c in rig.scored]
+    for _ in range(3):
+        subset = rng.choice(names, size=rng.integers(1, len(names) + 1), replace=False)
+        factor = {n: float(rng.choice([1e-2, 1e2])) for n in subset}
+        r2, u2, s2 = _verdict(evaluate(traj, _with_targets(rig, factor)))
+        assert (r2, u2) == (rank, unobs), (factor, unobs ^ u2)
+        for n in names:
+            if sigma[n] is not None:
+                assert s2[n] == pytest.approx(sigma[n], rel=1e-6), n
+
+
+REFERENCE_ROUTES = ["figure_eight_control.csv", "slalom_control.csv", "stop_and_go_control.csv",
+                    "highway_run_control.csv", "circle_left_control.csv", "circle_right_control.csv"]
+
+
+@pytest.mark.parametrize("route", REFERENCE_ROUTES)
+def test_targets_never_change_what_is_observable(rig, route):
+    traj = read_route(f"trajectories/{route}", suspension=rig.suspension)
+    _assert_targets_change_nothing_observable(traj, rig, seed=REFERENCE_ROUTES.index(route))
+
+
+def test_targets_never_change_what_is_observable_on_kitti(rig, data_dir):
+    traj = read_route(data_dir / "kitti_00_poses.txt", times=data_dir / "kitti_00_times.txt",
+                      suspension=rig.suspension)
+    _assert_targets_change_nothing_observable(traj, rig, seed=7)
+
+
+def test_loosening_unrelated_targets_keeps_the_vertical_lever_arm_observable(rig):
+    """The case that was reported: on stop-and-go, loosening only the accelerometer-bias and
+    wheel-radius targets made lidar.trans_z (σ 57 cm) flip to unobservable."""
+    traj = read_route("trajectories/stop_and_go_control.csv", suspension=rig.suspension)
+    loose = {f"imu.accel_bias_{a}": 1.0 / 0.01 for a in "xyz"} | {"wheel.radius_left": 100.0, "wheel.radius_right": 100.0}
+    before, after = (next(p for p in evaluate(traj, r).parameters if p.name == "lidar.trans_z")
+                     for r in (rig, _with_targets(rig, loose)))
+    assert before.sigma is not None and 0.1 < before.sigma < 5.0  # weak: tens of cm
+    assert after.sigma == pytest.approx(before.sigma, rel=1e-6)
