@@ -198,11 +198,18 @@ def _marginalise_nuisance(Lam: np.ndarray, scored: np.ndarray) -> np.ndarray:
 
 
 def _scaled(rig: Rig, Lam_all: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(Λ over the scored coordinates, S Λ S) from Λ over all coordinates."""
-    scored = np.array([not c.nuisance for c in rig.coordinates])
+    """(Λ over the scored coordinates, S Λ S) from Λ over all columns (:func:`information.columns`)."""
+    scored = _scored_mask(rig, Lam_all.shape[0])
     Lam = _marginalise_nuisance(Lam_all, scored)
     S = np.array([c.target for c in rig.scored])
     return Lam, Lam * np.outer(S, S)
+
+
+def _scored_mask(rig: Rig, n_columns: int) -> np.ndarray:
+    """Which of ``n_columns`` parameter columns (the rig's, then further drives' nuisances) are scored."""
+    out = np.zeros(n_columns, dtype=bool)
+    out[:len(rig.coordinates)] = [not c.nuisance for c in rig.coordinates]
+    return out
 
 
 def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
@@ -224,7 +231,7 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
 
     coords = list(rig.scored)
     S = np.array([c.target for c in coords])
-    scored = np.array([not c.nuisance for c in rig.coordinates])
+    scored = ~drives.nuisance
     before = drives.diag_tt[scored]
     spec = spectrum.analyse(Lam, before, S, options.rank_rtol)
     w, V = spec.values, spec.vectors
@@ -270,7 +277,8 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
             k0, k1 = span
             win = prob.window(k0, k1)
             Lam_seg, Lseg = _scaled(rig, information.marginal(win))
-            seg = spectrum.analyse(Lam_seg, information.theta_diagonal(win)[scored], S, options.rank_rtol)
+            seg = spectrum.analyse(Lam_seg, information.theta_diagonal(win)[_scored_mask(rig, win.n_params)], S,
+                                   options.rank_rtol)
             segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]), seg.score,
                                     float(v_weak @ Lseg @ v_weak),
                                     {c.name: float(Lseg[i, i]) for i, c in enumerate(coords)}))
@@ -278,8 +286,10 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     timings.update(report=(t4 - t3) * 1e3, segments=(t5 - t4) * 1e3, total=(t5 - t0) * 1e3)
 
     column_map = [{"index": i, "name": c.name, "unit": c.unit, "target": c.target} for i, c in enumerate(coords)]
-    all_columns = [{"index": i, "name": c.name, "unit": c.unit, "nuisance": c.nuisance}
-                   for i, c in enumerate(rig.coordinates)]
+    names, nuisance = information.columns(rig, len(trajs))
+    units = {c.name: c.unit for c in rig.coordinates}
+    all_columns = [{"index": i, "name": n, "unit": units[n.split("@")[0]], "nuisance": bool(nuisance[i])}
+                   for i, n in enumerate(names)]
     return Report(
         route=" + ".join(t.name for t in trajs), rig=rig.name,
         duration_s=drives.duration_s, length_m=drives.length_m, n_keyframes=drives.n_keyframes,

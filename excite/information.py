@@ -117,26 +117,53 @@ def gauge_block(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, 0)), _NO_COLS)
 
 
+def columns(rig: Rig, n_drives: int) -> tuple[list[str], np.ndarray]:
+    """Names and nuisance mask of the parameter columns of ``n_drives`` drives calibrated
+    together: the rig's coordinates (drive 0's nuisances among them), then each further drive's
+    own nuisances (``cam_front.scale@1``): drives share the calibration and nothing else."""
+    nu = [c.name for c in rig.coordinates if c.nuisance]
+    names = [c.name for c in rig.coordinates] + [f"{n}@{d}" for d in range(1, n_drives) for n in nu]
+    mask = np.array([c.nuisance for c in rig.coordinates] + [True] * (len(names) - len(rig.coordinates)))
+    return names, mask
+
+
+def _drive_column_map(rig: Rig, drive: int) -> np.ndarray:
+    """Column of each rig coordinate in drive ``drive``'s factors (see :func:`columns`)."""
+    p = len(rig.coordinates)
+    out = np.arange(p)
+    nu = np.flatnonzero([c.nuisance for c in rig.coordinates])
+    if drive and nu.size:
+        out[nu] = p + (drive - 1) * nu.size + np.arange(nu.size)
+    return out
+
+
+def _on_drive_columns(blocks: list, col_map: np.ndarray) -> list:
+    return [b if b is None or not b.cols.size else
+            FactorBlock(b.name, b.first, b.stride, b.n_states, b.Jx, b.Jt, col_map[b.cols]) for b in blocks]
+
+
 def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
     """Linearise every factor of ``rig`` on the nominal motion ``nom``.
 
     A list of nominal motions is several drives calibrated together: they share the calibration θ
-    and nothing else (each has its own trajectory and gauge). ``local`` selects the trajectory
-    parametrisation (see the module docstring); the gauge of each drive is fixed at its keyframe
-    ``gauge_keyframe``.
+    and nothing else (each has its own trajectory, gauge and nuisance columns: :func:`columns`).
+    ``local`` selects the trajectory parametrisation (see the module docstring); the gauge of each
+    drive is fixed at its keyframe ``gauge_keyframe``.
     """
     noms = nom if isinstance(nom, list) else [nom]
-    p = len(rig.coordinates)
+    p = len(columns(rig, len(noms))[0])
     parts: list[FactorBlock] = []
     fixes: list[FactorBlock] = []
     starts, R_all, offset = [], [], 0
-    for n in noms:
+    for d, n in enumerate(noms):
+        col_map = _drive_column_map(rig, d)
         K = _check_length(n.n_keyframes, rig)
         if not -K <= gauge_keyframe < K:
             raise EvaluationError(f"gauge keyframe {gauge_keyframe} is outside the drive")
         edges = _chunk_edges(K, rig)
-        per_chunk = pool().map(lambda c: [None if b is None else b.shifted(edges[c]) for b in
-                                          _linearise(n.window(edges[c], edges[c + 1]), rig, local, edges[c + 1] == K - 1)],
+        per_chunk = pool().map(lambda c: [None if b is None else b.shifted(edges[c]) for b in _on_drive_columns(
+                                          _linearise(n.window(edges[c], edges[c + 1]), rig, local, edges[c + 1] == K - 1),
+                                          col_map)],
                                range(len(edges) - 1))
         # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
         parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
@@ -347,8 +374,9 @@ class DriveInformation:
     needs of the drives (their keyframe count, duration and length, diag H_θθ), with the thread
     time spent per stage [ms] summed over chunks."""
 
-    information: np.ndarray
+    information: np.ndarray  # over :func:`columns` (each drive's nuisances apart)
     diag_tt: np.ndarray
+    nuisance: np.ndarray  # mask of the nuisance columns
     n_keyframes: int
     duration_s: float
     length_m: float
@@ -359,21 +387,23 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
     """Λ_θ of drives calibrated together, streamed: each chunk of each drive is sampled,
     linearised and eliminated by one task on the thread pool, so no whole-drive array is ever
     formed; :func:`marginal` of :func:`build` gives the same Λ_θ from the whole linearised problem."""
-    p = len(rig.coordinates)
+    _, nuisance = columns(rig, len(trajs))
+    p = nuisance.size
     tasks = []
     offset = 0
-    for traj in trajs:
+    for d, traj in enumerate(trajs):
         K = _check_length(Nominal.grid(traj, rig)[1], rig)
         edges = _chunk_edges(K, rig)
-        tasks += [(traj, K, offset, k0, k1) for k0, k1 in zip(edges[:-1], edges[1:])]
+        tasks += [(traj, K, offset, k0, k1, _drive_column_map(rig, d)) for k0, k1 in zip(edges[:-1], edges[1:])]
         offset += K
 
     def run(task):
-        traj, K, offset, k0, k1 = task
+        traj, K, offset, k0, k1, col_map = task
         c0 = time.perf_counter()
         sub = Nominal.of(traj, rig, keyframes=(k0, k1))
         c1 = time.perf_counter()
-        blocks = [b for b in _linearise(sub, rig, True, k1 == K - 1) if b is not None and b.n_factors]
+        blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == K - 1), col_map)
+                  if b is not None and b.n_factors]
         if k0 == 0:
             blocks += _gauge(sub.R[0], 0, True)
         if k1 == K - 1:
@@ -387,7 +417,8 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
     Lam = _reduce([r[0] for r in results], p)
     spent = np.sum([r[2] for r in results], axis=0) * 1e3
     return DriveInformation(
-        information=Lam, diag_tt=np.sum([r[0].diag_tt for r in results], axis=0), n_keyframes=offset,
+        information=Lam, diag_tt=np.sum([r[0].diag_tt for r in results], axis=0), nuisance=nuisance,
+        n_keyframes=offset,
         duration_s=(offset - len(trajs)) / rig.keyframe_rate_hz,
         length_m=float(sum(r[1] for r in results)),
         thread_ms={"sample": float(spent[0]), "linearise": float(spent[1]), "eliminate": float(spent[2])})

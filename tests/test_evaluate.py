@@ -213,6 +213,7 @@ def test_marginal_does_not_depend_on_the_gauge_fix(rig, general_drive):
 def _scaled(L, rig):
     """Λ in units of the targets (entries commensurate; nuisances unscaled)."""
     S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
+    S = np.concatenate([S, np.ones(L.shape[0] - S.size)])  # further drives' nuisances
     return L * np.outer(S, S)
 
 
