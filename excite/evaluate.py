@@ -166,7 +166,7 @@ class Report:
         J, rows = information.jacobian(prob)
         H = (J.T @ J).tocoo()
         J = J.tocoo()
-        states = information.state_names(prob.n_keyframes, prob.local)
+        states = information.state_names(prob.n_keyframes, prob.local, prob.state_dim)
         params = [c["name"] for c in self._all_columns]
         np.savez_compressed(
             path,

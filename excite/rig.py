@@ -118,6 +118,9 @@ class ImuConfig(_Model):
     gyroscope_random_walk: PositiveFloat  # rad/s^2/√Hz
     update_rate: PositiveFloat  # Hz
     estimate_biases: bool = True
+    # random_walk: the biases drift with the *_random_walk densities and the report scores the
+    # bias at the end of the drive; constant: one bias over the whole drive (shared by drives)
+    bias_model: Literal["random_walk", "constant"] = "random_walk"
 
 
 class SensorNoise(_Model):
@@ -237,6 +240,16 @@ class Rig:
     def suspension(self) -> Suspension:
         s = self.config.vehicle.suspension
         return Suspension(s.pitch_deg_per_mps2, s.roll_deg_per_mps2)
+
+    @property
+    def bias_random_walk(self) -> bool:
+        """The IMU biases are estimated and drift as random walks (nuisance states per keyframe)."""
+        imu = self.config.imu
+        return imu.estimate_biases and imu.bias_model == "random_walk"
+
+    def with_constant_biases(self) -> "Rig":
+        """This rig with the IMU biases constant over each drive."""
+        return self.with_config(imu=dict(self.config.imu.model_dump(), bias_model="constant"))
 
     @property
     def wheel_increment_sigma_rad(self) -> float:
