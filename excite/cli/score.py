@@ -23,7 +23,7 @@ def print_report(rep: Report, console: Console) -> None:
                   f"{rep.length_m:.0f} m, {rep.n_keyframes} keyframes")
     cond = "∞" if rep.condition_number is None else f"{rep.condition_number:.3g}"
     console.print(f"score λ_min(SΛS) = [bold]{rep.score:.4g}[/]  {verdict}   rank {rep.rank}/"
-                  f"{rep.rank + rep.nullity} (threshold {rep.rank_threshold:.2g})   condition {cond}")
+                  f"{rep.rank + rep.nullity} (normalised threshold {rep.rank_threshold:.2g})   condition {cond}")
     t = Table(title="Cramér–Rao σ per parameter (from the drive alone)", title_justify="left")
     t.add_column("parameter")
     t.add_column("σ", justify="right")
