@@ -18,6 +18,9 @@ import numba as nb
 import numpy as np
 
 _SERIES = 1e-2  # below this rotation angle, series expansions (exact to ~1e-16)
+# a pivot below this fraction of its diagonal entry has lost every digit to cancellation: the
+# keyframe's state is undetermined (or nearly so) beyond the gauge
+_PIVOT_RTOL = 1e-12
 
 
 @nb.njit(cache=True, inline="always")
@@ -335,7 +338,8 @@ def eliminate(band, Hxe, Hee, lo, hi):
 
     ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd blocks, d ≤ D), the border ``Hxe[j] = H[x_j, e]``
     (sd × q) and ``Hee = H_ee`` are updated in place to the Schur complement on the remaining
-    states and e. Returns −1, or the first state whose pivot block is not positive definite."""
+    states and e. Returns −1, or the first state whose pivot block is not positive definite (to
+    rounding: a pivot below ``_PIVOT_RTOL`` of its diagonal entry)."""
     D = band.shape[0] - 1
     n = band.shape[1]
     sd = band.shape[2]
@@ -351,7 +355,7 @@ def eliminate(band, Hxe, Hee, lo, hi):
                 for k in range(col):
                     s -= L[row, k] * L[col, k]
                 if row == col:
-                    if not s > 0.0:
+                    if not s > _PIVOT_RTOL * A[col, col]:  # singular, or singular to rounding
                         return j
                     L[col, col] = np.sqrt(s)
                 else:

@@ -427,3 +427,17 @@ def test_linearising_in_chunks_changes_nothing(rig, monkeypatch):
     np.testing.assert_allclose(Jc, Jw, atol=1e-12 * np.abs(Jw).max())
     Lw, Lc = _scaled(information.marginal(whole), slow), _scaled(information.marginal(chunked), slow)
     assert np.abs(Lc - Lw).max() < 1e-10 * np.abs(Lw).max()
+
+
+def test_nearly_singular_keyframe_is_named():
+    """A keyframe whose state is determined only to rounding (two components seen almost only
+    together: their information matrix singular to 1e-18) is refused by name, not eliminated into
+    garbage."""
+    first = np.arange(0, 7)
+    Jx = np.broadcast_to(np.eye(9), (first.size, 9, 9)).copy()
+    Jx[3, 4, 5], Jx[3, 5, 5] = 1.0, 1e-9  # column 5 = column 4 + 1e-9 e_5
+    Jt = np.zeros((first.size, 9, 1))
+    Jt[:, 0, 0] = 1.0
+    prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
+    with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
+        information._piece([prior], 100, 106, 1, 9)
