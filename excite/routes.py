@@ -59,7 +59,7 @@ import numpy as np
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial.transform import Rotation
 
-from . import so3
+from . import bounds, so3
 from .errors import RouteError
 from .paths import plan_given_speed, plan_speed, profile_from_plan, smooth_path
 from .trajectory import Trajectory
@@ -136,6 +136,9 @@ def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarra
     Every row must have as many fields as the header (or, without one, as the first row), and
     that count must be one of ``allowed``.
     """
+    if len(table.rows) > bounds.MAX_SAMPLES:
+        raise RouteError(f"{len(table.rows):,} rows, over the limit of {bounds.MAX_SAMPLES:,}",
+                         source=table.source, line=table.lines[bounds.MAX_SAMPLES])
     want = len(table.header) if table.header else len(table.rows[0])
     if allowed is not None and want not in allowed:
         raise RouteError(f"expected {' or '.join(map(str, allowed))} columns, got {want}",
@@ -168,6 +171,33 @@ def _check_times(t: np.ndarray, source: str, lines: list[int]) -> None:
                          "increasing)", source=source, line=lines[k])
 
 
+def _check_range(values: np.ndarray, kind: str, what: str, source: str | None,
+                 lines: list[int] | None) -> None:
+    """Every value within the sane range ``bounds.ROUTE[kind]``, else the first one outside."""
+    sane = bounds.ROUTE[kind]
+    bad = ~((values >= sane.lo) & (values <= sane.hi))
+    if bad.any():
+        k = int(np.argwhere(bad)[0][0])
+        raise RouteError(f"{what} {np.asarray(values)[bad][0]:.6g} is outside the sane range {sane}",
+                         source=source, line=None if lines is None else lines[k])
+
+
+def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: str | None = None,
+                 lines: list[int] | None = None) -> None:
+    """Timed poses a drive can be made of: times and positions in range, and a resampling grid
+    within the work bounds (checked before the grid is allocated)."""
+    _check_range(t, "t_s", "time", source, lines)
+    _check_range(p, "position_m", "position", source, lines)
+    if len(t) < 2:
+        return
+    rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
+    if not (math.isfinite(rate) and rate > 0):
+        raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
+    too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
+    if too_much:
+        raise RouteError(too_much, source=source)
+
+
 def _check_count(n: int, minimum: int, what: str, source: str, lines: list[int]) -> None:
     if n < minimum:
         raise RouteError(f"too few {what}: {n}, need at least {minimum}", source=source,
@@ -189,6 +219,9 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
     velocity is the derivative of the position spline.
     """
+    _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz)
+    if not (math.isfinite(cutoff_hz) and cutoff_hz > 0):
+        raise RouteError(f"the smoothing cutoff must be positive and finite, got {cutoff_hz!r}")
     t = np.asarray(t_s, dtype=float) - float(t_s[0])
     p = np.asarray(p_m, dtype=float) - np.asarray(p_m, dtype=float)[0]
     q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
@@ -226,6 +259,7 @@ def read_tum(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     d = _numbers(table, (8,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(d[:, 0], table.source, table.lines)
+    _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
                                  cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=path.stem)
@@ -249,6 +283,7 @@ def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         ns = np.round(d[:, 0]).astype(np.int64)
     t = (ns - ns[0]).astype(float) * 1e-9
     _check_times(t, table.source, table.lines)
+    _check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     R = Rotation.from_quat(q, scalar_first=True).as_matrix()
     return trajectory_from_poses(t, d[:, 1:4], R, cutoff_hz=cutoff_hz, rate_hz=rate_hz,
@@ -268,10 +303,11 @@ def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAUL
     ttable = _split_rows(times, None)
     t = _numbers(ttable, (1,))[:, 0]
     if len(t) != len(d):
-        raise RouteError(f"{len(t)} times for {len(d)} poses in {path}", source=str(times),
+        raise RouteError(f"{len(t)} times for {len(d)} poses in {path.name}", source=str(times),
                          line=ttable.lines[min(len(t), len(d)) - 1])
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(t, ttable.source, ttable.lines)
+    _check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines)
     T = d.reshape(-1, 3, 4)
     R_W_C, p_W_C = T[:, :, :3], T[:, :, 3]
     err = np.abs(np.swapaxes(R_W_C, 1, 2) @ R_W_C - np.eye(3)).max(axis=(1, 2))
@@ -323,6 +359,8 @@ _WAYPOINT_COLS = {"x": "x", "x_m": "x", "y": "y", "y_m": "y", "z": "z", "z_m": "
 def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
                      lines: list[int]) -> None:
     _check_count(len(xyz), 2, "waypoints", source, lines)
+    _check_range(xyz[:, :2], "position_m", "coordinate", source, lines)
+    _check_range(xyz[:, 2], "altitude_m", "altitude", source, lines)
     step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     if np.any(step < 1e-3):
         k = int(np.argmax(step < 1e-3)) + 1
@@ -332,6 +370,7 @@ def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
         if np.any(speed < 0):
             k = int(np.argmax(speed < 0))
             raise RouteError(f"negative speed {speed[k]:g} m/s", source=source, line=lines[k])
+        _check_range(speed, "speed_mps", "speed", source, lines)
         both = (speed[1:] == 0) & (speed[:-1] == 0)
         if both.any():
             k = int(np.argmax(both)) + 1
@@ -457,10 +496,16 @@ def read_control_profile(path: str | Path) -> ControlProfile:
     _check_count(len(d), 2, "knots", table.source, table.lines)
     cols = {n: d[:, i] for i, n in enumerate(names)}
     _check_times(cols["t_s"], table.source, table.lines)
+    span = float(cols["t_s"][-1] - cols["t_s"][0])
+    if span > bounds.MAX_DURATION_S:
+        raise RouteError(f"the profile lasts {span:.6g} s, over the limit of {bounds.MAX_DURATION_S:g} s",
+                         source=table.source, line=table.lines[-1])
     if np.any(cols["speed_mps"] < 0):
         k = int(np.argmax(cols["speed_mps"] < 0))
         raise RouteError(f"negative speed {cols['speed_mps'][k]:g} m/s (reversing is not "
                          "modelled)", source=table.source, line=table.lines[k])
+    for name in names:
+        _check_range(cols[name], name, name, table.source, table.lines)
     start = (0.0, 0.0, 0.0)
     for i, raw in enumerate(_read_text(path).splitlines(), start=1):
         m = _START_RE.match(raw.strip())
@@ -471,6 +516,9 @@ def read_control_profile(path: str | Path) -> ControlProfile:
                 raise RouteError("cannot parse the start pose", source=table.source, line=i) from None
             if not all(np.isfinite(start)):
                 raise RouteError("the start pose is NaN or infinite", source=table.source, line=i)
+            for x, kind, what in zip(start, ("position_m", "position_m", "heading_rad"),
+                                     ("start x_m", "start y_m", "start heading_rad")):
+                _check_range(np.array([x]), kind, what, table.source, [i])
             break
     return ControlProfile(t_s=cols["t_s"], speed_mps=cols["speed_mps"],
                           curvature_1pm=cols["curvature_1pm"], grade_rad=cols.get("grade_rad"),
