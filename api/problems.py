@@ -23,7 +23,7 @@ PROBLEM_JSON = "application/problem+json"
 TYPE_BASE = "https://excite.dev/problems/"
 
 _TITLES = {400: "Bad request", 404: "Not found", 405: "Method not allowed",
-           406: "Not acceptable", 409: "Conflict", 413: "Content too large",
+           406: "Not acceptable", 408: "Request timeout", 409: "Conflict", 413: "Content too large",
            415: "Unsupported media type", 422: "Unprocessable content",
            500: "Internal server error", 503: "Service unavailable"}
 
@@ -62,9 +62,11 @@ def problem(status: int, detail: str, *, instance: str = "", type_: str | None =
 
 def field_name(loc: tuple[Any, ...] | list[Any]) -> str:
     """``("body", "route", "waypoints", 3)`` → ``"route.waypoints[3]"``."""
+    from .schemas import RIG_TAGS
+
     out = ""
     for part in loc:
-        if part == "body" and not out:
+        if (part == "body" and not out) or part in RIG_TAGS:
             continue
         if isinstance(part, int):
             out += f"[{part}]"
