@@ -92,7 +92,7 @@ class Pose(_Model):
             raise ValueError("translation_m must be finite")
         if self.matrix is not None:
             R = np.asarray(self.matrix, dtype=float)
-            if not np.all(np.isfinite(R)) or np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            if not np.all(np.isfinite(R)) or np.abs(R).max() > 1.001 or np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
                 raise ValueError("matrix must be a proper rotation (orthonormal, det +1)")
         return self
 

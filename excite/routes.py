@@ -52,8 +52,10 @@ from __future__ import annotations
 import json
 import math
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
@@ -196,6 +198,17 @@ def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: st
     too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
     if too_much:
         raise RouteError(too_much, source=source)
+
+
+@contextmanager
+def _located(source: str) -> Iterator[None]:
+    """Route errors raised while building a drive from a file name the file."""
+    try:
+        yield
+    except RouteError as exc:
+        if exc.source is not None:
+            raise
+        raise RouteError(exc.problem, source=source) from None
 
 
 def _check_count(n: int, minimum: int, what: str, source: str, lines: list[int]) -> None:
@@ -397,7 +410,8 @@ def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
     xyz = np.column_stack([cols["x"], cols["y"], cols.get("z", np.zeros(len(d)))])
     speed = cols.get("speed")
     _check_waypoints(xyz, speed, table.source, table.lines)
-    return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(str(path)):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
 
 
 def _json_line(text: str, pattern: str) -> int | None:
@@ -468,7 +482,8 @@ def read_geojson(path: str | Path, *, limits: Limits = Limits(),
             raise RouteError("properties.speed_mps contains NaN or inf", source=src, line=sline)
     # Per-point problems are located at the coordinates key: JSON keeps no positions.
     _check_waypoints(xyz, speed, src, [cline] * len(xyz))
-    return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(str(path)):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
 
 
 _CONTROL_COLS = {"t": "t_s", "t_s": "t_s", "speed": "speed_mps", "speed_mps": "speed_mps",
@@ -527,7 +542,9 @@ def read_control_profile(path: str | Path) -> ControlProfile:
 
 def read_control_csv(path: str | Path, *, suspension: Suspension = Suspension()) -> Trajectory:
     """A control CSV driven through :func:`~excite.vehicle.drive`."""
-    return drive(read_control_profile(path), suspension)
+    profile = read_control_profile(path)
+    with _located(str(path)):
+        return drive(profile, suspension)
 
 
 # --------------------------------------------------------------------------------------------
