@@ -58,7 +58,8 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-from scipy.interpolate import make_smoothing_spline
+from scipy.interpolate import CubicSpline
+from scipy.linalg import solveh_banded
 from scipy.spatial.transform import Rotation
 
 from . import bounds, so3
@@ -113,7 +114,7 @@ def _split_rows(path: Path, sep: str | None, header: bool = False) -> _Table:
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
-        fields = [f.strip() for f in (line.split(sep) if sep else line.split())]
+        fields = [f.strip() for f in line.split(sep)] if sep else line.split()
         if header and table.header is None and not table.rows and not _is_number(fields[0]):
             table.header, table.header_line = [f.lower() for f in fields], i
             continue
@@ -145,6 +146,21 @@ def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarra
     if allowed is not None and want not in allowed:
         raise RouteError(f"expected {' or '.join(map(str, allowed))} columns, got {want}",
                          source=table.source, line=table.header_line or table.lines[0])
+    try:  # every row well formed: one conversion
+        out = np.array(table.rows, dtype=float)
+    except ValueError:
+        out = None
+    if out is None or out.shape != (len(table.rows), want):
+        out = _rows_one_by_one(table, want)  # finds the first malformed row
+    bad = ~np.isfinite(out)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        what = "NaN" if math.isnan(out[k, j]) else "infinite"
+        raise RouteError(f"column {j + 1} is {what}", source=table.source, line=table.lines[k])
+    return out
+
+
+def _rows_one_by_one(table: _Table, want: int) -> np.ndarray:
     out = np.empty((len(table.rows), want))
     for k, (fields, line) in enumerate(zip(table.rows, table.lines)):
         if len(fields) != want:
@@ -156,11 +172,6 @@ def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarra
             j = next(j for j, f in enumerate(fields) if not _is_number(f))
             raise RouteError(f"column {j + 1}: cannot parse {fields[j]!r} as a number",
                              source=table.source, line=line) from None
-    bad = ~np.isfinite(out)
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        what = "NaN" if math.isnan(out[k, j]) else "infinite"
-        raise RouteError(f"column {j + 1} is {what}", source=table.source, line=table.lines[k])
     return out
 
 
@@ -244,14 +255,46 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     h = float(np.median(np.diff(t)))
     f_c = min(cutoff_hz, 0.25 / h)
     lam = 1.0 / (h * (2.0 * np.pi * f_c) ** 4)
-    pos = make_smoothing_spline(t, p, lam=lam)
-    quat = make_smoothing_spline(t, q, lam=lam)
+    pos = smoothing_spline(t, p, lam)
+    quat = smoothing_spline(t, q, lam)
     rate = 1.0 / h if rate_hz is None else rate_hz
     grid = np.linspace(0.0, t[-1], max(int(round(t[-1] * rate)) + 1, MIN_POSES))
     qg = quat(grid)
     qg /= np.linalg.norm(qg, axis=1, keepdims=True)
     return Trajectory(grid, Rotation.from_quat(qg).as_matrix(), pos(grid),
                       velocity=pos.derivative(1)(grid), name=name)
+
+
+def smoothing_spline(x: np.ndarray, y: np.ndarray, lam: float) -> CubicSpline:
+    """The cubic smoothing spline: of all twice-differentiable ``g``, the minimiser of
+    ``Σ |y_i − g(x_i)|² + λ ∫ |g''|²`` (the function of ``scipy.interpolate.make_smoothing_spline``).
+
+    Reinsch's algorithm: with ``Q`` the second-difference operator and ``R`` the tridiagonal
+    Gram matrix of the hat functions, ``(R + λ QᵀQ) γ = Qᵀ y`` for the second derivatives γ at
+    the interior knots, and ``g(x_i) = y_i − λ Q γ``; ``g`` is then the natural cubic spline
+    through those values. One banded (pentadiagonal) solve, no per-point Python loop.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = x.size
+    h = np.diff(x)
+    inv = 1.0 / h
+    # Q (n × n-2): column j holds 1/h_j, −1/h_j − 1/h_{j+1}, 1/h_{j+1} at rows j, j+1, j+2
+    q0, q1, q2 = inv[:-1], -inv[:-1] - inv[1:], inv[1:]
+    m = n - 2
+    ab = np.zeros((3, m))  # upper form of the symmetric pentadiagonal R + λ QᵀQ
+    ab[2] = (h[:-1] + h[1:]) / 3.0 + lam * (q0**2 + q1**2 + q2**2)
+    ab[1, 1:] = h[1:-1] / 6.0 + lam * (q1[:-1] * q0[1:] + q2[:-1] * q1[1:])
+    ab[0, 2:] = lam * q2[:-2] * q0[2:]
+    Y = y.reshape(n, -1)
+    rhs = q0[:, None] * Y[:-2] + q1[:, None] * Y[1:-1] + q2[:, None] * Y[2:]
+    gamma = solveh_banded(ab, rhs)
+    Qg = np.zeros_like(Y)
+    Qg[:-2] += q0[:, None] * gamma
+    Qg[1:-1] += q1[:, None] * gamma
+    Qg[2:] += q2[:, None] * gamma
+    fit = (Y - lam * Qg).reshape(y.shape)
+    return CubicSpline(x, fit, bc_type="natural")
 
 
 def _quaternions(q: np.ndarray, source: str, lines: list[int], first_col: int) -> np.ndarray:
