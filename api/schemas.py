@@ -38,7 +38,7 @@ Quat = Annotated[float, ranged(bounds.ROUTE["quaternion"])]
 class In(BaseModel):
     """Base of every request body: unknown keys and NaN/inf are errors."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class Out(BaseModel):
@@ -53,9 +53,9 @@ class Out(BaseModel):
 
 class TimedPose(In):
     t: Time = Field(description="Time [s].")
-    position: tuple[Coord, Coord, Coord] = Field(description="Position of V in W [m].")
-    quaternion_xyzw: tuple[Quat, Quat, Quat, Quat] = \
-        Field(description="Orientation of V in W, x-y-z-w, unit norm.")
+    position: list[Coord] = Field(min_length=3, max_length=3, description="Position of V in W [m].")
+    quaternion_xyzw: list[Quat] = Field(min_length=4, max_length=4,
+                                        description="Orientation of V in W, x-y-z-w, unit norm.")
 
 
 class StartPose(In):

@@ -223,3 +223,14 @@ def test_default_job_database_is_a_user_data_file(tmp_path, monkeypatch):
     s = Settings()
     assert s.db_path == tmp_path / "data" / "excite" / "jobs.sqlite3" and s.db_path.parent.is_dir()
     assert "job_function" not in Settings.model_fields  # a test hook is no setting
+
+
+def test_405_on_a_path_with_several_routes_lists_all_their_methods(client):
+    r = client.put("/v1/jobs/0123456789abcdef")
+    assert r.status_code == 405 and set(r.headers["allow"].split(", ")) == {"GET", "DELETE"}
+
+
+def test_numbers_are_not_coerced_from_booleans_or_strings(client):
+    for body in ({"route": LOOP, "segments": False}, {"route": LOOP, "segments": "2"},
+                 {"route": LOOP, "limits": {"speed_max_mps": True}}):
+        _problem(client.post("/v1/score", json=body), 422)
