@@ -172,6 +172,8 @@ class WorkerPool:
 
     def _spawn(self) -> None:
         """Start one worker, wait until it is warm, and lend it out."""
+        if self._closed:
+            return
         ctx = self._context()
         parent, child = ctx.Pipe()
         proc = ctx.Process(target=_worker_main, daemon=True, name="excite-score",
@@ -206,7 +208,8 @@ class WorkerPool:
             try:
                 self._spawn()
             except Exception:
-                log.exception("cannot start a scoring worker")
+                if not self._closed:  # at shutdown the forkserver may be gone first
+                    log.exception("cannot start a scoring worker")
 
         threading.Thread(target=start, daemon=True, name="score-respawn").start()
 

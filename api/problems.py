@@ -85,15 +85,16 @@ def excite_problem(exc: ExciteError, field: str | None = None) -> tuple[int, str
 
 
 def _methods(request: Request) -> list[str]:
-    """The methods the routes matching this request's path accept."""
-    from starlette.routing import Match
+    """The methods the API documents for this request's path (all its routes, not only the
+    first one the router tried)."""
+    import re
 
-    methods: set[str] = set()
-    for route in request.app.routes:
-        match, _ = route.matches(request.scope)
-        if match != Match.NONE:
-            methods |= getattr(route, "methods", None) or set()
-    return sorted(methods)
+    out: set[str] = set()
+    for template, item in request.app.openapi().get("paths", {}).items():
+        pattern = "^" + re.sub(r"\\{[^/]+?\\}", "[^/]+", re.escape(template)) + "$"
+        if re.match(pattern, request.url.path):
+            out |= {m.upper() for m in item if m in ("get", "post", "put", "patch", "delete")}
+    return sorted(out)
 
 
 def install(app: FastAPI) -> None:

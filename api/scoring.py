@@ -21,6 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from excite import routes
+from excite.bounds import tightened
 from excite.errors import ExciteError, RigError, RouteError
 from excite.evaluate import Options, evaluate
 from excite.rig import Rig, build_rig, bundled_rigs, load_rig
@@ -263,11 +264,13 @@ def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
                limits: dict[str, float] | None, bounds: Bounds, field: str, rig_field: str):
     r = resolve_rig(rig, rig_field)
     lim = Limits(**limits) if limits else Limits()
-    traj = route_trajectory(route, r, lim, bounds, field)
-    if traj.duration > bounds.max_route_duration_s:
-        raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
-                                   f"{bounds.max_route_duration_s:g} s")
-    return r, traj, evaluate(traj, r, Options(segments=segments))
+    # the library refuses a planned or logged drive over the service's bounds before building it
+    with tightened(duration_s=bounds.max_route_duration_s, length_m=bounds.max_route_length_m):
+        traj = route_trajectory(route, r, lim, bounds, field)
+        if traj.duration > bounds.max_route_duration_s:
+            raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
+                                       f"{bounds.max_route_duration_s:g} s")
+        return r, traj, evaluate(traj, r, Options(segments=segments))
 
 
 def _as_problem(fn: Callable[[], dict[str, Any]], field: str) -> dict[str, Any]:

@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import fnmatch
 import math
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 # --------------------------------------------------------------------------------------------
 # The work one route may cost (samples and keyframes are what memory and time scale with)
@@ -35,6 +37,34 @@ MAX_SENSORS = 16
 """Most exteroceptive sensors on one rig."""
 MAX_NESTING = 12
 """Deepest nesting of a rig document (the deepest real key, a rotation matrix entry, is 6)."""
+
+
+_TIGHTER: ContextVar[dict[str, float]] = ContextVar("excite_bounds", default={})
+
+
+def max_duration_s() -> float:
+    """The duration bound in force: :data:`MAX_DURATION_S`, or tighter inside :func:`tightened`."""
+    return min(MAX_DURATION_S, _TIGHTER.get().get("duration_s", math.inf))
+
+
+def max_length_m() -> float:
+    """The path length bound in force: :data:`MAX_LENGTH_M`, or tighter inside :func:`tightened`."""
+    return min(MAX_LENGTH_M, _TIGHTER.get().get("length_m", math.inf))
+
+
+@contextmanager
+def tightened(*, duration_s: float | None = None, length_m: float | None = None) -> Iterator[None]:
+    """Tighter work bounds for the code inside (a service's settings): every check then refuses
+    before allocating, and quotes the tighter bound. Bounds can only be tightened."""
+    new = dict(_TIGHTER.get())
+    for key, value in (("duration_s", duration_s), ("length_m", length_m)):
+        if value is not None:
+            new[key] = min(value, new.get(key, math.inf))
+    token = _TIGHTER.set(new)
+    try:
+        yield
+    finally:
+        _TIGHTER.reset(token)
 
 
 @dataclass(frozen=True)
@@ -193,8 +223,8 @@ def check_range(table: dict[str, Range], name: str, value: Any, error: Callable[
 
 def work_problem(duration_s: float, rate_hz: float, limit: int, what: str) -> str | None:
     """Why sampling ``duration_s`` at ``rate_hz`` is too much work (None when it is not)."""
-    if not math.isfinite(duration_s) or duration_s > MAX_DURATION_S:
-        return (f"the drive lasts {duration_s:.6g} s, over the limit of {MAX_DURATION_S:g} s "
+    if not math.isfinite(duration_s) or duration_s > max_duration_s():
+        return (f"the drive lasts {duration_s:.6g} s, over the limit of {max_duration_s():g} s "
                 "(split longer drives)")
     n = duration_s * rate_hz
     if not math.isfinite(n) or n > limit:

@@ -66,8 +66,8 @@ def smooth_path(points_m: np.ndarray, closed: bool = False, step_m: float = 0.2)
     if np.any(chord < 1e-6):
         raise RouteError("a path has two consecutive identical points")
     u = np.concatenate([[0.0], np.cumsum(chord)])
-    if not u[-1] <= bounds.MAX_LENGTH_M:  # the path is resampled every few cm: bound it first
-        raise RouteError(f"the path is {u[-1]:.6g} m long, over the limit of {bounds.MAX_LENGTH_M:g} m")
+    if not u[-1] <= bounds.max_length_m():  # the path is resampled every few cm: bound it first
+        raise RouteError(f"the path is {u[-1]:.6g} m long, over the limit of {bounds.max_length_m():g} m")
     if len(p) == 2:  # a straight segment: a spline of degree 1 is the whole story
         n = max(int(np.ceil(u[-1] / step_m)) + 1, 2)
         s = np.linspace(0.0, u[-1], n)

@@ -555,8 +555,8 @@ def read_control_profile(path: str | Path) -> ControlProfile:
     cols = {n: d[:, i] for i, n in enumerate(names)}
     _check_times(cols["t_s"], table.source, table.lines)
     span = float(cols["t_s"][-1] - cols["t_s"][0])
-    if span > bounds.MAX_DURATION_S:
-        raise RouteError(f"the profile lasts {span:.6g} s, over the limit of {bounds.MAX_DURATION_S:g} s",
+    if span > bounds.max_duration_s():
+        raise RouteError(f"the profile lasts {span:.6g} s, over the limit of {bounds.max_duration_s():g} s",
                          source=table.source, line=table.lines[-1])
     if np.any(cols["speed_mps"] < 0):
         k = int(np.argmax(cols["speed_mps"] < 0))

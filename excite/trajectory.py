@@ -134,9 +134,9 @@ class Trajectory:
             raise RouteError("sample times must be strictly increasing")
         if t.size > bounds.MAX_SAMPLES:
             raise RouteError(f"{t.size} samples, over the limit of {bounds.MAX_SAMPLES:,}")
-        if not t[-1] - t[0] <= bounds.MAX_DURATION_S:
+        if not t[-1] - t[0] <= bounds.max_duration_s():
             raise RouteError(f"the drive lasts {t[-1] - t[0]:.6g} s, over the limit of "
-                             f"{bounds.MAX_DURATION_S:g} s")
+                             f"{bounds.max_duration_s():g} s")
         for label, x in (("positions", p_W_V), ("velocities", velocity)):
             if x is not None and not np.all(np.isfinite(x)):
                 raise RouteError(f"the drive's {label} are not all finite")

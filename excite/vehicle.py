@@ -117,9 +117,9 @@ class ControlProfile:
             object.__setattr__(self, name, value)
         if np.any(self.speed_mps < 0):
             raise RouteError("control profile speed must be ≥ 0 (reversing is not modelled)")
-        if not self.duration_s <= bounds.MAX_DURATION_S:
+        if not self.duration_s <= bounds.max_duration_s():
             raise RouteError(f"the control profile lasts {self.duration_s:.6g} s, over the limit of "
-                             f"{bounds.MAX_DURATION_S:g} s")
+                             f"{bounds.max_duration_s():g} s")
 
     @property
     def duration_s(self) -> float:

@@ -313,3 +313,14 @@ def test_cli_edges_are_one_line_errors(tmp_path, capsys):
         lines = capsys.readouterr().err.strip().splitlines()
         assert rc == 1 and len(lines) == 1 and lines[0].startswith("excite: error:"), (args, lines)
         assert words in lines[0], lines[0]
+
+
+def test_a_service_can_tighten_the_bounds_and_they_are_quoted(tmp_path):
+    path = _write(tmp_path, "creep.csv", "x,y,z,speed\n0,0,0,0.5\n300,0,0,0.5\n")  # 600 s
+    assert routes.read_route(path).duration > 500
+    with bounds.tightened(duration_s=120.0):
+        with pytest.raises(RouteError, match="over the limit of 120 s"):
+            routes.read_route(path)
+        with bounds.tightened(duration_s=1e9):  # never loosened
+            assert bounds.max_duration_s() == 120.0
+    assert bounds.max_duration_s() == bounds.MAX_DURATION_S
