@@ -9,7 +9,6 @@ import copy
 import json
 import math
 import os
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -18,12 +17,12 @@ import numpy as np
 import pytest
 
 from excite import bounds, routes
-from excite.errors import EvaluationError, ExciteError, LimitError, RigError, RouteError
+from excite.errors import EvaluationError, LimitError, RigError, RouteError
 from excite.evaluate import Options, evaluate
 from excite.optimize import OptimizeError, OptimizeSettings
 from excite.rig import RigConfig, build_rig, load_rig
 from excite.trajectory import Trajectory
-from excite.vehicle import ControlProfile, Limits, drive
+from excite.vehicle import ControlProfile, Limits
 
 REPO = Path(__file__).resolve().parents[1]
 
