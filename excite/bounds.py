@@ -146,9 +146,9 @@ _POSE = {
 RIG: dict[str, Range] = {
     "keyframe_rate_hz": Range(0.1, 100.0, "Hz"),
     "imu.accelerometer_noise_density": Range(1e-7, 10.0, "m/s^2/√Hz"),
-    "imu.accelerometer_random_walk": Range(1e-9, 10.0, "m/s^3/√Hz"),
+    "imu.accelerometer_random_walk": Range(1e-13, 10.0, "m/s^3/√Hz"),  # tiny: a nearly constant bias
     "imu.gyroscope_noise_density": Range(1e-8, 1.0, "rad/s/√Hz"),
-    "imu.gyroscope_random_walk": Range(1e-10, 1.0, "rad/s^2/√Hz"),
+    "imu.gyroscope_random_walk": Range(1e-14, 1.0, "rad/s^2/√Hz"),  # (1e-6 of a MEMS IMU's: tests)
     "imu.update_rate": Range(1.0, 10_000.0, "Hz"),
     "vehicle.suspension.pitch_deg_per_mps2": Range(0.0, 10.0, "deg/(m/s^2)"),
     "vehicle.suspension.roll_deg_per_mps2": Range(0.0, 10.0, "deg/(m/s^2)"),
