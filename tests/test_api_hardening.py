@@ -14,7 +14,7 @@ import pytest
 
 from test_api_support import LiveServer
 
-TIMEOUT_S = 4.0
+TIMEOUT_S = 8.0  # a fresh worker loads the compiled kernels before its first score
 SETTINGS = {"workers": 0, "score_workers": 1, "request_timeout_s": TIMEOUT_S, "body_timeout_s": 2,
             "max_route_duration_s": 2000, "max_job_time_budget_s": 100, "max_samples": 50_000,
             "worker_recycle_mb": 1}
