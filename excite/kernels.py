@@ -331,6 +331,19 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt):
                     Htt[cols[v], cols[u]] += G[nx + u, nx + v]
 
 
+@nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _border_update(ZT, m, Hee):
+    """``Hee −= ZT[:, :m] ZT[:, :m]ᵀ`` on the lower triangle: dot products of contiguous rows, which
+    the compiler vectorises (reassociating the sums; no other fast-math licence)."""
+    q = ZT.shape[0]
+    for e in range(q):
+        for e2 in range(e + 1):
+            s = 0.0
+            for k in range(m):
+                s += ZT[e, k] * ZT[e2, k]
+            Hee[e, e2] -= s
+
+
 @nb.njit(cache=True, nogil=True)
 def eliminate(band, Hxe, Hee, lo, hi):
     """Eliminate the states ``lo … hi−1`` of a block-banded system with a border, in order (block
@@ -347,6 +360,8 @@ def eliminate(band, Hxe, Hee, lo, hi):
     L = np.zeros((sd, sd))
     C = np.zeros((D + 1, sd, sd))
     Zj = np.empty((sd, q))
+    ZT = np.empty((q, 16 * sd))  # Z_jᵀ of the states eliminated since the last border update
+    fill = 0
     for j in range(lo, hi):
         A = band[0, j]
         for col in range(sd):  # L Lᵀ = A
@@ -370,11 +385,13 @@ def eliminate(band, Hxe, Hee, lo, hi):
             inv = 1.0 / L[row, row]
             for e in range(q):
                 Zj[row, e] *= inv
-        for k in range(sd):  # H_ee −= Z_jᵀ Z_j (lower triangle; mirrored at the end)
+        for k in range(sd):  # H_ee −= Z_jᵀ Z_j, batched over 16 states (lower triangle; mirrored at the end)
             for e in range(q):
-                z = Zj[k, e]
-                for e2 in range(e + 1):
-                    Hee[e, e2] -= z * Zj[k, e2]
+                ZT[e, fill + k] = Zj[k, e]
+        fill += sd
+        if fill + sd > ZT.shape[1]:
+            _border_update(ZT, fill, Hee)
+            fill = 0
         nd = min(D, n - 1 - j)
         for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ
             B = band[d, j]
@@ -399,6 +416,7 @@ def eliminate(band, Hxe, Hee, lo, hi):
                         for k in range(sd):
                             s += C[d2, row, k] * C[d, col, k]
                         Y[row, col] -= s
+    _border_update(ZT, fill, Hee)
     for e in range(q):
         for e2 in range(e):
             Hee[e2, e] = Hee[e, e2]
