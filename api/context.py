@@ -34,8 +34,10 @@ class Context:
         return Bounds(s.max_samples, s.max_route_duration_s, s.max_route_length_m)
 
     def submit_score(self, route: dict[str, Any], rig: Any, segments: int,
-                     limits: dict[str, float] | None, field: str = "route") -> cf.Future:
-        return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field)
+                     limits: dict[str, float] | None, field: str = "route",
+                     track_points: int = 0) -> cf.Future:
+        return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field,
+                                "rig", track_points)
 
     def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
                     limits: dict[str, float] | None, parameter: str | None) -> cf.Future:
