@@ -228,3 +228,72 @@ def test_cancel_a_running_job(page):
     page.wait_for_function("document.querySelector('#job-status').textContent === 'cancelled'", timeout=60_000)
     assert page.is_disabled("#cancel-button") and page.is_enabled("#plan-button")
     assert page.console.errors == []
+
+
+# --------------------------------------------------------------------------------------------
+# What the page needs from the API (no browser)
+
+
+def test_score_returns_the_route_path_when_asked(server):
+    """``track_points``: the drive's path at equally spaced times, in the file's frame: at the
+    file's pose times it is where the file says (within the reader's spline fit, a few mm), and
+    the polyline is as long as the report's length."""
+    import httpx
+
+    text = FIGURE_EIGHT.read_text()
+    r = httpx.post(f"{server.url}/v1/score", timeout=120,
+                   json={"route": {"format": "tum", "text": text}, "track_points": 2000})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    tr = body["track"]
+    assert len(tr["t_s"]) == len(tr["x_m"]) == len(tr["y_m"]) == 2000
+    poses = np.loadtxt(text.splitlines())
+    assert tr["t_s"][0] == pytest.approx(poses[0, 0]) and tr["t_s"][-1] == pytest.approx(poses[-1, 0])
+    for axis, col in (("x_m", 1), ("y_m", 2)):
+        at_poses = np.interp(poses[:, 0], tr["t_s"], tr[axis])
+        assert np.max(np.abs(at_poses - poses[:, col])) < 0.02, axis
+    length = np.hypot(np.diff(tr["x_m"]), np.diff(tr["y_m"])).sum()
+    assert length == pytest.approx(body["length_m"], rel=0.01)
+    # not asked: no path
+    r = httpx.post(f"{server.url}/v1/score", timeout=120, json={"route": {"format": "tum", "text": text}})
+    assert r.status_code == 200 and r.json()["track"] is None
+
+
+def test_parse_rig_yaml(server):
+    """The bundled rig's YAML comes back as the same mapping, which scores like the bundled rig;
+    broken files are refused with the field named."""
+    import httpx
+    import yaml
+
+    from excite.rig import RIGS_DIR
+
+    text = (RIGS_DIR / "robotaxi.yaml").read_text()
+    r = httpx.post(f"{server.url}/v1/rigs/parse", json={"yaml": text})
+    assert r.status_code == 200, r.text
+    assert r.json()["rig"] == yaml.safe_load(text)
+    assert [p["name"] for p in r.json()["summary"]["parameters"]][:1] == ["lidar.rot_x"]
+    route = {"control": {"t_s": [0, 10, 20, 30], "speed_mps": [0, 6, 6, 0], "curvature_1pm": [0, 0.1, -0.1, 0]}}
+    a = httpx.post(f"{server.url}/v1/score", timeout=120, json={"route": route, "rig": r.json()["rig"]}).json()
+    b = httpx.post(f"{server.url}/v1/score", timeout=120, json={"route": route, "rig": "robotaxi"}).json()
+    assert a["score"] == pytest.approx(b["score"], rel=1e-12)
+
+    for bad, field, says in [("name: [1,\n", "yaml", "line 2"), ("- a\n- b\n", "yaml", "mapping"),
+                             ("a: &x [1]\nb: *x\n", "yaml", "aliases"),
+                             ("name: r\nimu: imu.yaml\n", "rig.imu", "inline")]:
+        r = httpx.post(f"{server.url}/v1/rigs/parse", json={"yaml": bad})
+        assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json")
+        (err,) = r.json()["errors"]
+        assert err["field"] == field and says in err["message"], (bad, err)
+
+
+def test_page_and_its_files_are_served(server):
+    """GET / is the page; its script and style sheet come from /static, nothing from elsewhere."""
+    import httpx
+
+    r = httpx.get(server.url + "/")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+    refs = re.findall(r'(?:src|href)="([^"]+)"', r.text)
+    assert "/static/app.js" in refs and "/static/style.css" in refs
+    assert all(u.startswith(("/", "data:", "#")) for u in refs), refs  # offline: no other host
+    for u in ("/static/app.js", "/static/style.css"):
+        assert httpx.get(server.url + u).status_code == 200
