@@ -153,7 +153,7 @@ def test_score_a_route_through_the_file_input(page, shots):
 def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
     """A TUM file with a broken line: the service's problem (field route.text) appears beside
     the route input, which is marked invalid; no report is shown. Likewise a broken rig YAML
-    beside the rig field."""
+    beside the rig field, and a refused duration beside the duration field."""
     bad = tmp_path / "broken.tum"
     lines = FIGURE_EIGHT.read_text().splitlines()
     lines[4] = "0.4 1.0 oops"
@@ -174,17 +174,28 @@ def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
     page.locator("#rig-error").wait_for(state="visible")
     assert "rig.imu" in page.inner_text("#rig-error")
     page.screenshot(path=str(shots / "web-error.png"), full_page=True)
-    # the only console errors are the browser's own notes of the two refused requests
+
+    # the plan form: a duration the API refuses, named beside the duration field
+    page.select_option("#rig-select", "robotaxi")
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    page.fill("#plan-duration_s", "0.5")
+    page.click("#plan-button")
+    page.locator("#plan-duration_s-error").wait_for(state="visible")
+    assert "greater than 1" in page.inner_text("#plan-duration_s-error")
+    assert page.get_attribute("#plan-duration_s", "aria-invalid") == "true"
+    assert page.locator("#job").is_hidden()
+    # the only console errors are the browser's own notes of the three refused requests
     assert page.console.errors and all("status of 422" in e for e in page.console.errors), page.console.errors
 
 
 def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
-    """Plan a 20 s maneuver with a 3 s optimizer budget: the job's progress is shown while it
+    """Plan a 20 s maneuver with a 1 s optimizer budget: the job's progress is shown while it
     runs, then the maneuver in the lot, the comparison and working downloads."""
     page.click("#tab-plan")
     page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
     assert page.input_value("#plan-duration_s") == "90"  # the API's default, read from its schema
-    for field, value in {"duration_s": "20", "time_budget_s": "3", "n_random": "2",
+    for field, value in {"duration_s": "20", "time_budget_s": "1", "n_random": "2",
                          "lot_x_m": "60", "lot_y_m": "40", "lon_deg": "11.5", "lat_deg": "48.1"}.items():
         page.fill(f"#plan-{field}", value)
     page.click("#plan-button")

@@ -528,9 +528,8 @@ async function showPlan(job) {
     el("span", { class: rep.passed ? "badge pass" : "badge fail", text: rep.passed ? "PASS" : "FAIL" })),
   el("div", { class: "facts", text: `${job.status} · ${res.status} after ${res.iterations} iterations in ${res.elapsed_s.toFixed(1)} s · ` +
     `${rep.duration_s.toFixed(0)} s, ${rep.length_m.toFixed(0)} m` }));
-  const cols = [["name", "maneuver"], ["kind", "kind"], ["score", "score"], ["model_score", "model score"],
-    ["ratio", "optimized ÷ this"], ["feasible", "feasible"]];
-  const cell = (v) => (v === null || v === undefined ? "—" : typeof v === "number" ? fmt(v, 4) : typeof v === "boolean" ? (v ? "yes" : "no") : String(v));
+  const cols = [["name", "maneuver"], ["kind", "kind"], ["score", "score"], ["ratio", "planned ÷ this"], ["feasible", "feasible"]];
+  const cell = (v) => (v === null || v === undefined ? "—" : typeof v === "number" ? fmt(v, 3) : typeof v === "boolean" ? (v ? "yes" : "no") : String(v));
   $("#comparison thead").replaceChildren(el("tr", {}, ...cols.map(([, t]) => el("th", { scope: "col", text: t }))));
   $("#comparison tbody").replaceChildren(...res.comparison.map((r) => el("tr", { class: r.kind === "optimized" ? "mine" : null,
     title: r.violations && r.violations.length ? `violations: ${r.violations.join("; ")}` : null },
