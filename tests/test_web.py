@@ -117,7 +117,11 @@ def test_score_a_route_through_the_file_input(page, shots):
     page.click('#params th button[data-key="ratio"]')
     ratios = {p.name: (np.inf if p.sigma is None else p.sigma / p.target) for p in lib.parameters}
     shown = page.locator("#params tbody tr").evaluate_all("rows => rows.map(r => r.dataset.name)")
-    assert shown == sorted(ratios, key=lambda n: ratios[n])
+    # ascending up to rounding (the service's σ and this process's may differ in the last bits,
+    # and wheel.radius_left/right tie to 4 digits)
+    assert sorted(shown) == sorted(ratios)
+    in_order = [ratios[n] for n in shown]
+    assert all(a <= b * (1 + 1e-6) for a, b in zip(in_order, in_order[1:])), list(zip(shown, in_order))
     assert page.get_attribute('#params th:has(button[data-key="ratio"])', "aria-sort") == "ascending"
     page.click('#params th button[data-key="ratio"]')
     assert page.locator("#params tbody tr").first.get_attribute("data-name") == max(ratios, key=ratios.get)

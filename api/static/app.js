@@ -242,7 +242,7 @@ function renderParams() {
   }
   $("#params tbody").replaceChildren(...rows.map((p) => {
     const unobs = p.sigma === null;
-    const status = unobs ? "unobservable" : p.ok ? "ok" : "over target";
+    const status = unobs ? "unobservable" : p.ok ? "ok" : "over";
     return el("tr", { class: unobs ? "unobservable" : p.ok ? "ok" : "bad", "data-name": p.name },
       el("th", { scope: "row", text: p.name }),
       el("td", { text: unobs ? "∞" : fmt(p.sigma) }),
