@@ -18,10 +18,9 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from bench_api import machine  # noqa: E402
 from test_api_support import LiveServer  # noqa: E402
 from test_web import CHROMIUM_ARGS, _chromium  # noqa: E402
-
-from bench_api import machine  # noqa: E402
 
 
 def main() -> int:
@@ -42,7 +41,7 @@ def main() -> int:
                     ctx = browser.new_context()
                     page = ctx.new_page()
                     sizes: dict[str, int] = {}
-                    page.on("requestfinished", lambda r: sizes.__setitem__(
+                    page.on("requestfinished", lambda r, sizes=sizes: sizes.__setitem__(
                         r.url.removeprefix(srv.url), r.sizes()["responseBodySize"]))
                     page.goto(srv.url + "/")
                     page.wait_for_selector("#rig-select option[value=robotaxi]", state="attached")
