@@ -66,6 +66,22 @@ def shots(tmp_path_factory) -> Path:
     return out
 
 
+def save_shot(page, shots: Path, name: str) -> None:
+    """A full-page screenshot. The copies for the README (``$EXCITE_SCREENSHOTS``) are written
+    with a 256-colour palette: the README's images are held under 200 KB (test_readme)."""
+    png = page.screenshot(full_page=True)
+    if os.environ.get("EXCITE_SCREENSHOTS"):
+        import io
+
+        from PIL import Image
+
+        im = Image.open(io.BytesIO(png)).convert("RGB")
+        im.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+            shots / name, optimize=True)
+    else:
+        (shots / name).write_bytes(png)
+
+
 class Console:
     """Everything the page wrote to the console as an error, and uncaught exceptions."""
 
@@ -141,7 +157,7 @@ def test_score_a_route_through_the_file_input(page, shots):
     # weak modes with advice
     assert page.locator("#modes li .advice").count() >= 1
     assert lib.weak_modes[0].advice in page.inner_text("#modes")
-    page.screenshot(path=str(shots / "web-score.png"), full_page=True)
+    save_shot(page, shots, "web-score.png")
 
     # keyboard: focus the map, zoom in with +, back with 0
     home = page.get_attribute("#route-map", "viewBox")
@@ -177,7 +193,7 @@ def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
     page.set_input_files("#rig-file", str(rig))
     page.locator("#rig-error").wait_for(state="visible")
     assert "rig.imu" in page.inner_text("#rig-error")
-    page.screenshot(path=str(shots / "web-error.png"), full_page=True)
+    save_shot(page, shots, "web-error.png")
 
     # the plan form: a duration the API refuses, named beside the duration field
     page.select_option("#rig-select", "robotaxi")
@@ -227,7 +243,7 @@ def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
     assert tum.shape[1] == 8 and tum[-1, 0] - tum[0, 0] == pytest.approx(20, abs=0.5)
     # the drawn maneuver stays in the 60 × 40 m lot, as the optimizer promises
     assert np.all(np.abs(tum[:, 1]) <= 30) and np.all(np.abs(tum[:, 2]) <= 20)
-    page.screenshot(path=str(shots / "web-plan.png"), full_page=True)
+    save_shot(page, shots, "web-plan.png")
     assert page.console.errors == []
 
 
