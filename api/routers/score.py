@@ -8,23 +8,24 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 
 from ..context import Ctx, raise_problem
-from ..schemas import PlotRequest, Report, ScoreRequest
+from ..schemas import PlotRequest, ScoreRequest, ScoreResponse
 from .common import BODY
 
 router = APIRouter(prefix="/v1", tags=["score"])
 
 
-@router.post("/score", response_model=Report, responses=BODY,
+@router.post("/score", response_model=ScoreResponse, responses=BODY,
              summary="Score a route: how well does it determine every calibration parameter?")
 def score(body: ScoreRequest, ctx: Ctx) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
     control profile); the rig by bundled name or inline. CPU-bound: runs in a worker process."""
     limits = body.limits.model_dump() if body.limits else None
-    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits, ctx.deadline())
+    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits, ctx.deadline(),
+                           track_points=body.track_points)
     (result,) = ctx.wait([fut])
     if not result["ok"]:
         raise_problem(result)
-    return result["report"]
+    return {**result["report"], "track": result.get("track")}
 
 
 @router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
