@@ -670,8 +670,9 @@ class ImuAgreement:
 
     ``gyro_offset_radps``/``accel_offset_mps2``: mean measured − predicted (biases, mounting);
     ``gyro_rms_radps``/``accel_rms_mps2``: RMS of what is left; ``misalignment_deg``: the angle of
-    the rotation that best maps predicted onto measured rates (0 when the rig's mounting is the
-    IMU's); ``seconds``: time both cover.
+    the rotation that best maps predicted onto measured rates and specific forces (0 when the
+    rig's mounting is the IMU's; None when the drive does not determine it); ``seconds``: time
+    both cover.
     """
 
     seconds: float
@@ -709,11 +710,14 @@ def imu_agreement(traj: ImuTrajectory, R_V_B: np.ndarray, p_V_B: np.ndarray) -> 
     gw, gf = (wm - wp).mean(axis=0), (fm - fp).mean(axis=0)
     rw = float(np.sqrt(np.mean(np.sum((wm - wp - gw) ** 2, axis=1))))
     rf = float(np.sqrt(np.mean(np.sum((fm - fp - gf) ** 2, axis=1))))
+    # The mounting rotation from both vector sets at once (1-s means of specific force, gravity
+    # included, and of angular rate scaled to the same size): a planar drive turns about one
+    # axis only, its accelerations and gravity give the other two.
+    scale = 9.80665 / max(float(np.sqrt(np.mean(np.sum(wp ** 2, axis=1)))), 1e-6)
+    pred, meas = np.vstack([fp, wp * scale]), np.vstack([fm - gf, (wm - gw) * scale])
     mis = None
-    wpc, wmc = wp - wp.mean(axis=0), wm - wm.mean(axis=0)
-    # the rotation is determined only when the rates span two axes
-    if np.linalg.matrix_rank(wpc, tol=np.radians(0.5) * np.sqrt(n_blocks)) >= 2:
-        rot, _ = Rotation.align_vectors(wmc, wpc)
+    if np.linalg.matrix_rank(pred, tol=0.05 * np.sqrt(pred.shape[0])) >= 2:
+        rot, _ = Rotation.align_vectors(meas, pred)
         mis = float(np.degrees(rot.magnitude()))
     return ImuAgreement(float(t[-1] - t[0]), gw, rw, gf, rf, mis)
 
@@ -793,9 +797,13 @@ def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None
 
 
 def _typestore(ros1: bool):
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if "tf2_msgs/msg/TFMessage" not in store.types:  # ROS 1's store lacks it
+        store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
+                                          "tf2_msgs/msg/TFMessage"))
+    return store
 
 
 def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
