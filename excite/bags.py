@@ -160,10 +160,11 @@ class _Cursor:
     """Reads a ROS 1 message or a ROS 2 CDR message (alignment relative to the payload after the
     4-byte encapsulation header, endianness from it) field by field."""
 
-    __slots__ = ("b", "o", "base", "e", "ros2")
+    __slots__ = ("b", "o", "base", "e", "ros2", "stamp_at", "kept")
 
     def __init__(self, raw: bytes, ros2: bool):
         self.b, self.ros2 = raw, ros2
+        self.stamp_at, self.kept = 0, []  # offsets of the stamp and of the kept doubles
         if ros2:
             if len(raw) < 4:
                 raise struct.error("shorter than the CDR header")
@@ -190,8 +191,11 @@ class _Cursor:
         self.o += n
         return (s[:-1] if self.ros2 and s.endswith(b"\0") else s).decode("utf-8", "replace")
 
-    def doubles(self, n: int) -> tuple[float, ...]:
+    def doubles(self, n: int, keep: bool = False) -> tuple[float, ...]:
+        """``n`` float64; ``keep`` marks the values a decoder returns (their offset is noted)."""
         self._align(8)
+        if keep:
+            self.kept.append((self.o, n))
         v = _F64[(self.e, n)].unpack_from(self.b, self.o)
         self.o += 8 * n
         return v
@@ -200,11 +204,13 @@ class _Cursor:
         """(stamp [ns], frame_id) of a std_msgs/Header."""
         if self.ros2:
             self._align(4)
+            self.stamp_at = self.o
             (sec,) = _I32[self.e].unpack_from(self.b, self.o)
             self.o += 4
             nsec = self.u32()
         else:
             self.u32()  # seq
+            self.stamp_at = self.o
             sec, nsec = self.u32(), self.u32()
         return sec * 1_000_000_000 + nsec, self.string()
 
@@ -215,13 +221,13 @@ _Pose = tuple[int, str, "str | None", tuple[float, ...]]
 
 def _pose_stamped(c: _Cursor) -> list[_Pose]:
     t, frame = c.header()
-    return [(t, frame, None, c.doubles(7))]
+    return [(t, frame, None, c.doubles(7, keep=True))]
 
 
 def _transform_stamped(c: _Cursor) -> list[_Pose]:
     t, frame = c.header()
     child = c.string()
-    return [(t, frame, child, c.doubles(7))]
+    return [(t, frame, child, c.doubles(7, keep=True))]
 
 
 def _tf_message(c: _Cursor) -> list[_Pose]:
@@ -238,13 +244,14 @@ _DECODERS: dict[str, Callable[[_Cursor], list[_Pose]]] = {
 }
 
 
-def _imu_fields(c: _Cursor) -> tuple[int, str, tuple[float, ...], tuple[float, ...]]:
+def _imu_fields(c: _Cursor) -> list[_Pose]:
+    """(stamp, frame, None, angular rate + linear acceleration) of a sensor_msgs/Imu."""
     t, frame = c.header()
     c.doubles(4)  # orientation
     c.doubles(9)
-    w = c.doubles(3)
+    w = c.doubles(3, keep=True)
     c.doubles(9)
-    return t, frame, w, c.doubles(3)
+    return [(t, frame, None, w + c.doubles(3, keep=True))]
 
 
 def _decode(path: Path, topic: str, index: int, fn: Callable, raw: bytes, ros2: bool):
@@ -252,6 +259,105 @@ def _decode(path: Path, topic: str, index: int, fn: Callable, raw: bytes, ros2: 
         return fn(_Cursor(raw, ros2))
     except (struct.error, KeyError) as exc:
         raise BagError(path, f"message {index} is malformed ({exc})", topic) from None
+
+
+_BATCH = 4096  # messages decoded at once (bounded memory)
+
+
+@dataclass
+class _Template:
+    """The layout of a topic's first message: later messages of the same length whose bytes
+    between the stamp and the first kept value are the same (same frame names) share it, and
+    their stamps and values are read for a whole batch at once with numpy."""
+
+    length: int
+    key: bytes
+    key_from: int
+    stamp_at: int
+    kept: list[tuple[int, int]]
+    e: str
+    ros2: bool
+    head: bytes  # the CDR encapsulation header (ROS 2), which sets the byte order
+
+    def matches(self, raw: bytes) -> bool:
+        return len(raw) == self.length and raw[:len(self.head)] == self.head and \
+            raw[self.key_from:self.key_from + len(self.key)] == self.key
+
+    def columns(self, batch: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+        buf = np.frombuffer(b"".join(batch), dtype=np.uint8).reshape(len(batch), self.length)
+        st = self.stamp_at
+        sec = buf[:, st:st + 4].copy().view(f"{self.e}{'i4' if self.ros2 else 'u4'}")[:, 0]
+        nsec = buf[:, st + 4:st + 8].copy().view(f"{self.e}u4")[:, 0]
+        vals = [buf[:, o:o + 8 * n].copy().view(f"{self.e}f8") for o, n in self.kept]
+        return sec.astype(np.int64) * 1_000_000_000 + nsec, np.hstack(vals).astype(float)
+
+
+class _Series:
+    """Collects (stamps ns, values (n, k), frame, child) of single-value messages of one topic,
+    decoded in batches through a :class:`_Template` where the layout repeats and one by one
+    where it does not."""
+
+    def __init__(self, path: Path, topic: str, fn: Callable, ros2: bool):
+        self.path, self.topic, self.fn, self.ros2 = path, topic, fn, ros2
+        self.t_parts: list[np.ndarray] = []
+        self.v_parts: list[np.ndarray] = []
+        self.batch: list[bytes] = []
+        self.tmpl: _Template | None = None
+        self.frame, self.child = "", None
+        self.n = 0
+
+    def _flush(self) -> None:
+        if self.batch:
+            t, v = self.tmpl.columns(self.batch)
+            self.t_parts.append(t)
+            self.v_parts.append(v)
+            self.batch.clear()
+
+    def add(self, raw: bytes) -> None:
+        i, self.n = self.n, self.n + 1
+        if self.tmpl is not None and self.tmpl.matches(raw):
+            self.batch.append(raw)
+            if len(self.batch) >= _BATCH:
+                self._flush()
+            return
+        self._flush()
+        try:
+            c = _Cursor(raw, self.ros2)
+            ((stamp, self.frame, child, vals),) = self.fn(c)
+        except (struct.error, KeyError, ValueError) as exc:
+            raise BagError(self.path, f"message {i} is malformed ({exc})", self.topic) from None
+        self.child = child or self.child
+        self.t_parts.append(np.array([stamp], dtype=np.int64))
+        self.v_parts.append(np.array([vals], dtype=float))
+        if self.tmpl is None and c.kept:
+            start = c.stamp_at + 8
+            self.tmpl = _Template(len(raw), bytes(raw[start:c.kept[0][0]]), start, c.stamp_at,
+                                  list(c.kept), c.e, self.ros2, bytes(raw[:4]) if self.ros2 else b"")
+
+    def result(self) -> tuple[np.ndarray, np.ndarray, str, str | None]:
+        self._flush()
+        if not self.t_parts:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 7)), self.frame, self.child
+        return np.concatenate(self.t_parts), np.vstack(self.v_parts), self.frame, self.child
+
+
+def _read_series(path: Path, reader, wanted: dict[str, Callable], window) -> dict[str, _Series]:
+    """One pass over the bag for every topic in ``wanted`` (topic → decoder)."""
+    out, by_id, cons = {}, {}, []
+    for topic, fn in wanted.items():
+        tc = _connections(path, reader, topic)
+        out[topic] = _Series(path, topic, fn, _is_ros2(tc[0]))
+        for c in tc:
+            by_id[c.id] = out[topic]
+        cons += tc
+    errors = _reader_errors()
+    try:
+        for c, _, raw in reader.messages(connections=cons, start=window[0], stop=window[1]):
+            by_id[c.id].add(raw)
+    except errors as exc:
+        raise BagError(path, f"the bag is truncated or corrupt while reading ({exc})",
+                       ", ".join(wanted)) from None
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -367,20 +473,40 @@ def read_poses(path: str | Path, topic: str, *, start_s: float | None = None,
     window, a chain that does not connect (naming the missing link), unit-norm violations and
     stamps that go backwards. Exact repeats (same stamp, same pose) are dropped.
     """
-    path = Path(path)
+    return _read_drive(Path(path), topic, None, start_s, end_s, child_frame)[0]
+
+
+def _read_drive(path: Path, topic: str, imu_topic: str | None, start_s: float | None,
+                end_s: float | None, child_frame: str | None = None) -> tuple[PoseSeries, "ImuSeries | None"]:
+    """The poses of ``topic`` and the IMU of ``imu_topic``: one pass over the bag for a pose
+    topic and its IMU, a second one for a TF chain's IMU."""
     chain = _parse_source(topic)
     with _open(path) as reader:
         window = _window(reader, start_s, end_s)
+        wanted = {}
+        if chain is None:
+            wanted[topic] = _DECODERS[_pose_type(path, reader, topic)]
+        if imu_topic is not None:
+            cons = _connections(path, reader, imu_topic)
+            if cons[0].msgtype != IMU_TYPE:
+                raise BagError(path, f"type {cons[0].msgtype} is not sensor_msgs/Imu", imu_topic)
+            wanted[imu_topic] = _imu_fields
+        series = _read_series(path, reader, wanted, window) if wanted else {}
         if chain is not None:
-            series = _tf_chain(path, reader, topic, *chain, window)
+            poses = _tf_chain(path, reader, topic, *chain, window)
         else:
-            series = _topic_poses(path, reader, topic, window, child_frame)
-    return _checked(path, topic, series)
+            t, d, frame, child = series[topic].result()
+            if not t.size:
+                raise BagError(path, "no messages" + (" in the window" if window != (None, None) else ""),
+                               topic)
+            poses = PoseSeries(t, d[:, :3], d[:, 3:], frame or "",
+                               child or child_frame or topic.strip("/") or "body")
+    imu = None if imu_topic is None else _imu_series(path, imu_topic, *series[imu_topic].result()[:3])
+    return _checked(path, topic, poses), imu
 
 
-def _topic_poses(path: Path, reader, topic: str, window, child_frame: str | None) -> PoseSeries:
-    cons = _connections(path, reader, topic)
-    msgtype = cons[0].msgtype
+def _pose_type(path: Path, reader, topic: str) -> str:
+    msgtype = _connections(path, reader, topic)[0].msgtype
     if msgtype in TF_TYPES:
         raise BagError(path, f"{msgtype} carries many transforms: name the chain as "
                              f"{topic}:PARENT.CHILD (see `excite route info`)", topic)
@@ -388,20 +514,7 @@ def _topic_poses(path: Path, reader, topic: str, window, child_frame: str | None
         raise BagError(path, f"type {msgtype} carries no pose (scoreable types: "
                              f"{', '.join(t.split('/')[-1] for t in POSE_TYPES)}, or a TF chain "
                              "/tf:PARENT.CHILD)", topic)
-    fn, ros2 = _DECODERS[msgtype], _is_ros2(cons[0])
-    t, poses = [], []
-    frame = child = None
-    for i, (_, raw) in enumerate(_stream(path, reader, cons, topic, *window)):
-        stamp, frame, child_i, pose = _decode(path, topic, i, fn, raw, ros2)[0]
-        child = child_i if child_i else child
-        t.append(stamp)
-        poses.append(pose)
-    if not t:
-        raise BagError(path, "no messages" + (" in the window" if window != (None, None) else ""),
-                       topic)
-    d = np.asarray(poses, dtype=float)
-    return PoseSeries(np.asarray(t, dtype=np.int64), d[:, :3], d[:, 3:],
-                      frame or "", child or child_frame or topic.strip("/") or "body")
+    return msgtype
 
 
 def _checked(path: Path, topic: str, s: PoseSeries) -> PoseSeries:
@@ -612,23 +725,19 @@ def read_imu(path: str | Path, topic: str, *, start_s: float | None = None,
         cons = _connections(path, reader, topic)
         if cons[0].msgtype != IMU_TYPE:
             raise BagError(path, f"type {cons[0].msgtype} is not sensor_msgs/Imu", topic)
-        ros2 = _is_ros2(cons[0])
-        t, w, f = [], [], []
-        frame = ""
-        for i, (_, raw) in enumerate(_stream(path, reader, cons, topic, *_window(reader, start_s, end_s))):
-            stamp, frame, wi, fi = _decode(path, topic, i, _imu_fields, raw, ros2)
-            t.append(stamp)
-            w.append(wi)
-            f.append(fi)
-    if len(t) < 2:
-        raise BagError(path, f"{len(t)} IMU messages: need at least 2", topic)
-    t_ns = np.asarray(t, dtype=np.int64)
+        series = _read_series(path, reader, {topic: _imu_fields}, _window(reader, start_s, end_s))
+    return _imu_series(path, topic, *series[topic].result()[:3])
+
+
+def _imu_series(path: Path, topic: str, t_ns: np.ndarray, d: np.ndarray, frame: str) -> ImuSeries:
+    if t_ns.size < 2:
+        raise BagError(path, f"{t_ns.size} IMU messages: need at least 2", topic)
     dt = np.diff(t_ns)
     if np.any(dt <= 0):
         k = int(np.argmax(dt <= 0)) + 1
         raise BagError(path, f"stamps are not monotonic: message {k}'s stamp "
                              f"{'repeats' if dt[k - 1] == 0 else 'goes backwards'}", topic)
-    omega, accel = np.asarray(w, float), np.asarray(f, float)
+    omega, accel = d[:, :3], d[:, 3:]
     if not (np.all(np.isfinite(omega)) and np.all(np.isfinite(accel))):
         raise BagError(path, "an IMU sample is NaN or infinite", topic)
     return ImuSeries(t_ns, omega, accel, frame)
@@ -765,7 +874,7 @@ def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None
         raise BagError(path, f"axes must be one of {', '.join(AXES)}, got {axes!r}")
     if start_s is not None and end_s is not None and end_s <= start_s:
         raise BagError(path, f"the window is empty: --end {end_s:g} s is not after --start {start_s:g} s")
-    s = read_poses(path, topic, start_s=start_s, end_s=end_s)
+    s, imu = _read_drive(path, topic, imu_topic, start_s, end_s)
     R, p = s.R, s.p
     if axes == "optical":
         R = R_CAM_VEH.T @ R @ R_CAM_VEH
@@ -781,9 +890,8 @@ def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None
         R = R @ R_C_V
     name = f"{path.stem if path.is_file() else path.name}:{topic}"
     traj = trajectory_from_poses(s.t_s, p, R, cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=name)
-    if imu_topic is None:
+    if imu is None:
         return traj
-    imu = read_imu(path, imu_topic, start_s=start_s, end_s=end_s)
     t_imu = (imu.t_ns - s.t_ns[0]).astype(float) * 1e-9
     lo, hi = max(t_imu[0], traj.t_start), min(t_imu[-1], traj.t_end)
     if hi - lo < 0.5 * traj.duration:
