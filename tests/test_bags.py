@@ -84,6 +84,21 @@ def test_field_decoder_matches_full_message_decoding(data_dir, name, topic):
         assert pose == tuple(p_r) + tuple(q_r)
 
 
+@pytest.mark.parametrize("topic", ["/odom", "/amcl_pose", "/tf:odom.base_link"])
+def test_mcap_chunk_reader_reads_what_rosbags_reads(data_dir, topic, monkeypatch):
+    """The MCAP chunk reader (message indexes, numpy gathers) against rosbags' reader, with and
+    without a window."""
+    path = data_dir / NAV2
+    for window in ({}, {"start_s": 20.0, "end_s": 50.0}):
+        fast = bags.read_poses(path, topic, **window)
+        with monkeypatch.context() as m:
+            m.setattr(bags, "_mcap_files", lambda p: None)
+            slow = bags.read_poses(path, topic, **window)
+        assert np.array_equal(fast.t_ns, slow.t_ns) and fast.t_ns.size > 10
+        assert np.array_equal(fast.p, slow.p) and np.array_equal(fast.q, slow.q)
+        assert (fast.frame, fast.child) == (slow.frame, slow.child)
+
+
 def test_route_info_lists_topics_types_rates_and_sources(data_dir, capsys):
     info = {t.topic: t for t in bags.bag_info(data_dir / NAV2)}
     assert info["/odom"].msgtype == "nav_msgs/msg/Odometry" and info["/odom"].count == 2639
@@ -259,6 +274,11 @@ def test_measured_imu_replaces_the_pose_derivatives_and_agrees(tmp_path, drive):
     path = write_bag(drive, tmp_path / "d", imu_topic="/imu", T_V_B=(pose.R, pose.p))
     traj = read_bag_route(path, "/odom", imu_topic="/imu")
     assert isinstance(traj, ImuTrajectory) and traj.imu_frame == "imu_link"
+    mcap_path = bags.read_imu(path, "/imu")
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(bags, "_mcap_files", lambda p: None)
+        rosbags_path = bags.read_imu(path, "/imu")
+    assert np.array_equal(mcap_path.omega, rosbags_path.omega) and np.array_equal(mcap_path.t_ns, rosbags_path.t_ns)
     t = traj.times(200.0)[10:-10]
     _, w, f = traj.imu(t, pose.R, pose.p)
     _, w_true, f_true = drive.imu(t + drive.t_start, pose.R, pose.p)
