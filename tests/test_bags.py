@@ -150,13 +150,14 @@ def test_turtlebot_scores_from_the_command_line(data_dir, tmp_path, capsys):
 
 def test_slam_estimate_gives_the_same_verdict_as_ground_truth(data_dir):
     """ROS_example.bag: ORB-SLAM is a noisy estimate of the ground-truth drive (camera-optical
-    axes); over the time both cover, every parameter gets the same pass/fail."""
+    axes); over the same 5 minutes, every parameter gets the same pass/fail."""
     path = data_dir / "ROS_example.bag"
     rig = load_rig("robotaxi")
-    slam = read_route(path, bag=BagSource("ORB-SLAM", axes="optical"))
+    # 5 minutes from the start of the SLAM estimate (bag time = header stamps in this bag)
     start = (bags.read_poses(path, "ORB-SLAM").t_ns[0] - bags.read_poses(path, "groundtruth").t_ns[0]) * 1e-9
-    truth = read_route(path, bag=BagSource("groundtruth", axes="optical", start_s=max(start, 0.0),
-                                           end_s=start + slam.duration))
+    window = {"start_s": start, "end_s": start + 300.0}
+    slam = read_route(path, bag=BagSource("ORB-SLAM", axes="optical", **window))
+    truth = read_route(path, bag=BagSource("groundtruth", axes="optical", **window))
     a, b = evaluate(truth, rig), evaluate(slam, rig)
     assert a.score > 0 and b.score > 0
     assert [p.ok for p in a.parameters] == [p.ok for p in b.parameters]
