@@ -146,8 +146,9 @@ async def _score_form(form: Any, ctx: Any) -> Any:
         with path.open("wb") as out:
             while chunk := await upload.read(1 << 20):
                 out.write(chunk)
-        fut = ctx.pool.submit(bag_score_task, str(path), filename, source, rig, segments, ctx.bounds)
-        (result,) = await anyio.to_thread.run_sync(ctx.wait, [fut], ctx.deadline())
+        fut = ctx.pool.submit(bag_score_task, str(path), filename, source, rig, segments, ctx.bounds,
+                              deadline=ctx.deadline())
+        (result,) = await anyio.to_thread.run_sync(ctx.wait, [fut])
     if not result["ok"]:
         raise_problem(result)
     return JSONResponse(result["report"])
