@@ -70,6 +70,7 @@ def create_app(settings: Settings | None = None, *,
     app.state.ctx = ctx
     app.openapi = _openapi_with_settings(app, settings)
     problems.install(app)
+    app.include_router(score.bag_router)  # multipart POST /v1/score: before the JSON route
     for module in (score, batch, maneuvers, jobs, rigs, health, page):
         app.include_router(module.router)
     app.mount("/static", page.static_files(), name="static")

@@ -314,6 +314,24 @@ def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
     return _as_problem(run, field)
 
 
+def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | dict[str, Any],
+                   segments: int, bounds: Bounds) -> dict[str, Any]:
+    """The report of an uploaded bag (saved at ``path``) read with ``source``
+    (:class:`excite.bags.BagSource` fields); problems name the form field, never the path."""
+    from excite.bags import BagSource, read_bag_route
+
+    def run() -> dict[str, Any]:
+        r = resolve_rig(rig, "rig")
+        traj = read_bag_route(path, **BagSource(**source).options())
+        traj.name = f"{filename}:{source['topic']}"
+        if traj.duration > bounds.max_route_duration_s:
+            raise Rejected(422, "bag", f"the drive lasts {traj.duration:.1f} s, over the limit of "
+                                       f"{bounds.max_route_duration_s:g} s")
+        return {"ok": True, "report": _finite(evaluate(traj, r, Options(segments=segments)).to_dict())}
+
+    return _as_problem(run, "bag")
+
+
 def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
               limits: dict[str, float] | None, bounds: Bounds, parameter: str | None) -> dict[str, Any]:
     """``{"ok": True, "png": bytes}``: the figure of ``excite score --plot`` for this route."""
