@@ -643,7 +643,7 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
     if is_bag(path):
         return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
     if bag is not None:
-        raise RouteError(f"--topic and the other bag options apply to bags only (.bag, .mcap, a "
+        raise RouteError("--topic and the other bag options apply to bags only (.bag, .mcap, a "
                          "ROS 2 bag folder)", source=str(path))
     if times is not None:
         return read_kitti(path, times, **timed)
