@@ -271,11 +271,15 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
     path = Path(path)
     where = _display(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ManifestError(f"{where}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise ManifestError(f"{where}: not a text file ({exc.reason})") from None
     try:
         data = yaml.safe_load(text)
+    except RecursionError:
+        raise ManifestError(f"{where}: nested too deeply to be a routes manifest") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f", line {mark.line + 1}" if mark is not None else ""

@@ -479,6 +479,8 @@ def read_geojson(path: str | Path, *, limits: Limits = Limits(),
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise RouteError(f"not valid JSON: {exc.msg}", source=src, line=exc.lineno) from None
+    except RecursionError:
+        raise RouteError("the JSON is nested too deeply to be a GeoJSON LineString", source=src) from None
     geom, props = doc, {}
     if isinstance(doc, dict) and doc.get("type") == "FeatureCollection":
         feats = doc.get("features") or []

@@ -84,6 +84,10 @@ def test_a_timed_out_request_has_its_worker_killed_and_the_next_is_served(srv, c
     while _score_workers(srv.proc.pid) & before and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _score_workers(srv.proc.pid) & before, "the timed-out worker is still running"
+    # its replacement warms up (loads the kernels) before it takes work: ready again, then served
+    deadline = time.monotonic() + 60
+    while client.get("/readyz").status_code != 200 and time.monotonic() < deadline:
+        time.sleep(0.2)
     r = client.post("/v1/score", json={"route": LOOP})
     assert r.status_code == 200 and r.json()["score"] >= 0, r.text[:300]
 

@@ -323,3 +323,17 @@ def test_a_service_can_tighten_the_bounds_and_they_are_quoted(tmp_path):
         with bounds.tightened(duration_s=1e9):  # never loosened
             assert bounds.max_duration_s() == 120.0
     assert bounds.max_duration_s() == bounds.MAX_DURATION_S
+
+
+def test_deeply_nested_geojson_is_an_error_not_a_crash(tmp_path):
+    path = _write(tmp_path, "deep.geojson", "[" * 100_000 + "]" * 100_000)
+    with pytest.raises(RouteError, match="nested too deeply"):
+        routes.read_route(path)
+
+
+def test_deeply_nested_manifest_is_an_error_not_a_crash(tmp_path):
+    from excite.batch import ManifestError, collect
+
+    path = _write(tmp_path, "routes.yaml", "routes: " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(ManifestError, match="nested too deeply"):
+        collect([str(path)])
