@@ -9,12 +9,12 @@ of the physics alone.
 
 Plans: the optimizer's, one per ``--criterion`` (``E`` = maximise λ_min, what ``excite optimize``
 does; ``D``/``A`` when the optimizer offers them, as ``OptimizeSettings.criterion``), or given as
-route files with ``--plan NAME=FILE`` (e.g. ``--plan D-optimal=out/d/control.csv``); plus the
-best reference maneuver and the best random candidate of the same duration, from the optimizer's
-own comparison (or ``--plan`` files alone with ``--no-optimize``).
+route files with ``--plan NAME=FILE`` (e.g. ``--plan D-optimal=out/d/control.csv``; with
+``--no-optimize`` the optimizer is not run); plus the best reference maneuver and the best of
+``--n-random`` random candidates of the same duration, by the full evaluator's score.
 
-    python benchmarks/bench_plan_mc.py [--duration 20] [--runs 50] [--imu-rate 100]
-        [--criterion E ...] [--plan NAME=FILE ...] [--time-budget 60] [--out DIR]
+    python benchmarks/bench_plan_mc.py [--duration 20] [--runs 50] [--imu-rate 100] [--n-random 50]
+        [--criterion E ...] [--plan NAME=FILE ...] [--no-optimize] [--time-budget 60] [--out DIR]
 
 Writes ``plans/*.csv``, ``results.json`` and ``table.md`` to ``--out``
 (default ``benchmarks/out/plan_mc/``).
@@ -31,49 +31,50 @@ from pathlib import Path
 
 
 from excite.cli.validate import with_imu_rate
+from excite.evaluate import evaluate
 from excite.maneuvers import random_candidates
 from excite.optimize import OptimizeSettings, optimize
 from excite.optimize.pipeline import _references, lot_of
 from excite.rig import load_rig
 from excite.routes import read_route, write_control_csv
 from excite.validate import MonteCarloSettings, monte_carlo
+from excite.vehicle import drive
 
 OUT = Path(__file__).parent / "out" / "plan_mc"
 
 
-def optimizer_plans(rig, duration_s: float, criteria: list[str], budget_s: float, n_random: int,
-                    out: Path) -> dict[str, Path]:
-    """The optimizer's plan per criterion, and the best reference and random candidate of its
-    comparison, as control CSV files."""
+def optimizer_plans(rig, duration_s: float, criteria: list[str], budget_s: float, out: Path) -> dict[str, Path]:
+    """The optimizer's plan per criterion, as control CSV files."""
     plans: dict[str, Path] = {}
     has_criterion = "criterion" in {f.name for f in dataclasses.fields(OptimizeSettings)}
-    comparison = None
-    settings = None
     for c in criteria:
         if c != "E" and not has_criterion:
             print(f"criterion {c}: this optimizer maximises λ_min only (E); pass the {c}-optimal plan "
                   f"with --plan {c}-optimal=FILE", flush=True)
             continue
         extra = {"criterion": c} if has_criterion else {}
-        settings = OptimizeSettings(duration_s=duration_s, time_budget_s=budget_s, n_random=n_random, **extra)
+        settings = OptimizeSettings(duration_s=duration_s, time_budget_s=budget_s, n_random=0, **extra)
         t0 = time.perf_counter()
         res = optimize(rig, settings)
         print(f"{c}-optimal: {res.status}, {res.iterations} iterations, score {res.report.score:.4g} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         plans[f"{c}-optimal"] = write_control_csv(res.profile, out / f"{c}_optimal_control.csv")
-        comparison = comparison or res.comparison
-    if comparison is not None:
-        refs = _references(settings)
-        best_ref = max((r for r in comparison if r["kind"] == "reference"), key=lambda r: r["score"])
-        plans[f"reference ({best_ref['name']})"] = write_control_csv(refs[best_ref["name"]],
-                                                                     out / "best_reference_control.csv")
-        rand = [r for r in comparison if r["kind"] == "random"]
-        if rand:
-            cands = random_candidates(n_random, duration_s, lot_of(settings), settings.limits, seed=settings.seed,
-                                      suspension=rig.suspension)
-            best = next(p for p in cands if p.name == rand[0]["candidate"])
-            plans[f"random ({best.name})"] = write_control_csv(best, out / "best_random_control.csv")
     return plans
+
+
+def baseline_plans(rig, duration_s: float, n_random: int, seed: int, out: Path) -> dict[str, Path]:
+    """The best reference maneuver and the best of ``n_random`` random candidates of this duration
+    on the optimizer's default lot and limits, by the full evaluator's score."""
+    settings = OptimizeSettings(duration_s=duration_s, seed=seed, n_random=n_random)
+
+    def best(profiles):
+        return max(profiles, key=lambda p: evaluate(drive(p, rig.suspension), rig).score)
+
+    ref = best(list(_references(settings).values()))
+    rand = best(random_candidates(n_random, duration_s, lot_of(settings), settings.limits, seed=seed,
+                                  suspension=rig.suspension))
+    return {f"best reference ({ref.name})": write_control_csv(ref, out / "best_reference_control.csv"),
+            f"best of {n_random} random ({rand.name})": write_control_csv(rand, out / "best_random_control.csv")}
 
 
 def row(name: str, res) -> dict:
@@ -118,7 +119,7 @@ def main() -> int:
     ap.add_argument("--imu-rate", type=float, default=100.0)
     ap.add_argument("--criterion", action="append", default=None, help="optimizer criterion (repeatable)")
     ap.add_argument("--plan", action="append", default=[], help="NAME=FILE, a route file (repeatable)")
-    ap.add_argument("--no-optimize", action="store_true", help="only the --plan files")
+    ap.add_argument("--no-optimize", action="store_true", help="no optimizer run: the --plan files")
     ap.add_argument("--time-budget", type=float, default=60.0)
     ap.add_argument("--n-random", type=int, default=50)
     ap.add_argument("--out", type=Path, default=OUT)
@@ -134,8 +135,8 @@ def main() -> int:
             return 2
         plans[name] = Path(path)
     if not args.no_optimize:
-        plans.update(optimizer_plans(rig, args.duration, args.criterion or ["E"], args.time_budget,
-                                     args.n_random, out / "plans"))
+        plans.update(optimizer_plans(rig, args.duration, args.criterion or ["E"], args.time_budget, out / "plans"))
+    plans.update(baseline_plans(rig, args.duration, args.n_random, args.seed, out / "plans"))
     rows = []
     for name, path in plans.items():
         traj = read_route(path, suspension=rig.suspension)

@@ -53,13 +53,12 @@ class SolverSettings:
     (× diag H), updated from the gain ratio (Nielsen). ``rank_rtol``: directions of the
     calibration whose information (in targets, trajectory eliminated) is below ``rank_rtol`` × the
     largest single parameter's are not moved (a truncated solve, as observability-aware
-    calibration does). The evaluator counts information below 1e-10 of that scale as zero at the
-    *nominal* motion; at a noisy estimate, exact null directions pick up spurious information of
-    about that size from the estimated trajectory's noise (measured ~1e-10 on a planar drive,
-    against ~2e-8 for a vertical lever arm seen through suspension pitch), so the solver's default
-    sits at 1e-9. With a smaller value an unobservable direction is "estimated" from that noise
-    and wanders (metres for a vertical lever arm on a planar drive). ``scale_sigma``: the scale
-    unit of a monocular camera's scale (it has no target).
+    calibration does; see :meth:`_Normal.rank`). At a noisy estimate, exact null directions pick
+    up spurious information of about 1e-10 of that scale from the estimated trajectory's noise
+    (measured on a planar drive, against ~2e-8 for a vertical lever arm seen through suspension
+    pitch), so the default sits at 1e-9. With a smaller value an unobservable direction is
+    "estimated" from that noise and wanders (metres for a vertical lever arm on a planar drive).
+    ``scale_sigma``: the scale unit of a monocular camera's scale (it has no target).
     """
 
     max_iterations: int = 50
@@ -361,8 +360,13 @@ class _Normal:
 
     def rank(self, A0: np.ndarray, rank_rtol: float):
         """The calibration directions the data determines: eigenvectors of the undamped Schur
-        complement ``A0`` above ``rank_rtol · max diag(H_θθ)`` (the evaluator's criterion). Returns
-        the basis, the threshold and the condition over the kept directions."""
+        complement ``A0`` (in target units) above ``rank_rtol · max diag(H_θθ)``. Not the evaluator's
+        normalised test (:mod:`excite.spectrum`, each coordinate against its own information): at a
+        noisy estimate an exactly unobservable coordinate (a vertical lever arm on a flat lot) has
+        spurious information of its own from the estimate's noise, and normalised by that it
+        survives marginalisation as if it were real (measured: no normalised eigenvalue below 1e-3
+        where the evaluator finds two exact zeros). Returns the basis, the threshold and the
+        condition over the kept directions."""
         w, V = np.linalg.eigh(A0)
         tol = rank_rtol * max(np.diag(self.Htt).max(), 1e-300)
         kept = w > tol
