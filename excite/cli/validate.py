@@ -139,7 +139,7 @@ def validate(
     from ..routes import read_route
     from ..validate.calibrate import SolverSettings
     from ..validate.monte_carlo import MonteCarloSettings, Trial, monte_carlo
-    from ..validate.simulate import SimulationSettings
+    from ..validate.simulate import SimulationSettings, ValidateError
 
     r = load_rig(rig)
     if imu_rate is not None:
