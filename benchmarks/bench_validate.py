@@ -1,7 +1,8 @@
 """Monte Carlo validation of the predicted σ: the figures of the README.
 
 Writes two routes and a rig variant to ``benchmarks/out/validate/`` and runs ``excite validate``
-on them (default: 100 trials each, the robotaxi rig at its 200 Hz IMU):
+on them with the model's own data (``--simulator model``; default: 100 trials each, the robotaxi
+rig at its 200 Hz IMU):
 
 1. ``hilly_figure_eight_control.csv``: the reference figure-eight (60 s) over undulating ground
    (grade ±8 % with a 4 s period, bank ±3.4° with a 3 s period) with the rig's suspension: full
@@ -59,7 +60,9 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=60.0)
     args = ap.parse_args()
     hilly_route, planar_route, rigid = write_inputs(args.duration)
-    common = ["--runs", str(args.runs), "--seed", str(args.seed), "--quiet"]
+    # the model's own data: a consistency check of the evaluator and the estimator (the physical
+    # simulator's comparison is benchmarks/bench_plan_mc.py)
+    common = ["--runs", str(args.runs), "--seed", str(args.seed), "--simulator", "model", "--quiet"]
     for argv in (["validate", str(hilly_route), *common],
                  ["validate", str(planar_route), "--rig", str(rigid), *common]):
         print("$ excite " + " ".join(argv), flush=True)

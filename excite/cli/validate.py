@@ -94,8 +94,23 @@ def print_result(res: MonteCarloResult, console: Any) -> None:
                       f"{ns.observable_whitened_rms:.3f} (1 if the prediction holds)")
         for c in ns.coordinates:
             console.print("  " + ", ".join(f"{name} {w:+.2f}" for name, w in c))
-    if res.failures:
-        console.print(f"[yellow]{res.failures} of {n} trials did not converge (kept in the statistics)[/]")
+    conv = "[green]" if res.failures == 0 else "[yellow]"
+    console.print(f"Solver: {conv}{n - res.failures} of {n} trials converged[/] (non-converged ones are kept "
+                  f"in the statistics); " + "; ".join(f"{k} ×{v}" for k, v in res.stop_reasons.items()))
+    mc, (lo, hi) = res.model_check()
+    fits = lo <= mc <= hi
+    console.print(f"Model check: whitened cost 2·cost/dof = {mc:.4f} at the estimates, {conf} % interval "
+                  f"{lo:.4f}–{hi:.4f} if the data has the noise the model assumes: "
+                  + ("[green]consistent[/]" if fits else "[red]the data violates the model[/]")
+                  + "; residual RMS per factor " + ", ".join(f"{k} {v:.2f}" for k, v in res.residual_rms().items()))
+    if res.systematic is not None:
+        top = sorted(res.systematic.items(), key=lambda kv: -abs(kv[1]))[:4]
+        console.print("Physics the model lacks, alone (a noise-free trial calibrated from the truth), moves "
+                      + ", ".join(f"{k} by {v:+.2f} σ" for k, v in top)
+                      + ("" if abs(top[0][1]) < 0.5 else " [red](a bias the predicted σ does not include)[/]"))
+    worst = res.worst_ratio()
+    if worst is not None:
+        console.print(f"Worst empirical σ / target: {worst[0]} {worst[1]:.3g}")
 
 
 @app.command()
@@ -111,6 +126,11 @@ def validate(
     offset: Annotated[float, typer.Option(help="σ of the true calibration offsets, in targets.")] = 2.0,
     rank_rtol: Annotated[float, typer.Option(help="Solver: relative information below which a "
                                                    "direction is left where it started.")] = 1e-9,
+    simulator: Annotated[str, typer.Option(help="'physical' (IMU integrated at 8× its rate, bias random "
+                                                 "walk, wheel slip, tyre slip angle) or 'model' (data exactly as "
+                                                 "the information model assumes).")] = "physical",
+    log: Annotated[Optional[Path], typer.Option(help="Write the solver's log (one JSON object per step "
+                                                     "of every trial) to this file.")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress line.")] = False,
 ) -> None:
@@ -119,7 +139,7 @@ def validate(
     from ..routes import read_route
     from ..validate.calibrate import SolverSettings
     from ..validate.monte_carlo import MonteCarloSettings, Trial, monte_carlo
-    from ..validate.simulate import SimulationSettings
+    from ..validate.simulate import SimulationSettings, ValidateError
 
     r = load_rig(rig)
     if imu_rate is not None:
@@ -127,8 +147,11 @@ def validate(
     traj = read_route(route, times=times, suspension=r.suspension)
     if duration is not None:
         traj = crop(traj, duration)
+    if simulator not in ("physical", "model"):
+        raise ValidateError(f"--simulator must be 'physical' or 'model', got {simulator!r}")
+    sim = SimulationSettings() if simulator == "physical" else SimulationSettings.model()
     settings = MonteCarloSettings(runs=runs, seed=seed, offset_in_targets=offset,
-                                  simulation=SimulationSettings(), solver=SolverSettings(rank_rtol=rank_rtol))
+                                  simulation=sim, solver=SolverSettings(rank_rtol=rank_rtol))
     err = console(stderr=True)
     show = not quiet and not json_out and err.is_terminal
 
@@ -137,7 +160,15 @@ def validate(
             err.print(f"trial {trial.index + 1}/{runs}: {trial.status} in {trial.iterations} iterations, "
                       f"{trial.seconds:.2f} s", end="\r")
 
-    res = monte_carlo(traj, r, settings, progress)
+    if log is None:
+        res = monte_carlo(traj, r, settings, progress)
+    else:
+        try:
+            fh = log.open("w")
+        except OSError as e:
+            raise ValidateError(f"--log: cannot write {log}: {e.strerror}") from None
+        with fh:
+            res = monte_carlo(traj, r, settings, progress, lambda rec: fh.write(json.dumps(rec) + "\n"))
     if json_out:
         typer.echo(json.dumps(res.to_dict(), indent=2))
     else:

@@ -22,12 +22,13 @@ taken as known by the information model too.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cholesky_banded
-from scipy.linalg.lapack import dtbtrs
+import scipy.sparse.linalg as spla
+from scipy.linalg.lapack import dpbtrf, dtbtrs
 
 from .. import information, so3
 from ..factors import imu as imu_factor
@@ -37,43 +38,44 @@ from ..rig import Rig
 from ..trajectory import GRAVITY
 from .simulate import Calibration, SensorData, ValidateError
 
-_GAUGE_SIGMA_POS_M = 1.0  # as the evaluator's gauge prior (excite.information)
 _GAUGE_SIGMA_YAW_RAD = 0.01
 
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Levenberg–Marquardt settings.
+    """Trust-region (Levenberg–Marquardt) settings of :func:`calibrate`.
 
-    ``max_iterations``: accepted steps at most. The step is solved in scaled coordinates (states:
-    columns of J at unit norm; calibration: in units of its targets), so ``step_tolerance`` is in
-    units of each state's conditional σ and of each target: the solver stops once no unknown moves
-    by more than that, or the cost decreases by less than ``cost_tolerance`` (relative).
-    ``lambda_initial/min/max``: Marquardt damping (× diag H). ``rank_rtol``: directions of the
+    The step is solved in scaled coordinates (states: columns of J at unit norm; calibration: in
+    units of its targets). Convergence: no unknown moves by more than ``step_tolerance`` in those
+    units, or the cost decreases (or is predicted to decrease) by less than ``cost_tolerance``
+    (relative), or the scaled gradient ``‖Jᵀr‖∞`` is below ``gradient_tolerance · ‖r‖``.
+    ``max_iterations``: linearisations at most. ``lambda_initial/min/max``: Marquardt damping
+    (× diag H), updated from the gain ratio (Nielsen). ``rank_rtol``: directions of the
     calibration whose information (in targets, trajectory eliminated) is below ``rank_rtol`` × the
     largest single parameter's are not moved (a truncated solve, as observability-aware
-    calibration does). The evaluator counts information below 1e-10 of that scale as zero at the
-    *nominal* motion; at a noisy estimate, exact null directions pick up spurious information of
-    about that size from the estimated trajectory's noise (measured ~1e-10 on a planar drive,
-    against ~2e-8 for a vertical lever arm seen through suspension pitch), so the solver's default
-    sits at 1e-9. With a smaller value an unobservable direction is "estimated" from that noise
-    and wanders (metres for a vertical lever arm on a planar drive). ``scale_sigma``: the scale unit of a
-    monocular camera's scale (it has no target).
+    calibration does; see :meth:`_Normal.rank`). At a noisy estimate, exact null directions pick
+    up spurious information of about 1e-10 of that scale from the estimated trajectory's noise
+    (measured on a planar drive, against ~2e-8 for a vertical lever arm seen through suspension
+    pitch), so the default sits at 1e-9. With a smaller value an unobservable direction is
+    "estimated" from that noise and wanders (metres for a vertical lever arm on a planar drive).
+    ``scale_sigma``: the scale unit of a monocular camera's scale (it has no target).
     """
 
-    max_iterations: int = 30
+    max_iterations: int = 50
     step_tolerance: float = 1e-3
     cost_tolerance: float = 1e-10
+    gradient_tolerance: float = 1e-10
     lambda_initial: float = 1e-12
     lambda_min: float = 1e-15
-    lambda_max: float = 1e8
+    lambda_max: float = 1e10
     rank_rtol: float = 1e-9
     scale_sigma: float = 0.01
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
             raise ValidateError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
-        for name in ("step_tolerance", "cost_tolerance", "lambda_initial", "lambda_min", "lambda_max"):
+        for name in ("step_tolerance", "cost_tolerance", "gradient_tolerance", "lambda_initial", "lambda_min",
+                     "lambda_max", "rank_rtol", "scale_sigma"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValidateError(f"{name} must be positive and finite, got {v!r}")
@@ -88,8 +90,21 @@ class States:
     v: np.ndarray
 
     def plus(self, d: np.ndarray) -> "States":
+        """Moved by a world-frame step ``[δθ, δp, δv]`` per keyframe."""
         d = d.reshape(-1, 9)
         return States(self.R @ so3.exp(d[:, 0:3]), self.p + d[:, 3:6], self.v + d[:, 6:9])
+
+    def plus_local(self, d: np.ndarray) -> "States":
+        """Moved by a step in the evaluator's local states ``[δθ, δv_body, δd_body]`` per keyframe
+        (:mod:`excite.information`): ``R ← R·Exp(δθ)``, body velocity ``Rᵀv += δv``, body increment
+        ``R_kᵀ(p_{k+1} − p_k) += δd``; the first position stays (positions enter only as
+        differences). To first order this is the world step the local Jacobian describes."""
+        d = d.reshape(-1, 9)
+        R = self.R @ so3.exp(d[:, 0:3])
+        v = np.einsum("kij,kj->ki", R, np.einsum("kji,kj->ki", self.R, self.v) + d[:, 3:6])
+        inc = np.einsum("kji,kj->ki", self.R[:-1], np.diff(self.p, axis=0)) + d[:-1, 6:9]
+        p = self.p[0] + np.vstack([np.zeros((1, 3)), np.cumsum(np.einsum("kij,kj->ki", R[:-1], inc), axis=0)])
+        return States(R, p, v)
 
 
 @dataclass(frozen=True)
@@ -108,6 +123,7 @@ class CalibrationResult:
     calibration: Calibration
     states: States
     information: np.ndarray | None = None  # Λ over rig.coordinates at the estimate (trajectory eliminated)
+    residual_rms: dict[str, float] | None = None  # whitened RMS per factor kind at the estimate (≈ 1)
 
     @property
     def converged(self) -> bool:
@@ -194,14 +210,15 @@ def keyframe_rates(data: SensorData, b_g: np.ndarray) -> np.ndarray:
 class _Problem:
     """Residuals and Jacobian of the joint problem for fixed data, rig and gauge reference."""
 
-    def __init__(self, data: SensorData, rig: Rig, gauge_R: np.ndarray, gauge_p: np.ndarray):
-        rig = rig.with_constant_biases()  # one bias per drive, as the simulator draws it
-        self.data, self.rig = data, rig
+    def __init__(self, data: SensorData, rig: Rig, gauge_R: np.ndarray):
+        # the estimator takes the biases constant (the simulator may let them drift): the factors
+        # are linearised for that model, 9-wide states
+        self.data, self.rig = data, rig.with_constant_biases() if rig.bias_random_walk else rig
         self.coords = rig.coordinates
         self.K = data.n_keyframes
         self.n_params = len(self.coords)
         self.n_x = 9 * self.K
-        self.gauge_R, self.gauge_p = gauge_R, gauge_p
+        self.gauge_R = gauge_R
         self.dT = float(data.t[1] - data.t[0])
         R_BV = data.R_V_B.T
         self.p_BV = -R_BV @ data.p_V_B
@@ -233,9 +250,11 @@ class _Problem:
         r_nh = (nonholonomic_residuals(X, omega, self.R_BA, self.p_BV) - d.slip) / np.array(
             self.rig.nonholonomic_sigma_mps)
         parts = [r_imu.ravel(), r_nh.ravel()]
+        kinds = ["imu", "nonholonomic"]
         if cfg.wheels is not None:
             parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel) - self.inc)
                           / self.rig.wheel_increment_sigma_rad).ravel())
+            kinds.append("wheel")
         for s in self.sensors:
             od = d.odometry[s.name]
             R_BS, p_BS = cal.extrinsics[s.name]
@@ -244,12 +263,18 @@ class _Problem:
             r[:, 0:3] /= np.deg2rad(s.noise.rotation_sigma_deg)
             r[:, 3:6] /= s.noise.translation_sigma_m
             parts.append(r.ravel())
+            kinds.append(s.name)
         yaw = (self.gauge_R @ so3.log(self.gauge_R.T @ X.R[0]))[2]  # world yaw of the first keyframe
-        parts.append(np.r_[(X.p[0] - self.gauge_p) / _GAUGE_SIGMA_POS_M, yaw / _GAUGE_SIGMA_YAW_RAD])
+        # the evaluator's local states: a yaw prior, and the last keyframe's increment held at zero
+        # (it has no successor); positions are differences, the first one stays where it started
+        parts.append(np.r_[yaw / _GAUGE_SIGMA_YAW_RAD, np.zeros(3)])
+        kinds.append("gauge")
+        edges = np.cumsum([0] + [x.size for x in parts])
+        self.kinds = {k: slice(a, b) for k, a, b in zip(kinds, edges[:-1], edges[1:])}
         r = np.concatenate(parts)
         if not jacobian:
             return r, None
-        prob = information.build(nom, cal.rig(self.rig), local=False)
+        prob = information.build(nom, cal.rig(self.rig), local=True)
         J, _ = information.jacobian(prob)
         if J.shape[0] != r.size:
             raise ValidateError(f"internal: {J.shape[0]} Jacobian rows for {r.size} residuals")
@@ -278,132 +303,439 @@ class _Problem:
 
 
 # ------------------------------------------------------------------------------------------------
+# The trust-region solver
 
 
-def _step(J: sp.csr_matrix, r: np.ndarray, n_x: int, theta_scale: np.ndarray, lam: float, rank_rtol: float):
-    """The damped Gauss–Newton step, trajectory eliminated through the banded structure.
+class _FactorisationError(Exception):
+    """A pivot of the banded Cholesky was not positive: ``column`` is the unknown it failed at."""
 
-    Unknowns are scaled first: states to unit column norm of J, θ by ``theta_scale`` (the targets,
-    as the evaluator scales). ``(H + λ·diag H) y = −Jᵀr`` is solved by banded Cholesky of the
-    state block and an eigendecomposition of the θ Schur complement, whose eigenvalues below
-    ``rank_rtol · max diag(H_θθ)`` count as zero: along directions the data does not determine,
-    the step is zero, so the estimate stays where it started.
-    Returns the step (unscaled), the scaled step, and the undamped scaled Schur complement.
+    def __init__(self, column: int):
+        super().__init__(column)
+        self.column = column
+
+
+class _Normal:
+    """The scaled normal equations at one estimate.
+
+    Unknowns are scaled first: states to unit column norm of J (unit diag H_xx), the calibration
+    into units of its targets (as the evaluator scales). ``factor(λ)`` solves the Marquardt-damped
+    system ``(H + λ·diag H) y = −g`` by eliminating the trajectory: Cholesky of the banded state
+    block in LAPACK band storage (``dpbtrf``), then the calibration's small dense Schur
+    complement. The step is restricted to a basis of calibration directions (:meth:`rank`).
     """
-    col = np.sqrt(np.asarray(J[:, :n_x].multiply(J[:, :n_x]).sum(axis=0)).ravel())
-    col[col == 0] = 1.0
-    D = np.r_[col, 1.0 / theta_scale]
-    Js = (J @ sp.diags(1.0 / D)).tocsc()
-    Jx, Jt = Js[:, :n_x], Js[:, n_x:].toarray()
-    Hxx = (Jx.T @ Jx).tocoo()
-    Hxt = np.asarray(Jx.T @ Jt)
-    Htt = Jt.T @ Jt
-    gx, gt = Jx.T @ r, Jt.T @ r
-    low = Hxx.row >= Hxx.col
-    rows, cols, vals = Hxx.row[low], Hxx.col[low], Hxx.data[low]
-    ab = np.zeros((int((rows - cols).max()) + 1, n_x))
-    ab[rows - cols, cols] = vals
-    ab[0] *= 1.0 + lam
-    try:
-        L = cholesky_banded(ab, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
-        return None
-    Z, info1 = dtbtrs(L, Hxt, uplo="L")
-    zg, info2 = dtbtrs(L, gx[:, None], uplo="L")
-    if info1 or info2:
-        return None
-    schur = Htt - Z.T @ Z
-    A = schur + lam * np.diag(np.diag(Htt))
-    w, V = np.linalg.eigh(0.5 * (A + A.T))
-    keep = w > rank_rtol * max(np.diag(Htt).max(), 1e-300)
-    b = gt - Z.T @ zg[:, 0]
-    yt = -V[:, keep] @ ((V[:, keep].T @ b) / w[keep])
-    yx, info3 = dtbtrs(L, zg[:, 0] + Z @ yt, uplo="L", trans="T")
-    if info3:
-        return None
-    y = np.r_[-yx, yt]
-    return y / D, y, 0.5 * (schur + schur.T)
+
+    def __init__(self, J: sp.csr_matrix, r: np.ndarray, n_x: int, theta_scale: np.ndarray):
+        col = np.sqrt(np.asarray(J[:, :n_x].multiply(J[:, :n_x]).sum(axis=0)).ravel())
+        col[col == 0] = 1.0
+        self.n_x = n_x
+        self.D = np.r_[col, 1.0 / theta_scale]
+        self.Js = (J @ sp.diags(1.0 / self.D)).tocsc()
+        Jx, Jt = self.Js[:, :n_x], self.Js[:, n_x:].toarray()
+        Hxx = (Jx.T @ Jx).tocoo()
+        self.Hxt = np.asarray(Jx.T @ Jt)
+        self.Htt = Jt.T @ Jt
+        self.g = np.asarray(self.Js.T @ r).ravel()
+        low = Hxx.row >= Hxx.col
+        rows, cols = Hxx.row[low], Hxx.col[low]
+        self.band = np.zeros((int((rows - cols).max()) + 1, n_x))
+        self.band[rows - cols, cols] = Hxx.data[low]
+        self.diag = np.r_[self.band[0], np.diag(self.Htt)]
+        self.diag_raw = self.diag * self.D**2  # diag of the unscaled H
+
+    def factor(self, lam: float):
+        """``(L, Z, zg, A)``: Cholesky of the damped H_xx, ``Z = L⁻¹H_xθ``, ``zg = L⁻¹g_x`` and the
+        damped Schur complement ``A`` of the calibration."""
+        ab = self.band.copy()
+        ab[0] *= 1.0 + lam
+        L, info = dpbtrf(ab, lower=1)
+        if info != 0:
+            raise _FactorisationError(info - 1)
+        Z, i1 = dtbtrs(L, self.Hxt, uplo="L")
+        zg, i2 = dtbtrs(L, self.g[:self.n_x, None], uplo="L")
+        if i1 or i2:
+            raise _FactorisationError(max(i1, i2) - 1)
+        A = self.Htt - Z.T @ Z
+        A = 0.5 * (A + A.T) + lam * np.diag(np.diag(self.Htt))
+        return L, Z, zg[:, 0], A
+
+    def rank(self, A0: np.ndarray, rank_rtol: float):
+        """The calibration directions the data determines: eigenvectors of the undamped Schur
+        complement ``A0`` (in target units) above ``rank_rtol · max diag(H_θθ)``. Not the evaluator's
+        normalised test (:mod:`excite.spectrum`, each coordinate against its own information): at a
+        noisy estimate an exactly unobservable coordinate (a vertical lever arm on a flat lot) has
+        spurious information of its own from the estimate's noise, and normalised by that it
+        survives marginalisation as if it were real (measured: no normalised eigenvalue below 1e-3
+        where the evaluator finds two exact zeros). Returns the basis, the threshold and the
+        condition over the kept directions."""
+        w, V = np.linalg.eigh(A0)
+        tol = rank_rtol * max(np.diag(self.Htt).max(), 1e-300)
+        kept = w > tol
+        cond = float(w[kept].max() / w[kept].min()) if kept.any() else float("inf")
+        return V[:, kept], float(tol), cond
+
+    def step(self, fac, basis: np.ndarray) -> np.ndarray:
+        """The scaled step of the factored damped system, calibration within ``basis``."""
+        L, Z, zg, A = fac
+        b = self.g[self.n_x:] - Z.T @ zg
+        yt = -basis @ np.linalg.solve(basis.T @ A @ basis, basis.T @ b) if basis.shape[1] else np.zeros(b.size)
+        yx, info = dtbtrs(L, (zg + Z @ yt)[:, None], uplo="L", trans="T")
+        if info:
+            raise _FactorisationError(info - 1)
+        return np.r_[-yx[:, 0], yt]
+
+    def hessian_times(self, y: np.ndarray) -> np.ndarray:
+        return np.asarray(self.Js.T @ (self.Js @ y)).ravel()
+
+
+def _unknown_names(rig: Rig, n_keyframes: int) -> list[str]:
+    return information.state_names(n_keyframes, local=True) + [c.name for c in rig.coordinates]
 
 
 def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: States,
-              settings: SolverSettings = SolverSettings()) -> CalibrationResult:
+              settings: SolverSettings = SolverSettings(),
+              log: Callable[[dict], None] | None = None) -> CalibrationResult:
     """Estimate the trajectory and the calibration from ``data`` (see the module docstring).
 
-    Starts from ``initial`` and ``initial_states``; the gauge (position and yaw of the first
+    Levenberg–Marquardt as a trust-region method (Moré's scaling, Nielsen's damping update from
+    the gain ratio of actual to predicted decrease), starting from ``initial`` and
+    ``initial_states`` (:func:`initialise`); the gauge (position and yaw of the first
     keyframe) is held at the initial states' values. Coordinates the rig does not estimate stay at
     ``initial``'s values, and so do directions of the calibration the data leaves undetermined
-    (see :func:`_step`).
+    (:meth:`_Normal.rank`). ``log`` receives one record per trial step (see the README's solver
+    log) and a last one with the stop reason.
+
+    Why not ``scipy.optimize.least_squares``: its 'trf'/'lm' methods take additive vectors (the
+    orientations live on SO(3)) and either solve the step densely (thousands of trajectory
+    unknowns) or iteratively with LSMR, which neither exploits the banded trajectory nor gives a
+    rank-aware step on the calibration.
     """
     if initial_states.R.shape[0] != data.n_keyframes:
         raise ValidateError(f"{initial_states.R.shape[0]} initial states for {data.n_keyframes} keyframes")
-    prob = _Problem(data, rig, initial_states.R[0].copy(), initial_states.p[0].copy())
+    prob = _Problem(data, rig, initial_states.R[0].copy())
     scale = np.array([settings.scale_sigma if c.nuisance else c.target for c in rig.coordinates])
+    names = _unknown_names(rig, data.n_keyframes)
     X, cal = initial_states, initial
     r, J = prob.evaluate(X, cal, jacobian=True)
     cost0 = cost = 0.5 * float(r @ r)
-    lam = settings.lambda_initial
+    lam, nu = settings.lambda_initial, 2.0
     status, reason = "max_iterations", f"no convergence in {settings.max_iterations} iterations"
-    it = 0
+    it = trials = 0
+    info = None
+    solver = "banded Cholesky of the states (LAPACK dpbtrf, half-bandwidth {}) + dense Schur complement"
     while it < settings.max_iterations:
         it += 1
+        try:
+            nrm = _Normal(J, r, prob.n_x, scale)
+            fac0 = nrm.factor(0.0)
+        except _FactorisationError as e:
+            status, reason = "failed", f"the normal equations are singular at {names[e.column]}"
+            _emit(log, dict(event="step", iteration=it, failure=reason, failed_variable=names[e.column]))
+            break
+        basis, tol, cond_t = nrm.rank(fac0[3], settings.rank_rtol)
+        info = fac0[3] / np.outer(scale, scale)
+        if np.abs(nrm.g).max() <= settings.gradient_tolerance * np.sqrt(2 * cost):
+            status, reason = "converged", "gradient below tolerance"
+            break
+        d = np.abs(fac0[0][0])
+        base = dict(event="step", iteration=it, variables=len(names), residuals=int(r.size),
+                    linear_solver=solver.format(nrm.band.shape[0] - 1), rank=prob.n_x + basis.shape[1],
+                    rank_threshold=tol, diag_H_min=float(nrm.diag_raw.min()),
+                    diag_H_min_variable=names[int(np.argmin(nrm.diag_raw))], diag_H_max=float(nrm.diag_raw.max()),
+                    condition_states_lower_bound=float((d.max() / d.min()) ** 2), condition_calibration=cond_t)
         accepted = False
         while True:
-            out = _step(J, r, prob.n_x, scale, lam, settings.rank_rtol)
-            if out is not None:
-                step, y, _ = out
-                X_new = X.plus(step[:prob.n_x])
-                cal_new = cal.plus(rig, step[prob.n_x:])
-                r_new, _ = prob.evaluate(X_new, cal_new, jacobian=False)
-                cost_new = 0.5 * float(r_new @ r_new)
-                if np.isfinite(cost_new) and cost_new <= cost:
-                    accepted = True
-                    break
-                if np.isfinite(cost_new) and cost_new - cost <= settings.cost_tolerance * max(cost, 1.0):
-                    break  # the cost is flat to rounding here: nothing left to gain
-            lam = max(lam * 10, 1e-9)
+            trials += 1
+            try:
+                fac = nrm.factor(lam)
+                y = nrm.step(fac, basis)
+            except _FactorisationError as e:
+                status, reason = "failed", f"the damped system is singular at {names[e.column]}"
+                _emit(log, dict(base, **{"lambda": lam}, failure=reason, failed_variable=names[e.column]))
+                break
+            if np.abs(y).max() < settings.step_tolerance:
+                status, reason = "converged", "step below tolerance"
+                break
+            Hy = nrm.hessian_times(y)
+            lin_res = float(np.linalg.norm(Hy + lam * nrm.diag * y + nrm.g) / max(np.linalg.norm(nrm.g), 1e-300))
+            predicted = -float(nrm.g @ y + 0.5 * y @ Hy)
+            step = y / nrm.D
+            X_new = X.plus_local(step[:prob.n_x])
+            cal_new = cal.plus(rig, step[prob.n_x:])
+            r_new, _ = prob.evaluate(X_new, cal_new, jacobian=False)
+            cost_new = 0.5 * float(r_new @ r_new)
+            rho = (cost - cost_new) / predicted if predicted > 0 and np.isfinite(cost_new) else -np.inf
+            accepted = rho > 1e-4
+            _emit(log, dict(base, **{"lambda": lam}, linear_residual=lin_res, cost_before=cost,
+                            cost_after=cost_new if np.isfinite(cost_new) else None, predicted_decrease=predicted,
+                            gain_ratio=rho if np.isfinite(rho) else None, accepted=accepted,
+                            step_max=float(np.abs(y).max())))
+            if accepted:
+                lam = max(lam * max(1 / 3, 1 - (2 * rho - 1) ** 3), settings.lambda_min)
+                nu = 2.0
+                break
+            if predicted <= settings.cost_tolerance * max(cost, 1.0):
+                break  # the local model has nothing left to give: a minimum to rounding
+            lam *= nu
+            nu *= 2
             if lam > settings.lambda_max:
                 break
+        if status != "max_iterations":
+            break
         if not accepted:
             if lam <= settings.lambda_max:
-                status, reason = "converged", "cost flat to rounding"
+                status, reason = "converged", "predicted decrease below tolerance"
             else:
                 status, reason = "failed", "no step reduces the cost (damping at its maximum)"
             break
         decrease = cost - cost_new
         X, cal, cost = X_new, cal_new, cost_new
-        lam = max(lam / 10, settings.lambda_min)
         r, J = prob.evaluate(X, cal, jacobian=True)
         small = np.abs(y).max() < settings.step_tolerance
         if small or decrease <= settings.cost_tolerance * max(cost, 1.0):
             status, reason = "converged", ("step below tolerance" if small else "cost decrease below tolerance")
             break
-    out = _step(J, r, prob.n_x, scale, 0.0, settings.rank_rtol)
-    info = None if out is None else out[2] / np.outer(scale, scale)
-    return CalibrationResult(status, reason, it, cost0, cost, int(r.size), int(J.shape[1]), cal, X, info)
+    if status != "failed":
+        try:
+            info = _Normal(J, r, prob.n_x, scale).factor(0.0)[3] / np.outer(scale, scale)
+        except _FactorisationError:
+            pass
+    _emit(log, dict(event="stop", status=status, reason=reason, iterations=it, step_trials=trials,
+                    initial_cost=cost0, cost=cost))
+    rms = {k: float(np.sqrt(np.mean(r[sl] ** 2))) for k, sl in prob.kinds.items() if k != "gauge"}
+    return CalibrationResult(status, reason, it, cost0, cost, int(r.size), int(J.shape[1]), cal, X, info, rms)
+
+
+def _emit(log: Callable[[dict], None] | None, record: dict) -> None:
+    """One solver log record (non-finite numbers as None, so that every line is valid JSON)."""
+    if log is not None:
+        log({k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in record.items()})
+
+
 
 
 # ------------------------------------------------------------------------------------------------
 # Initial values
 
+# How far from the nominal (CAD) values the initialisation may move, as weak priors that keep its
+# small linear solves well posed on drives that do not determine everything: the joint solve
+# starts from what they give and no longer sees them.
+_INIT_PRIOR_ROT_RAD = np.deg2rad(2.0)
+_INIT_PRIOR_TIME_S = 0.05
+_INIT_PRIOR_GYRO_BIAS = np.deg2rad(1.0)
+_INIT_ATTITUDE_RAD = 1e-3  # attitude error of the gyro-integrated rotations, in the velocity solve
 
-def dead_reckoning(data: SensorData, R0: np.ndarray, p0: np.ndarray, v0: np.ndarray,
-                   calibration: Calibration) -> States:
-    """Keyframe states integrated from the IMU alone (biases from ``calibration``), starting at
-    ``R0, p0, v0`` (e.g. gravity-aligned at rest). Drifts quadratically: a starting point only."""
-    n = data.imu_per_keyframe
-    dR, dv, dp, _ = preintegrate_all(data.gyro, data.accel, n, data.dt_imu, calibration.gyro_bias,
-                                     calibration.accel_bias)
-    dT = float(data.t[1] - data.t[0])
+
+@dataclass(frozen=True)
+class Initialisation:
+    """What :func:`initialise` estimated before the joint solve: the calibration and trajectory
+    it starts from, and the RMS whitened residual of the rotation alignment of each sensor."""
+
+    calibration: Calibration
+    states: States
+    rotation_rms: dict[str, float]
+
+
+class _GyroAttitude:
+    """Orientation relative to the first IMU sample, integrated from the bias-corrected gyro
+    (samples held over their interval), at any time; extrapolated at the end rates."""
+
+    def __init__(self, data: SensorData, b_g: np.ndarray):
+        self.t0, self.dt = float(data.t_imu[0]), data.dt_imu
+        self.w = data.gyro - b_g
+        inc = so3.exp(self.w * self.dt)
+        self.R = np.empty((inc.shape[0] + 1, 3, 3))
+        self.R[0] = np.eye(3)
+        for s in range(inc.shape[0]):
+            self.R[s + 1] = self.R[s] @ inc[s]
+
+    def _sample(self, t: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((t - self.t0) / self.dt).astype(int), 0, self.w.shape[0] - 1)
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        s = self._sample(t)
+        return self.R[s] @ so3.exp(self.w[s] * (t - self.t0 - s * self.dt)[:, None])
+
+    def rate(self, t: np.ndarray) -> np.ndarray:
+        return self.w[self._sample(t)]
+
+
+def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray, p0: np.ndarray,
+               iterations: int = 3) -> Initialisation:
+    """A start for :func:`calibrate`, as real calibrators build one: rotation first, from the
+    angular rates, then the trajectory; translations are left to the joint solve.
+
+    1. **Rotation, gyro bias and time offsets** from the rotation increments alone (hand–eye on
+       rotations, which need no translation): every sensor's relative rotation between its frames,
+       turned into the body frame by its extrinsic rotation, must equal the gyro's integral over
+       the same interval shifted by the sensor's time offset. Linearised about the current values
+       (``Log ΔR_B(τ, b_g) ≈ c − ΔT·δb_g + δτ·(ω_end − ω_start)``, ``R_B_S Log ΔR_S`` with a right
+       perturbation), one small least-squares solve per iteration, weak priors at the nominal values.
+    2. **Trajectory**: orientations from the bias-corrected gyro from ``R0`` (the first keyframe's
+       orientation, e.g. gravity-aligned at rest); positions and velocities, given those, are
+       linear in the IMU's velocity and position increments, the metric sensors' relative
+       translations (nominal lever arms), the wheels' travel and the non-holonomic constraint:
+       one sparse linear least-squares solve, the first position held at ``p0``.
+
+    Translations, accelerometer biases, wheel values and scales start at ``nominal``: the joint
+    solve estimates them, and leaves the directions the drive does not determine where they are.
+    """
+    cfg = rig.config
+    names = {c.name for c in rig.coordinates}
+    sensors = [s for s in cfg.sensors if s.name in data.odometry]
+    R_BS = {s.name: nominal.extrinsics[s.name][0].copy() for s in sensors}
+    tau = dict(nominal.time_offsets)
+    b_g = nominal.gyro_bias.copy()
+    est_b = "imu.gyro_bias_x" in names
+    # unknown layout: per sensor [φ (3) if its rotation is estimated, δτ (1) if its offset is], then δb_g
+    layout, n = {}, 0
+    for s in sensors:
+        rot = f"{s.name}.rot_x" in names
+        td = f"{s.name}.time_offset" in names
+        layout[s.name] = (n if rot else None, n + 3 * rot if td else None)
+        n += 3 * rot + td
+    nb = n
+    n += 3 * est_b
+    rms: dict[str, float] = {}
+    for _ in range(iterations):
+        gyro = _GyroAttitude(data, b_g)
+        rows, rhs = [], []
+        for s in sensors:
+            od = data.odometry[s.name]
+            sig = np.deg2rad(s.noise.rotation_sigma_deg)
+            t = data.t[od.frames] + tau[s.name]
+            Ra = gyro.at(t)
+            c = so3.log(np.swapaxes(Ra[:-1], 1, 2) @ Ra[1:])
+            a = so3.log(od.R_rel)
+            Ra_ = np.einsum("ij,nj->ni", R_BS[s.name], a)
+            e = c - Ra_  # residual at the current values
+            F = e.shape[0]
+            A = np.zeros((F, 3, n))
+            i_rot, i_td = layout[s.name]
+            if i_rot is not None:
+                A[:, :, i_rot:i_rot + 3] = R_BS[s.name] @ so3.hat(a)
+            if i_td is not None:
+                A[:, :, i_td] = gyro.rate(t[1:]) - gyro.rate(t[:-1])
+            if est_b:
+                A[:, :, nb:nb + 3] = -np.diff(t)[:, None, None] * np.eye(3)
+            rows.append(A.reshape(-1, n) / sig)
+            rhs.append(-e.ravel() / sig)
+            rms[s.name] = float(np.sqrt(np.mean((e / sig) ** 2)))
+        prior = np.zeros(n)
+        for s in sensors:
+            i_rot, i_td = layout[s.name]
+            if i_rot is not None:
+                prior[i_rot:i_rot + 3] = _INIT_PRIOR_ROT_RAD
+            if i_td is not None:
+                prior[i_td] = _INIT_PRIOR_TIME_S
+        prior[nb:] = _INIT_PRIOR_GYRO_BIAS
+        # priors hold the total offset from nominal: residual (current − nominal) + δ
+        cur = np.zeros(n)
+        for s in sensors:
+            i_rot, i_td = layout[s.name]
+            if i_rot is not None:
+                cur[i_rot:i_rot + 3] = so3.log(nominal.extrinsics[s.name][0].T @ R_BS[s.name])
+            if i_td is not None:
+                cur[i_td] = tau[s.name] - nominal.time_offsets[s.name]
+        cur[nb:] = b_g - nominal.gyro_bias
+        A = np.vstack(rows + [np.diag(1.0 / prior)])
+        b = np.concatenate(rhs + [-cur / prior])
+        delta = np.linalg.lstsq(A, b, rcond=None)[0]
+        for s in sensors:
+            i_rot, i_td = layout[s.name]
+            if i_rot is not None:
+                R_BS[s.name] = R_BS[s.name] @ so3.exp(delta[None, i_rot:i_rot + 3])[0]
+            if i_td is not None:
+                tau[s.name] += delta[i_td]
+        if est_b:
+            b_g = b_g + delta[nb:]
+    cal = replace(nominal, extrinsics={k: (R_BS.get(k, R), p) for k, (R, p) in nominal.extrinsics.items()},
+                  time_offsets=tau, gyro_bias=b_g)
+    gyro = _GyroAttitude(data, b_g)
+    R = R0 @ gyro.R[::data.imu_per_keyframe][:data.n_keyframes]
+    p, v = _positions_and_velocities(data, rig, cal, R, p0)
+    return Initialisation(cal, States(R, p, v), rms)
+
+
+def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: np.ndarray, p0: np.ndarray):
+    """Keyframe positions and velocities given the orientations ``R`` (step 2 of :func:`initialise`):
+    sparse weighted linear least squares."""
+    cfg = rig.config
     K = data.n_keyframes
-    R = np.empty((K, 3, 3))
-    p = np.empty((K, 3))
-    v = np.empty((K, 3))
-    R[0], p[0], v[0] = R0, p0, v0
-    for k in range(K - 1):
-        R[k + 1] = R[k] @ dR[k]
-        v[k + 1] = v[k] + GRAVITY * dT + R[k] @ dv[k]
-        p[k + 1] = p[k] + v[k] * dT + 0.5 * GRAVITY * dT**2 + R[k] @ dp[k]
-    return States(R, p, v)
+    nx = 6 * K  # [p_k (3), v_k (3)]
+    dT = float(data.t[1] - data.t[0])
+    blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (rows, cols, vals, rhs)
+    row0 = 0
+
+    def add(coef: list[tuple[np.ndarray, np.ndarray]], rhs: np.ndarray, sigma: float | np.ndarray):
+        """Rows ``Σ M_k x_{idx_k} = rhs`` (M: (F, m, 3) blocks on unknown triples at column idx (F,))."""
+        nonlocal row0
+        F, m = rhs.shape
+        w = 1.0 / np.broadcast_to(np.asarray(sigma, dtype=float), (m,))
+        rid = row0 + np.arange(F * m).reshape(F, m)
+        for M, idx in coef:
+            r_ = np.broadcast_to(rid[:, :, None], M.shape)
+            c_ = np.broadcast_to(idx[:, None, None] + np.arange(3)[None, None, :], M.shape)
+            blocks.append((r_.ravel(), c_.ravel(), (M * w[None, :, None]).ravel(), None))
+        blocks.append((None, None, None, (rhs * w[None, :]).ravel()))
+        row0 += F * m
+
+    P = lambda k: 6 * k  # noqa: E731
+    V = lambda k: 6 * k + 3  # noqa: E731
+    i, j = np.arange(K - 1), np.arange(1, K)
+    RiT = np.swapaxes(R[:-1], 1, 2)
+    pre = preintegrate_all(data.gyro, data.accel, data.imu_per_keyframe, data.dt_imu, cal.gyro_bias,
+                           cal.accel_bias)
+    ic = cfg.imu
+    g = np.linalg.norm(GRAVITY)
+    s_v = ic.accelerometer_noise_density * np.sqrt(dT) + _INIT_ATTITUDE_RAD * g * dT
+    s_p = s_v * dT / np.sqrt(3.0)
+    add([(RiT, V(j)), (-RiT, V(i))], pre[1] + np.einsum("nji,j->ni", R[:-1], GRAVITY * dT), s_v)
+    add([(RiT, P(j)), (-RiT, P(i)), (-RiT * dT, V(i))],
+        pre[2] + np.einsum("nji,j->ni", R[:-1], 0.5 * GRAVITY * dT**2), s_p)
+    # metric sensors: R_S,iᵀ (p_j + v_j τ + R_j p_BS − p_i − v_i τ − R_i p_BS) = t_meas
+    omega = keyframe_rates(data, cal.gyro_bias)
+    for s in cfg.sensors:
+        if s.name not in data.odometry or s.monocular:
+            continue
+        od = data.odometry[s.name]
+        R_BS, p_BS = cal.extrinsics[s.name]
+        td = cal.time_offsets[s.name]
+        fi, fj = od.frames[:-1], od.frames[1:]
+        Rb = R[od.frames] @ so3.exp(omega[od.frames] * td)
+        RSiT = np.swapaxes(Rb[:-1] @ R_BS, 1, 2)
+        lever = np.einsum("nij,j->ni", Rb, p_BS)
+        rhs = od.t_rel - np.einsum("nij,nj->ni", RSiT, lever[1:] - lever[:-1])
+        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs,
+            s.noise.translation_sigma_m)
+    # non-holonomic: lateral and vertical velocity of the axle ≈ 0
+    R_BV = data.R_V_B.T
+    p_BV = -R_BV @ data.p_V_B
+    RA = R @ (R_BV @ data.R_V_A)
+    RAT = np.swapaxes(RA, 1, 2)
+    lever_v = np.einsum("kij,kj->ki", R, np.cross(omega, p_BV))
+    add([(RAT[:, 1:3], V(np.arange(K)))], data.slip - np.einsum("kij,kj->ki", RAT[:, 1:3], lever_v),
+        np.array(rig.nonholonomic_sigma_mps))
+    # wheels: the axle's travel along the mean heading of each interval (chord ≈ arc: a start value)
+    wc = cfg.wheels
+    if wc is not None and data.wheel_increments is not None:
+        rl, rr, _ = cal.wheel
+        inc = data.wheel_increments
+        ds = 0.5 * (rl * inc[:, 0] + rr * inc[:, 1])
+        dpsi = so3.log(RAT[:-1] @ RA[1:])[:, 2]
+        m = np.stack([np.cos(dpsi / 2), np.sin(dpsi / 2), np.zeros_like(dpsi)], axis=1)
+        M = np.einsum("ni,nji->nj", m, RA[:-1])[:, None, :]  # mᵀ R_A,iᵀ
+        arm = np.einsum("kij,j->ki", R, p_BV)
+        rhs = ds - np.einsum("nij,nj->ni", M, arm[1:] - arm[:-1])[:, 0]
+        add([(M, P(j)), (-M, P(i))], rhs[:, None], 0.5 * np.hypot(rl, rr) * rig.wheel_increment_sigma_rad)
+    add([(np.eye(3)[None], np.array([P(0)]))], np.asarray(p0, dtype=float)[None], 1e-3)
+    rows = np.concatenate([b[0] for b in blocks if b[0] is not None])
+    cols = np.concatenate([b[1] for b in blocks if b[0] is not None])
+    vals = np.concatenate([b[2] for b in blocks if b[0] is not None])
+    rhs = np.concatenate([b[3] for b in blocks if b[0] is None])
+    A = sp.csr_matrix((vals, (rows, cols)), shape=(row0, nx))
+    x = spla.spsolve((A.T @ A).tocsc(), A.T @ rhs)
+    x = x.reshape(K, 6)
+    return x[:, 0:3], x[:, 3:6]
 
 
 def perturbed_states(states: States, rng: np.random.Generator, sigma_rot_rad: float = 0.01,

@@ -2,26 +2,31 @@
 
 :func:`monte_carlo` runs N seeded trials of: draw a true calibration (the rig's nominal values
 plus a random offset of ``offset_in_targets`` × target per coordinate), simulate the drive's
-sensor data (:func:`~excite.validate.simulate.simulate`), calibrate from the nominal values and a
-dead-reckoned trajectory (:func:`~excite.validate.calibrate.calibrate`), and keep the error of the
-scored coordinates. :func:`statistics` compares them with the evaluator's report:
+sensor data (:func:`~excite.validate.simulate.simulate`, physical by default), initialise from
+the nominal values (:func:`~excite.validate.calibrate.initialise`), calibrate
+(:func:`~excite.validate.calibrate.calibrate`), and keep the error of the scored coordinates (for
+random-walk biases, against their mean over the drive: what a constant-bias calibration
+estimates). :func:`statistics` compares them with the evaluator's report:
 
 - per parameter: predicted σ, empirical σ (RMS error, the spread about the truth) with its 95 %
   chi-square interval, the mean error (bias) with its standard error;
 - NEES ``eᵀ Λ_θ e`` per trial; its mean over N trials, times N, is χ²(N·d) for d scored
-  coordinates if the evaluator is right, which gives the 95 % interval of the mean NEES.
+  coordinates if the evaluator is right, which gives the 95 % interval of the mean NEES;
+- the solver: convergence rate and every trial's stop reason;
+- the model check: the whitened cost at the estimates against its χ² interval, which flags data
+  the model does not describe (:meth:`MonteCarloResult.model_check`).
 
 On a rank-deficient drive, the error is split in the evaluator's scaled coordinates
 ``z = S⁻¹ e`` into its component in the null space of ``S Λ_θ S`` (what the data cannot determine)
-and the rest. The estimator (:func:`~excite.validate.calibrate._step`) does not move along the
-null space, so there the error is the initial one (the random true offset) and does not shrink;
+and the rest. The estimator (:meth:`~excite.validate.calibrate._Normal.rank`) does not move along the
+null space, so there the error is where the solve started and does not shrink;
 the complement is estimated, and its NEES (dof = rank) is checked like a full-rank drive's.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -30,7 +35,7 @@ from scipy.stats import chi2
 from ..evaluate import Report, evaluate
 from ..rig import Rig
 from ..trajectory import Trajectory
-from .calibrate import CalibrationResult, SolverSettings, calibrate, dead_reckoning
+from .calibrate import CalibrationResult, SolverSettings, States, calibrate, initialise
 from .simulate import Calibration, SimulationSettings, ValidateError, offset_sigma, simulate
 
 
@@ -64,12 +69,14 @@ class Trial:
 
     index: int
     error: np.ndarray
-    initial_error: np.ndarray
+    initial_error: np.ndarray  # where the joint solve started (after :func:`initialise`)
     status: str
+    reason: str
     iterations: int
     cost: float
     dof: int  # residuals − unknowns (the expected 2·cost)
     seconds: float
+    residual_rms: dict[str, float] = field(default_factory=dict)  # whitened, per factor kind
 
 
 @dataclass(frozen=True)
@@ -81,6 +88,7 @@ class ParameterStats:
     sigma_interval: tuple[float, float]  # chi-square confidence interval of the empirical σ
     bias: float  # mean error
     bias_standard_error: float
+    target: float = float("nan")  # the accuracy the rig asks for (1σ)
 
     @property
     def ratio(self) -> float | None:
@@ -127,6 +135,46 @@ class MonteCarloResult:
     failures: int  # trials whose solver did not converge (kept in the statistics)
     seconds: float
     names: list[str] = field(default_factory=list)
+    # physical simulator: the error, in predicted σ, of a noise-free trial calibrated from the truth:
+    # what the physics the model lacks does to the estimate by itself (None: the model's own data)
+    systematic: dict[str, float] | None = None
+
+    @property
+    def convergence_rate(self) -> float:
+        return 1.0 - self.failures / len(self.trials)
+
+    @property
+    def stop_reasons(self) -> dict[str, int]:
+        """How many trials ended for each reason (``status: reason``)."""
+        out: dict[str, int] = {}
+        for t in self.trials:
+            key = f"{t.status}: {t.reason}"
+            out[key] = out.get(key, 0) + 1
+        return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+    def residual_rms(self) -> dict[str, float]:
+        """Whitened residual RMS per factor kind at the estimates, over all trials. Below 1 where the
+        trajectory absorbs much of a factor (the IMU's: nine residuals per nine new states); for
+        comparing simulators and drives, not a test by itself (see :meth:`model_check`)."""
+        kinds = sorted({k for t in self.trials for k in t.residual_rms})
+        return {k: float(np.sqrt(np.mean([t.residual_rms[k] ** 2 for t in self.trials if k in t.residual_rms])))
+                for k in kinds}
+
+    def model_check(self) -> tuple[float, tuple[float, float]]:
+        """The whitened cost at the estimates against its distribution: if the data has the noise
+        the model assumes, ``Σ 2·cost ~ χ²(Σ dof)`` over the trials (dof = residuals − unknowns).
+        Returns the mean of ``2·cost / dof`` and its interval at the settings' confidence; above the
+        interval, the data violates the model (unmodelled slip, discretisation, drifting biases)."""
+        c = np.array([2 * t.cost for t in self.trials])
+        d = np.array([t.dof for t in self.trials], dtype=float)
+        a = 1 - self.settings.confidence
+        D = d.sum()
+        return float(c.sum() / D), (float(chi2.ppf(a / 2, D) / D), float(chi2.ppf(1 - a / 2, D) / D))
+
+    def worst_ratio(self) -> tuple[str, float] | None:
+        """The parameter whose empirical σ is largest against its target, and that ratio."""
+        rows = [(p.name, p.empirical_sigma / p.target) for p in self.parameters]
+        return max(rows, key=lambda x: x[1]) if rows else None
 
     @property
     def nees_consistent(self) -> bool:
@@ -141,7 +189,7 @@ class MonteCarloResult:
             "route": self.report.route, "rig": self.report.rig, "runs": len(self.trials),
             "seed": self.settings.seed, "offset_in_targets": self.settings.offset_in_targets,
             "score": self.report.score, "rank": self.report.rank, "nullity": self.report.nullity,
-            "parameters": [{"name": p.name, "unit": p.unit, "predicted_sigma": p.predicted_sigma,
+            "parameters": [{"name": p.name, "unit": p.unit, "target": p.target, "predicted_sigma": p.predicted_sigma,
                             "empirical_sigma": p.empirical_sigma, "sigma_interval": list(p.sigma_interval),
                             "ratio": p.ratio, "bias": p.bias, "bias_standard_error": p.bias_standard_error}
                            for p in self.parameters],
@@ -153,12 +201,20 @@ class MonteCarloResult:
                 "null_rms": self.null_space.null_rms, "initial_null_rms": self.null_space.initial_null_rms,
                 "null_moved_rms": self.null_space.null_moved_rms,
                 "observable_whitened_rms": self.null_space.observable_whitened_rms},
-            "failures": self.failures, "seconds": self.seconds,
+            "failures": self.failures, "convergence_rate": self.convergence_rate,
+            "stop_reasons": self.stop_reasons, "residual_rms": self.residual_rms(),
+            "model_check": {"normalised_cost": self.model_check()[0], "interval": list(self.model_check()[1])},
+            "worst_sigma_over_target": None if self.worst_ratio() is None else {
+                "name": self.worst_ratio()[0], "ratio": self.worst_ratio()[1]},
+            "systematic_error_in_sigma": self.systematic,
+            "simulation": asdict(self.settings.simulation), "seconds": self.seconds,
         }
 
 
-def run_trial(traj: Trajectory, rig: Rig, index: int, settings: MonteCarloSettings) -> Trial:
-    """One seeded trial (see the module docstring)."""
+def run_trial(traj: Trajectory, rig: Rig, index: int, settings: MonteCarloSettings,
+              log: Callable[[dict], None] | None = None) -> Trial:
+    """One seeded trial (see the module docstring); ``log`` gets the solver's records, each
+    tagged with the trial's index."""
     t0 = time.perf_counter()
     rng = np.random.default_rng([settings.seed, index])
     nominal = Calibration.nominal(rig)
@@ -167,12 +223,16 @@ def run_trial(traj: Trajectory, rig: Rig, index: int, settings: MonteCarloSettin
     truth = nominal.plus(rig, offset)
     data = simulate(traj, rig, truth, rng, settings.simulation)
     tr = data.truth
-    # start: nominal calibration; trajectory dead-reckoned from the true state at the first
-    # keyframe (a drive starts at rest, where gravity and the stand-still give it)
-    X0 = dead_reckoning(data, tr.R[0], tr.p[0], tr.v[0], nominal)
-    res: CalibrationResult = calibrate(data, rig, nominal, X0, settings.solver)
-    return Trial(index, res.calibration.minus(truth, rig), nominal.minus(truth, rig), res.status, res.iterations,
-                 res.cost, res.n_residuals - res.n_unknowns, time.perf_counter() - t0)
+    # the first keyframe's pose is the start of the drive at rest (gravity and the stand-still
+    # give its orientation; position and yaw are the gauge)
+    init = initialise(data, rig, nominal, tr.R[0], tr.p[0])
+    res: CalibrationResult = calibrate(data, rig, init.calibration, init.states, settings.solver,
+                                       None if log is None else (lambda rec: log({"trial": index, **rec})))
+    # a constant-bias calibration of drifting biases estimates their mean over the drive
+    truth = replace(truth, gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
+    return Trial(index, res.calibration.minus(truth, rig), init.calibration.minus(truth, rig), res.status,
+                 res.reason, res.iterations, res.cost, res.n_residuals - res.n_unknowns,
+                 time.perf_counter() - t0, res.residual_rms or {})
 
 
 def statistics(report: Report, rig: Rig, trials: list[Trial], settings: MonteCarloSettings,
@@ -191,7 +251,7 @@ def statistics(report: Report, rig: Rig, trials: list[Trial], settings: MonteCar
         lo = rms * np.sqrt(N / chi2.ppf(1 - alpha / 2, N))
         hi = rms * np.sqrt(N / chi2.ppf(alpha / 2, N))
         params.append(ParameterStats(p.name, p.unit, p.sigma, rms, (float(lo), float(hi)), float(e.mean()),
-                                     float(e.std(ddof=1) / np.sqrt(N))))
+                                     float(e.std(ddof=1) / np.sqrt(N)), rig.scored[i].target))
     S = np.array([c.target for c in rig.scored])
     Z, Z0 = E / S, E0 / S
     w, V = np.asarray(report.spectrum_scaled), report.eigenvectors_scaled
@@ -219,15 +279,37 @@ def statistics(report: Report, rig: Rig, trials: list[Trial], settings: MonteCar
                             names=[c.name for c in rig.scored])
 
 
+def systematic_error(traj: Trajectory, rig: Rig, report: Report, settings: MonteCarloSettings) -> dict[str, float]:
+    """What the simulator's physics alone does to the estimate: noise-free data of the nominal
+    calibration, calibrated from the truth, its error per observable parameter in predicted σ.
+    Residuals cannot show an effect the trajectory absorbs (the IMU's discretisation); this can."""
+    truth = Calibration.nominal(rig)
+    data = simulate(traj, rig, truth, np.random.default_rng([settings.seed, 0, 1]),
+                    replace(settings.simulation, noise=False))
+    tr = data.truth
+    res = calibrate(data, rig, truth, States(tr.R, tr.p, tr.v), settings.solver)
+    truth = replace(truth, gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
+    e = res.calibration.minus(truth, rig)[[not c.nuisance for c in rig.coordinates]]
+    return {p.name: float(x / p.sigma) for p, x in zip(report.parameters, e) if p.sigma}
+
+
 def monte_carlo(traj: Trajectory, rig: Rig, settings: MonteCarloSettings = MonteCarloSettings(),
-                progress: Callable[[Trial], None] | None = None) -> MonteCarloResult:
-    """N seeded trials of simulate → calibrate on ``traj`` with ``rig``, against the evaluator."""
+                progress: Callable[[Trial], None] | None = None,
+                log: Callable[[dict], None] | None = None) -> MonteCarloResult:
+    """N seeded trials of simulate → calibrate on ``traj`` with ``rig``, against the evaluator
+    (``log``: the solver's records of every trial, see :func:`run_trial`), and with the physical
+    simulator its :func:`systematic_error`."""
     t0 = time.perf_counter()
-    # the simulator draws constant biases and the calibrator estimates them so: predict the same
+    # the calibrator estimates constant biases (drifting ones, from the physical simulator, against
+    # their mean over the drive): predict the same
     report = evaluate(traj, rig.with_constant_biases())
     trials = []
     for i in range(settings.runs):
-        trials.append(run_trial(traj, rig, i, settings))
+        trials.append(run_trial(traj, rig, i, settings, log))
         if progress is not None:
             progress(trials[-1])
-    return statistics(report, rig, trials, settings, time.perf_counter() - t0)
+    res = statistics(report, rig, trials, settings)
+    if settings.simulation.physical:
+        res.systematic = systematic_error(traj, rig, report, settings)
+    res.seconds = time.perf_counter() - t0
+    return res

@@ -1,26 +1,30 @@
-"""Raw noisy sensor data of a drive, from a true rig, through the factors' own measurement models.
+"""Raw noisy sensor data of a drive, from a true rig: physical by default, or exactly as the
+information model assumes it (:meth:`SimulationSettings.model`).
 
 :func:`simulate` turns a nominal drive and a true :class:`Calibration` into what the rig's
 sensors record:
 
-- **IMU** samples at its rate: gyro and accelerometer with white noise of discrete σ =
-  density·√rate (Kalibr keys) and the true bias, constant by default, optionally a random walk per
-  the Kalibr random-walk keys. Sample ``s`` is the *increment-equivalent* rate over
-  ``[τ_s, τ_s + dt)`` (``ω_s = Log(R_sᵀR_{s+1})/dt``, ``f_s = R_sᵀ((v_{s+1} − v_s)/dt − g)``), as an
-  IMU that outputs delta-angles and delta-velocities does: the preintegration of
-  :mod:`excite.factors.imu` (samples held over dt) then reproduces the true rotation and velocity
-  between keyframes exactly and the position to ``dt²·Δa/12`` (trapezoid), far below the noise.
-  Instantaneous samples would leave an O(dt) discretisation error ten times the noise.
+- **IMU** samples at its rate with white noise of discrete σ = density·√rate (Kalibr keys) and
+  the true biases, which random-walk per the Kalibr random-walk keys (physical) or stay constant
+  (model). Physical: the IMU integrates the true motion at a multiple of its output rate and
+  outputs the mean rate and specific force over each sample; the model's preintegration holds
+  each sample in the attitude at the sample's start, a discretisation error (≈ ½·ω·dt of attitude
+  on the specific force) it does not carry. Model: sample ``s`` is the *increment-equivalent*
+  rate over ``[τ_s, τ_s + dt)`` (``ω_s = Log(R_sᵀR_{s+1})/dt``, accelerations that reproduce the
+  keyframe states), which the preintegration of :mod:`excite.factors.imu` turns exactly into the
+  drive's keyframe states.
 - **Each exteroceptive sensor**: the relative pose between its consecutive frames with its
   rotation/translation noise, at its own clock: the frame stamped ``t`` shows the body at
   ``t + t_d`` (the exact pose from the drive; the factor takes it to first order). A monocular
   camera's translations carry its true scale.
-- **Wheel encoders**: cumulative ticks (quantisation ``2π/ticks_per_rev``) of the wheel angle
-  predicted by :func:`excite.factors.wheel.increments` plus white slip noise, so that the total
-  noise of one increment (white + two quantisation errors) equals the rig's ``sigma_rad``.
+- **Wheel encoders**: cumulative ticks (quantisation ``2π/ticks_per_rev``) of each wheel's angle
+  plus white noise, so that the total noise of one increment (white + two quantisation errors)
+  equals the rig's (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`). Physical: the angle integrates the wheel's contact-point speed
+  with a slip ratio that grows with longitudinal and lateral acceleration; model: the increments
+  of :func:`excite.factors.wheel.increments`.
 - **Non-holonomic constraint**: a pseudo-measurement of zero lateral/vertical axle velocity with
-  white slip of the configured σ (the information model treats it as a measurement with that σ;
-  a drive that never slips would make the evaluator conservative along what it determines).
+  white slip of the configured σ. Physical: the body also yaws into every turn by the rear tyres'
+  slip angle, so the axle really slides outwards, which the constraint does not model.
 
 The suspension tilt ``R_V_A`` and the IMU pose in the vehicle frame are known inputs, as in the
 information model.
@@ -156,24 +160,64 @@ def offset_sigma(rig: Rig, in_targets: float, scale_sigma: float = 0.01) -> np.n
 
 @dataclass(frozen=True)
 class SimulationSettings:
-    """What the simulator adds to the ideal measurements.
+    """What the simulator adds to the ideal measurements. The defaults are the *physical*
+    simulator, more physical than the information model it checks; :meth:`model` gives the data
+    the model itself assumes (a consistency check of the evaluator and the estimator).
 
-    ``bias_random_walk``: let the IMU biases random-walk per the Kalibr random-walk keys (the
-    information model takes them constant: leave off for a consistency check).
-    ``slip_noise``: draw the non-holonomic pseudo-measurement with its σ (see the module docstring).
+    ``imu_oversampling``: the IMU integrates the true motion at this multiple of its output rate
+    and outputs the mean rate and specific force over each sample (a boxcar anti-aliasing filter,
+    as delta-angle/delta-velocity IMUs do, without coning or sculling compensation); the model
+    holds each sample over its interval in the attitude at its start, a discretisation error of
+    about ``½·ω·dt`` in attitude it does not carry. 0: increment-equivalent samples, which the
+    model's preintegration reproduces (see the module docstring).
+    ``bias_random_walk``: the IMU biases random-walk per the Kalibr random-walk keys (the
+    estimator takes them constant).
     ``wheel_ticks_per_rev``: encoder resolution (0: no quantisation); the white part of the wheel
-    noise is reduced so that the total per increment equals the rig's ``sigma_rad``.
+    noise is reduced so that the total per increment equals the rig's
+    (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`).
+    ``wheel_slip_per_g``: longitudinal slip ratio of the rear wheels per g of longitudinal
+    acceleration (a braking wheel turns slower than it travels, a driven one faster), plus
+    ``wheel_scrub_per_g2`` × (lateral acceleration/g)² (the tyre's shorter rolling radius when it
+    is loaded sideways). 0: the wheels turn exactly with the model's chord of the axle's travel;
+    otherwise each wheel's angle integrates its contact point's speed at the internal IMU rate.
+    ``slip_angle_deg_per_mps2``: the rear tyres' slip angle per m/s² of lateral acceleration; the
+    body yaws into the turn relative to the axle's travel, so the axle slides outwards (the
+    non-holonomic constraint is violated by ``v·tan β``).
+    ``slip_noise``: the non-holonomic pseudo-measurement with white slip of its σ.
     ``noise``: False gives noise-free data (the estimator must then return the truth).
     """
 
     noise: bool = True
-    bias_random_walk: bool = False
-    slip_noise: bool = True
+    imu_oversampling: int = 8
+    bias_random_walk: bool = True
     wheel_ticks_per_rev: int = 2048
+    wheel_slip_per_g: float = 0.01
+    wheel_scrub_per_g2: float = 0.01
+    slip_angle_deg_per_mps2: float = 0.15
+    slip_noise: bool = True
+
+    @classmethod
+    def model(cls, **changes) -> "SimulationSettings":
+        """Data as the information model assumes it: increment-equivalent IMU samples, constant
+        biases, wheels turning with the model's chord, no tyre slip angle."""
+        base = dict(imu_oversampling=0, bias_random_walk=False, wheel_slip_per_g=0.0, wheel_scrub_per_g2=0.0,
+                    slip_angle_deg_per_mps2=0.0)
+        return cls(**{**base, **changes})
+
+    @property
+    def physical(self) -> bool:
+        return (self.imu_oversampling > 0 or self.bias_random_walk or self.wheel_slip_per_g != 0
+                or self.wheel_scrub_per_g2 != 0 or self.slip_angle_deg_per_mps2 != 0)
 
     def __post_init__(self) -> None:
         if self.wheel_ticks_per_rev < 0:
             raise ValidateError(f"wheel_ticks_per_rev must be ≥ 0, got {self.wheel_ticks_per_rev}")
+        if not 0 <= self.imu_oversampling <= 100:
+            raise ValidateError(f"imu_oversampling must be between 0 and 100, got {self.imu_oversampling}")
+        for name in ("wheel_slip_per_g", "wheel_scrub_per_g2", "slip_angle_deg_per_mps2"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and abs(v) <= 1.0):
+                raise ValidateError(f"{name} must be finite and at most 1 in magnitude, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -251,26 +295,49 @@ def _body_at(traj: Trajectory, t: np.ndarray, R_V_B: np.ndarray, p_V_B: np.ndarr
     return b.R_W_B @ so3.exp(b.omega_B * dt), b.p_W_B + b.v_W * dt
 
 
-def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Generator,
-             settings: SimulationSettings = SimulationSettings()) -> SensorData:
-    """Noisy raw data of ``traj`` driven with ``rig`` whose true calibration is ``truth``.
+def _with_slip_angle(traj: Trajectory, deg_per_mps2: float, rate_hz: float = 50.0) -> Trajectory:
+    """``traj`` with the body yawed into every turn by the rear tyres' slip angle
+    ``β = deg_per_mps2 · a_lat`` about the road normal, the path and speed unchanged (re-fitted
+    from samples at ``rate_hz``; the suspension tilt kept)."""
+    t = traj.times(rate_hz)
+    smp = traj.sample(t)
+    beta = np.deg2rad(deg_per_mps2) * smp.accel_lat
+    R_A_V = np.swapaxes(smp.R_V_A, 1, 2)
+    R = smp.R_W_V @ smp.R_V_A @ so3.rot_z(beta) @ R_A_V
+    tilt = so3.yaw_pitch_roll(R_A_V)[:, 1:3] if traj.has_tilt else None
+    return Trajectory(t, R, smp.p_W_V, tilt_pitch_roll=tilt, velocity=smp.v_W, name=traj.name)
 
-    ``rig`` gives the noise levels, rates and known geometry; ``truth`` the values the data is
-    generated with. Same ``rng`` state, same data.
-    """
-    nom = Nominal.of(traj, rig)
-    if nom.n_keyframes < 3:
-        raise ValidateError(f"the drive is too short to simulate: {nom.n_keyframes} keyframes")
-    cfg = rig.config
-    n = nom.imu_per_keyframe
-    K = nom.n_keyframes
-    rate = cfg.imu.update_rate
-    dt = 1.0 / rate
-    t_imu = nom.t[0] + np.arange((K - 1) * n + 1) * dt
-    R_V_B, p_V_B = nom.R_V_B, nom.p_V_B
-    noisy = settings.noise
 
-    # IMU: increment-equivalent rates over each sample interval
+def _imu_boxcar(traj: Trajectory, t_imu: np.ndarray, dt: float, m: int, R_V_B: np.ndarray, p_V_B: np.ndarray):
+    """Mean true body rate and specific force over each IMU sample interval, from ``m`` internal
+    samples at the interval's sub-step midpoints."""
+    sub = (np.arange(m) + 0.5) * dt / m
+    t = (t_imu[:-1, None] + sub[None, :]).ravel()
+    _, w, f = traj.imu(t, R_V_B, p_V_B)
+    return w.reshape(-1, m, 3).mean(axis=1), f.reshape(-1, m, 3).mean(axis=1)
+
+
+def _wheel_angles(traj: Trajectory, t: np.ndarray, t_keyframes: np.ndarray, radii: tuple[float, float],
+                  track: float, slip_per_g: float, scrub_per_g2: float) -> np.ndarray:
+    """Cumulative left/right wheel angles at ``t_keyframes`` [rad]: each wheel's contact-point speed
+    along its heading (the axle's forward speed ∓ half the track times the yaw rate), times
+    ``1 + κ`` with the slip ratio ``κ = slip_per_g·a_long/g + scrub_per_g2·(a_lat/g)²``, over its
+    true radius, integrated (trapezoid) on the fine grid ``t``."""
+    smp = traj.sample(t)
+    g = float(np.linalg.norm(GRAVITY))
+    kappa = slip_per_g * smp.accel_long / g + scrub_per_g2 * (smp.accel_lat / g) ** 2
+    u, r = smp.speed, smp.yaw_rate
+    rate = np.stack([(u - 0.5 * track * r) / radii[0], (u + 0.5 * track * r) / radii[1]], axis=1)
+    rate *= (1.0 + kappa)[:, None]
+    angle = np.vstack([np.zeros((1, 2)), np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t)[:, None], axis=0)])
+    return np.stack([np.interp(t_keyframes, t, angle[:, i]) for i in range(2)], axis=1)
+
+
+def _imu_increment_equivalent(traj: Trajectory, nom: Nominal, t_imu: np.ndarray, dt: float, R_V_B: np.ndarray,
+                              p_V_B: np.ndarray):
+    """Increment-equivalent IMU samples (see the module docstring): the rates over each sample
+    interval that the model's held-sample preintegration turns into the drive's keyframe states."""
+    n, K = nom.imu_per_keyframe, nom.n_keyframes
     b = _body(traj, t_imu, R_V_B, p_V_B)
     R_s, v_s = b.R_W_B, b.v_W
     omega = so3.log(np.swapaxes(R_s[:-1], 1, 2) @ R_s[1:]) / dt
@@ -286,6 +353,34 @@ def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Gene
     wc_ = w - w.mean()
     a_int = a_int + (e_p / (dt * (wc_**2).sum()))[:, None, :] * wc_[None, :, None]
     f = np.einsum("nji,nj->ni", R_s[:-1], a_int.reshape(-1, 3) - GRAVITY)
+    return omega, f
+
+
+def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Generator,
+             settings: SimulationSettings = SimulationSettings()) -> SensorData:
+    """Noisy raw data of ``traj`` driven with ``rig`` whose true calibration is ``truth``.
+
+    ``rig`` gives the noise levels, rates and known geometry; ``truth`` the values the data is
+    generated with. Same ``rng`` state, same data.
+    """
+    if settings.slip_angle_deg_per_mps2:
+        traj = _with_slip_angle(traj, settings.slip_angle_deg_per_mps2)
+    nom = Nominal.of(traj, rig)
+    if nom.n_keyframes < 3:
+        raise ValidateError(f"the drive is too short to simulate: {nom.n_keyframes} keyframes")
+    cfg = rig.config
+    n = nom.imu_per_keyframe
+    K = nom.n_keyframes
+    rate = cfg.imu.update_rate
+    dt = 1.0 / rate
+    t_imu = nom.t[0] + np.arange((K - 1) * n + 1) * dt
+    R_V_B, p_V_B = nom.R_V_B, nom.p_V_B
+    noisy = settings.noise
+
+    if settings.imu_oversampling:
+        omega, f = _imu_boxcar(traj, t_imu, dt, settings.imu_oversampling, R_V_B, p_V_B)
+    else:
+        omega, f = _imu_increment_equivalent(traj, nom, t_imu, dt, R_V_B, p_V_B)
     m = omega.shape[0]
     imu = cfg.imu
     bg = np.broadcast_to(truth.gyro_bias, (m, 3)).copy()
@@ -327,8 +422,14 @@ def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Gene
     wc = cfg.wheels
     if wc is not None:
         rl, rr, track = truth.wheel
-        inc = np.stack([wheel.increments(nom.R[k], nom.p[k], nom.R[k + 1], nom.p[k + 1], R_BA[k], R_BA[k + 1],
-                                         p_BV, rl, rr, track) for k in range(K - 1)])
+        if settings.wheel_slip_per_g or settings.wheel_scrub_per_g2:
+            t_fine = nom.t[0] + np.arange((K - 1) * n * max(settings.imu_oversampling, 1) + 1) * (
+                dt / max(settings.imu_oversampling, 1))
+            inc = np.diff(_wheel_angles(traj, t_fine, nom.t, (rl, rr), track, settings.wheel_slip_per_g,
+                                        settings.wheel_scrub_per_g2), axis=0)
+        else:
+            inc = np.stack([wheel.increments(nom.R[k], nom.p[k], nom.R[k + 1], nom.p[k + 1], R_BA[k], R_BA[k + 1],
+                                             p_BV, rl, rr, track) for k in range(K - 1)])
         q = 2 * np.pi / tpr if tpr else 0.0
         white2 = rig.wheel_increment_sigma_rad**2 - q**2 / 6.0  # an increment differences two quantisation errors
         if white2 <= 0:
