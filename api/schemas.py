@@ -162,6 +162,12 @@ class ManeuverRequest(In):
     closed: bool = Field(False, description="End where it started.")
     n_random: int = Field(200, ge=0, le=5000, description="Random candidates compared.")
     origin: Origin | None = Field(None, description="Lot origin in WGS84, for GeoJSON downloads.")
+    lot: dict[str, Any] | None = Field(None, description=(
+        "The lot as GeoJSON (replaces lot_x_m/lot_y_m): one Polygon (lon/lat, or local metres with "
+        "properties.crs = \"local\"; further rings are keep-out zones), optionally an entry Point "
+        "(role \"entry\", heading_deg) and ramp/bank/bump Polygons (see excite.optimize.site)."))
+    criterion: Literal["E", "D", "A"] = Field("E", description=(
+        "What to maximise: E (λ_min, the score), D (log det), A (−trace of the inverse)."))
 
 
 # --------------------------------------------------------------------------------------------
@@ -292,6 +298,9 @@ class JobResult(Out):
     model_score: float | None
     timings_s: dict[str, float]
     message: str
+    ipopt_status: str = ""
+    source: str = "optimized"
+    criterion: str = "E"
 
 
 class Job(Out):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import re
 import signal
 from pathlib import Path
 from typing import Annotated
@@ -13,36 +12,38 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from ..errors import ExciteError
 from ..optimize import OptimizeResult, OptimizeSettings, optimize as run_optimize
 from ..optimize import Progress as OptProgress
+from ..optimize.site import maneuver_geojson, parse_lot
 from ..rig import load_rig
 from ..routes import write_control_csv, write_tum, write_waypoints_csv
 from . import app
 
 
-def parse_lot(text: str) -> tuple[float, float]:
-    """``"80x50"`` → (80.0, 50.0): extent along x, then along y [m]."""
-    m = re.fullmatch(r"\s*([0-9.]+)\s*[xX×]\s*([0-9.]+)\s*", text)
-    if not m:
-        raise ExciteError(f"--lot: expected XxY in metres (extent along x, then y) such as 80x50, got {text!r}")
-    return float(m.group(1)), float(m.group(2))
+def _num(v, fmt: str = ".4g") -> str:
+    return "—" if v is None else format(v, fmt)
 
 
 def comparison_table(result: OptimizeResult) -> Table:
-    t = Table(title="Comparison (re-scored by the full evaluator)", title_justify="left")
+    t = Table(title="Comparison (full evaluator; every row passed the same limit and lot check "
+                    "unless marked)", title_justify="left")
     for col, just in (("candidate", "left"), ("kind", "left"), ("score λ_min", "right"),
-                      ("optimized ÷", "right"), ("feasible", "left")):
+                      ("worst σ/target", "right"), ("log det", "right"), ("tr M⁻¹", "right"),
+                      ("rot. exc. λ_min", "right"), ("result ÷", "right"), ("feasible", "left")):
         t.add_column(col, justify=just)
     for r in result.comparison:
         ratio = "—" if r.get("ratio") is None else f"{r['ratio']:.2f}×"
         feas = "[green]yes[/]" if r["feasible"] else f"[red]no[/] {r['violations'][0][:60]}"
-        t.add_row(r["name"], r["kind"], f"{r['score']:.4g}", ratio, feas)
+        name = f"[bold]{r['name']}[/] ◀" if r.get("result") else r["name"]
+        t.add_row(name, r["kind"], _num(r.get("score")), _num(r.get("worst_sigma_ratio"), ".3g"),
+                  _num(r.get("log_det"), ".1f"), _num(r.get("trace_inv"), ".3g"),
+                  _num(r.get("rotation_excitation"), ".3g"), ratio, feas)
     return t
 
 
-def write_outputs(result: OptimizeResult, out: Path) -> list[Path]:
-    """maneuver.tum, control.csv, waypoints.csv, report.json, comparison.json in ``out``."""
+def write_outputs(result: OptimizeResult, out: Path, origin: tuple[float, float] | None = None) -> list[Path]:
+    """maneuver.tum, control.csv, waypoints.csv, report.json, comparison.json in ``out`` (and
+    maneuver.geojson when the lot is georeferenced: ``origin`` (lon, lat))."""
     out.mkdir(parents=True, exist_ok=True)
     paths = [write_tum(result.trajectory, out / "maneuver.tum"),
              write_control_csv(result.profile, out / "control.csv"),
@@ -51,7 +52,12 @@ def write_outputs(result: OptimizeResult, out: Path) -> list[Path]:
     rep["optimization"] = {k: v for k, v in result.to_dict().items() if k not in ("report", "comparison")}
     (out / "report.json").write_text(json.dumps(rep, indent=2))
     (out / "comparison.json").write_text(json.dumps(result.comparison, indent=2))
-    return paths + [out / "report.json", out / "comparison.json"]
+    paths += [out / "report.json", out / "comparison.json"]
+    if origin is not None:
+        s = result.trajectory.sample(result.trajectory.times(10.0))
+        (out / "maneuver.geojson").write_text(maneuver_geojson(s.p_W_V, s.speed, origin, "maneuver"))
+        paths.append(out / "maneuver.geojson")
+    return paths
 
 
 @app.command()
@@ -59,19 +65,24 @@ def optimize(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output folder.")],
     rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
     duration: Annotated[float, typer.Option(help="Maneuver duration [s], rest to rest.")] = 90.0,
-    lot: Annotated[str, typer.Option(help="Lot size XxY [m]: extent along x, then along y.")] = "80x50",
+    lot: Annotated[str, typer.Option(help="The lot: XxY [m] (a rectangle, extent along x then y, centred) "
+                                          "or a GeoJSON file (Polygon with keep-out holes, entry Point, "
+                                          "ramp/bank/bump Polygons).")] = "80x50",
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
-    time_budget: Annotated[float, typer.Option(help="Wall-clock budget of the optimization [s].")] = 60.0,
+    time_budget: Annotated[float, typer.Option(help="Wall-clock budget of the whole command [s].")] = 60.0,
     closed: Annotated[bool, typer.Option(help="End where it started (position and heading).")] = False,
     n_random: Annotated[int, typer.Option(help="Random candidates in the comparison.")] = 200,
+    criterion: Annotated[str, typer.Option(help="What to maximise: E (λ_min, the score), D (log det), "
+                                                "A (−trace of the inverse).")] = "E",
 ) -> None:
     """Plan the drive that determines the worst-determined calibration direction best.
 
-    Ctrl-C keeps the best feasible drive found so far and writes it.
+    The result is the best drive, among everything this run has seen, that passed the limit and
+    lot check. Ctrl-C keeps the best checked drive found so far and writes it.
     """
-    w, length = parse_lot(lot)
-    settings = OptimizeSettings(duration_s=duration, lot_x_m=w, lot_y_m=length, seed=seed,
-                                time_budget_s=time_budget, closed=closed, n_random=n_random)
+    site = parse_lot(lot)
+    settings = OptimizeSettings(duration_s=duration, site=site, seed=seed, time_budget_s=time_budget,
+                                closed=closed, n_random=n_random, criterion=criterion)
     r = load_rig(rig)
     console = Console()
     interrupted = {"flag": False}
@@ -84,15 +95,14 @@ def optimize(
     old = signal.signal(signal.SIGINT, on_sigint)
     try:
         with Progress(TextColumn("[bold]{task.fields[phase]:<9}"), BarColumn(),
-                      TextColumn("it {task.fields[it]:>4}  λ_min {task.fields[score]}  "
+                      TextColumn("it {task.fields[it]:>4}  model {task.fields[score]}  "
                                  "violation {task.fields[viol]}"), TimeElapsedColumn(),
                       console=console, transient=False) as bar:
             task = bar.add_task("optimize", total=settings.time_budget_s, phase="start", it=0,
                                 score="—", viol="—")
 
             def on_progress(p: OptProgress) -> None:
-                done = min(p.elapsed_s, settings.time_budget_s) if p.phase in ("start", "optimize") \
-                    else settings.time_budget_s
+                done = settings.time_budget_s if p.phase == "done" else min(p.elapsed_s, settings.time_budget_s)
                 bar.update(task, completed=done, phase=p.phase, it=p.iteration,
                            score=f"{p.score:.4g}", viol=f"{p.constraint_violation:.2g}")
 
@@ -100,8 +110,8 @@ def optimize(
     finally:
         signal.signal(signal.SIGINT, old)
     console.print(comparison_table(result))
-    console.print(f"status [bold]{result.status}[/], {result.iterations} IPOPT iterations, "
-                  f"{result.elapsed_s:.1f} s (optimization {result.timings_s.get('optimize', 0):.1f} s); "
-                  f"score {result.report.score:.4g}" + (f"\n{result.message}" if result.message else ""))
-    for p in write_outputs(result, out):
+    console.print(f"status [bold]{result.status}[/] (IPOPT: {result.ipopt_status}, {result.iterations} "
+                  f"iterations); result: {result.source}; {result.elapsed_s:.1f} s of the {time_budget:g} s "
+                  f"budget; score {result.report.score:.4g}" + (f"\n{result.message}" if result.message else ""))
+    for p in write_outputs(result, out, site.origin):
         console.print(f"wrote {p}")
