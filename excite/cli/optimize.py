@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 from pathlib import Path
 from typing import Annotated
@@ -18,6 +19,21 @@ from ..optimize.site import maneuver_geojson, parse_lot
 from ..rig import load_rig
 from ..routes import write_control_csv, write_tum, write_waypoints_csv
 from . import app
+
+
+_WRITE_S = 1.0  # kept from the budget for writing the output files
+
+
+def _process_age_s() -> float:
+    """Seconds since this process started (Linux /proc; 0 where unknown)."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return max(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 0.0)
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 def _num(v, fmt: str = ".4g") -> str:
@@ -81,7 +97,10 @@ def optimize(
     lot check. Ctrl-C keeps the best checked drive found so far and writes it.
     """
     site = parse_lot(lot)
-    settings = OptimizeSettings(duration_s=duration, site=site, seed=seed, time_budget_s=time_budget,
+    OptimizeSettings(time_budget_s=time_budget)  # validate the budget as given
+    # the budget bounds the whole command: start-up so far and writing the files come off it
+    left = time_budget - _process_age_s() - _WRITE_S
+    settings = OptimizeSettings(duration_s=duration, site=site, seed=seed, time_budget_s=max(left, 0.5),
                                 closed=closed, n_random=n_random, criterion=criterion)
     r = load_rig(rig)
     console = Console()
