@@ -13,7 +13,6 @@ by the full evaluator at the end), and the COBYLA baseline.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,7 +21,7 @@ import numpy as np
 
 from ..errors import LimitError
 from ..evaluate import Report, evaluate
-from ..maneuvers import REFERENCE_MANEUVERS, random_candidates
+from ..maneuvers import REFERENCE_MANEUVERS, random_candidates, stop_and_go
 from ..rig import Rig
 from ..trajectory import Trajectory
 from ..vehicle import ControlProfile, check_limits, drive
@@ -110,6 +109,30 @@ def reference_profiles(rig: Rig, settings, site) -> list[Candidate]:
         except LimitError:
             continue
         out.append(Candidate(name, "reference", as_written(site.drape(prof, rig.suspension)), []))
+    return out + _over_terrain(rig, settings, site)
+
+
+def _over_terrain(rig: Rig, settings, site) -> list[Candidate]:
+    """For every terrain feature, laps of the stop-and-go ellipse centred on it, its long axis
+    along the feature's slope, as large as the lot allows: the slope field is flat away from a
+    feature, so a start elsewhere gives IPOPT no gradient towards it."""
+    out = []
+    for i, f in enumerate(site.terrain.features):
+        c = f.polygon_m.mean(axis=0)
+        d = np.asarray(f.direction)
+        a, b = site.reach_m(c, d), site.reach_m(c, np.array([-d[1], d[0]]))
+        for shrink in (0.95, 0.8, 0.65, 0.5):
+            try:
+                prof = stop_and_go(settings.duration_s, width_m=2 * shrink * b, length_m=2 * shrink * a,
+                                   limits=settings.limits, margin_m=0.0)
+            except LimitError:
+                continue
+            prof = site.place(prof, c, float(np.arctan2(d[1], d[0])))
+            traj = drive(prof, rig.suspension)
+            if site.lot.contains(traj.sample(traj.times(5.0)).p_W_V, site.margin_m).all():
+                name = f"stop_and_go over {f.role} {i + 1}"
+                out.append(Candidate(name, "reference", as_written(site.drape(prof, rig.suspension), name), []))
+                break
     return out
 
 
@@ -161,6 +184,3 @@ def cobyla(rig: Rig, settings, site, z0: np.ndarray, budget_s: float) -> dict[st
     return {"profile": profile_from_z(tr.grid, tr.scales, z, name="cobyla", terrain=site.terrain),
             "model": value, "evaluations": n}
 
-
-def renamed(c: Candidate, name: str, kind: str) -> Candidate:
-    return dataclasses.replace(c, name=name, kind=kind, profile=dataclasses.replace(c.profile, name=name))

@@ -62,12 +62,25 @@ class Site:
         p = self.lot.polygon_m
         return 0.5 * (p.min(axis=0) + p.max(axis=0))
 
-    def place(self, profile: ControlProfile) -> ControlProfile:
-        """A maneuver generated about the origin, moved to the centre of the lot's bounding box."""
+    def place(self, profile: ControlProfile, centre_m=None, angle_rad: float = 0.0) -> ControlProfile:
+        """A maneuver generated about the origin, turned by ``angle_rad`` and moved to
+        ``centre_m`` (default: the centre of the lot's bounding box)."""
         x, y, h = profile.start
-        c = self.centre_m
+        c = self.centre_m if centre_m is None else np.asarray(centre_m, dtype=float)
+        ca_, sa = math.cos(angle_rad), math.sin(angle_rad)
         return ControlProfile(profile.t_s, profile.speed_mps, profile.curvature_1pm, profile.grade_rad,
-                              profile.bank_rad, (x + float(c[0]), y + float(c[1]), h), profile.name)
+                              profile.bank_rad, (float(c[0] + ca_ * x - sa * y), float(c[1] + sa * x + ca_ * y),
+                                                 h + angle_rad), profile.name)
+
+    def reach_m(self, centre_m: np.ndarray, direction: np.ndarray) -> float:
+        """How far from ``centre_m`` the lot extends (with the margin) both ways along
+        ``direction``: the smaller of the two reaches."""
+        t = np.arange(0.0, float(np.ptp(self.lot.polygon_m, axis=0).max()), 0.5)
+        reach = []
+        for sgn in (1.0, -1.0):
+            ok = self.lot.contains(centre_m + sgn * t[:, None] * direction, self.margin_m)
+            reach.append(float(t[np.argmin(ok)] if not ok.all() else t[-1]))
+        return min(reach)
 
     def violations(self, traj, profile: ControlProfile, t_s: np.ndarray) -> list[str]:
         """Where the drive ``traj`` (of ``profile``), sampled at ``t_s``, leaves the lot, comes
@@ -111,7 +124,8 @@ class Site:
             smp = drive(prof, suspension).sample(t)
             psi = np.unwrap(np.arctan2(smp.R_W_A[:, 1, 0], smp.R_W_A[:, 0, 0]))
             g, b = self.terrain.grade_bank_np(smp.p_W_V[:, :2], psi)
-            prof = ControlProfile(t, c["speed_mps"], c["curvature_1pm"], g, b, profile.start, profile.name)
+            prof = ControlProfile(t, np.maximum(c["speed_mps"], 0.0), c["curvature_1pm"], g, b, profile.start,
+                                  profile.name)
         return prof
 
     def clearance(self) -> ca.Function:

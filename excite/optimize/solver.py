@@ -170,6 +170,12 @@ def violation(tr: Transcription, z: np.ndarray) -> float:
 FEASIBLE_TOL = 1e-5
 SOFTMIN_BETA = 20.0  # sharpness of the soft minimum, in units of the start's λ_min
 
+# IPOPT's options (benchmarks/bench_ipopt.py measures alternatives on the default problem)
+IPOPT_OPTIONS: dict[str, object] = {
+    "ipopt.hessian_approximation": "limited-memory", "ipopt.limited_memory_max_history": 20,
+    "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-7, "ipopt.mu_strategy": "adaptive",
+}
+
 # IPOPT's return status → ours. "Stopped" covers the time budget, the iteration cap and
 # cancellation (the iteration callback asked IPOPT to stop).
 CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
@@ -289,14 +295,8 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         return state["stop"] or time.perf_counter() > deadline
 
     cb = _IterationCallback(tr.n_z, tr.lbg_kin.size, 0, on_iter)
-    opts = {
-        "ipopt.hessian_approximation": "limited-memory",
-        "ipopt.limited_memory_max_history": 20,
-        "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-7,
-        "ipopt.max_iter": 100000 if max_iterations is None else int(max_iterations),
-        "ipopt.mu_strategy": "adaptive", "print_time": False, "iteration_callback": cb,
-        "error_on_fail": False,
-    }
+    opts = {**IPOPT_OPTIONS, "ipopt.max_iter": 100000 if max_iterations is None else int(max_iterations),
+            "print_time": False, "iteration_callback": cb, "error_on_fail": False}
     solver = ca.nlpsol("optimize", "ipopt", {"x": z, "f": obj(z), "g": tr.g_kin(z)}, opts)
     solver._keep = (obj, cb)  # noqa: SLF001 — the callbacks must outlive the solver
     keep(z0, violation(tr, z0))

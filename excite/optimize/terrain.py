@@ -20,7 +20,7 @@ bank ``atan(s·(−sin ψ, cos ψ))`` (positive: left side up), exactly the ``gr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
