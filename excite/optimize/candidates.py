@@ -67,7 +67,7 @@ def rotation_min(traj: Trajectory) -> float:
     return float(criteria.rotation_excitation(s.omega_V)[0])
 
 
-@dataclass
+@dataclass(eq=False)  # identity: two candidates are never "equal" by their arrays
 class Candidate:
     """A drive that went through :func:`check`, with what is known about it."""
 

@@ -180,11 +180,11 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
             break
         n_checked += 1
         prof = as_written(profile_from_z(tr.grid, tr.scales, z, terrain=site.terrain))
-        _, bad = check(prof, rig, settings, site)
+        traj, bad = check(prof, rig, settings, site)
         if bad:
             first_failure = first_failure or bad[0]
             continue
-        passed.append(Candidate("optimized", "optimized", prof, bad, model=value))
+        passed.append(Candidate("optimized", "optimized", prof, bad, model=value, rotation=cand.rotation_min(traj)))
     timings["check"] = time.perf_counter() - t0 - timings["start"] - timings["optimize"]
 
     # --- collect the worker's work: what it finishes while the budget lasts (less the time the
@@ -205,8 +205,9 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
     pool.extend(c for c in refs if c.feasible)
     if cob is not None and cob["profile"] is not None:
         prof = as_written(cob["profile"])
-        _, bad = check(prof, rig, settings, site)
-        cobc = Candidate("cobyla", "cobyla", prof, bad, model=cob["model"], extra={"evaluations": cob["evaluations"]})
+        traj, bad = check(prof, rig, settings, site)
+        cobc = Candidate("cobyla", "cobyla", prof, bad, model=cob["model"], rotation=cand.rotation_min(traj),
+                         extra={"evaluations": cob["evaluations"]})
         if cobc.feasible:
             pool.append(cand.full(cobc, rig, crit))
     else:
@@ -248,7 +249,7 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
         rows.append(r)
 
     if passed:
-        row("optimized", "optimized", passed[0] if best not in passed else best)
+        row("optimized", "optimized", max(passed, key=lambda c: c.row["value"]))
     else:
         rows.append({"name": "optimized", "kind": "optimized", "score": None, "feasible": False, "result": False,
                      "violations": [first_failure or f"IPOPT kept no feasible iterate ({out.ipopt_status})"]})
