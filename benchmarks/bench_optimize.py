@@ -68,8 +68,8 @@ def main() -> None:
     lines = []
     for seed in args.seeds:
         out = args.out / f"seed{seed}"
-        cmd = [sys.executable, "-m", "excite.cli", "optimize", "-o", str(out), "--seed", str(seed),
-               "--time-budget", f"{args.budget:g}"]
+        cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main())",
+               "optimize", "-o", str(out), "--seed", str(seed), "--time-budget", f"{args.budget:g}"]
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -89,7 +89,7 @@ def main() -> None:
                 f"status {opt['status']} (IPOPT {opt['ipopt_status']}, {opt['iterations']} iterations); "
                 f"result from {opt['source']}; written drive passes the check again: {not bad}; "
                 f"score {score:.4g} = {ratio['reference']:.2f}× best reference, {ratio['random']:.2f}× best of "
-                f"{rand.get('scored', 0)}/{rand.get('requested', 0)} random; phases {opt['timings_s']}")
+                f"{rand.get('scored', 0)}/{settings.n_random} random; phases {opt['timings_s']}")
         print(line, flush=True)
         lines.append(line)
         if seed == args.seeds[0]:

@@ -78,6 +78,7 @@ class Candidate:
     model: float | None = None  # the criterion on the coarse model (screening)
     rotation: float | None = None  # λ_min of LI-Init's rotation-excitation matrix
     row: dict[str, Any] = field(default_factory=dict)  # metrics() of the full evaluator, once scored
+    report: Report | None = None  # the full evaluator's report, when scored in this process
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -89,6 +90,7 @@ def full(c: Candidate, rig: Rig, criterion: str) -> Candidate:
     """Score ``c`` by the full evaluator (fills ``row``); returns ``c``."""
     if not c.row:
         rep = evaluate(drive(c.profile, rig.suspension), rig)
+        c.report = rep
         c.row = metrics(rep)
         c.row["value"] = criteria.value(rep.information_scaled, criterion)
     return c
@@ -142,7 +144,8 @@ def references(rig: Rig, settings, site) -> list[Candidate]:
     for c in reference_profiles(rig, settings, site):
         traj, c.violations = check(c.profile, rig, settings, site)
         c.rotation = rotation_min(traj)
-        out.append(full(c, rig, settings.criterion))
+        full(c, rig, settings.criterion).report = None  # the row is enough: a report is heavy to send back
+        out.append(c)
     return out
 
 

@@ -44,13 +44,13 @@ START_RANDOM = 5  # random candidates (chunk 0) IPOPT's start is chosen among, w
 CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
 COBYLA_SHARE = 0.15  # of the budget, for the derivative-free baseline (in the worker)
 CHECK_ITERATES = 15  # IPOPT iterates checked at most, best model value first ...
-KEEP_ITERATES = 3  # ... until this many passed (each is then scored by the full evaluator)
-SCORE_RANDOM = 3  # best screened random candidates scored by the full evaluator
+KEEP_ITERATES = 2  # ... until this many passed (each is then scored by the full evaluator)
+SCORE_RANDOM = 2  # best screened random candidates scored by the full evaluator
 
 
 def finish_reserve_s(budget_s: float) -> float:
     """Wall time kept after IPOPT for the checks, the full evaluations and the worker's results."""
-    return 3.0 + 0.06 * budget_s
+    return 3.0 + 0.12 * budget_s
 
 
 class _Worker:
@@ -81,7 +81,13 @@ class _Worker:
             self.chunks.append(self.pool.submit(cand.randoms, *self.args, c, size, first))
 
     def close(self) -> None:
+        """Drop the worker's unfinished work at once: a task it is running (COBYLA, a chunk) is
+        cut short, so that neither this call nor the interpreter's exit waits for it."""
+        procs = list((self.pool._processes or {}).values())  # noqa: SLF001 — no public handle before 3.14
         self.pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
 
 
 def _chunks(n_random: int) -> list[tuple[int, int]]:
@@ -198,44 +204,43 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
     randoms = [c for f in chunks for c in (_result(f, 0.0) or [])]
     worker.close()
 
-    # --- score by the full evaluator what can win, choose the best
-    pool: list[Candidate] = []
-    for c in passed:
-        pool.append(cand.full(c, rig, crit))
+    # --- score by the full evaluator what can win (most important first, while time lasts)
+    pool: list[Candidate] = [cand.full(c, rig, crit) for c in passed]
     pool.extend(c for c in refs if c.feasible)
-    if cob is not None and cob["profile"] is not None:
+    start_c = next((c for c in refs + randoms if c.name == start.name), None)
+    if start_c is None:
+        start_c = Candidate(start.name, "start", start, check(start, rig, settings, site)[1])
+    if start_c.feasible and (remaining() > 0 or not pool):
+        pool.append(cand.full(start_c, rig, crit))
+    cobc = None
+    if cob is not None and cob["profile"] is not None and remaining() > 0:
         prof = as_written(cob["profile"])
         traj, bad = check(prof, rig, settings, site)
         cobc = Candidate("cobyla", "cobyla", prof, bad, model=cob["model"], rotation=cand.rotation_min(traj),
                          extra={"evaluations": cob["evaluations"]})
         if cobc.feasible:
             pool.append(cand.full(cobc, rig, crit))
-    else:
-        cobc = None
     feas_random = sorted((c for c in randoms if c.feasible and c.model is not None), key=lambda c: -c.model)
+    top_random = []
     for c in feas_random[:SCORE_RANDOM]:
-        pool.append(cand.full(c, rig, crit))
-    start_c = next((c for c in refs + randoms if c.name == start.name), None)
-    if start_c is None:
-        start_c = Candidate(start.name, "start", start, check(start, rig, settings, site)[1])
-    if start_c.feasible:
-        pool.append(cand.full(start_c, rig, crit))
+        if remaining() > 0 or not pool:
+            top_random.append(cand.full(c, rig, crit))
+    pool.extend(top_random)
+    # the LI-Init heuristic's pick: the candidate with the most rotation excitation
+    heur = max((c for c in refs + randoms if c.feasible and c.rotation is not None),
+               key=lambda c: c.rotation, default=None)
+    if heur is not None and not heur.row and remaining() > 0:
+        pool.append(cand.full(heur, rig, crit))
     if not pool:
         raise OptimizeError("no drive passed the limit and lot check (IPOPT: "
                             f"{out.ipopt_status}, {out.iterations} iterations"
                             + (f"; its best iterate: {first_failure}" if first_failure else "") + ")")
     best = max(pool, key=lambda c: (c.row["value"], c.kind == "optimized"))
 
-    # the LI-Init heuristic's pick: the candidate with the most rotation excitation
-    heur = max((c for c in refs + randoms if c.feasible and c.rotation is not None),
-               key=lambda c: c.rotation, default=None)
-    if heur is not None:
-        cand.full(heur, rig, crit)
-
     profile = ControlProfile(best.profile.t_s, best.profile.speed_mps, best.profile.curvature_1pm,
                              best.profile.grade_rad, best.profile.bank_rad, best.profile.start, name="optimized")
     traj = drive(profile, rig.suspension)
-    rep = evaluate(traj, rig)
+    rep = best.report if best.report is not None else evaluate(traj, rig)
 
     # --- the comparison
     rows: list[dict[str, Any]] = []
@@ -255,15 +260,15 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
                      "violations": [first_failure or f"IPOPT kept no feasible iterate ({out.ipopt_status})"]})
     for c in refs:
         row(c.name, "reference", c)
-    if feas_random:
-        top = max(feas_random[:SCORE_RANDOM], key=lambda c: c.row["value"])
+    if top_random:
+        top = max(top_random, key=lambda c: c.row["value"])
         row(f"best of {len(randoms)} random", "random", top, candidate=top.name,
             scored=len(randoms), requested=settings.n_random)
     if cobc is not None:
         row("cobyla", "cobyla", cobc)
-    if start_c is not None:
+    if start_c.row:
         row(f"start ({start.name})", "start", start_c)
-    if heur is not None:
+    if heur is not None and heur.row:
         row(f"LI-Init heuristic ({heur.name})", "heuristic", heur)
     for r in rows:
         s = r.get("score")

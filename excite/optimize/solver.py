@@ -181,7 +181,14 @@ IPOPT_OPTIONS: dict[str, object] = {
 CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 INFEASIBLE = ("Infeasible_Problem_Detected",)
 STOPPED = ("User_Requested_Stop", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
-           "Maximum_WallTime_Exceeded")
+           "Maximum_WallTime_Exceeded", "Stopped_At_Deadline")  # the last: ours, inside an iteration
+
+
+DEADLINE_GRACE_S = 0.5  # past the deadline, an objective evaluation aborts the IPOPT run
+
+
+class _PastDeadline(Exception):
+    pass
 
 
 class _Objective(ca.Callback):
@@ -189,9 +196,11 @@ class _Objective(ca.Callback):
     ``∂f/∂M = V diag(∂f/∂λ) Vᵀ`` pushed through one reverse sweep of the CasADi model. Smooth
     even where eigenvalues cross (a symmetric function of the spectrum)."""
 
-    def __init__(self, M: ca.Function, n_z: int, criterion: str, mu: float, grad: bool = False):
+    def __init__(self, M: ca.Function, n_z: int, criterion: str, mu: float, deadline: float = np.inf,
+                 grad: bool = False):
         ca.Callback.__init__(self)
         self.Mf, self.n_z, self.criterion, self.mu, self.grad = M, n_z, criterion, mu, grad
+        self.deadline = deadline
         self.Mrev = M.reverse(1) if grad else None
         self._revs: list[_Objective] = []  # CasADi holds raw pointers: keep them alive
         self.construct("objective_grad" if grad else "objective", {})
@@ -209,6 +218,9 @@ class _Objective(ca.Callback):
         return ca.Sparsity.dense(self.n_z) if self.grad else ca.Sparsity.scalar()
 
     def eval(self, arg):
+        if time.perf_counter() > self.deadline:
+            # an iteration can take seconds on a loaded machine: stop inside it, not after it
+            raise _PastDeadline
         z = np.array(arg[0]).ravel()
         M = np.array(self.Mf(z))
         w, V = np.linalg.eigh(M)
@@ -222,7 +234,7 @@ class _Objective(ca.Callback):
         return not self.grad and nadj == 1
 
     def get_reverse(self, nadj, name, inames, onames, opts):
-        rev = _Objective(self.Mf, self.n_z, self.criterion, self.mu, grad=True)
+        rev = _Objective(self.Mf, self.n_z, self.criterion, self.mu, self.deadline, grad=True)
         self._revs.append(rev)
         return rev
 
@@ -268,7 +280,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     z0 = np.asarray(z0, dtype=float)
     w0 = np.linalg.eigvalsh(np.array(tr.M(z0)))
     mu = max(abs(w0[0]), 1e-8 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
-    obj = _Objective(tr.M, tr.n_z, criterion, mu)
+    obj = _Objective(tr.M, tr.n_z, criterion, mu, deadline + DEADLINE_GRACE_S)
     z = ca.MX.sym("z", tr.n_z)
     state = {"it": 0, "stop": False}
     feasible: list[tuple[float, np.ndarray]] = []
@@ -308,7 +320,8 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         rs = str(stats.get("return_status", "unknown"))
         state["it"] = int(stats.get("iter_count", state["it"]))
     except RuntimeError as exc:  # IPOPT or a callback raised: what was kept stays valid
-        rs = f"error: {exc}".splitlines()[0][:200]
+        past = time.perf_counter() > deadline + DEADLINE_GRACE_S
+        rs = "Stopped_At_Deadline" if past else f"error: {exc}".splitlines()[0][:200]
     if state["stop"]:
         status = "cancelled"
     elif rs in CONVERGED:
