@@ -286,7 +286,7 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
         message.append(f"{len(randoms)} of {settings.n_random} random candidates were scored within the budget")
     timings["compare"] = time.perf_counter() - t0 - sum(timings.values())
     elapsed = time.perf_counter() - t0
-    report(out.iterations, out.score, 0.0, "done")
+    report(out.iterations, rep.score, 0.0, "done")  # the last word: the result's score
     return OptimizeResult(profile, traj, rep, rows, "cancelled" if cancelled else out.status, out.iterations,
                           elapsed, cancelled, model_score=float(out.score),
                           timings_s={k: round(v, 3) for k, v in timings.items()}, message="; ".join(message),

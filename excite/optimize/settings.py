@@ -97,8 +97,9 @@ class OptimizeSettings:
 class Progress:
     """One progress report: the optimizer's iteration, the current criterion value of its
     (coarse) model, the largest constraint violation, the wall time since the start, and the
-    phase (``"start"``, ``"optimize"``, ``"check"``, ``"done"``). ``budget_s``: the whole run's
-    budget (the progress bar's total)."""
+    phase (``"start"``, ``"optimize"``, ``"check"``, ``"done"``; at ``"done"`` the score is the
+    result's, by the full evaluator). ``budget_s``: the whole run's budget (the progress bar's
+    total)."""
 
     iteration: int
     score: float
