@@ -5,8 +5,8 @@ Within ``time_budget_s`` of wall time, all of it:
 1. **start** (main process): state the NLP; generate the first random candidates and the
    reference maneuvers; choose IPOPT's start among them by the optimizer's model. A worker
    process starts at once and, next to IPOPT, scores the reference maneuvers (full evaluator),
-   runs COBYLA from the same start (:data:`COBYLA_SHARE` of the budget), then screens the
-   other random candidates chunk by chunk (evaluator on the coarse rig).
+   screens the random candidates chunk by chunk (evaluator on the coarse rig), then runs COBYLA
+   from the same start (:data:`COBYLA_SHARE` of the budget).
 2. **optimize**: IPOPT until it converges, or until the budget less the time kept for the
    checks (:func:`finish_reserve_s`); every iterate that satisfies its constraints is kept.
 3. **check**: the best kept iterates (by the model) go through the independent check
@@ -76,9 +76,10 @@ class _Worker:
         self.chunks: list[cf.Future] = []
 
     def start_rest(self, z_start: np.ndarray, cobyla_s: float, n_random: int) -> None:
-        self.cobyla = self.pool.submit(cand.cobyla, *self.args, z_start, cobyla_s)
+        # the random candidates first: the comparison the result is held to; COBYLA last
         for c, (first, size) in enumerate(_chunks(n_random)):
             self.chunks.append(self.pool.submit(cand.randoms, *self.args, c, size, first))
+        self.cobyla = self.pool.submit(cand.cobyla, *self.args, z_start, cobyla_s)
 
     def close(self) -> None:
         """Drop the worker's unfinished work at once: a task it is running (COBYLA, a chunk) is
