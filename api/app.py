@@ -21,7 +21,8 @@ from .context import Context
 from .jobs import JobRunner
 from .middleware import BodyLimit, Metrics, TimeLimit
 from .routers import batch, health, jobs, maneuvers, rigs, score
-from .scoring import ScorePool
+from .pool import WorkerPool
+from .scoring import warm
 from .settings import Settings
 from .store import JobStore
 
@@ -34,16 +35,22 @@ of a rig, plan calibration maneuvers, and gate routes in CI. Errors are
 """
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """The service configured by ``settings`` (default: from the ``EXCITE_*`` environment)."""
+def create_app(settings: Settings | None = None, *,
+               job_function: str = "api.jobs:run_optimization") -> FastAPI:
+    """The service configured by ``settings`` (default: from the ``EXCITE_*`` environment).
+
+    ``job_function`` (``module:function``) runs one optimization job; tests inject stand-ins
+    here, it is not a setting of the service.
+    """
     settings = settings or Settings()
     store = JobStore(settings.db_path)
     registry = CollectorRegistry()
     ctx = Context(
         settings=settings, store=store,
-        runner=JobRunner(store, settings.workers, settings.job_function, settings.cancel_grace_s,
+        runner=JobRunner(store, settings.workers, job_function, settings.cancel_grace_s,
                          settings.worker_memory_mb),
-        pool=ScorePool(settings.score_workers, settings.worker_memory_mb),
+        pool=WorkerPool(settings.score_workers, settings.worker_memory_mb,
+                        settings.worker_recycle_mb, warm=warm),
         registry=registry,
         jobs_gauge=Gauge("excite_jobs", "Jobs in the store by status", ["status"], registry=registry),
         started_at=time.time())
@@ -61,11 +68,42 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(title="excite", version="1", description=DESCRIPTION, lifespan=lifespan)
     app.state.ctx = ctx
+    app.openapi = _openapi_with_settings(app, settings)
     problems.install(app)
     for module in (score, batch, maneuvers, jobs, rigs, health):
         app.include_router(module.router)
     # added last = outermost: metrics see every answer, the body limit comes before the clock
     app.add_middleware(TimeLimit, timeout_s=settings.request_timeout_s)
-    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
     app.add_middleware(Metrics, registry=registry)
     return app
+
+
+def _openapi_with_settings(app: FastAPI, settings: Settings):
+    """The OpenAPI document with the bounds this server's settings tighten: what the schema
+    allows, the server accepts (the static ranges come from :mod:`excite.bounds`)."""
+    generate = app.openapi
+
+    def openapi() -> dict:
+        if app.openapi_schema is not None:
+            return app.openapi_schema
+        doc = generate()
+        models = doc["components"]["schemas"]
+
+        def array(model: str, prop: str) -> dict:
+            node = models[model]["properties"][prop]
+            return next(n for n in [node, *node.get("anyOf", [])] if n.get("type") == "array")
+
+        def tighten(node: dict, key: str, value: float) -> None:
+            node[key] = min(node.get(key, value), value)
+
+        s = settings
+        tighten(models["ManeuverRequest"]["properties"]["duration_s"], "maximum", s.max_route_duration_s)
+        tighten(models["ManeuverRequest"]["properties"]["time_budget_s"], "maximum", s.max_job_time_budget_s)
+        for model, prop in (("RouteIn", "waypoints"), ("RouteIn", "poses"), ("ControlIn", "t_s")):
+            tighten(array(model, prop), "maxItems", s.max_samples)
+        tighten(array("BatchRequest", "routes"), "maxItems", s.max_batch_routes)
+        return doc
+
+    return openapi
+

@@ -13,7 +13,8 @@ from prometheus_client import CollectorRegistry, Gauge
 
 from .jobs import JobRunner
 from .problems import ProblemError
-from .scoring import Bounds, ScorePool, plot_task, score_task
+from .pool import Unsendable, WorkerDied, WorkerPool, WorkTimeout
+from .scoring import Bounds, plot_task, score_task
 from .settings import Settings
 from .store import JobStore
 
@@ -23,7 +24,7 @@ class Context:
     settings: Settings
     store: JobStore
     runner: JobRunner
-    pool: ScorePool
+    pool: WorkerPool
     registry: CollectorRegistry
     jobs_gauge: Gauge
     started_at: float
@@ -34,29 +35,37 @@ class Context:
         return Bounds(s.max_samples, s.max_route_duration_s, s.max_route_length_m)
 
     def submit_score(self, route: dict[str, Any], rig: Any, segments: int,
-                     limits: dict[str, float] | None, field: str = "route") -> cf.Future:
-        return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field)
+                     limits: dict[str, float] | None, deadline: float, field: str = "route") -> cf.Future:
+        return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field,
+                                deadline=deadline)
 
     def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
-                    limits: dict[str, float] | None, parameter: str | None) -> cf.Future:
-        return self.pool.submit(plot_task, route, rig, segments, limits, self.bounds, parameter)
+                    limits: dict[str, float] | None, parameter: str | None, deadline: float) -> cf.Future:
+        return self.pool.submit(plot_task, route, rig, segments, limits, self.bounds, parameter,
+                                deadline=deadline)
 
-    def wait(self, futures: list[cf.Future], deadline: float) -> list[dict[str, Any]]:
-        """The results of ``futures`` by ``deadline`` (monotonic), else 503 (queued work is
-        dropped)."""
+    def wait(self, futures: list[cf.Future]) -> list[dict[str, Any]]:
+        """The results of ``futures``; 503 when the deadline they were submitted with passed
+        (their workers were killed then: the work ends with the request)."""
         out = []
         for f in futures:
             try:
-                out.append(f.result(timeout=max(0.0, deadline - time.monotonic())))
-            except cf.TimeoutError:
+                out.append(f.result())
+            except WorkTimeout:
                 for g in futures:
                     g.cancel()
                 raise ProblemError(503, "the request exceeded the time limit of "
                                         f"{self.settings.request_timeout_s:g} s",
                                    type_="timeout", headers={"Retry-After": "10"}) from None
-            except cf.process.BrokenProcessPool:
+            except Unsendable:
+                raise ProblemError(422, "the request is nested too deeply to process",
+                                   errors=[{"field": "body", "message": "nested too deeply"}]) from None
+            except WorkerDied:
                 raise ProblemError(503, "a scoring worker died; retry the request",
                                    type_="unavailable", headers={"Retry-After": "1"}) from None
+            except MemoryError:
+                raise ProblemError(413, "the route needs more memory than a worker may use "
+                                        f"({self.settings.worker_memory_mb} MiB)") from None
         return out
 
     def deadline(self) -> float:

@@ -106,9 +106,11 @@ class JobRunner:
         return len(self._procs)
 
     def start(self) -> None:
-        self.requeued_at_start = self.store.recover()
-        if self.requeued_at_start:
-            log.info("re-queued %d job(s) left running by a previous server", self.requeued_at_start)
+        requeued = self.store.recover()
+        self.requeued_at_start = len(requeued)
+        if requeued:
+            log.warning("re-queued %d job(s) left running by a previous server: %s",
+                        len(requeued), ", ".join(requeued))
         self._thread = threading.Thread(target=self._loop, name="excite-jobs", daemon=True)
         self._thread.start()
 

@@ -32,10 +32,12 @@ async def send_problem(send: Callable, status: int, title: str, type_: str, deta
 
 
 class BodyLimit:
-    """413 when Content-Length or the streamed body exceeds ``max_bytes``."""
+    """413 when Content-Length or the streamed body exceeds ``max_bytes``; 408 when the body
+    has not arrived within ``timeout_s`` (a client that announces a body and sends it slowly
+    would otherwise hold a connection and a request slot forever)."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int):
-        self.app, self.max_bytes = app, max_bytes
+    def __init__(self, app: ASGIApp, max_bytes: int, timeout_s: float = 30.0):
+        self.app, self.max_bytes, self.timeout_s = app, max_bytes, timeout_s
 
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] != "http":
@@ -53,8 +55,16 @@ class BodyLimit:
         # Read the body here (at most max_bytes are held), then replay it: an exception raised
         # from inside a streamed receive would surface as a parse error, not a 413.
         body = bytearray()
+        deadline = asyncio.get_running_loop().time() + self.timeout_s
         while True:
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(receive(), deadline - asyncio.get_running_loop().time())
+            except asyncio.TimeoutError:
+                log.warning("%s %s: body not received within %g s", scope.get("method"),
+                            scope.get("path"), self.timeout_s)
+                return await send_problem(send, 408, "Request timeout", "body-timeout",
+                                          f"the request body did not arrive within {self.timeout_s:g} s",
+                                          scope.get("path", ""), [(b"connection", b"close")])
             if message["type"] != "http.request":
                 return  # the client went away
             body += message.get("body", b"")

@@ -23,7 +23,7 @@ PROBLEM_JSON = "application/problem+json"
 TYPE_BASE = "https://excite.dev/problems/"
 
 _TITLES = {400: "Bad request", 404: "Not found", 405: "Method not allowed",
-           406: "Not acceptable", 409: "Conflict", 413: "Content too large",
+           406: "Not acceptable", 408: "Request timeout", 409: "Conflict", 413: "Content too large",
            415: "Unsupported media type", 422: "Unprocessable content",
            500: "Internal server error", 503: "Service unavailable"}
 
@@ -62,9 +62,11 @@ def problem(status: int, detail: str, *, instance: str = "", type_: str | None =
 
 def field_name(loc: tuple[Any, ...] | list[Any]) -> str:
     """``("body", "route", "waypoints", 3)`` → ``"route.waypoints[3]"``."""
+    from .schemas import RIG_TAGS
+
     out = ""
     for part in loc:
-        if part == "body" and not out:
+        if (part == "body" and not out) or part in RIG_TAGS:
             continue
         if isinstance(part, int):
             out += f"[{part}]"
@@ -80,6 +82,19 @@ def excite_problem(exc: ExciteError, field: str | None = None) -> tuple[int, str
     default = next((v for k, v in kind.items() if isinstance(exc, k)), "body")
     name = field or default
     return 422, str(exc), [{"field": name, "message": str(exc)}]
+
+
+def _methods(request: Request) -> list[str]:
+    """The methods the API documents for this request's path (all its routes, not only the
+    first one the router tried)."""
+    import re
+
+    out: set[str] = set()
+    for template, item in request.app.openapi().get("paths", {}).items():
+        pattern = "^" + re.sub(r"\\{[^/]+?\\}", "[^/]+", re.escape(template)) + "$"
+        if re.match(pattern, request.url.path):
+            out |= {m.upper() for m in item if m in ("get", "post", "put", "patch", "delete")}
+    return sorted(out)
 
 
 def install(app: FastAPI) -> None:
@@ -111,8 +126,10 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = exc.detail if isinstance(exc.detail, str) else _TITLES.get(exc.status_code, "Error")
-        return problem(exc.status_code, detail, instance=request.url.path,
-                       headers=getattr(exc, "headers", None))
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:  # every method of the path, not only the first route's
+            headers = {**(headers or {}), "Allow": ", ".join(_methods(request))}
+        return problem(exc.status_code, detail, instance=request.url.path, headers=headers)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
+
+from excite import bounds
+from excite.bounds import Range
 
 ROUTE_FORMATS = ("tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv")
 RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv"]
@@ -17,16 +20,25 @@ RigName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$",
                                description="Name of a bundled rig (GET /v1/rigs).")]
 RouteName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")]
 
-# Static sanity bounds: beyond them the numbers are not a drive on Earth.
-Coord = Annotated[float, Field(ge=-1e8, le=1e8)]
-Time = Annotated[float, Field(ge=-1e11, le=1e11)]
-Speed = Annotated[float, Field(ge=0, le=100)]
+
+def ranged(r: Range, description: str = "", **kw: Any) -> Any:
+    """A field in the sane range ``r`` of :mod:`excite.bounds`: the schema states the range the
+    library enforces (the service may tighten it, never widen it)."""
+    text = f"{description} Range {r}.".strip()
+    return Field(ge=r.lo, le=r.hi, description=text, **kw)
+
+
+# Static sanity bounds (excite.bounds.ROUTE): beyond them the numbers are not a drive on Earth.
+Coord = Annotated[float, ranged(bounds.ROUTE["position_m"])]
+Time = Annotated[float, ranged(bounds.ROUTE["t_s"])]
+Speed = Annotated[float, ranged(bounds.ROUTE["speed_mps"])]
+Quat = Annotated[float, ranged(bounds.ROUTE["quaternion"])]
 
 
 class In(BaseModel):
     """Base of every request body: unknown keys and NaN/inf are errors."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class Out(BaseModel):
@@ -41,16 +53,15 @@ class Out(BaseModel):
 
 class TimedPose(In):
     t: Time = Field(description="Time [s].")
-    position: tuple[Coord, Coord, Coord] = Field(description="Position of V in W [m].")
-    quaternion_xyzw: tuple[Annotated[float, Field(ge=-2, le=2)], Annotated[float, Field(ge=-2, le=2)],
-                           Annotated[float, Field(ge=-2, le=2)], Annotated[float, Field(ge=-2, le=2)]] = \
-        Field(description="Orientation of V in W, x-y-z-w, unit norm.")
+    position: list[Coord] = Field(min_length=3, max_length=3, description="Position of V in W [m].")
+    quaternion_xyzw: list[Quat] = Field(min_length=4, max_length=4,
+                                        description="Orientation of V in W, x-y-z-w, unit norm.")
 
 
 class StartPose(In):
     x_m: Coord = 0.0
     y_m: Coord = 0.0
-    heading_rad: Annotated[float, Field(ge=-100, le=100)] = 0.0
+    heading_rad: Annotated[float, ranged(bounds.ROUTE["heading_rad"])] = 0.0
 
 
 class ControlIn(In):
@@ -58,13 +69,13 @@ class ControlIn(In):
 
     t_s: list[Time] = Field(min_length=2)
     speed_mps: list[Speed]
-    curvature_1pm: list[Annotated[float, Field(ge=-10, le=10)]]
-    grade_rad: list[Annotated[float, Field(ge=-1.5, le=1.5)]] | None = None
-    bank_rad: list[Annotated[float, Field(ge=-1.5, le=1.5)]] | None = None
+    curvature_1pm: list[Annotated[float, ranged(bounds.ROUTE["curvature_1pm"])]]
+    grade_rad: list[Annotated[float, ranged(bounds.ROUTE["grade_rad"])]] | None = None
+    bank_rad: list[Annotated[float, ranged(bounds.ROUTE["bank_rad"])]] | None = None
     start: StartPose = StartPose()
 
 
-Waypoint = Annotated[list[Annotated[float, Field(ge=-1e8, le=1e8)]], Field(min_length=2, max_length=4)]
+Waypoint = Annotated[list[Coord], Field(min_length=2, max_length=4)]
 
 
 class RouteIn(In):
@@ -99,18 +110,40 @@ class RouteIn(In):
 class LimitsIn(In):
     """Vehicle and test limits. Positive, SI units."""
 
-    speed_max_mps: Annotated[float, Field(gt=0, le=100)] = 15.0
-    accel_max_mps2: Annotated[float, Field(gt=0, le=50)] = 3.0
-    decel_max_mps2: Annotated[float, Field(gt=0, le=50)] = 4.0
-    jerk_max_mps3: Annotated[float, Field(gt=0, le=500)] = 6.0
-    lat_accel_max_mps2: Annotated[float, Field(gt=0, le=50)] = 4.0
-    curvature_max_1pm: Annotated[float, Field(gt=0, le=10)] = 0.18
-    curvature_rate_max_1pms: Annotated[float, Field(gt=0, le=100)] = 0.25
+    speed_max_mps: float = ranged(bounds.LIMITS["speed_max_mps"], default=15.0)
+    accel_max_mps2: float = ranged(bounds.LIMITS["accel_max_mps2"], default=3.0)
+    decel_max_mps2: float = ranged(bounds.LIMITS["decel_max_mps2"], default=4.0)
+    jerk_max_mps3: float = ranged(bounds.LIMITS["jerk_max_mps3"], default=6.0)
+    lat_accel_max_mps2: float = ranged(bounds.LIMITS["lat_accel_max_mps2"], default=4.0)
+    curvature_max_1pm: float = ranged(bounds.LIMITS["curvature_max_1pm"], default=0.18)
+    curvature_rate_max_1pms: float = ranged(bounds.LIMITS["curvature_rate_max_1pms"], default=0.25)
 
 
-RigIn = RigName | dict[str, Any]
+def _shallow(rig: dict[str, Any]) -> dict[str, Any]:
+    # before the rig is handed to a worker: a deep document would exhaust the recursion limit
+    if bounds.nesting(rig) > bounds.MAX_NESTING:
+        raise ValueError(f"nested more than {bounds.MAX_NESTING} levels deep (a rig is at most 6)")
+    return rig
+
+
+def _rig_ranges() -> str:
+    return "; ".join(f"{k} {r}" for k, r in bounds.RIG.items())
+
+
+def _rig_kind(rig: Any) -> str:
+    return "inline" if isinstance(rig, dict) else "bundled"
+
+
+# Tagged, so that a wrong rig is reported against the kind it was (names the tags hide from
+# the field names in errors: api.problems.field_name).
+RIG_TAGS = ("bundled", "inline")
+RigIn = Annotated[Annotated[RigName, Tag("bundled")] |
+                  Annotated[dict[str, Any], AfterValidator(_shallow), Tag("inline")],
+                  Discriminator(_rig_kind)]
 RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's structure; the IMU "
-                   "block inline).")
+                   f"block inline; at most {bounds.MAX_SENSORS} sensors, nested at most "
+                   f"{bounds.MAX_NESTING} levels). Sane ranges: {_rig_ranges()}; targets and "
+                   "priors by unit: " + "; ".join(f"{u} {r}" for u, r in bounds.QUANTITY.items()) + ".")
 
 
 _LOOP = {"name": "loop", "waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
@@ -153,14 +186,15 @@ class ManeuverRequest(In):
 
     rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
     name: RouteName = "maneuver"
-    duration_s: float = Field(90.0, gt=1, description="Length of the maneuver [s].")
-    lot_x_m: float = Field(80.0, gt=1, le=10_000, description="Lot extent along world x [m].")
-    lot_y_m: float = Field(50.0, gt=1, le=10_000, description="Lot extent along world y [m].")
+    duration_s: float = ranged(bounds.OPTIMIZE["duration_s"], "Length of the maneuver.", default=90.0)
+    lot_x_m: float = ranged(bounds.OPTIMIZE["lot_x_m"], "Lot extent along world x.", default=80.0)
+    lot_y_m: float = ranged(bounds.OPTIMIZE["lot_y_m"], "Lot extent along world y.", default=50.0)
     limits: LimitsIn = LimitsIn()
-    seed: int = Field(0, ge=0, le=2**31 - 1)
-    time_budget_s: float = Field(60.0, gt=0, description="Optimizer wall-time budget [s].")
+    seed: int = ranged(bounds.OPTIMIZE["seed"], default=0)
+    time_budget_s: float = ranged(bounds.OPTIMIZE["time_budget_s"], "Optimizer wall-time budget.",
+                                  default=60.0)
     closed: bool = Field(False, description="End where it started.")
-    n_random: int = Field(200, ge=0, le=5000, description="Random candidates compared.")
+    n_random: int = ranged(bounds.OPTIMIZE["n_random"], "Random candidates compared.", default=200)
     origin: Origin | None = Field(None, description="Lot origin in WGS84, for GeoJSON downloads.")
     lot: dict[str, Any] | None = Field(None, description=(
         "The lot as GeoJSON (replaces lot_x_m/lot_y_m): one Polygon (lon/lat, or local metres with "

@@ -10,16 +10,9 @@ server path.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import logging
 import math
-import multiprocessing
-import multiprocessing.forkserver
-import os
-import resource
 import tempfile
-import threading
-import time
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -28,6 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from excite import routes
+from excite.bounds import tightened
 from excite.errors import ExciteError, RigError, RouteError
 from excite.evaluate import Options, evaluate
 from excite.rig import Rig, build_rig, bundled_rigs, load_rig
@@ -106,9 +100,11 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
 # Routes
 
 
-def _count_bound(n: int, bounds: Bounds, field: str, what: str) -> None:
+def _count_bound(n: int, bounds: Bounds, field: str, what: str, status: int = 422) -> None:
+    """More rows than ``max_samples``: 422 for JSON arrays (the schema states the bound as
+    ``maxItems``), 413 for the lines of a text (a size the schema cannot state)."""
     if n > bounds.max_samples:
-        raise Rejected(413, field, f"{n} {what} exceed the limit of {bounds.max_samples}")
+        raise Rejected(status, field, f"{n} {what} exceed the limit of {bounds.max_samples}")
 
 
 def _where(exc: RouteError, field: str, line_to_index: Callable[[int], str] | None) -> tuple[str, str]:
@@ -136,6 +132,16 @@ def route_trajectory(route: dict[str, Any], rig: Rig, limits: Limits, bounds: Bo
             return _from_control(route["control"], name, tmpdir, rig, bounds, field)
         except UnicodeEncodeError:
             raise Rejected(422, field, "the text is not valid UTF-8") from None
+        except Rejected as exc:
+            raise Rejected(exc.status, exc.field, _scrub(exc.message, tmp)) from None
+        except ExciteError as exc:  # a reader's error without a line: the file is the request's
+            message = exc.problem if isinstance(exc, RouteError) else str(exc)
+            raise Rejected(422, field, _scrub(message, tmp)) from None
+
+
+def _scrub(message: str, tmp: str) -> str:
+    """A message without the server's temporary directory (files there are the request's)."""
+    return message.replace(tmp + "/", "").replace(tmp, "")
 
 
 def _from_text(route: dict[str, Any], name: str, tmpdir: Path, rig: Rig, limits: Limits,
@@ -143,7 +149,7 @@ def _from_text(route: dict[str, Any], name: str, tmpdir: Path, rig: Rig, limits:
     fmt, text = route["format"], route["text"]
     # A cheap upper bound on the rows (lines; brackets for single-line GeoJSON).
     n = text.count("[") if fmt == "geojson" else text.count("\n") + 1
-    _count_bound(n, bounds, f"{field}.text", "lines" if fmt != "geojson" else "coordinates")
+    _count_bound(n, bounds, f"{field}.text", "lines" if fmt != "geojson" else "coordinates", 413)
     path = tmpdir / f"{name}{_EXT[fmt]}"
     path.write_text(text, encoding="utf-8")
     try:
@@ -258,11 +264,13 @@ def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
                limits: dict[str, float] | None, bounds: Bounds, field: str, rig_field: str):
     r = resolve_rig(rig, rig_field)
     lim = Limits(**limits) if limits else Limits()
-    traj = route_trajectory(route, r, lim, bounds, field)
-    if traj.duration > bounds.max_route_duration_s:
-        raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
-                                   f"{bounds.max_route_duration_s:g} s")
-    return r, traj, evaluate(traj, r, Options(segments=segments))
+    # the library refuses a planned or logged drive over the service's bounds before building it
+    with tightened(duration_s=bounds.max_route_duration_s, length_m=bounds.max_route_length_m):
+        traj = route_trajectory(route, r, lim, bounds, field)
+        if traj.duration > bounds.max_route_duration_s:
+            raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
+                                       f"{bounds.max_route_duration_s:g} s")
+        return r, traj, evaluate(traj, r, Options(segments=segments))
 
 
 def _as_problem(fn: Callable[[], dict[str, Any]], field: str) -> dict[str, Any]:
@@ -321,93 +329,3 @@ def warm() -> bool:
     if not out["ok"]:
         log.warning("warm-up scoring failed: %s", out.get("detail"))
     return True
-
-
-# --------------------------------------------------------------------------------------------
-# The pool
-
-
-_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-def _init_worker(memory_mb: int, server_pid: int) -> None:
-    threading.Thread(target=_exit_with_server, args=(server_pid,), daemon=True, name="server-watch").start()
-    if memory_mb:
-        limit = memory_mb * 1024 * 1024
-        try:
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-        except (ValueError, OSError):
-            log.warning("cannot limit worker memory to %d MiB", memory_mb)
-
-
-def _exit_with_server(server_pid: int, period_s: float = 1.0) -> None:
-    """End this worker once the server process is gone (e.g. killed with SIGKILL): an orphaned
-    pool worker would otherwise wait for work forever, and keep the forkserver alive with it."""
-    while True:
-        time.sleep(period_s)
-        try:
-            os.kill(server_pid, 0)
-        except (ProcessLookupError, PermissionError):  # gone, or the pid now is another user's process
-            os._exit(0)
-
-
-class ScorePool:
-    """Processes that score routes: CPU-bound work off the request threads and the GIL."""
-
-    def __init__(self, workers: int, memory_mb: int):
-        self.workers, self.memory_mb = workers, memory_mb
-        self._lock = threading.Lock()
-        self._pool: cf.ProcessPoolExecutor | None = None
-        self.ready = False
-
-    def _make(self) -> cf.ProcessPoolExecutor:
-        # forkserver: the server process has threads, and forking it would copy held locks.
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["excite.evaluate", "excite.routes", "api.scoring"])
-        # One BLAS thread per worker: the pool already has a process per core, and threaded BLAS
-        # on top halves throughput (measured: 1.2 → 2.3 req/s on 2 cores). The forkserver reads
-        # the environment once, when it starts; an explicit setting by the operator wins.
-        saved = {k: os.environ.get(k) for k in _BLAS_THREADS}
-        try:
-            for k in _BLAS_THREADS:
-                os.environ.setdefault(k, "1")
-            multiprocessing.forkserver.ensure_running()
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-        return cf.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
-                                      initargs=(self.memory_mb, os.getpid()))
-
-    def start(self) -> None:
-        with self._lock:
-            if self._pool is None:
-                self._pool = self._make()
-        futures = [self._pool.submit(warm) for _ in range(self.workers)]
-        for f in futures:
-            f.result(timeout=300)
-        self.ready = True
-
-    def submit(self, fn: Callable[..., Any], *args: Any) -> cf.Future:
-        with self._lock:
-            if self._pool is None:
-                self._pool = self._make()
-            try:
-                return self._pool.submit(fn, *args)
-            except cf.process.BrokenProcessPool:
-                # a worker died (e.g. killed for memory): replace the pool, keep serving
-                log.error("score pool broken; restarting it")
-                self._pool.shutdown(wait=False, cancel_futures=True)
-                self._pool = self._make()
-                return self._pool.submit(fn, *args)
-
-    def close(self) -> None:
-        with self._lock:
-            if self._pool is not None:
-                self._pool.shutdown(wait=False, cancel_futures=True)
-                self._pool = None
-        self.ready = False
-
-
-def cpu_count() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -5,10 +5,20 @@ Every bound a client can hit is here, so that a 413/422 can quote it.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from excite import bounds
+
+
+def default_db_path() -> Path:
+    """``$XDG_DATA_HOME/excite/jobs.sqlite3`` (``~/.local/share/excite/jobs.sqlite3``): a user's
+    data, never relative to the working directory."""
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "excite" / "jobs.sqlite3"
 
 
 class Settings(BaseSettings):
@@ -16,8 +26,9 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="EXCITE_", extra="ignore", frozen=True)
 
-    db_path: Path = Field(Path("excite-jobs.sqlite3"),
-                          description="SQLite file holding accepted optimization jobs.")
+    db_path: Path = Field(default_factory=default_db_path, validate_default=True,
+                          description="SQLite file holding accepted optimization jobs "
+                                      "(default: $XDG_DATA_HOME/excite/jobs.sqlite3).")
     workers: int = Field(1, ge=0, le=64,
                          description="Optimization jobs run at once, each in its own process "
                                      "(0: accept and persist jobs but run none).")
@@ -25,28 +36,37 @@ class Settings(BaseSettings):
                                description="Processes that score routes for /v1/score and /v1/batch.")
     max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, le=1024**3,
                                 description="Largest request body accepted [bytes].")
-    max_route_duration_s: float = Field(3600.0, gt=0, le=86400, allow_inf_nan=False,
+    max_route_duration_s: float = Field(3600.0, gt=0, le=bounds.MAX_DURATION_S, allow_inf_nan=False,
                                         description="Longest route scored or maneuver planned [s].")
-    max_route_length_m: float = Field(100_000.0, gt=0, le=1e7, allow_inf_nan=False,
+    max_route_length_m: float = Field(100_000.0, gt=0, le=bounds.MAX_LENGTH_M, allow_inf_nan=False,
                                       description="Longest waypoint route (sum of chords) [m].")
-    max_samples: int = Field(200_000, ge=10, le=10_000_000,
+    max_samples: int = Field(200_000, ge=10, le=bounds.MAX_SAMPLES,
                              description="Most poses, waypoints, knots or text lines in one route.")
     max_batch_routes: int = Field(64, ge=1, le=10_000, description="Most routes in one batch.")
     request_timeout_s: float = Field(60.0, gt=0, le=3600, allow_inf_nan=False,
                                      description="Time limit of one request [s].")
-    max_job_time_budget_s: float = Field(900.0, gt=0, le=86400, allow_inf_nan=False,
+    max_job_time_budget_s: float = Field(900.0, gt=0, le=bounds.OPTIMIZE["time_budget_s"].hi,
+                                         allow_inf_nan=False,
                                          description="Largest optimizer time budget a job may ask for [s].")
     cancel_grace_s: float = Field(15.0, gt=0, le=600, allow_inf_nan=False,
                                   description="A cancelled job that has not stopped by then is killed [s].")
     worker_memory_mb: int = Field(6144, ge=0, le=1_048_576,
                                   description="Address-space limit of each worker process [MiB] (0: none).")
-    job_function: str = Field("api.jobs:run_optimization", pattern=r"^[\w.]+:\w+$",
-                              description="module:function that runs one job (tests inject others).")
+    worker_recycle_mb: int = Field(512, ge=0, le=1_048_576,
+                                   description="A scoring worker whose resident memory grew by more "
+                                               "than this after a task is replaced [MiB] (0: never).")
+    body_timeout_s: float = Field(30.0, gt=0, le=3600, allow_inf_nan=False,
+                                  description="Time limit to receive a request body [s] (slow "
+                                              "clients get 408 and the connection is closed).")
 
     @field_validator("db_path")
     @classmethod
-    def _db_dir_exists(cls, v: Path) -> Path:
-        parent = v.expanduser().resolve().parent
-        if not parent.is_dir():
-            raise ValueError(f"directory {parent} does not exist")
-        return v.expanduser().resolve()
+    def _db_file(cls, v: Path) -> Path:
+        v = v.expanduser().resolve()
+        if v.is_dir():
+            raise ValueError(f"{v} is a directory; give the path of a file")
+        if v == default_db_path().expanduser().resolve():
+            v.parent.mkdir(parents=True, exist_ok=True)
+        elif not v.parent.is_dir():
+            raise ValueError(f"directory {v.parent} does not exist")
+        return v

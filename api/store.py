@@ -18,6 +18,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
+from excite.errors import ExciteError
+
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
     id               TEXT PRIMARY KEY,
@@ -40,13 +42,26 @@ CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status, created_at);
 FINAL = ("succeeded", "failed", "cancelled")
 
 
+class StoreError(ExciteError):
+    """The job database cannot be opened or is not one (the message names the file)."""
+
+
 class JobStore:
     """Jobs in one SQLite file (WAL, fsync on commit)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        with self._db() as db:
-            db.executescript(_SCHEMA)
+        if self.path.is_dir():
+            raise StoreError(f"job database {self.path}: is a directory (give a file path)")
+        try:
+            with self._db() as db:
+                db.executescript(_SCHEMA)
+                db.execute("SELECT id, kind, status, request, progress, result, error, "
+                           "cancel_requested, attempt, created_at, started_at, finished_at, "
+                           "updated_at FROM jobs LIMIT 1").fetchall()
+        except sqlite3.DatabaseError as exc:  # not a database, or a database of something else
+            raise StoreError(f"job database {self.path}: cannot be used ({exc}); move it away or "
+                             "set EXCITE_DB_PATH to another file") from None
 
     @contextmanager
     def _db(self) -> Iterator[sqlite3.Connection]:
@@ -111,18 +126,19 @@ class JobStore:
 
     # -- dispatcher side ------------------------------------------------------------------
 
-    def recover(self) -> int:
+    def recover(self) -> list[str]:
         """Jobs a dead server left running go back to the queue (cancelled if asked); returns
-        how many were re-queued."""
+        the ids of the re-queued ones."""
         now = time.time()
         with self._db() as db:
             db.execute("BEGIN IMMEDIATE")
             db.execute("UPDATE jobs SET status='cancelled', finished_at=?, updated_at=? "
                        "WHERE status='running' AND cancel_requested=1", (now, now))
-            n = db.execute("UPDATE jobs SET status='queued', updated_at=? WHERE status='running'",
-                           (now,)).rowcount
+            ids = [r[0] for r in db.execute("SELECT id FROM jobs WHERE status='running' "
+                                            "ORDER BY created_at").fetchall()]
+            db.execute("UPDATE jobs SET status='queued', updated_at=? WHERE status='running'", (now,))
             db.execute("COMMIT")
-        return n
+        return ids
 
     def claim(self) -> tuple[str, int] | None:
         """The oldest queued job, now running under a new attempt number."""

@@ -8,7 +8,9 @@ generated (varying speed and curvature, suspension on). Timed: trajectory → re
 sampling the motion, linearising every factor, marginalising, eigen-analysis and the report.
 
 Figures: median of ``--runs`` for a 10-minute and a 60-minute drive (alternating) and KITTI 00
-(loading the file excluded), and the dense numpy reference against the fast path on a 2-minute drive.
+(loading the file excluded) with the rig's random-walk biases; the 10-minute drive with random-walk
+against constant biases, side by side; and the dense numpy reference against the fast path on a
+2-minute drive.
 """
 
 from __future__ import annotations
@@ -74,6 +76,15 @@ def main() -> None:
         for minutes, traj in drives.items():
             times[minutes].append(median_ms(lambda: evaluate(traj, rig), 1)[0])
     rows = [(f"{m}-minute drive", statistics.median(times[m]), min(times[m])) for m in (10, 60)]
+    # the same 10-minute drive with constant biases, alternating with the random-walk model: the
+    # price of the drifting biases as a ratio measured side by side
+    const = rig.with_constant_biases()
+    evaluate(drives[10], const)
+    pairs = [(median_ms(lambda: evaluate(drives[10], rig), 1)[0], median_ms(lambda: evaluate(drives[10], const), 1)[0])
+             for _ in range(args.runs)]
+    print(f"10-minute drive, random-walk / constant biases: median {statistics.median(p[0] for p in pairs):.1f} / "
+          f"{statistics.median(p[1] for p in pairs):.1f} ms, ratio per pair median "
+          f"{statistics.median(p[0] / p[1] for p in pairs):.2f}x")
     stages = [evaluate(drives[10], rig).timings_ms for _ in range(args.runs)]
     print("10-minute drive, thread time per stage summed over chunks (medians): " + ", ".join(
         f"{k.removesuffix('_thread')} {statistics.median(t[k] for t in stages):.1f} ms"

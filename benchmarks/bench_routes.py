@@ -1,4 +1,5 @@
-"""Time loading KITTI 00 (poses + times) and resampling it to 200 Hz.
+"""Time loading KITTI 00 (poses + times) and resampling it to 200 Hz; and reading a 10-minute
+TUM route against evaluating it (the service's path: reading must not cost more than scoring).
 
     python benchmarks/bench_routes.py [--runs 7] [--data ../shared/data]
 
@@ -49,6 +50,36 @@ def main() -> None:
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}")
     print(f"KITTI 00 (4541 poses, 470.6 s) load + smooth + resample to 200 Hz ({n} samples): "
           f"median {statistics.median(times):.3f} s, min {min(times):.3f} s over {args.runs} runs")
+    read_vs_evaluate(args.runs)
+
+
+def read_vs_evaluate(runs: int) -> None:
+    """A 10-minute figure-eight as TUM text at 10 Hz (what /v1/score receives): read, then score."""
+    import sys
+    import tempfile
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_api import route_text
+    from excite.evaluate import evaluate
+    from excite.rig import load_rig
+    from excite.routes import read_tum
+
+    rig = load_rig("robotaxi")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "figure_eight_10min.tum"
+        path.write_text(route_text(600.0))
+        evaluate(read_tum(path), rig)  # warm-up
+        read, score = [], []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            traj = read_tum(path)
+            t1 = time.perf_counter()
+            evaluate(traj, rig)
+            read.append(t1 - t0)
+            score.append(time.perf_counter() - t1)
+    print(f"10-minute TUM route (6001 poses): read median {1e3 * statistics.median(read):.0f} ms "
+          f"(min {1e3 * min(read):.0f}), evaluate median {1e3 * statistics.median(score):.0f} ms "
+          f"(min {1e3 * min(score):.0f}) over {runs} runs")
 
 
 if __name__ == "__main__":

@@ -1,8 +1,21 @@
-"""excite: calibration excitation planner for autonomous vehicles."""
+"""excite: calibration excitation planner for autonomous vehicles.
+
+The names below load on first use (PEP 562): ``excite --help`` or ``import excite.errors`` need
+neither scipy nor numba.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 from .errors import EvaluationError, ExciteError, LimitError, RigError, RouteError
-from .trajectory import GRAVITY, BodySamples, MotionSamples, Trajectory
-from .vehicle import ControlProfile, Limits, Suspension, Violation, check_limits, drive
+
+_LAZY = {
+    "GRAVITY": "trajectory", "BodySamples": "trajectory", "MotionSamples": "trajectory",
+    "Trajectory": "trajectory", "ControlProfile": "vehicle", "Limits": "vehicle",
+    "Suspension": "vehicle", "Violation": "vehicle", "check_limits": "vehicle", "drive": "vehicle",
+}
 
 __all__ = [
     "GRAVITY", "BodySamples", "ControlProfile", "EvaluationError", "ExciteError", "LimitError",
@@ -10,3 +23,15 @@ __all__ = [
     "check_limits", "drive",
 ]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'excite' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

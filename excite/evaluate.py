@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from . import advice, information, spectrum
+from . import advice, bounds, information, spectrum
 from .errors import EvaluationError
 from .factors.base import Nominal
 from .rig import Rig
@@ -50,10 +50,8 @@ class Options:
     max_modes: int = 12
 
     def __post_init__(self) -> None:
-        if self.segments < 0 or self.segments > 1000:
-            raise EvaluationError(f"segments must be between 0 and 1000, got {self.segments}")
-        if not (self.weak_below > 0 and np.isfinite(self.weak_below)):
-            raise EvaluationError(f"weak_below must be positive, got {self.weak_below}")
+        for name in bounds.OPTIONS:
+            bounds.check_range(bounds.OPTIONS, name, getattr(self, name), EvaluationError)
         if not (0 < self.rank_rtol < 1):
             raise EvaluationError(f"rank_rtol must be in (0, 1), got {self.rank_rtol}")
 
@@ -166,7 +164,7 @@ class Report:
         J, rows = information.jacobian(prob)
         H = (J.T @ J).tocoo()
         J = J.tocoo()
-        states = information.state_names(prob.n_keyframes, prob.local)
+        states = information.state_names(prob.n_keyframes, prob.local, prob.state_dim)
         params = [c["name"] for c in self._all_columns]
         np.savez_compressed(
             path,
@@ -212,6 +210,17 @@ def _scored_mask(rig: Rig, n_columns: int) -> np.ndarray:
     return out
 
 
+def check_work(trajs: Sequence[Trajectory], rig: Rig) -> None:
+    """Refuse drives whose keyframes or IMU samples exceed :mod:`excite.bounds` before any is
+    allocated (a few bytes of route can describe a day of driving)."""
+    for t in trajs:
+        too_much = (bounds.work_problem(t.duration, rig.keyframe_rate_hz, bounds.MAX_KEYFRAMES, "keyframes")
+                    or bounds.work_problem(t.duration, rig.config.imu.update_rate,
+                                           bounds.MAX_IMU_SAMPLES, "IMU samples"))
+        if too_much:
+            raise EvaluationError(f"{t.name}: {too_much}")
+
+
 def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
     """The report of ``traj`` driven with ``rig`` (see the module docstring).
 
@@ -221,9 +230,13 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     trajs = [traj] if isinstance(traj, Trajectory) else list(traj)
     if not trajs:
         raise EvaluationError("no drive to evaluate")
+    check_work(trajs, rig)
     t0 = time.perf_counter()
     drives = information.drive_information(trajs, rig)
     Lam_all = drives.information
+    if not np.all(np.isfinite(Lam_all)):
+        raise EvaluationError("the information is not finite: the drive or the rig has numbers "
+                              "beyond what the model can represent")
     Lam, Ls = _scaled(rig, Lam_all)
     t3 = time.perf_counter()
     timings = {f"{k}_thread": v for k, v in drives.thread_ms.items()}
@@ -290,6 +303,10 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     units = {c.name: c.unit for c in rig.coordinates}
     all_columns = [{"index": i, "name": n, "unit": units[n.split("@")[0]], "nuisance": bool(nuisance[i])}
                    for i, n in enumerate(names)]
+    numbers = [spec.score, *w, *w_unscaled, *(x for x in sigma if x is not None)]
+    if not np.all(np.isfinite(numbers)):
+        raise EvaluationError("the evaluation produced a non-finite number: the drive or the rig "
+                              "has numbers beyond what the model can represent")
     return Report(
         route=" + ".join(t.name for t in trajs), rig=rig.name,
         duration_s=drives.duration_s, length_m=drives.length_m, n_keyframes=drives.n_keyframes,

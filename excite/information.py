@@ -39,7 +39,7 @@ import scipy.sparse as sp
 from . import kernels, so3
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
-from .factors.base import POS, ROT, STATE_DIM, FactorBlock, Nominal
+from .factors.base import BIAS, BIAS_STATE_DIM, POS, ROT, STATE_DIM, FactorBlock, Nominal
 from .parallel import n_threads, pool
 from .rig import Rig
 from .trajectory import Trajectory
@@ -62,10 +62,11 @@ class Problem:
     R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
     local: bool = False  # state parametrisation: local [δθ, δv_body, δd] or world [δθ, δp, δv]
     chain_starts: tuple[int, ...] = (0,)  # first keyframe of each drive (drives share only θ)
+    state_dim: int = STATE_DIM  # 15 with random-walk IMU biases (the bias deviations δb_g, δb_a)
 
     @property
     def n_states(self) -> int:
-        return STATE_DIM * self.n_keyframes
+        return self.state_dim * self.n_keyframes
 
     @property
     def bandwidth_blocks(self) -> int:
@@ -88,52 +89,62 @@ class Problem:
         if self.trimmed(k0, k1) != (k0, k1):
             raise EvaluationError(f"keyframes {k0}..{k1} cut a piece of fewer than 3 keyframes off a drive")
         out = []
+        starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
+        ends = [s - 1 for s in starts[1:]] + [k1 - k0]
         for b in self.blocks:
             if b.name in ("gauge", "placeholder"):
                 continue
             last = b.first + b.stride * (b.n_states - 1)
             mask = (b.first >= k0) & (last <= k1)
             if mask.any():
-                sel = b.select(mask)
-                out.append(sel.shifted(-k0))
-        starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
-        ends = [s - 1 for s in starts[1:]] + [k1 - k0]
+                sel = b.select(mask).shifted(-k0)
+                if b.name == "bias_walk":  # the bias columns of θ are the bias at each piece's end
+                    sel = _bias_anchored(sel, np.asarray(ends))
+                out.append(sel)
         R = self.R_W_B[k0:k1 + 1]
         for s, e in zip(starts, ends):
-            out += _gauge(R[s], s, self.local) + _chain_end(e, self.local)
-        return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.local, tuple(starts))
+            out += _gauge(R[s], s, self.local, self.state_dim) + _chain_end(e, self.local, self.state_dim)
+        return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.local, tuple(starts), self.state_dim)
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
-                       self.R_W_B, self.local, self.chain_starts)
+                       self.R_W_B, self.local, self.chain_starts, self.state_dim)
 
 
-def gauge_block(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
+def gauge_block(R_W_B: np.ndarray, keyframe: int, state_dim: int = STATE_DIM) -> FactorBlock:
     """A prior on the position (3) and world yaw (1) of ``keyframe``: the minimal gauge fix."""
-    Jx = np.zeros((1, 4, STATE_DIM))
+    Jx = np.zeros((1, 4, state_dim))
     Jx[0, 0:3, POS] = np.eye(3) / _GAUGE_SIGMA_POS_M
     # world yaw of a right perturbation: e_zᵀ R δθ
     Jx[0, 3, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 4, 0)), _NO_COLS)
 
 
+def _own(rig: Rig) -> np.ndarray:
+    """Indices of the coordinates every drive has of its own: a monocular camera's scale, and the
+    IMU biases when they drift (each recording's bias process is its own)."""
+    return np.flatnonzero([c.nuisance or (rig.bias_random_walk and c.block == "imu") for c in rig.coordinates])
+
+
 def columns(rig: Rig, n_drives: int) -> tuple[list[str], np.ndarray]:
     """Names and nuisance mask of the parameter columns of ``n_drives`` drives calibrated
-    together: the rig's coordinates (drive 0's nuisances among them), then each further drive's
-    own nuisances (``cam_front.scale@1``): drives share the calibration and nothing else."""
-    nu = [c.name for c in rig.coordinates if c.nuisance]
-    names = [c.name for c in rig.coordinates] + [f"{n}@{d}" for d in range(1, n_drives) for n in nu]
+    together: the rig's coordinates, which the *last* drive's own coordinates (:func:`_own`) use,
+    then each earlier drive's own coordinates as nuisances (``cam_front.scale@0``): drives share
+    the calibration and nothing else. With random-walk biases the scored bias is therefore the
+    bias at the end of the last drive."""
+    own = [rig.coordinates[i].name for i in _own(rig)]
+    names = [c.name for c in rig.coordinates] + [f"{n}@{d}" for d in range(n_drives - 1) for n in own]
     mask = np.array([c.nuisance for c in rig.coordinates] + [True] * (len(names) - len(rig.coordinates)))
     return names, mask
 
 
-def _drive_column_map(rig: Rig, drive: int) -> np.ndarray:
+def _drive_column_map(rig: Rig, drive: int, n_drives: int) -> np.ndarray:
     """Column of each rig coordinate in drive ``drive``'s factors (see :func:`columns`)."""
     p = len(rig.coordinates)
     out = np.arange(p)
-    nu = np.flatnonzero([c.nuisance for c in rig.coordinates])
-    if drive and nu.size:
-        out[nu] = p + (drive - 1) * nu.size + np.arange(nu.size)
+    own = _own(rig)
+    if drive < n_drives - 1 and own.size:
+        out[own] = p + drive * own.size + np.arange(own.size)
     return out
 
 
@@ -152,11 +163,12 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
     """
     noms = nom if isinstance(nom, list) else [nom]
     p = len(columns(rig, len(noms))[0])
+    sd = state_dim(rig)
     parts: list[FactorBlock] = []
     fixes: list[FactorBlock] = []
     starts, R_all, offset = [], [], 0
     for d, n in enumerate(noms):
-        col_map = _drive_column_map(rig, d)
+        col_map = _drive_column_map(rig, d, len(noms))
         K = _check_length(n.n_keyframes, rig)
         if not -K <= gauge_keyframe < K:
             raise EvaluationError(f"gauge keyframe {gauge_keyframe} is outside the drive")
@@ -168,11 +180,11 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
         # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
         parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
         g = gauge_keyframe % K
-        fixes += [b.shifted(offset) for b in _gauge(n.R[g], g, local) + _chain_end(K - 1, local)]
+        fixes += [b.shifted(offset) for b in _gauge(n.R[g], g, local, sd) + _chain_end(K - 1, local, sd)]
         starts.append(offset)
         R_all.append(n.R)
         offset += K
-    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), local, tuple(starts))
+    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), local, tuple(starts), sd)
 
 
 def _check_length(K: int, rig: Rig) -> int:
@@ -197,11 +209,20 @@ def _chunk_edges(K: int, rig: Rig) -> list[int]:
     return list(range(0, K - 1, size)) + [K - 1]
 
 
+def state_dim(rig: Rig) -> int:
+    """Dimension of a keyframe's nuisance state for ``rig`` (see :data:`BIAS_STATE_DIM`)."""
+    return BIAS_STATE_DIM if rig.bias_random_walk else STATE_DIM
+
+
 def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBlock | None]:
     """Every factor of one chunk ``k0 … k1`` of a drive (indices relative to ``k0``), per kind.
 
     The chunk owns the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside,
     and the non-holonomic constraint at ``k0 … k1−1`` (and at ``k1`` if it ends the drive).
+    With random-walk biases every block is widened to the bias states, the IMU factor sees the
+    bias of its interval's start (the θ column plus the state's deviation), and the random walk
+    links consecutive deviations; the deviation at the drive's last keyframe is zero (θ is the
+    bias there), so the walk's last step does not reach it.
     """
     m = sub.n_keyframes - 1
     nhc = nonholonomic.blocks(sub, rig)
@@ -212,23 +233,60 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBl
         d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
         V, P = _local_maps(sub.R, v_b, d)
         blocks = [None if b is None else _to_local(b, V, P) for b in blocks]
+    if rig.bias_random_walk:  # only the IMU factor sees the bias states (the others stay 9 wide)
+        imu_blk = blocks[0] = _widen(blocks[0])
+        imu_blk.Jx[:, :, BIAS] = imu_blk.Jt  # b_k = θ_b + δb_k
+        walk = _bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
+        blocks.append(_bias_anchored(walk, np.array([m])) if last else walk)
     return blocks
 
 
-def _gauge(R_W_B: np.ndarray, keyframe: int, local: bool) -> list[FactorBlock]:
+def _widen(b: FactorBlock) -> FactorBlock:
+    """A block's Jacobian over trajectory states, widened with zero columns for the bias states."""
+    N, r, _ = b.Jx.shape
+    Jx = np.zeros((N, r, b.n_states, BIAS_STATE_DIM))
+    Jx[..., :STATE_DIM] = b.Jx.reshape(N, r, b.n_states, STATE_DIM)
+    return FactorBlock(b.name, b.first, b.stride, b.n_states, Jx.reshape(N, r, -1), b.Jt, b.cols)
+
+
+def _bias_walk(rig: Rig, n_intervals: int, dT: float) -> FactorBlock:
+    """The random walk of the IMU biases over each keyframe interval: ``δb_j − δb_i`` with
+    σ = random-walk density · √ΔT (Kalibr's ``*_random_walk`` units)."""
+    imu = rig.config.imu
+    w = 1.0 / (np.repeat([imu.gyroscope_random_walk, imu.accelerometer_random_walk], 3) * np.sqrt(dT))
+    Jx = np.zeros((n_intervals, 6, 2 * BIAS_STATE_DIM))
+    Jx[:, :, BIAS] = -np.diag(w)
+    Jx[:, :, BIAS_STATE_DIM + 9:] = np.diag(w)
+    return FactorBlock("bias_walk", np.arange(n_intervals), 1, 2, Jx, np.zeros((n_intervals, 6, 0)), _NO_COLS)
+
+
+def _bias_anchored(walk: FactorBlock, ends: np.ndarray) -> FactorBlock:
+    """The walk with its steps into the keyframes ``ends`` cut off at their end: there the bias is
+    θ's own column, its deviation zero (held by the chain-end placeholder)."""
+    into = np.isin(walk.first + 1, ends)
+    if not into.any():
+        return walk
+    Jx = walk.Jx.copy()
+    Jx[into, :, BIAS_STATE_DIM + 9:] = 0.0
+    return FactorBlock(walk.name, walk.first, walk.stride, walk.n_states, Jx, walk.Jt, walk.cols)
+
+
+def _gauge(R_W_B: np.ndarray, keyframe: int, local: bool, sd: int = STATE_DIM) -> list[FactorBlock]:
     """The minimal gauge fix of a drive at ``keyframe``: its yaw (local states) or its position
     and yaw (world states)."""
-    return [_yaw_gauge(R_W_B, keyframe) if local else gauge_block(R_W_B, keyframe)]
+    return [_yaw_gauge(R_W_B, keyframe, sd) if local else gauge_block(R_W_B, keyframe, sd)]
 
 
-def _chain_end(keyframe: int, local: bool) -> list[FactorBlock]:
-    """In local states the last keyframe of a drive has no successor: its increment columns are
-    placeholders held at zero."""
-    if not local:
+def _chain_end(keyframe: int, local: bool, sd: int = STATE_DIM) -> list[FactorBlock]:
+    """Columns of the last keyframe of a drive that no factor reaches, held at zero: in local
+    states its increment (it has no successor), with random-walk biases its bias deviation
+    (θ holds the bias there)."""
+    rows = (list(range(6, 9)) if local else []) + (list(range(9, 15)) if sd == BIAS_STATE_DIM else [])
+    if not rows:
         return []
-    Jx = np.zeros((1, 3, STATE_DIM))
-    Jx[0, :, 6:9] = np.eye(3)
-    return [FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 3, 0)), _NO_COLS)]
+    Jx = np.zeros((1, len(rows), sd))
+    Jx[0, np.arange(len(rows)), rows] = 1.0
+    return [FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, len(rows), 0)), _NO_COLS)]
 
 
 def _local_maps(R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -252,9 +310,9 @@ def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray) -> FactorBlock:
     return FactorBlock(b.name, b.first, 1, out.shape[2] // STATE_DIM, out, b.Jt, b.cols)
 
 
-def _yaw_gauge(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
+def _yaw_gauge(R_W_B: np.ndarray, keyframe: int, sd: int = STATE_DIM) -> FactorBlock:
     """A prior on the world yaw of ``keyframe``: the one gauge of the local parametrisation."""
-    Jx = np.zeros((1, 1, STATE_DIM))
+    Jx = np.zeros((1, 1, sd))
     Jx[0, 0, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, 0)), _NO_COLS)
 
@@ -275,6 +333,10 @@ class Piece:
     ``H_ee`` over ``e = [x_a, θ]``, ``H_be = H[x_b, e]`` and ``H_bb``; ``diag_tt`` is diag H_θθ
     of the chunk before any elimination (the scale of the data's information)."""
 
+    @property
+    def state_dim(self) -> int:
+        return self.H_bb.shape[0]
+
     a: int
     b: int
     H_ee: np.ndarray
@@ -283,22 +345,23 @@ class Piece:
     diag_tt: np.ndarray
 
 
-def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int) -> Piece:
-    """Accumulate ``JᵀJ`` of the blocks of chunk ``a … b`` (keyframe indices relative to a) and
-    eliminate its inner keyframes (compiled: :func:`excite.kernels.accumulate`, :func:`~excite.kernels.eliminate`)."""
+def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int, sd: int) -> Piece:
+    """Accumulate ``JᵀJ`` of the blocks of chunk ``a … b`` (keyframe indices relative to a; states
+    of dimension ``sd``) and eliminate its inner keyframes (compiled:
+    :func:`excite.kernels.accumulate`, :func:`~excite.kernels.eliminate`)."""
     m, p = b - a, n_params
     D = max([1] + [blk.stride * (blk.n_states - 1) for blk in blocks])
-    band = np.zeros((D + 1, m + 1, STATE_DIM, STATE_DIM))
-    Hxt = np.zeros((m + 1, STATE_DIM, p))
+    band = np.zeros((D + 1, m + 1, sd, sd))
+    Hxt = np.zeros((m + 1, sd, p))
     Htt = np.zeros((p, p))
     for blk in blocks:
-        kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, band, Hxt, Htt)
+        kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states, band, Hxt, Htt)
     # the first keyframe joins θ in the border e = [x_a, θ]
-    q = STATE_DIM + p
-    Hxe = np.zeros((m + 1, STATE_DIM, q))
-    Hxe[:, :, STATE_DIM:] = Hxt
+    q = sd + p
+    Hxe = np.zeros((m + 1, sd, q))
+    Hxe[:, :, sd:] = Hxt
     for d in range(1, min(D, m) + 1):
-        Hxe[d, :, :STATE_DIM] = band[d, 0]
+        Hxe[d, :, :sd] = band[d, 0]
     H_ee = np.block([[band[0, 0], Hxt[0]], [Hxt[0].T, Htt]])
     _check_pivot(kernels.eliminate(band, Hxe, H_ee, 1, m), a)
     return Piece(a, b, H_ee, Hxe[m].copy(), band[0, m].copy(), np.diag(Htt).copy())
@@ -313,21 +376,22 @@ def _check_pivot(bad: int, offset: int) -> None:
 def _reduce(pieces: Sequence[Piece], n_params: int) -> np.ndarray:
     """Λ_θ from the pieces: their chain over the chunk ends, eliminated in order."""
     p = n_params
+    sd = pieces[0].state_dim
     nodes = sorted({pc.a for pc in pieces} | {pc.b for pc in pieces})
     at = {k: i for i, k in enumerate(nodes)}
     n = len(nodes)
-    band = np.zeros((2, n, STATE_DIM, STATE_DIM))
-    Hxt = np.zeros((n, STATE_DIM, p))
+    band = np.zeros((2, n, sd, sd))
+    Hxt = np.zeros((n, sd, p))
     Htt = np.zeros((p, p))
     for pc in pieces:
         i, j = at[pc.a], at[pc.b]
         assert j == i + 1, "pieces overlap"
-        band[0, i] += pc.H_ee[:STATE_DIM, :STATE_DIM]
+        band[0, i] += pc.H_ee[:sd, :sd]
         band[0, j] += pc.H_bb
-        band[1, i] += pc.H_be[:, :STATE_DIM]
-        Hxt[i] += pc.H_ee[:STATE_DIM, STATE_DIM:]
-        Hxt[j] += pc.H_be[:, STATE_DIM:]
-        Htt += pc.H_ee[STATE_DIM:, STATE_DIM:]
+        band[1, i] += pc.H_be[:, :sd]
+        Hxt[i] += pc.H_ee[:sd, sd:]
+        Hxt[j] += pc.H_be[:, sd:]
+        Htt += pc.H_ee[sd:, sd:]
     bad = kernels.eliminate(band, Hxt, Htt, 0, n)
     _check_pivot(-1 if bad < 0 else nodes[bad], 0)
     return 0.5 * (Htt + Htt.T)
@@ -347,7 +411,8 @@ def marginal(problem: Problem) -> np.ndarray:
             sel = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx  # idx increases
             per_chunk[k].append(FactorBlock(blk.name, blk.first[sel] - edges[k], blk.stride, blk.n_states,
                                             blk.Jx[sel], blk.Jt[sel], blk.cols))
-    pieces = list(pool().map(lambda c: _piece(per_chunk[c], edges[c], edges[c + 1], problem.n_params), range(C)))
+    pieces = list(pool().map(lambda c: _piece(per_chunk[c], edges[c], edges[c + 1], problem.n_params,
+                                              problem.state_dim), range(C)))
     return _reduce(pieces, problem.n_params)
 
 
@@ -389,12 +454,14 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
     formed; :func:`marginal` of :func:`build` gives the same Λ_θ from the whole linearised problem."""
     _, nuisance = columns(rig, len(trajs))
     p = nuisance.size
+    sd = state_dim(rig)
     tasks = []
     offset = 0
     for d, traj in enumerate(trajs):
         K = _check_length(Nominal.grid(traj, rig)[1], rig)
         edges = _chunk_edges(K, rig)
-        tasks += [(traj, K, offset, k0, k1, _drive_column_map(rig, d)) for k0, k1 in zip(edges[:-1], edges[1:])]
+        tasks += [(traj, K, offset, k0, k1, _drive_column_map(rig, d, len(trajs)))
+                  for k0, k1 in zip(edges[:-1], edges[1:])]
         offset += K
 
     def run(task):
@@ -405,11 +472,11 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
         blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == K - 1), col_map)
                   if b is not None and b.n_factors]
         if k0 == 0:
-            blocks += _gauge(sub.R[0], 0, True)
+            blocks += _gauge(sub.R[0], 0, True, sd)
         if k1 == K - 1:
-            blocks += _chain_end(k1 - k0, True)
+            blocks += _chain_end(k1 - k0, True, sd)
         c2 = time.perf_counter()
-        piece = _piece(blocks, offset + k0, offset + k1, p)
+        piece = _piece(blocks, offset + k0, offset + k1, p, sd)
         c3 = time.perf_counter()
         return piece, sub.length_m, (c1 - c0, c2 - c1, c3 - c2)
 
@@ -442,9 +509,10 @@ def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:
     for b in problem.blocks:
         N, r = b.n_factors, b.n_rows
         rid = r0 + np.arange(N * r).reshape(N, r)
+        sd, xd = problem.state_dim, b.Jx.shape[2] // b.n_states
         for a in range(b.n_states):
-            c = STATE_DIM * (b.first + a * b.stride)[:, None] + np.arange(STATE_DIM)[None, :]
-            blk = b.Jx[:, :, STATE_DIM * a: STATE_DIM * (a + 1)]
+            c = sd * (b.first + a * b.stride)[:, None] + np.arange(xd)[None, :]
+            blk = b.Jx[:, :, xd * a: xd * (a + 1)]
             rows.append(np.broadcast_to(rid[:, :, None], blk.shape).ravel())
             cols.append(np.broadcast_to(c[:, None, :], blk.shape).ravel())
             vals.append(blk.ravel())
@@ -459,13 +527,15 @@ def jacobian(problem: Problem) -> tuple[sp.csr_matrix, list[str]]:
     return J, labels
 
 
-def state_names(n_keyframes: int, local: bool = True) -> list[str]:
+def state_names(n_keyframes: int, local: bool = True, state_dim: int = STATE_DIM) -> list[str]:
     """Names of the state columns of ``J`` and ``H``, in order (see the module docstring)."""
     if local:
         comps = ["rot_x", "rot_y", "rot_z", "vel_body_x", "vel_body_y", "vel_body_z",
                  "incr_body_x", "incr_body_y", "incr_body_z"]
     else:
         comps = ["rot_x", "rot_y", "rot_z", "pos_x", "pos_y", "pos_z", "vel_x", "vel_y", "vel_z"]
+    if state_dim == BIAS_STATE_DIM:
+        comps += [f"{k}_bias_dev_{a}" for k in ("gyro", "accel") for a in "xyz"]
     return [f"x{k}.{c}" for k in range(n_keyframes) for c in comps]
 
 

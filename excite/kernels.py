@@ -18,6 +18,9 @@ import numba as nb
 import numpy as np
 
 _SERIES = 1e-2  # below this rotation angle, series expansions (exact to ~1e-16)
+# a pivot below this fraction of its diagonal entry has lost every digit to cancellation: the
+# keyframe's state is undetermined (or nearly so) beyond the gauge
+_PIVOT_RTOL = 1e-12
 
 
 @nb.njit(cache=True, inline="always")
@@ -283,14 +286,17 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
 
 
 @nb.njit(cache=True, nogil=True)
-def accumulate(Jx, Jt, cols, first, stride, band, Hxt, Htt):
+def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt):
     """Add ``JᵀJ`` of a stack of factors to a block-banded information matrix.
 
-    Factor ``f`` touches the states ``first[f] + stride · a`` (9 columns each of ``Jx[f]``) and the
-    calibration columns ``cols`` (``Jt[f]``). Storage: ``band[d, j] = H[x_{j+d}, x_j]`` (9 × 9),
-    ``Hxt[i] = H[x_i, θ]`` (9 × p), ``Htt = H_θθ``."""
+    Factor ``f`` touches the ``n_states`` states ``first[f] + stride · a`` (xd = nx/n_states columns
+    each of ``Jx[f]``: the first xd ≤ sd components of each state, sd the state dimension: a factor
+    that does not see the bias states leaves them out) and the calibration columns ``cols``
+    (``Jt[f]``). Storage:
+    ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
     N, r, nx = Jx.shape
-    ns = nx // 9
+    ns = n_states
+    xd = nx // ns  # columns per state in Jx
     c = Jt.shape[2]
     M = nx + c
     w = np.empty(M)  # one row of [Jx Jt]
@@ -311,13 +317,13 @@ def accumulate(Jx, Jt, cols, first, stride, band, Hxt, Htt):
             i = first[f] + stride * a
             for b in range(a + 1):
                 blk = band[stride * (a - b), first[f] + stride * b]
-                for u in range(9):
-                    for v in range(9):
-                        x, y = 9 * a + u, 9 * b + v
+                for u in range(xd):
+                    for v in range(xd):
+                        x, y = xd * a + u, xd * b + v
                         blk[u, v] += G[x, y] if x >= y else G[y, x]
-            for u in range(9):
+            for u in range(xd):
                 for v in range(c):
-                    Hxt[i, u, cols[v]] += G[nx + v, 9 * a + u]
+                    Hxt[i, u, cols[v]] += G[nx + v, xd * a + u]
         for u in range(c):
             for v in range(u + 1):
                 Htt[cols[u], cols[v]] += G[nx + u, nx + v]
@@ -325,34 +331,51 @@ def accumulate(Jx, Jt, cols, first, stride, band, Hxt, Htt):
                     Htt[cols[v], cols[u]] += G[nx + u, nx + v]
 
 
+@nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _border_update(ZT, m, Hee):
+    """``Hee −= ZT[:, :m] ZT[:, :m]ᵀ`` on the lower triangle: dot products of contiguous rows, which
+    the compiler vectorises (reassociating the sums; no other fast-math licence)."""
+    q = ZT.shape[0]
+    for e in range(q):
+        for e2 in range(e + 1):
+            s = 0.0
+            for k in range(m):
+                s += ZT[e, k] * ZT[e2, k]
+            Hee[e, e2] -= s
+
+
 @nb.njit(cache=True, nogil=True)
 def eliminate(band, Hxe, Hee, lo, hi):
     """Eliminate the states ``lo … hi−1`` of a block-banded system with a border, in order (block
     Cholesky).
 
-    ``band[d, j] = H[x_{j+d}, x_j]`` (9 × 9 blocks, d ≤ D), the border ``Hxe[j] = H[x_j, e]``
-    (9 × q) and ``Hee = H_ee`` are updated in place to the Schur complement on the remaining
-    states and e. Returns −1, or the first state whose pivot block is not positive definite."""
+    ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd blocks, d ≤ D), the border ``Hxe[j] = H[x_j, e]``
+    (sd × q) and ``Hee = H_ee`` are updated in place to the Schur complement on the remaining
+    states and e. Returns −1, or the first state whose pivot block is not positive definite (to
+    rounding: a pivot below ``_PIVOT_RTOL`` of its diagonal entry)."""
     D = band.shape[0] - 1
     n = band.shape[1]
+    sd = band.shape[2]
     q = Hxe.shape[2]
-    L = np.zeros((9, 9))
-    C = np.zeros((D + 1, 9, 9))
-    Zj = np.empty((9, q))
+    L = np.zeros((sd, sd))
+    C = np.zeros((D + 1, sd, sd))
+    Zj = np.empty((sd, q))
+    ZT = np.empty((q, 16 * sd))  # Z_jᵀ of the states eliminated since the last border update
+    fill = 0
     for j in range(lo, hi):
         A = band[0, j]
-        for col in range(9):  # L Lᵀ = A
-            for row in range(col, 9):
+        for col in range(sd):  # L Lᵀ = A
+            for row in range(col, sd):
                 s = A[row, col]
                 for k in range(col):
                     s -= L[row, k] * L[col, k]
                 if row == col:
-                    if not s > 0.0:
+                    if not s > _PIVOT_RTOL * A[col, col]:  # singular, or singular to rounding
                         return j
                     L[col, col] = np.sqrt(s)
                 else:
                     L[row, col] = s / L[col, col]
-        for row in range(9):  # Z_j = L⁻¹ Hxe[j]
+        for row in range(sd):  # Z_j = L⁻¹ Hxe[j]
             for e in range(q):
                 Zj[row, e] = Hxe[j, row, e]
             for k in range(row):
@@ -362,35 +385,38 @@ def eliminate(band, Hxe, Hee, lo, hi):
             inv = 1.0 / L[row, row]
             for e in range(q):
                 Zj[row, e] *= inv
-        for k in range(9):  # H_ee −= Z_jᵀ Z_j (lower triangle; mirrored at the end)
+        for k in range(sd):  # H_ee −= Z_jᵀ Z_j, batched over 16 states (lower triangle; mirrored at the end)
             for e in range(q):
-                z = Zj[k, e]
-                for e2 in range(e + 1):
-                    Hee[e, e2] -= z * Zj[k, e2]
+                ZT[e, fill + k] = Zj[k, e]
+        fill += sd
+        if fill + sd > ZT.shape[1]:
+            _border_update(ZT, fill, Hee)
+            fill = 0
         nd = min(D, n - 1 - j)
         for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ
             B = band[d, j]
-            for row in range(9):
-                for col in range(9):
+            for row in range(sd):
+                for col in range(sd):
                     s = B[row, col]
                     for k in range(col):
                         s -= C[d, row, k] * L[col, k]
                     C[d, row, col] = s / L[col, col]
         for d in range(1, nd + 1):
             X = Hxe[j + d]  # H[x_{j+d}, e] −= C_d Z_j
-            for row in range(9):
-                for k in range(9):
+            for row in range(sd):
+                for k in range(sd):
                     ck = C[d, row, k]
                     for e in range(q):
                         X[row, e] -= ck * Zj[k, e]
             for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ
                 Y = band[d2 - d, j + d]
-                for row in range(9):
-                    for col in range(9):
+                for row in range(sd):
+                    for col in range(sd):
                         s = 0.0
-                        for k in range(9):
+                        for k in range(sd):
                             s += C[d2, row, k] * C[d, col, k]
                         Y[row, col] -= s
+    _border_update(ZT, fill, Hee)
     for e in range(q):
         for e2 in range(e):
             Hee[e2, e] = Hee[e, e2]

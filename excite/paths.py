@@ -22,6 +22,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.ndimage import minimum_filter1d, uniform_filter1d
 
+from . import bounds
 from .errors import LimitError, RouteError
 from .vehicle import ControlProfile, Limits
 
@@ -65,6 +66,8 @@ def smooth_path(points_m: np.ndarray, closed: bool = False, step_m: float = 0.2)
     if np.any(chord < 1e-6):
         raise RouteError("a path has two consecutive identical points")
     u = np.concatenate([[0.0], np.cumsum(chord)])
+    if not u[-1] <= bounds.max_length_m():  # the path is resampled every few cm: bound it first
+        raise RouteError(f"the path is {u[-1]:.6g} m long, over the limit of {bounds.max_length_m():g} m")
     if len(p) == 2:  # a straight segment: a spline of degree 1 is the whole story
         n = max(int(np.ceil(u[-1] / step_m)) + 1, 2)
         s = np.linspace(0.0, u[-1], n)
@@ -173,6 +176,9 @@ def _timed(s: np.ndarray, v: np.ndarray, step_s: float,
     kv = np.concatenate([v, np.zeros(has.sum())])
     order = np.lexsort((np.concatenate([np.zeros(s.size), np.ones(has.sum())]), kt))
     kt, ks, kv = kt[order], ks[order], kv[order]
+    too_long = bounds.work_problem(float(kt[-1]), 1.0 / step_s, bounds.MAX_SAMPLES, "plan samples")
+    if too_long:
+        raise RouteError(f"driving this path: {too_long}")
     grid = np.linspace(0.0, kt[-1], max(int(round(kt[-1] / step_s)) + 1, 2))
     k = np.clip(np.searchsorted(kt, grid, side="right") - 1, 0, kt.size - 2)
     span = kt[k + 1] - kt[k]

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from . import so3
+from . import bounds, so3
 from .errors import RigError
 from .vehicle import Suspension
 
@@ -63,6 +63,9 @@ def parse_quantity(value: Any, unit: str, key: str) -> float:
         raise RigError(f"{key}: expected a number or '<number> <unit>', got {value!r}")
     if not math.isfinite(x) or x <= 0:
         raise RigError(f"{key}: must be positive and finite, got {value!r}")
+    sane = bounds.QUANTITY.get(unit)
+    if sane is not None and not sane.contains(x):
+        raise RigError(f"{key}: {value!r} is outside the sane range {sane}")
     return x
 
 
@@ -89,7 +92,7 @@ class Pose(_Model):
             raise ValueError("translation_m must be finite")
         if self.matrix is not None:
             R = np.asarray(self.matrix, dtype=float)
-            if not np.all(np.isfinite(R)) or np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            if not np.all(np.isfinite(R)) or np.abs(R).max() > 1.001 or np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
                 raise ValueError("matrix must be a proper rotation (orthonormal, det +1)")
         return self
 
@@ -118,6 +121,9 @@ class ImuConfig(_Model):
     gyroscope_random_walk: PositiveFloat  # rad/s^2/√Hz
     update_rate: PositiveFloat  # Hz
     estimate_biases: bool = True
+    # random_walk: the biases drift with the *_random_walk densities and the report scores the
+    # bias at the end of the drive; constant: one bias over the whole drive (shared by drives)
+    bias_model: Literal["random_walk", "constant"] = "random_walk"
 
 
 class SensorNoise(_Model):
@@ -239,6 +245,16 @@ class Rig:
         return Suspension(s.pitch_deg_per_mps2, s.roll_deg_per_mps2)
 
     @property
+    def bias_random_walk(self) -> bool:
+        """The IMU biases are estimated and drift as random walks (nuisance states per keyframe)."""
+        imu = self.config.imu
+        return imu.estimate_biases and imu.bias_model == "random_walk"
+
+    def with_constant_biases(self) -> "Rig":
+        """This rig with the IMU biases constant over each drive."""
+        return self.with_config(imu=dict(self.config.imu.model_dump(), bias_model="constant"))
+
+    @property
     def wheel_increment_sigma_rad(self) -> float:
         """σ of one wheel's rotation increment over a keyframe interval [rad]."""
         return self.config.wheels.noise_density / math.sqrt(self.keyframe_rate_hz)
@@ -307,6 +323,11 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     """Validate a rig from its parsed YAML; ``base_dir`` resolves a Kalibr ``imu:`` file path."""
     if not isinstance(data, dict):
         raise RigError("rig: expected a mapping at the top level")
+    if bounds.nesting(data) > bounds.MAX_NESTING:
+        raise RigError(f"rig: nested more than {bounds.MAX_NESTING} levels deep (a rig is at most 6)")
+    sensors = data.get("sensors")
+    if isinstance(sensors, list) and len(sensors) > bounds.MAX_SENSORS:
+        raise RigError(f"sensors: {len(sensors)} sensors, over the limit of {bounds.MAX_SENSORS}")
     data = dict(data)
     if isinstance(data.get("imu"), str):
         path = Path(data["imu"])
@@ -320,6 +341,10 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         err = exc.errors()[0]
         key = ".".join(str(p) for p in err["loc"]) or "rig"
         raise RigError(f"{key}: {err['msg']}") from None
+    for key, x in bounds.rig_numbers(cfg.model_dump()):
+        sane = bounds.rig_range(key)
+        if sane is not None and not sane.contains(x):
+            raise RigError(f"{key}: {x!r} is outside the sane range {sane}")
 
     rates = [s.rate_hz for s in cfg.sensors]
     kf = cfg.keyframe_rate_hz or (max(rates) if rates else 10.0)
@@ -386,11 +411,15 @@ def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
 
 def _read_yaml(path: Path) -> Any:
     try:
-        text = Path(path).read_text()
+        text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise RigError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise RigError(f"{path}: not a text file ({exc.reason})") from None
     try:
         return yaml.safe_load(text)
+    except RecursionError:
+        raise RigError(f"{path}: nested more than {bounds.MAX_NESTING} levels deep") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""

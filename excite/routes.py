@@ -52,14 +52,17 @@ from __future__ import annotations
 import json
 import math
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
-from scipy.interpolate import make_smoothing_spline
+from scipy.interpolate import CubicSpline
+from scipy.linalg import solveh_banded
 from scipy.spatial.transform import Rotation
 
-from . import so3
+from . import bounds, so3
 from .errors import RouteError
 from .paths import plan_given_speed, plan_speed, profile_from_plan, smooth_path
 from .trajectory import Trajectory
@@ -111,7 +114,7 @@ def _split_rows(path: Path, sep: str | None, header: bool = False) -> _Table:
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
-        fields = [f.strip() for f in (line.split(sep) if sep else line.split())]
+        fields = [f.strip() for f in line.split(sep)] if sep else line.split()
         if header and table.header is None and not table.rows and not _is_number(fields[0]):
             table.header, table.header_line = [f.lower() for f in fields], i
             continue
@@ -136,10 +139,28 @@ def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarra
     Every row must have as many fields as the header (or, without one, as the first row), and
     that count must be one of ``allowed``.
     """
+    if len(table.rows) > bounds.MAX_SAMPLES:
+        raise RouteError(f"{len(table.rows):,} rows, over the limit of {bounds.MAX_SAMPLES:,}",
+                         source=table.source, line=table.lines[bounds.MAX_SAMPLES])
     want = len(table.header) if table.header else len(table.rows[0])
     if allowed is not None and want not in allowed:
         raise RouteError(f"expected {' or '.join(map(str, allowed))} columns, got {want}",
                          source=table.source, line=table.header_line or table.lines[0])
+    try:  # every row well formed: one conversion
+        out = np.array(table.rows, dtype=float)
+    except ValueError:
+        out = None
+    if out is None or out.shape != (len(table.rows), want):
+        out = _rows_one_by_one(table, want)  # finds the first malformed row
+    bad = ~np.isfinite(out)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        what = "NaN" if math.isnan(out[k, j]) else "infinite"
+        raise RouteError(f"column {j + 1} is {what}", source=table.source, line=table.lines[k])
+    return out
+
+
+def _rows_one_by_one(table: _Table, want: int) -> np.ndarray:
     out = np.empty((len(table.rows), want))
     for k, (fields, line) in enumerate(zip(table.rows, table.lines)):
         if len(fields) != want:
@@ -151,11 +172,6 @@ def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarra
             j = next(j for j, f in enumerate(fields) if not _is_number(f))
             raise RouteError(f"column {j + 1}: cannot parse {fields[j]!r} as a number",
                              source=table.source, line=line) from None
-    bad = ~np.isfinite(out)
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        what = "NaN" if math.isnan(out[k, j]) else "infinite"
-        raise RouteError(f"column {j + 1} is {what}", source=table.source, line=table.lines[k])
     return out
 
 
@@ -166,6 +182,44 @@ def _check_times(t: np.ndarray, source: str, lines: list[int]) -> None:
         what = "duplicate time" if dt[k - 1] == 0 else "time goes backwards"
         raise RouteError(f"{what}: {t[k]:.9g} s after {t[k - 1]:.9g} s (times must be strictly "
                          "increasing)", source=source, line=lines[k])
+
+
+def _check_range(values: np.ndarray, kind: str, what: str, source: str | None,
+                 lines: list[int] | None) -> None:
+    """Every value within the sane range ``bounds.ROUTE[kind]``, else the first one outside."""
+    sane = bounds.ROUTE[kind]
+    bad = ~((values >= sane.lo) & (values <= sane.hi))
+    if bad.any():
+        k = int(np.argwhere(bad)[0][0])
+        raise RouteError(f"{what} {np.asarray(values)[bad][0]:.6g} is outside the sane range {sane}",
+                         source=source, line=None if lines is None else lines[k])
+
+
+def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: str | None = None,
+                 lines: list[int] | None = None) -> None:
+    """Timed poses a drive can be made of: times and positions in range, and a resampling grid
+    within the work bounds (checked before the grid is allocated)."""
+    _check_range(t, "t_s", "time", source, lines)
+    _check_range(p, "position_m", "position", source, lines)
+    if len(t) < 2:
+        return
+    rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
+    if not (math.isfinite(rate) and rate > 0):
+        raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
+    too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
+    if too_much:
+        raise RouteError(too_much, source=source)
+
+
+@contextmanager
+def _located(source: str) -> Iterator[None]:
+    """Route errors raised while building a drive from a file name the file."""
+    try:
+        yield
+    except RouteError as exc:
+        if exc.source is not None:
+            raise
+        raise RouteError(exc.problem, source=source) from None
 
 
 def _check_count(n: int, minimum: int, what: str, source: str, lines: list[int]) -> None:
@@ -189,6 +243,9 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
     velocity is the derivative of the position spline.
     """
+    _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz)
+    if not (math.isfinite(cutoff_hz) and cutoff_hz > 0):
+        raise RouteError(f"the smoothing cutoff must be positive and finite, got {cutoff_hz!r}")
     t = np.asarray(t_s, dtype=float) - float(t_s[0])
     p = np.asarray(p_m, dtype=float) - np.asarray(p_m, dtype=float)[0]
     q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
@@ -198,14 +255,46 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     h = float(np.median(np.diff(t)))
     f_c = min(cutoff_hz, 0.25 / h)
     lam = 1.0 / (h * (2.0 * np.pi * f_c) ** 4)
-    pos = make_smoothing_spline(t, p, lam=lam)
-    quat = make_smoothing_spline(t, q, lam=lam)
+    pos = smoothing_spline(t, p, lam)
+    quat = smoothing_spline(t, q, lam)
     rate = 1.0 / h if rate_hz is None else rate_hz
     grid = np.linspace(0.0, t[-1], max(int(round(t[-1] * rate)) + 1, MIN_POSES))
     qg = quat(grid)
     qg /= np.linalg.norm(qg, axis=1, keepdims=True)
     return Trajectory(grid, Rotation.from_quat(qg).as_matrix(), pos(grid),
                       velocity=pos.derivative(1)(grid), name=name)
+
+
+def smoothing_spline(x: np.ndarray, y: np.ndarray, lam: float) -> CubicSpline:
+    """The cubic smoothing spline: of all twice-differentiable ``g``, the minimiser of
+    ``Σ |y_i − g(x_i)|² + λ ∫ |g''|²`` (the function of ``scipy.interpolate.make_smoothing_spline``).
+
+    Reinsch's algorithm: with ``Q`` the second-difference operator and ``R`` the tridiagonal
+    Gram matrix of the hat functions, ``(R + λ QᵀQ) γ = Qᵀ y`` for the second derivatives γ at
+    the interior knots, and ``g(x_i) = y_i − λ Q γ``; ``g`` is then the natural cubic spline
+    through those values. One banded (pentadiagonal) solve, no per-point Python loop.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = x.size
+    h = np.diff(x)
+    inv = 1.0 / h
+    # Q (n × n-2): column j holds 1/h_j, −1/h_j − 1/h_{j+1}, 1/h_{j+1} at rows j, j+1, j+2
+    q0, q1, q2 = inv[:-1], -inv[:-1] - inv[1:], inv[1:]
+    m = n - 2
+    ab = np.zeros((3, m))  # upper form of the symmetric pentadiagonal R + λ QᵀQ
+    ab[2] = (h[:-1] + h[1:]) / 3.0 + lam * (q0**2 + q1**2 + q2**2)
+    ab[1, 1:] = h[1:-1] / 6.0 + lam * (q1[:-1] * q0[1:] + q2[:-1] * q1[1:])
+    ab[0, 2:] = lam * q2[:-2] * q0[2:]
+    Y = y.reshape(n, -1)
+    rhs = q0[:, None] * Y[:-2] + q1[:, None] * Y[1:-1] + q2[:, None] * Y[2:]
+    gamma = solveh_banded(ab, rhs)
+    Qg = np.zeros_like(Y)
+    Qg[:-2] += q0[:, None] * gamma
+    Qg[1:-1] += q1[:, None] * gamma
+    Qg[2:] += q2[:, None] * gamma
+    fit = (Y - lam * Qg).reshape(y.shape)
+    return CubicSpline(x, fit, bc_type="natural")
 
 
 def _quaternions(q: np.ndarray, source: str, lines: list[int], first_col: int) -> np.ndarray:
@@ -226,6 +315,7 @@ def read_tum(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     d = _numbers(table, (8,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(d[:, 0], table.source, table.lines)
+    _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
                                  cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=path.stem)
@@ -249,6 +339,7 @@ def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         ns = np.round(d[:, 0]).astype(np.int64)
     t = (ns - ns[0]).astype(float) * 1e-9
     _check_times(t, table.source, table.lines)
+    _check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     R = Rotation.from_quat(q, scalar_first=True).as_matrix()
     return trajectory_from_poses(t, d[:, 1:4], R, cutoff_hz=cutoff_hz, rate_hz=rate_hz,
@@ -268,10 +359,11 @@ def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAUL
     ttable = _split_rows(times, None)
     t = _numbers(ttable, (1,))[:, 0]
     if len(t) != len(d):
-        raise RouteError(f"{len(t)} times for {len(d)} poses in {path}", source=str(times),
+        raise RouteError(f"{len(t)} times for {len(d)} poses in {path.name}", source=str(times),
                          line=ttable.lines[min(len(t), len(d)) - 1])
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(t, ttable.source, ttable.lines)
+    _check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines)
     T = d.reshape(-1, 3, 4)
     R_W_C, p_W_C = T[:, :, :3], T[:, :, 3]
     err = np.abs(np.swapaxes(R_W_C, 1, 2) @ R_W_C - np.eye(3)).max(axis=(1, 2))
@@ -323,6 +415,8 @@ _WAYPOINT_COLS = {"x": "x", "x_m": "x", "y": "y", "y_m": "y", "z": "z", "z_m": "
 def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
                      lines: list[int]) -> None:
     _check_count(len(xyz), 2, "waypoints", source, lines)
+    _check_range(xyz[:, :2], "position_m", "coordinate", source, lines)
+    _check_range(xyz[:, 2], "altitude_m", "altitude", source, lines)
     step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     if np.any(step < 1e-3):
         k = int(np.argmax(step < 1e-3)) + 1
@@ -332,6 +426,7 @@ def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
         if np.any(speed < 0):
             k = int(np.argmax(speed < 0))
             raise RouteError(f"negative speed {speed[k]:g} m/s", source=source, line=lines[k])
+        _check_range(speed, "speed_mps", "speed", source, lines)
         both = (speed[1:] == 0) & (speed[:-1] == 0)
         if both.any():
             k = int(np.argmax(both)) + 1
@@ -358,7 +453,8 @@ def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
     xyz = np.column_stack([cols["x"], cols["y"], cols.get("z", np.zeros(len(d)))])
     speed = cols.get("speed")
     _check_waypoints(xyz, speed, table.source, table.lines)
-    return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(str(path)):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
 
 
 def _json_line(text: str, pattern: str) -> int | None:
@@ -429,7 +525,8 @@ def read_geojson(path: str | Path, *, limits: Limits = Limits(),
             raise RouteError("properties.speed_mps contains NaN or inf", source=src, line=sline)
     # Per-point problems are located at the coordinates key: JSON keeps no positions.
     _check_waypoints(xyz, speed, src, [cline] * len(xyz))
-    return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(str(path)):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
 
 
 _CONTROL_COLS = {"t": "t_s", "t_s": "t_s", "speed": "speed_mps", "speed_mps": "speed_mps",
@@ -457,10 +554,16 @@ def read_control_profile(path: str | Path) -> ControlProfile:
     _check_count(len(d), 2, "knots", table.source, table.lines)
     cols = {n: d[:, i] for i, n in enumerate(names)}
     _check_times(cols["t_s"], table.source, table.lines)
+    span = float(cols["t_s"][-1] - cols["t_s"][0])
+    if span > bounds.max_duration_s():
+        raise RouteError(f"the profile lasts {span:.6g} s, over the limit of {bounds.max_duration_s():g} s",
+                         source=table.source, line=table.lines[-1])
     if np.any(cols["speed_mps"] < 0):
         k = int(np.argmax(cols["speed_mps"] < 0))
         raise RouteError(f"negative speed {cols['speed_mps'][k]:g} m/s (reversing is not "
                          "modelled)", source=table.source, line=table.lines[k])
+    for name in names:
+        _check_range(cols[name], name, name, table.source, table.lines)
     start = (0.0, 0.0, 0.0)
     for i, raw in enumerate(_read_text(path).splitlines(), start=1):
         m = _START_RE.match(raw.strip())
@@ -471,6 +574,9 @@ def read_control_profile(path: str | Path) -> ControlProfile:
                 raise RouteError("cannot parse the start pose", source=table.source, line=i) from None
             if not all(np.isfinite(start)):
                 raise RouteError("the start pose is NaN or infinite", source=table.source, line=i)
+            for x, kind, what in zip(start, ("position_m", "position_m", "heading_rad"),
+                                     ("start x_m", "start y_m", "start heading_rad")):
+                _check_range(np.array([x]), kind, what, table.source, [i])
             break
     return ControlProfile(t_s=cols["t_s"], speed_mps=cols["speed_mps"],
                           curvature_1pm=cols["curvature_1pm"], grade_rad=cols.get("grade_rad"),
@@ -479,7 +585,9 @@ def read_control_profile(path: str | Path) -> ControlProfile:
 
 def read_control_csv(path: str | Path, *, suspension: Suspension = Suspension()) -> Trajectory:
     """A control CSV driven through :func:`~excite.vehicle.drive`."""
-    return drive(read_control_profile(path), suspension)
+    profile = read_control_profile(path)
+    with _located(str(path)):
+        return drive(profile, suspension)
 
 
 # --------------------------------------------------------------------------------------------

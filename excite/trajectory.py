@@ -24,7 +24,7 @@ import numpy as np
 from scipy.interpolate import BSpline, PPoly, make_interp_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
-from . import so3
+from . import bounds, so3
 from .errors import RouteError
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])
@@ -132,6 +132,14 @@ class Trajectory:
             raise RouteError(f"a trajectory needs at least 6 samples, got {t.size}")
         if not np.all(np.diff(t) > 0):
             raise RouteError("sample times must be strictly increasing")
+        if t.size > bounds.MAX_SAMPLES:
+            raise RouteError(f"{t.size} samples, over the limit of {bounds.MAX_SAMPLES:,}")
+        if not t[-1] - t[0] <= bounds.max_duration_s():
+            raise RouteError(f"the drive lasts {t[-1] - t[0]:.6g} s, over the limit of "
+                             f"{bounds.max_duration_s():g} s")
+        for label, x in (("positions", p_W_V), ("velocities", velocity)):
+            if x is not None and not np.all(np.isfinite(x)):
+                raise RouteError(f"the drive's {label} are not all finite")
         self._t = t
         self._R = np.asarray(R_W_V, dtype=float)
         self._p = np.asarray(p_W_V, dtype=float)

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import PchipInterpolator
 
-from . import so3
+from . import bounds, so3
 from .errors import LimitError, RouteError
 from .trajectory import MotionSamples, Trajectory
 
@@ -54,8 +54,9 @@ class Limits:
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
-            if not np.isfinite(value) or value <= 0:
-                raise LimitError(f"limits.{name} must be a positive finite number, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise LimitError(f"limits.{name} must be a number, got {value!r}")
+            bounds.check_range(bounds.LIMITS, name, float(value), LimitError, f"limits.{name}")
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,9 @@ class ControlProfile:
             object.__setattr__(self, name, value)
         if np.any(self.speed_mps < 0):
             raise RouteError("control profile speed must be ≥ 0 (reversing is not modelled)")
+        if not self.duration_s <= bounds.max_duration_s():
+            raise RouteError(f"the control profile lasts {self.duration_s:.6g} s, over the limit of "
+                             f"{bounds.max_duration_s():g} s")
 
     @property
     def duration_s(self) -> float:

@@ -36,7 +36,7 @@ def test_store_re_queues_jobs_of_a_dead_server_and_ignores_stale_workers(tmp_pat
     assert store.claim() == (a, 1)
     store.progress(a, 1, {"iteration": 3})
     # the server dies; the next one re-queues a (b was never started)
-    assert store.recover() == 1
+    assert store.recover() == [a]
     assert store.get(a)["status"] == "queued" and store.get(a)["progress"] == {"iteration": 3}
     assert store.claim() == (a, 2)
     # the first run's straggler can neither write nor finish

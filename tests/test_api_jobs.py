@@ -69,6 +69,8 @@ def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
         assert first["result"]["report"]["score"] > 0
     finally:
         srv2.stop()
+    # the restarted server said which jobs it re-queued
+    assert f"re-queued 1 job(s) left running by a previous server: {job_id}" in srv2.log.read_text()
 
 
 def test_real_optimizer_job_survives_kill_9(tmp_path):

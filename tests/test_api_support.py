@@ -1,5 +1,5 @@
 """Helpers for the API tests (no tests here): a live uvicorn server on a loopback port, and
-job functions injected through EXCITE_JOB_FUNCTION."""
+job functions injected through ``create_app(job_function=...)``."""
 
 from __future__ import annotations
 
@@ -24,6 +24,16 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+SERVE_WITH_JOB = """
+import uvicorn
+from api import create_app
+from excite.cli.serve import log_service
+log_service("info")
+uvicorn.run(create_app(job_function={job_function!r}), host="127.0.0.1", port={port},
+            log_level="warning", timeout_graceful_shutdown=10)
+"""
+
+
 class LiveServer:
     """``excite serve`` in a subprocess on 127.0.0.1, settings from the environment."""
 
@@ -40,10 +50,15 @@ class LiveServer:
 
     def start(self, timeout_s: float = 90.0) -> "LiveServer":
         env = dict(os.environ)
-        env.update({f"EXCITE_{k.upper()}": str(v) for k, v in self.settings.items()})
         env["PYTHONPATH"] = os.pathsep.join([str(TESTS_DIR), str(REPO), env.get("PYTHONPATH", "")])
-        cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main(sys.argv[1:]))",
-               "serve", "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "warning"]
+        settings = dict(self.settings)
+        job_function = settings.pop("job_function", None)
+        env.update({f"EXCITE_{k.upper()}": str(v) for k, v in settings.items()})
+        if job_function is None:
+            cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main(sys.argv[1:]))",
+                   "serve", "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "info"]
+        else:  # a stand-in job: built here, it is no setting of the service
+            cmd = [sys.executable, "-c", SERVE_WITH_JOB.format(job_function=job_function, port=self.port)]
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=self.tmp)
         deadline = time.monotonic() + timeout_s

@@ -143,7 +143,7 @@ def test_min_score_replaces_the_default_gate(routes: Path, tmp_path: Path):
     assert doc["passed"] is True
     [r] = doc["routes"]
     assert r["status"] == "passed" and r["score"] == pytest.approx(r["report"]["score"])
-    assert r["report"]["version"] == 1 and len(r["report"]["parameters"]) == 23
+    assert r["report"]["version"] == 2 and len(r["report"]["parameters"]) == 23
     assert main(["batch", f8, "--min-score", "1e-3", "--json", str(out), "--jobs", "1"]) == 1
     [r] = json.loads(out.read_text())["routes"]
     assert r["failures"][0]["parameter"] == "score" and r["failures"][0]["bound"] == 1e-3

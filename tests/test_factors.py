@@ -30,12 +30,14 @@ def rig():
     return build_rig(data)
 
 
+_T = np.linspace(0.0, 6.0, 13)
+_PROFILE = ControlProfile(_T, 5 + 2 * np.sin(_T), 0.1 * np.cos(0.7 * _T), grade_rad=0.05 * np.sin(_T),
+                          bank_rad=0.04 * np.cos(1.3 * _T))
+
+
 @pytest.fixture(scope="module")
 def nom(rig):
-    t = np.linspace(0.0, 6.0, 13)
-    prof = ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.cos(0.7 * t), grade_rad=0.05 * np.sin(t),
-                          bank_rad=0.04 * np.cos(1.3 * t))
-    return Nominal.of(drive(prof, rig.suspension), rig)
+    return Nominal.of(drive(_PROFILE, rig.suspension), rig)
 
 
 def _fd(fun, n: int) -> np.ndarray:
@@ -57,10 +59,28 @@ def _assert_close(analytic, numeric, rtol):
     assert err < rtol, f"relative error {err:.2e}\nanalytic\n{analytic}\nnumeric\n{numeric}"
 
 
-def test_odometry_jacobian(rig, nom):
-    sensor = rig.config.sensors[0]
+@pytest.fixture(scope="module")
+def slow_rig(rig):
+    """The same rig with both sensors at 5 Hz: frames every second keyframe."""
+    data = rig.config.model_dump()
+    for s in data["sensors"]:
+        s["rate_hz"] = 5.0
+    return build_rig(data)
+
+
+@pytest.mark.parametrize("sensor_index, slow", [(0, False), (1, False), (0, True), (1, True)],
+                         ids=["lidar", "camera optical frame", "lidar at 5 Hz", "camera at 5 Hz"])
+def test_odometry_jacobian(rig, slow_rig, nom, sensor_index, slow):
+    """Every mounting (a lidar turned 30° in yaw, a monocular camera in its optical frame) and
+    every stride (sensor at the keyframe rate and at half of it): the compiled Jacobians equal
+    central differences of the nonlinear residual."""
+    if slow:
+        rig = slow_rig
+        nom = Nominal.of(drive(_PROFILE, rig.suspension), rig)
+    sensor = rig.config.sensors[sensor_index]
     blk = odometry.blocks(nom, rig, sensor)
-    f = 17
+    assert blk.stride == (2 if slow else 1)
+    f = 7
     i, j = blk.first[f], blk.first[f] + blk.stride
     R_BS, p_BS = sensor.T_B_S.R, sensor.T_B_S.p
     st = lambda k, d: (*_perturb(nom.R[k], nom.p[k], nom.v[k], d), nom.omega[k])
@@ -79,10 +99,11 @@ def test_odometry_jacobian(rig, nom):
         return odometry.residual(st(i, zero), st(j, zero), R_BS @ so3.exp(d[0:3]), p_BS + d[3:6], d[6], 1.0,
                                  meas) / sig
 
-    cols = [rig.index(f"lidar.{c}") for c in ("rot_x", "rot_y", "rot_z", "trans_x", "trans_y", "trans_z",
-                                              "time_offset")]
+    cols = [rig.index(f"{sensor.name}.{c}") for c in ("rot_x", "rot_y", "rot_z", "trans_x", "trans_y", "trans_z",
+                                                      "time_offset")]
     _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, cols], _fd(r_t, 7), 1e-6)
-    others = np.setdiff1d(np.arange(len(rig.coordinates)), cols)
+    others = np.setdiff1d(np.arange(len(rig.coordinates)), cols + ([rig.index(f"{sensor.name}.scale")]
+                                                                   if sensor.monocular else []))
     assert np.all(blk.Jt_full(len(rig.coordinates))[f][:, others] == 0)
 
 

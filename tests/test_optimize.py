@@ -21,8 +21,9 @@ from excite.optimize.kinematics import Grid, Scales, body_samples, layout, profi
 from excite.optimize.model import build_model, coarse_rig
 from excite.optimize.solver import Transcription, solve
 from excite.rig import load_rig
+from excite.rig import build_rig
 from excite.routes import read_control_profile
-from excite.vehicle import Limits, check_limits, drive
+from excite.vehicle import ControlProfile, Limits, Suspension, check_limits, drive
 
 
 @pytest.fixture(scope="module")
@@ -64,9 +65,39 @@ def test_settings_are_validated(change):
         opt.OptimizeSettings(**change)
 
 
-def test_casadi_information_equals_the_evaluator(rig, coarse):
-    """Same drive, same coarse rig: the CasADi Λ_θ is the numpy evaluator's (to rounding)."""
-    traj = drive(slalom(40.0), rig.suspension)
+def _contract_drive(kind: str, rig):
+    t = np.linspace(0.0, 30.0, 31)
+    if kind == "slalom":
+        return drive(slalom(40.0), rig.suspension)
+    if kind == "planar, rigid suspension":  # vertical lever arms unobservable
+        return drive(ControlProfile(t, 6 + 3 * np.sin(t / 3), 0.08 * np.sin(t / 5)), Suspension.rigid())
+    if kind == "hilly, banked":
+        return drive(ControlProfile(t, 6 + 3 * np.sin(t / 3), 0.08 * np.sin(t / 5), grade_rad=0.06 * np.sin(t / 4),
+                                    bank_rad=0.04 * np.cos(t / 3)), rig.suspension)
+    if kind == "highway, constant speed":  # straight: lever arms, track, time offsets unobservable
+        return drive(ControlProfile(t, np.full(t.shape, 25.0), np.zeros(t.shape)), Suspension.rigid())
+    raise ValueError(kind)
+
+
+def _with_priors_and_mounting(rig):
+    """Priors (which never enter Λ) and a camera mounted askew in its optical frame."""
+    data = rig.config.model_dump()
+    data["priors"] = {"*.rot_*": "0.5 deg", "wheel.track": "2 cm"}
+    data["sensors"][1]["T_B_S"] = {"translation_m": [1.4, 0.3, 0.8], "rpy_deg": [-95.0, 3.0, -85.0]}
+    return build_rig(data)
+
+
+@pytest.mark.parametrize("kind", ["slalom", "planar, rigid suspension", "hilly, banked", "highway, constant speed",
+                                  "priors, skewed camera"])
+def test_casadi_information_equals_the_evaluator(rig, coarse, kind):
+    """Same drive, same coarse rig: the CasADi Λ_θ is the numpy evaluator's (to rounding), on
+    planar, hilly and straight drives (the last two with unobservable directions), with priors and
+    a camera mounted askew."""
+    if kind == "priors, skewed camera":
+        rig = _with_priors_and_mounting(rig)
+        coarse = coarse_rig(rig, 2.0, 4)
+        kind = "hilly, banked"
+    traj = _contract_drive(kind, rig)
     K, args = _samples(traj, coarse)
     model = build_model(coarse, K)
     Lam = np.array(model.marginal(*args))
@@ -75,7 +106,10 @@ def test_casadi_information_equals_the_evaluator(rig, coarse):
     M = np.array(model.scaled(*args))
     rep = evaluate(traj, coarse)
     assert np.abs(M - rep.information_scaled).max() <= 1e-6 * np.abs(rep.information_scaled).max()
-    assert np.linalg.eigvalsh(M)[0] == pytest.approx(rep.score, rel=1e-6)
+    if kind.startswith(("planar", "highway")):
+        assert rep.nullity > 0
+    else:
+        assert np.linalg.eigvalsh(M)[0] == pytest.approx(rep.score, rel=1e-6)
 
 
 def test_kinematics_match_the_driven_profile(rig, coarse):

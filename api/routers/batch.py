@@ -22,12 +22,13 @@ def batch(body: BatchRequest, ctx: Ctx) -> Any:
     its target."""
     n_max = ctx.settings.max_batch_routes
     if len(body.routes) > n_max:
-        raise ProblemError(413, f"routes: {len(body.routes)} routes exceed the limit of {n_max}",
+        raise ProblemError(422, f"routes: {len(body.routes)} routes exceed the limit of {n_max}",
                            errors=[{"field": "routes", "message": f"at most {n_max} routes"}])
     limits = body.limits.model_dump() if body.limits else None
-    futures = [ctx.submit_score(r.model_dump(), body.rig, body.segments, limits, f"routes[{i}]")
+    deadline = ctx.deadline()
+    futures = [ctx.submit_score(r.model_dump(), body.rig, body.segments, limits, deadline, f"routes[{i}]")
                for i, r in enumerate(body.routes)]
-    results = ctx.wait(futures, ctx.deadline())
+    results = ctx.wait(futures)
     items, scores, passed, failed, errors = [], [], 0, 0, 0
     for i, (route, res) in enumerate(zip(body.routes, results)):
         if res["ok"]:

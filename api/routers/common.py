@@ -9,7 +9,8 @@ from ..schemas import Problem
 
 
 def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    text = {400: "The body cannot be parsed (not UTF-8 JSON)", 404: "Unknown resource", 409: "Conflict with the resource's state",
+    text = {400: "The body cannot be parsed (not UTF-8 JSON)", 404: "Unknown resource",
+            408: "The body did not arrive in time (slow client)", 409: "Conflict with the resource's state",
             413: "Body, route or batch too large (the bound is in the detail)",
             422: "Invalid input (the offending field is named in `errors`)",
             500: "Internal error (no details; logged server-side)",
@@ -18,4 +19,4 @@ def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
             for s in statuses}
 
 
-BODY = problems(400, 413, 422, 500, 503)
+BODY = problems(400, 408, 413, 422, 500, 503)

@@ -20,8 +20,8 @@ def score(body: ScoreRequest, ctx: Ctx) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
     control profile); the rig by bundled name or inline. CPU-bound: runs in a worker process."""
     limits = body.limits.model_dump() if body.limits else None
-    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits)
-    (result,) = ctx.wait([fut], ctx.deadline())
+    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits, ctx.deadline())
+    (result,) = ctx.wait([fut])
     if not result["ok"]:
         raise_problem(result)
     return result["report"]
@@ -35,8 +35,9 @@ def score_plot(body: PlotRequest, ctx: Ctx) -> Response:
     information it carries on ``parameter`` (or the weakest mode), the scaled spectrum with the
     pass line, and σ against target per parameter."""
     limits = body.limits.model_dump() if body.limits else None
-    fut = ctx.submit_plot(body.route.model_dump(), body.rig, body.segments, limits, body.parameter)
-    (result,) = ctx.wait([fut], ctx.deadline())
+    fut = ctx.submit_plot(body.route.model_dump(), body.rig, body.segments, limits, body.parameter,
+                          ctx.deadline())
+    (result,) = ctx.wait([fut])
     if not result["ok"]:
         raise_problem(result)
     return Response(content=result["png"], media_type="image/png")

@@ -1,25 +1,65 @@
 """The ``excite`` command line: loads inputs, calls the library, prints and saves.
 
-Known failures (every :class:`~excite.errors.ExciteError`, unreadable files) end in a one-line
-message on stderr and exit code 1; anything else is a bug and keeps its traceback.
+Known failures (every :class:`~excite.errors.ExciteError`, unreadable or unwritable files) end in
+a one-line message on stderr and exit code 1; anything else is a bug and keeps its traceback.
+
+A command imports only what it uses: ``excite score`` never loads the optimizer, ``excite
+--help`` neither scipy nor numba. Help text is plain (no rich markup: units such as ``[s]``
+are text), and output to a pipe is not wrapped at 80 columns.
 """
 
 from __future__ import annotations
 
+import importlib
+import os
 import sys
+from typing import Annotated, Any, Optional
 
 import typer
 
 from ..errors import ExciteError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  rich_markup_mode=None,
                   help="Calibration excitation planner: how well does a drive determine every "
                        "sensor calibration parameter?")
 
+# command → the module that registers it on `app`
+COMMANDS = {"batch": "batch", "optimize": "optimize", "route": "route", "rig": "score",
+            "score": "score", "serve": "serve", "validate": "validate"}
+PIPE_WIDTH = 240  # columns of output to a pipe or file: wide enough that rows stay whole
 
-def _register() -> None:
-    # Sub-command modules register themselves on `app` when imported.
-    from . import batch, optimize, route, score, serve, validate  # noqa: F401
+
+def _version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        typer.echo(f"excite {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: Annotated[Optional[bool], typer.Option(
+        "--version", callback=_version, is_eager=True, help="Print the version and exit.")] = None) -> None:
+    pass
+
+
+def console(stderr: bool = False) -> Any:
+    """A rich console for the commands' tables: the terminal's width, or :data:`PIPE_WIDTH`
+    when the output is piped (rich would wrap at 80)."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    piped = not stream.isatty() and "COLUMNS" not in os.environ
+    return Console(stderr=stderr, width=PIPE_WIDTH if piped else None)
+
+
+def _register(argv: list[str]) -> None:
+    """Import the module of the command being run (all of them for the overview help)."""
+    words = [a for a in argv if not a.startswith("-")]
+    wanted = [COMMANDS[words[0]]] if words and words[0] in COMMANDS else sorted(set(COMMANDS.values()))
+    for module in wanted:
+        importlib.import_module(f".{module}", __name__)
 
 
 def _click_exceptions() -> tuple[type[Exception], ...]:
@@ -38,17 +78,19 @@ def _click_exceptions() -> tuple[type[Exception], ...]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
-    _register()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    _register(argv)
     try:
         # without standalone mode click returns a command's exit code instead of exiting
-        rc = app(args=argv, standalone_mode=False)
+        rc = app(args=argv, standalone_mode=False, prog_name="excite")
         if isinstance(rc, int):
             return rc
     except ExciteError as exc:
         print(f"excite: error: {exc}", file=sys.stderr)
         return 1
-    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        print(f"excite: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+    except OSError as exc:  # a file the user named cannot be read or written
+        where = exc.filename if exc.filename is not None else ""
+        print(f"excite: error: {where}{': ' if where else ''}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except typer.Exit as exc:
         return exc.exit_code

@@ -6,18 +6,21 @@ import time
 from pathlib import Path
 from typing import Annotated, Optional
 
-import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
+from typing import TYPE_CHECKING
 
-from .. import batch as gate
-from . import app
+import typer
+
+from . import app, console
+
+if TYPE_CHECKING:
+    from .. import batch as gate
 
 _MAX_SHOWN = 4  # failing parameters listed per route in the table
 
 
-def _table(results: list[gate.RouteResult]) -> Table:
+def _table(results: list[gate.RouteResult]):
+    from rich.table import Table
+
     rigs = sorted({r.rig for r in results})
     one_rig = len(rigs) == 1
     t = Table(title=f"excite batch, rig {rigs[0]}" if one_rig else "excite batch", title_justify="left")
@@ -51,8 +54,12 @@ def batch(
     jobs: Annotated[Optional[int], typer.Option(help="Parallel processes (default: one per core).")] = None,
 ) -> None:
     """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .. import batch as gate
+
     specs = gate.collect(paths, rig=rig, min_score=min_score)
-    err = Console(stderr=True)
+    err = console(stderr=True)
     t0 = time.perf_counter()
     with Progress(TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   TextColumn("{task.description}"), console=err, transient=True) as progress:
@@ -63,18 +70,18 @@ def batch(
 
         results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, on_result=done)
     total_s = time.perf_counter() - t0
-    console = Console()
-    console.print(_table(results))
+    out_console = console()
+    out_console.print(_table(results))
     n_fail = sum(r.status == "failed" for r in results)
     n_err = sum(r.status == "error" for r in results)
     n_pass = len(results) - n_fail - n_err
     colour = "green" if n_fail + n_err == 0 else "red"
-    console.print(f"[{colour}]{n_pass} passed, {n_fail} failed, {n_err} errors[/] in {total_s:.1f} s")
+    out_console.print(f"[{colour}]{n_pass} passed, {n_fail} failed, {n_err} errors[/] in {total_s:.1f} s")
     for r in results:
         if r.advice:
-            console.print(f"[bold]{r.name}[/]: what it takes")
+            out_console.print(f"[bold]{r.name}[/]: what it takes")
             for a in r.advice[:2]:
-                console.print(f"  {a}", overflow="fold")
+                out_console.print(f"  {a}", overflow="fold")
     if junit is not None:
         gate.write_text(junit, gate.junit_xml(results, total_s))
     if json_out is not None:

@@ -6,19 +6,16 @@ import json
 import os
 import signal
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
-from ..optimize import OptimizeResult, OptimizeSettings, optimize as run_optimize
-from ..optimize import Progress as OptProgress
-from ..optimize.site import maneuver_geojson, parse_lot
-from ..rig import load_rig
-from ..routes import write_control_csv, write_tum, write_waypoints_csv
-from . import app
+from ..bounds import OPTIMIZE as _B
+from ..errors import ExciteError
+from . import app, console
+
+if TYPE_CHECKING:
+    from ..optimize import OptimizeResult
 
 
 _WRITE_S = 1.0  # kept from the budget for writing the output files
@@ -40,26 +37,34 @@ def _num(v, fmt: str = ".4g") -> str:
     return "—" if v is None else format(v, fmt)
 
 
-def comparison_table(result: OptimizeResult) -> Table:
+def comparison_table(result: OptimizeResult):
+    from rich.markup import escape
+    from rich.table import Table
+
     t = Table(title="Comparison (full evaluator; every row passed the same limit and lot check "
                     "unless marked)", title_justify="left")
     for col, just in (("candidate", "left"), ("kind", "left"), ("score λ_min", "right"),
                       ("worst σ/target", "right"), ("log det", "right"), ("tr M⁻¹", "right"),
-                      ("rot. exc. λ_min", "right"), ("result ÷", "right"), ("feasible", "left")):
+                      ("rot. exc. λ_min", "right"), ("result ÷", "right"), ("feasible", "left"),
+                      ("first violation", "left")):
         t.add_column(col, justify=just)
     for r in result.comparison:
         ratio = "—" if r.get("ratio") is None else f"{r['ratio']:.2f}×"
-        feas = "[green]yes[/]" if r["feasible"] else f"[red]no[/] {r['violations'][0][:60]}"
-        name = f"[bold]{r['name']}[/] ◀" if r.get("result") else r["name"]
+        feas = "[green]yes[/]" if r["feasible"] else "[red]no[/]"
+        why = "" if r["feasible"] else escape(r["violations"][0][:60])
+        name = f"[bold]{escape(r['name'])}[/] ◀" if r.get("result") else escape(r["name"])
         t.add_row(name, r["kind"], _num(r.get("score")), _num(r.get("worst_sigma_ratio"), ".3g"),
                   _num(r.get("log_det"), ".1f"), _num(r.get("trace_inv"), ".3g"),
-                  _num(r.get("rotation_excitation"), ".3g"), ratio, feas)
+                  _num(r.get("rotation_excitation"), ".3g"), ratio, feas, why)
     return t
 
 
 def write_outputs(result: OptimizeResult, out: Path, origin: tuple[float, float] | None = None) -> list[Path]:
     """maneuver.tum, control.csv, waypoints.csv, report.json, comparison.json in ``out`` (and
     maneuver.geojson when the lot is georeferenced: ``origin`` (lon, lat))."""
+    from ..optimize.site import maneuver_geojson
+    from ..routes import write_control_csv, write_tum, write_waypoints_csv
+
     out.mkdir(parents=True, exist_ok=True)
     paths = [write_tum(result.trajectory, out / "maneuver.tum"),
              write_control_csv(result.profile, out / "control.csv"),
@@ -80,14 +85,15 @@ def write_outputs(result: OptimizeResult, out: Path, origin: tuple[float, float]
 def optimize(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output folder.")],
     rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
-    duration: Annotated[float, typer.Option(help="Maneuver duration [s], rest to rest.")] = 90.0,
+    duration: Annotated[float, typer.Option(help=f"Maneuver duration [s], rest to rest; range {_B['duration_s']}.")] = 90.0,
     lot: Annotated[str, typer.Option(help="The lot: XxY [m] (a rectangle, extent along x then y, centred) "
                                           "or a GeoJSON file (Polygon with keep-out holes, entry Point, "
                                           "ramp/bank/bump Polygons).")] = "80x50",
-    seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
-    time_budget: Annotated[float, typer.Option(help="Wall-clock budget of the whole command [s].")] = 60.0,
+    seed: Annotated[int, typer.Option(help=f"Seed of the random candidates; range {_B['seed']}.")] = 0,
+    time_budget: Annotated[float, typer.Option(
+        help=f"Wall-clock budget of the whole command [s]; range {_B['time_budget_s']}.")] = 60.0,
     closed: Annotated[bool, typer.Option(help="End where it started (position and heading).")] = False,
-    n_random: Annotated[int, typer.Option(help="Random candidates in the comparison.")] = 200,
+    n_random: Annotated[int, typer.Option(help=f"Random candidates in the comparison; range {_B['n_random']}.")] = 200,
     criterion: Annotated[str, typer.Option(help="What to maximise: E (λ_min, the score), D (log det), "
                                                 "A (−trace of the inverse).")] = "E",
 ) -> None:
@@ -96,6 +102,15 @@ def optimize(
     The result is the best drive, among everything this run has seen, that passed the limit and
     lot check. Ctrl-C keeps the best checked drive found so far and writes it.
     """
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ..optimize import OptimizeSettings, optimize as run_optimize
+    from ..optimize import Progress as OptProgress
+    from ..optimize.site import parse_lot
+    from ..rig import load_rig
+
+    if out.exists() and not out.is_dir():
+        raise ExciteError(f"-o/--out: {out} exists and is not a folder")
     site = parse_lot(lot)
     OptimizeSettings(time_budget_s=time_budget)  # validate the budget as given
     # the budget bounds the whole command: start-up so far and writing the files come off it
@@ -103,7 +118,7 @@ def optimize(
     settings = OptimizeSettings(duration_s=duration, site=site, seed=seed, time_budget_s=max(left, 0.5),
                                 closed=closed, n_random=n_random, criterion=criterion)
     r = load_rig(rig)
-    console = Console()
+    out_console = console()
     interrupted = {"flag": False}
 
     def on_sigint(signum, frame):  # first Ctrl-C: stop gracefully; second: abort
@@ -116,7 +131,7 @@ def optimize(
         with Progress(TextColumn("[bold]{task.fields[phase]:<9}"), BarColumn(),
                       TextColumn("it {task.fields[it]:>4}  model {task.fields[score]}  "
                                  "violation {task.fields[viol]}"), TimeElapsedColumn(),
-                      console=console, transient=False) as bar:
+                      console=out_console, transient=False) as bar:
             task = bar.add_task("optimize", total=settings.time_budget_s, phase="start", it=0,
                                 score="—", viol="—")
 
@@ -128,9 +143,9 @@ def optimize(
             result = run_optimize(r, settings, progress=on_progress, should_stop=lambda: interrupted["flag"])
     finally:
         signal.signal(signal.SIGINT, old)
-    console.print(comparison_table(result))
-    console.print(f"status [bold]{result.status}[/] (IPOPT: {result.ipopt_status}, {result.iterations} "
+    out_console.print(comparison_table(result))
+    out_console.print(f"status [bold]{result.status}[/] (IPOPT: {result.ipopt_status}, {result.iterations} "
                   f"iterations); result: {result.source}; {result.elapsed_s:.1f} s of the {time_budget:g} s "
                   f"budget; score {result.report.score:.4g}" + (f"\n{result.message}" if result.message else ""))
     for p in write_outputs(result, out, site.origin):
-        console.print(f"wrote {p}")
+        out_console.print(f"wrote {p}")

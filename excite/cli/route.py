@@ -5,13 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
-from rich.console import Console
-from rich.table import Table
-from rich.text import Text
 
-from . import app
+from . import app, console
 
 route_app = typer.Typer(no_args_is_help=True, help="Inspect route files.")
 app.add_typer(route_app, name="route")
@@ -20,13 +16,15 @@ app.add_typer(route_app, name="route")
 def route_summary(traj, limits, rate_hz: float = 20.0) -> dict:
     """Duration, length and (min, max) of speed, longitudinal acceleration, yaw rate, pitch and
     roll of a trajectory, and its limit violations."""
+    import numpy as np
+
     from .. import so3
     from ..vehicle import check_limits
 
     s = traj.sample(traj.times(rate_hz))
     ypr = so3.yaw_pitch_roll(s.R_W_V)
 
-    def rng(x: np.ndarray) -> tuple[float, float]:
+    def rng(x: "np.ndarray") -> tuple[float, float]:
         return float(np.min(x)), float(np.max(x))
 
     return {
@@ -49,23 +47,26 @@ def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .g
          ) -> None:
     """Duration, length, ranges of speed, acceleration, yaw rate, pitch and roll, and every
     limit violation (default limits)."""
+    from rich.table import Table
+    from rich.text import Text
+
     from ..routes import read_route
     from ..vehicle import Limits
 
     limits = Limits()
     traj = read_route(file, times=times, limits=limits)
     summary = route_summary(traj, limits)
-    console = Console()
+    out_console = console()
     table = Table(title=Text(f"{file.name}: {summary['duration_s']:.1f} s, {summary['length_m']:.1f} m"))
     table.add_column("quantity")
     table.add_column("min", justify="right")
     table.add_column("max", justify="right")
     for name, (lo, hi) in summary["ranges"].items():
         table.add_row(Text(name), f"{lo:.3g}", f"{hi:.3g}")
-    console.print(table)
+    out_console.print(table)
     if summary["violations"]:
-        console.print(f"{len(summary['violations'])} limit violation(s):")
+        out_console.print(f"{len(summary['violations'])} limit violation(s):")
         for v in summary["violations"]:
-            console.print(f"  {v}", markup=False, highlight=False)
+            out_console.print(f"  {v}", markup=False, highlight=False)
     else:
-        console.print("within all limits")
+        out_console.print("within all limits")

@@ -4,26 +4,28 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
-from rich.console import Console
-from rich.table import Table
 
-from ..evaluate import Options, Report, evaluate
-from ..rig import bundled_rigs, load_rig, rig_text
-from ..units import human
-from ..routes import read_route
-from . import app
+from .. import bounds
+from . import app, console
 
-def print_report(rep: Report, console: Console) -> None:
+if TYPE_CHECKING:
+    from ..evaluate import Report
+
+def print_report(rep: Report, console: Any) -> None:
     """The report as tables for a terminal."""
+    from rich.table import Table
+
+    from ..units import human
+
     verdict = "[green]PASS[/]" if rep.passed else "[red]FAIL[/]"
     console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]: {rep.duration_s:.1f} s, "
                   f"{rep.length_m:.0f} m, {rep.n_keyframes} keyframes")
     cond = "∞" if rep.condition_number is None else f"{rep.condition_number:.3g}"
     console.print(f"score λ_min(SΛS) = [bold]{rep.score:.4g}[/]  {verdict}   rank {rep.rank}/"
-                  f"{rep.rank + rep.nullity} (threshold {rep.rank_threshold:.2g})   condition {cond}")
+                  f"{rep.rank + rep.nullity} (normalised threshold {rep.rank_threshold:.2g})   condition {cond}")
     t = Table(title="Cramér–Rao σ per parameter (from the drive alone)", title_justify="left")
     t.add_column("parameter")
     t.add_column("σ", justify="right")
@@ -64,7 +66,7 @@ def print_report(rep: Report, console: Console) -> None:
         console.print(s)
 
 
-@app.command()
+@app.command(epilog=f"Bounds (excite.bounds): {bounds.describe()}.")
 def score(
     route: Annotated[Path, typer.Argument(help="Route file: waypoints/control CSV, GeoJSON, TUM, "
                                                 "KITTI (with --times), EuRoC CSV.")],
@@ -79,6 +81,10 @@ def score(
         help="Colour the route by the information on this parameter (default: the weakest mode).")] = None,
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
+    from ..evaluate import Options, evaluate
+    from ..rig import load_rig
+    from ..routes import read_route
+
     r = load_rig(rig)
     if plot_parameter is not None and plot_parameter not in [c.name for c in r.scored]:
         raise typer.BadParameter(f"no parameter {plot_parameter!r} in rig {r.name} "
@@ -97,7 +103,7 @@ def score(
     if json_out:
         typer.echo(json.dumps(rep.to_dict(), indent=2))
     else:
-        print_report(rep, Console())
+        print_report(rep, console())
 
 
 rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs.")
@@ -107,6 +113,8 @@ app.add_typer(rig_app, name="rig")
 @rig_app.command("show")
 def rig_show(name: Annotated[str, typer.Argument(help="Bundled rig name or rig YAML path.")] = "robotaxi") -> None:
     """Print a rig's YAML (validated first)."""
+    from ..rig import load_rig, rig_text
+
     load_rig(name)
     typer.echo(rig_text(name), nl=False)
 
@@ -114,5 +122,7 @@ def rig_show(name: Annotated[str, typer.Argument(help="Bundled rig name or rig Y
 @rig_app.command("list")
 def rig_list() -> None:
     """Names of the bundled rigs."""
+    from ..rig import bundled_rigs
+
     for n in bundled_rigs():
         typer.echo(n)

@@ -4,26 +4,26 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
-import numpy as np
 import typer
-from rich.console import Console
-from rich.table import Table
 
-from .. import so3
-from ..rig import Rig, load_rig
-from ..routes import read_route
-from ..trajectory import Trajectory
-from ..validate.calibrate import SolverSettings
-from ..validate.monte_carlo import MonteCarloResult, MonteCarloSettings, Trial, monte_carlo
-from ..validate.simulate import SimulationSettings, ValidateError
-from . import app
-from ..units import display_unit
+from . import app, console
+
+if TYPE_CHECKING:
+    from ..rig import Rig
+    from ..trajectory import Trajectory
+    from ..validate.monte_carlo import MonteCarloResult
 
 
 def crop(traj: Trajectory, duration_s: float, rate_hz: float = 100.0) -> Trajectory:
     """The first ``duration_s`` of a drive (re-fitted from samples at ``rate_hz``, tilt kept)."""
+    import numpy as np
+
+    from .. import so3
+    from ..trajectory import Trajectory
+    from ..validate.simulate import ValidateError
+
     if duration_s >= traj.duration:
         return traj
     if duration_s <= 0:
@@ -44,14 +44,20 @@ def with_imu_rate(rig: Rig, rate_hz: float) -> Rig:
 
 
 def _fmt(value: float | None, unit: str) -> str:
+    from ..units import display_unit
+
     if value is None:
         return "—"
     f, _ = display_unit(unit)
     return f"{value * f:.3g}"
 
 
-def print_result(res: MonteCarloResult, console: Console) -> None:
+def print_result(res: MonteCarloResult, console: Any) -> None:
     """The Monte Carlo comparison as tables for a terminal."""
+    from rich.table import Table
+
+    from ..units import display_unit
+
     rep = res.report
     n = len(res.trials)
     conf = int(round(100 * res.settings.confidence))
@@ -109,6 +115,12 @@ def validate(
     quiet: Annotated[bool, typer.Option(help="No progress line.")] = False,
 ) -> None:
     """Simulate the rig's sensors on the route, calibrate N times, compare with the predicted σ."""
+    from ..rig import load_rig
+    from ..routes import read_route
+    from ..validate.calibrate import SolverSettings
+    from ..validate.monte_carlo import MonteCarloSettings, Trial, monte_carlo
+    from ..validate.simulate import SimulationSettings
+
     r = load_rig(rig)
     if imu_rate is not None:
         r = with_imu_rate(r, imu_rate)
@@ -117,7 +129,7 @@ def validate(
         traj = crop(traj, duration)
     settings = MonteCarloSettings(runs=runs, seed=seed, offset_in_targets=offset,
                                   simulation=SimulationSettings(), solver=SolverSettings(rank_rtol=rank_rtol))
-    err = Console(stderr=True)
+    err = console(stderr=True)
     show = not quiet and not json_out and err.is_terminal
 
     def progress(trial: Trial) -> None:
@@ -131,4 +143,4 @@ def validate(
     else:
         if show:
             err.print(" " * 70, end="\r")
-        print_result(res, Console())
+        print_result(res, console())

@@ -18,6 +18,9 @@ from ..trajectory import Trajectory
 
 STATE_DIM = 9
 ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
+# with random-walk IMU biases every keyframe also carries the bias deviations [δb_g, δb_a]
+BIAS_STATE_DIM = 15
+BIAS = slice(9, 15)
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,9 @@ def coarse_rig(rig: Rig, keyframe_rate_hz: float = 2.0, imu_substeps: int = 4) -
 
     Relative-pose σ grow with √(old rate / new rate): chaining the fine measurements over one
     coarse interval has about that noise. The IMU, wheel and slip noise are densities: they are
-    kept (each factor converts its density to the coarse interval).
+    kept (each factor converts its density to the coarse interval). The IMU biases are constant
+    in the optimizer's model: on maneuvers of a few minutes the random walk moves the score by
+    little (README, "What the numbers assume"), and the result is re-scored with the rig's own model.
     """
     c = rig.config.model_dump()
     sensors = []
@@ -46,7 +48,7 @@ def coarse_rig(rig: Rig, keyframe_rate_hz: float = 2.0, imu_substeps: int = 4) -
             "rotation_sigma_deg": s["noise"]["rotation_sigma_deg"] * f,
             "translation_sigma_m": s["noise"]["translation_sigma_m"] * f}))
     changes = dict(keyframe_rate_hz=keyframe_rate_hz, sensors=sensors,
-                   imu=dict(c["imu"], update_rate=keyframe_rate_hz * imu_substeps))
+                   imu=dict(c["imu"], update_rate=keyframe_rate_hz * imu_substeps, bias_model="constant"))
     return rig.with_config(**changes)
 
 

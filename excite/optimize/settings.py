@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from .. import bounds
 from ..errors import ExciteError
 from ..evaluate import Report
 from ..trajectory import Trajectory
@@ -59,19 +60,15 @@ class OptimizeSettings:
                 raise OptimizeError(f"{name} must be a finite number, got {value!r}")
             return float(value)
 
-        if not 10.0 <= finite("duration_s") <= 600.0:
-            raise OptimizeError(f"duration_s must be between 10 and 600 s, got {self.duration_s!r}")
-        for name in ("lot_x_m", "lot_y_m"):
-            if not 15.0 <= finite(name) <= 2000.0:
-                raise OptimizeError(f"{name} must be between 15 and 2000 m, got {getattr(self, name)!r}")
-        if not 0.5 <= finite("time_budget_s") <= 3600.0:
-            raise OptimizeError(f"time_budget_s must be between 0.5 and 3600 s, got {self.time_budget_s!r}")
+        for name in ("duration_s", "lot_x_m", "lot_y_m", "time_budget_s"):
+            bounds.check_range(bounds.OPTIMIZE, name, finite(name), OptimizeError)
         if not isinstance(self.limits, Limits):
             raise OptimizeError(f"limits must be an excite.vehicle.Limits, got {type(self.limits).__name__}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise OptimizeError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if isinstance(self.n_random, bool) or not isinstance(self.n_random, int) or not 0 <= self.n_random <= 10000:
-            raise OptimizeError(f"n_random must be an integer between 0 and 10000, got {self.n_random!r}")
+        for name in ("seed", "n_random"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise OptimizeError(f"{name} must be an integer, got {value!r}")
+            bounds.check_range(bounds.OPTIMIZE, name, value, OptimizeError)
         if not isinstance(self.closed, bool):
             raise OptimizeError(f"closed must be true or false, got {self.closed!r}")
         if self.criterion not in ("E", "D", "A"):

@@ -1,0 +1,242 @@
+"""Soak the service: mixed traffic from 8 clients on loopback for 10 minutes, hostile requests
+included. The service must answer no 5xx at all, and its memory at the end must be within 20 %
+of the start.
+
+Starts ``excite serve`` on a free 127.0.0.1 port (its own job database in a temporary folder;
+one job worker, scoring workers as configured) and runs ``--clients`` threads. Each picks a
+request by weight:
+
+- valid scores: a 90 s figure-eight as a control profile, and a 10-minute drive as TUM text;
+- a plot, a batch of three routes, a maneuver job (short budget) polled to its end or cancelled;
+- reads: rigs, health, metrics, a job that does not exist;
+- hostile: absurd numbers (a gyro density of 1e-308, an IMU rate of 1e308, coordinates at 1e300,
+  limits at 1e308), a rig nested 950 levels deep, a rig with 500 sensors, a 3-knot control
+  route over 10⁶ s, malformed JSON, a method not allowed, and a client that announces a body
+  and stops sending (it must get 408).
+
+The service's memory is the resident set of its whole process tree (server, forkserver,
+scoring and job workers), read from /proc once the service is warm and again at the end after
+in-flight jobs have finished. Prints the counts per kind and status, p50/p99 latency of valid
+scores, and the memory; exits 1 on any 5xx, an unexpected status, or memory growth over 20 %.
+
+    python benchmarks/bench_soak.py [--duration-s 600] [--clients 8] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import random
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_api import machine, pct, route_text  # noqa: E402
+from test_api_support import LiveServer  # noqa: E402
+
+FIGURE_EIGHT = {"control": {"t_s": [0, 10, 20, 30, 40, 50, 60, 70, 80, 90],
+                            "speed_mps": [0, 4, 6, 6, 5, 6, 6, 5, 3, 0],
+                            "curvature_1pm": [0, 0.1, 0.12, -0.1, -0.12, 0.1, 0.12, -0.1, -0.05, 0]}}
+LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
+
+
+def tree_rss_mb(pid: int) -> float:
+    """Resident memory of ``pid`` and every process below it [MiB]."""
+    parents, rss = {}, {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            statm = (d / "statm").read_text().split()
+        except OSError:
+            continue
+        parents[int(d.name)] = int(stat[1])
+        rss[int(d.name)] = int(statm[1]) * 4096 / 2**20
+    tree, frontier = {pid}, {pid}
+    while frontier:
+        frontier = {p for p, pp in parents.items() if pp in frontier and p not in tree}
+        tree |= frontier
+    return sum(rss.get(p, 0.0) for p in tree)
+
+
+def inline_rig(**imu: float) -> dict:
+    from excite.rig import load_rig
+
+    data = json.loads(json.dumps(load_rig("robotaxi").config.model_dump()))
+    data["imu"].update(imu)
+    return data
+
+
+class Soak:
+    def __init__(self, srv: LiveServer, tum_10min: str, seed: int):
+        self.srv, self.tum = srv, tum_10min
+        self.rng = random.Random(seed)
+        self.lock = threading.Lock()
+        self.counts: collections.Counter = collections.Counter()
+        self.latency: dict[str, list[float]] = collections.defaultdict(list)
+        self.unexpected: list[str] = []
+        rig = inline_rig()
+        many = dict(rig, sensors=[dict(rig["sensors"][0], name=f"s{i}") for i in range(500)])
+        deep = '{"route": {"waypoints": [[0, 0], [30, 0], [30, 20]]}, "rig": ' + '{"a": ' * 950 + "1" + "}" * 951
+        self.hostile = [
+            ("gyro 1e-308", "POST", "/v1/score", {"route": LOOP, "rig": inline_rig(gyroscope_noise_density=1e-308)}, {422}),
+            ("imu rate 1e308", "POST", "/v1/score", {"route": LOOP, "rig": inline_rig(update_rate=1e308)}, {422}),
+            ("coords 1e300", "POST", "/v1/score", {"route": {"waypoints": [[0, 0], [1e300, 0]]}}, {422}),
+            ("limits 1e308", "POST", "/v1/score", {"route": LOOP, "limits": {"speed_max_mps": 1e308}}, {422}),
+            ("500 sensors", "POST", "/v1/score", {"route": LOOP, "rig": many}, {422}),
+            ("control over 1e6 s", "POST", "/v1/score", {"route": {"format": "control_csv", "text":
+                "t_s,speed_mps,curvature_1pm\n0,0,0\n500000,5,0.1\n1000000,0,0\n"}}, {422}),
+            ("nested 950", "POST", "/v1/score", deep.encode(), {422}),
+            ("malformed JSON", "POST", "/v1/score", b'{"route": ', {422}),
+            ("method not allowed", "PUT", "/v1/score", {}, {405}),
+            ("maneuver 1e308 s", "POST", "/v1/maneuvers", {"duration_s": 1e308}, {422}),
+        ]
+
+    def record(self, kind: str, status: int, seconds: float, expected: set[int]) -> None:
+        with self.lock:
+            self.counts[(kind, status)] += 1
+            if status < 500 and status in expected:
+                self.latency[kind].append(seconds)
+            if status >= 500 or status not in expected:
+                self.unexpected.append(f"{kind}: {status}")
+
+    def call(self, c: httpx.Client, kind: str, method: str, path: str, body, expected: set[int]):
+        t0 = time.perf_counter()
+        try:
+            if isinstance(body, bytes):
+                r = c.request(method, path, content=body, headers={"content-type": "application/json"})
+            elif method in ("GET", "DELETE"):
+                r = c.request(method, path)
+            else:
+                r = c.request(method, path, json=body)
+            status = r.status_code
+        except httpx.HTTPError as exc:
+            status, r = 599, None
+            with self.lock:
+                self.unexpected.append(f"{kind}: {type(exc).__name__}")
+        self.record(kind, status, time.perf_counter() - t0, expected)
+        return r
+
+    def slow_body(self) -> None:
+        t0 = time.perf_counter()
+        status = 599
+        try:
+            with socket.create_connection(("127.0.0.1", self.srv.port), timeout=60) as s:
+                s.sendall(b"POST /v1/score HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                          b"Content-Length: 5000\r\n\r\n{\"route\": ")
+                data = s.recv(4096)
+                if data.startswith(b"HTTP/1.1 "):
+                    status = int(data[9:12])
+        except OSError:
+            pass
+        self.record("slow body", status, time.perf_counter() - t0, {408})
+
+    def job(self, c: httpx.Client) -> None:
+        r = self.call(c, "maneuver job", "POST", "/v1/maneuvers",
+                      {"duration_s": 30, "time_budget_s": 2, "n_random": 4}, {202})
+        if r is None or r.status_code != 202:
+            return
+        loc = r.headers["location"]
+        cancel = self.rng.random() < 0.3
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline:
+            g = self.call(c, "job poll", "GET", loc, None, {200})
+            if g is None or g.status_code != 200 or g.json()["status"] in ("succeeded", "failed", "cancelled"):
+                return
+            if cancel:
+                self.call(c, "job cancel", "DELETE", loc, None, {200, 202, 409})
+                cancel = False
+            time.sleep(1.0)
+
+    def client(self, stop_at: float, seed: int) -> None:
+        rng = random.Random(seed)
+        kinds = ["score 90 s", "score 10 min", "plot", "batch", "job", "read", "hostile", "slow body"]
+        weights = [30, 12, 4, 4, 2, 10, 16, 1]
+        with self.srv.client(timeout=120) as c:
+            while time.monotonic() < stop_at:
+                kind = rng.choices(kinds, weights)[0]
+                if kind == "score 90 s":
+                    self.call(c, kind, "POST", "/v1/score", {"route": FIGURE_EIGHT}, {200})
+                elif kind == "score 10 min":
+                    self.call(c, kind, "POST", "/v1/score", {"route": {"format": "tum", "text": self.tum}}, {200})
+                elif kind == "plot":
+                    self.call(c, kind, "POST", "/v1/score/plot", {"route": FIGURE_EIGHT}, {200})
+                elif kind == "batch":
+                    self.call(c, kind, "POST", "/v1/batch", {"routes": [FIGURE_EIGHT, LOOP, {"waypoints": [[0, 0], [0, 0]]}]}, {200})
+                elif kind == "job":
+                    self.job(c)
+                elif kind == "read":
+                    path, expected = rng.choice([("/v1/rigs", {200}), ("/healthz", {200}), ("/readyz", {200}),
+                                                 ("/metrics", {200}), ("/v1/jobs/0123456789abcdef", {404})])
+                    self.call(c, "read " + path, "GET", path, None, expected)
+                elif kind == "hostile":
+                    name, method, path, body, expected = rng.choice(self.hostile)
+                    self.call(c, "hostile: " + name, method, path, body, expected)
+                else:
+                    self.slow_body()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration-s", type=float, default=600.0)
+    parser.add_argument("--clients", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    tum = route_text(600.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        srv = LiveServer(Path(tmp), workers=1, score_workers=2, body_timeout_s=5,
+                         request_timeout_s=60).start(timeout_s=300)
+        try:
+            soak = Soak(srv, tum, args.seed)
+            with srv.client(timeout=120) as c:  # warm every path once before the first reading
+                for _ in range(2):
+                    c.post("/v1/score", json={"route": {"format": "tum", "text": tum}})
+                    c.post("/v1/score/plot", json={"route": FIGURE_EIGHT})
+            time.sleep(2)
+            rss0 = tree_rss_mb(srv.proc.pid)
+            t0 = time.monotonic()
+            stop_at = t0 + args.duration_s
+            threads = [threading.Thread(target=soak.client, args=(stop_at, args.seed * 1000 + i))
+                       for i in range(args.clients)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            elapsed = time.monotonic() - t0
+            time.sleep(5)  # let the last job workers exit and replaced scoring workers start
+            rss1 = tree_rss_mb(srv.proc.pid)
+        finally:
+            srv.stop()
+    total = sum(soak.counts.values())
+    errors_5xx = sum(n for (k, s), n in soak.counts.items() if s >= 500)
+    print(f"machine: {machine()}")
+    print(f"soak: {args.clients} clients, {elapsed:.0f} s, {total} requests ({total / elapsed:.1f}/s), "
+          f"{errors_5xx} answers 5xx or no answer, {len(soak.unexpected)} unexpected")
+    for (kind, status), n in sorted(soak.counts.items()):
+        lat = soak.latency.get(kind) or [0.0]
+        print(f"  {kind:<40} {status}  {n:>6}   p50 {pct(lat, 50) * 1e3:7.0f} ms   p99 {pct(lat, 99) * 1e3:7.0f} ms")
+    for kind in ("score 90 s", "score 10 min"):
+        lat = soak.latency.get(kind) or [float("nan")]
+        print(f"valid {kind}: p50 {pct(lat, 50) * 1e3:.0f} ms, p99 {pct(lat, 99) * 1e3:.0f} ms "
+              f"over {len(lat)} requests")
+    growth = (rss1 - rss0) / rss0
+    print(f"service RSS (whole process tree): {rss0:.0f} MiB warm → {rss1:.0f} MiB at the end "
+          f"({100 * growth:+.1f} %)")
+    if soak.unexpected:
+        print("unexpected:", collections.Counter(soak.unexpected).most_common(10))
+    ok = errors_5xx == 0 and not soak.unexpected and abs(growth) <= 0.20
+    print("PASS" if ok else "FAIL")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
