@@ -20,7 +20,7 @@ from . import problems
 from .context import Context
 from .jobs import JobRunner
 from .middleware import BodyLimit, Metrics, TimeLimit
-from .routers import batch, health, jobs, maneuvers, rigs, score
+from .routers import batch, health, jobs, maneuvers, page, rigs, score
 from .pool import WorkerPool
 from .scoring import warm
 from .settings import Settings
@@ -70,8 +70,10 @@ def create_app(settings: Settings | None = None, *,
     app.state.ctx = ctx
     app.openapi = _openapi_with_settings(app, settings)
     problems.install(app)
-    for module in (score, batch, maneuvers, jobs, rigs, health):
+    app.include_router(score.bag_router)  # multipart POST /v1/score: before the JSON route
+    for module in (score, batch, maneuvers, jobs, rigs, health, page):
         app.include_router(module.router)
+    app.mount("/static", page.static_files(), name="static")
     # added last = outermost: metrics see every answer, the body limit comes before the clock
     app.add_middleware(TimeLimit, timeout_s=settings.request_timeout_s)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)

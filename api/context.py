@@ -35,9 +35,10 @@ class Context:
         return Bounds(s.max_samples, s.max_route_duration_s, s.max_route_length_m)
 
     def submit_score(self, route: dict[str, Any], rig: Any, segments: int,
-                     limits: dict[str, float] | None, deadline: float, field: str = "route") -> cf.Future:
+                     limits: dict[str, float] | None, deadline: float, field: str = "route",
+                     track_points: int = 0) -> cf.Future:
         return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field,
-                                deadline=deadline)
+                                "rig", track_points, deadline=deadline)
 
     def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
                     limits: dict[str, float] | None, parameter: str | None, deadline: float) -> cf.Future:

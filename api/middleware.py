@@ -52,6 +52,10 @@ class BodyLimit:
                 if too_big:
                     return await send_problem(send, 413, "Content too large", "too-large", detail,
                                               scope.get("path", ""), [(b"connection", b"close")])
+        if _is_multipart(scope):
+            # Uploads (bags) stream through to the endpoint, which spools them to disk; the
+            # limit is counted on the way (ProblemError → 413 problem+json from the app).
+            return await self.app(scope, self._counted(receive, detail), send)
         # Read the body here (at most max_bytes are held), then replay it: an exception raised
         # from inside a streamed receive would surface as a parse error, not a 413.
         body = bytearray()
@@ -83,6 +87,27 @@ class BodyLimit:
             return await receive()
 
         await self.app(scope, replay, send)
+
+
+    def _counted(self, receive: Callable, detail: str) -> Callable:
+        seen = 0
+
+        async def counted() -> dict:
+            nonlocal seen
+            message = await receive()
+            seen += len(message.get("body", b""))
+            if seen > self.max_bytes:
+                from .problems import ProblemError
+
+                raise ProblemError(413, detail, headers={"Connection": "close"})
+            return message
+
+        return counted
+
+
+def _is_multipart(scope: dict) -> bool:
+    return any(name == b"content-type" and value.lower().startswith(b"multipart/form-data")
+               for name, value in scope.get("headers", []))
 
 
 class TimeLimit:

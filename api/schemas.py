@@ -149,7 +149,9 @@ RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's str
 _LOOP = {"name": "loop", "waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
 
 
-class ScoreRequest(In):
+class RouteScoring(In):
+    """What scoring one route needs (the base of the score and plot requests)."""
+
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"route": _LOOP, "rig": "robotaxi"},
         {"route": {"control": {"t_s": [0, 10, 20], "speed_mps": [0, 5, 0],
@@ -161,10 +163,20 @@ class ScoreRequest(In):
     limits: LimitsIn | None = Field(None, description="Limits that shape waypoint routes without speeds.")
 
 
-class PlotRequest(ScoreRequest):
+class ScoreRequest(RouteScoring):
+    track_points: int = Field(0, ge=0, le=5000,
+                              description="Also return the route's path in the world frame at this "
+                                          "many equally spaced times (for drawing it; 0: none).")
+
+
+class PlotRequest(RouteScoring):
     parameter: str | None = Field(None, max_length=100,
                                   description="Colour the route by the information on this parameter "
                                               "(default: on the route's weakest mode).")
+
+
+class RigYaml(In):
+    yaml: str = Field(max_length=1_000_000, description="The text of a rig YAML file (IMU block inline).")
 
 
 class BatchRequest(In):
@@ -283,6 +295,20 @@ class Report(Out):
     timings_ms: dict[str, float]
 
 
+class Track(Out):
+    """The route's path in the world frame W (x east/forward, y left), at equally spaced times."""
+
+    t_s: list[float]
+    x_m: list[float]
+    y_m: list[float]
+
+
+class ScoreResponse(Report):
+    """The report, and the route's path when the request asked for ``track_points``."""
+
+    track: Track | None = None
+
+
 class BatchItem(Out):
     index: int
     name: str | None
@@ -305,6 +331,11 @@ class BatchResponse(Out):
 
 class RigsResponse(Out):
     rigs: list[dict[str, Any]]
+
+
+class RigParsed(Out):
+    rig: dict[str, Any] = Field(description="The rig config object, to send as `rig` in other requests.")
+    summary: dict[str, Any] = Field(description="The rig as GET /v1/rigs lists it.")
 
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]

@@ -292,15 +292,44 @@ def _as_problem(fn: Callable[[], dict[str, Any]], field: str) -> dict[str, Any]:
         return {"ok": False, "status": 500, "detail": "internal error", "errors": []}
 
 
+def track(traj: Trajectory, n: int) -> dict[str, list[float]]:
+    """The path of V in W at ``n`` equally spaced times (what a page draws the route with)."""
+    t = np.linspace(traj.t_start, traj.t_end, n)
+    p = traj.sample(t).p_W_V
+    return {"t_s": t.tolist(), "x_m": p[:, 0].tolist(), "y_m": p[:, 1].tolist()}
+
+
 def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
                limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
-               rig_field: str = "rig") -> dict[str, Any]:
-    """``{"ok": True, "report": …}`` or a problem as data (status, detail, errors)."""
+               rig_field: str = "rig", track_points: int = 0) -> dict[str, Any]:
+    """``{"ok": True, "report": …}`` (with ``"track"`` when ``track_points`` > 0) or a problem
+    as data (status, detail, errors)."""
     def run() -> dict[str, Any]:
-        _, _, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field)
-        return {"ok": True, "report": _finite(report.to_dict())}
+        _, traj, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field)
+        out = {"ok": True, "report": _finite(report.to_dict())}
+        if track_points:
+            out["track"] = _finite(track(traj, track_points))
+        return out
 
     return _as_problem(run, field)
+
+
+def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | dict[str, Any],
+                   segments: int, bounds: Bounds) -> dict[str, Any]:
+    """The report of an uploaded bag (saved at ``path``) read with ``source``
+    (:class:`excite.bags.BagSource` fields); problems name the form field, never the path."""
+    from excite.bags import BagSource, read_bag_route
+
+    def run() -> dict[str, Any]:
+        r = resolve_rig(rig, "rig")
+        traj = read_bag_route(path, **BagSource(**source).options())
+        traj.name = f"{filename}:{source['topic']}"
+        if traj.duration > bounds.max_route_duration_s:
+            raise Rejected(422, "bag", f"the drive lasts {traj.duration:.1f} s, over the limit of "
+                                       f"{bounds.max_route_duration_s:g} s")
+        return {"ok": True, "report": _finite(evaluate(traj, r, Options(segments=segments)).to_dict())}
+
+    return _as_problem(run, "bag")
 
 
 def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,

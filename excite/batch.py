@@ -21,6 +21,8 @@ Routes manifest (YAML)::
         description: free text
         rig: robotaxi                    # this route's rig
         times: kitti_00_times.txt        # KITTI times file, relative to the manifest
+        topic: /odom                     # bags: pose topic or TF chain /tf:PARENT.CHILD
+        imu_topic: /imu                  # bags: measured IMU (optional)
         min_score: 1.0e-4                # λ_min(SΛS) must reach this
         determine:                       # parameter name or glob → what its σ must be
           wheel.radius_*: target         #   within the rig's target
@@ -31,8 +33,9 @@ Every error names the manifest and the key (``manifest.yaml: routes.2.determine.
 matches no parameter of rig robotaxi``). Rigs are loaded and every ``determine`` key is matched
 against the rig's parameters when the manifest is read, before anything is evaluated.
 
-Paths given to :func:`collect`: route files; folders (their route files: ``.csv .tum .txt
-.geojson .json``, without README, manifests and KITTI times files); globs; and manifests
+Paths given to :func:`collect`: route files; bags (``.bag``, ``.mcap``, ROS 2 bag folders; the
+trajectory source is ``topic``); folders (their route files: ``.csv .tum .txt .geojson .json``
+and bags, without README, manifests and KITTI times files); globs; and manifests
 (``.yaml``/``.yml``). A KITTI poses file ``…poses….txt`` pairs with the ``…times….txt`` next
 to it when there is one.
 """
@@ -70,7 +73,7 @@ __all__ = [
 
 ROUTE_SUFFIXES = (".csv", ".tum", ".txt", ".geojson", ".json")
 _MANIFEST_SUFFIXES = (".yaml", ".yml")
-_ROUTE_KEYS = ("route", "name", "description", "rig", "times", "min_score", "determine")
+_ROUTE_KEYS = ("route", "name", "description", "rig", "times", "topic", "imu_topic", "min_score", "determine")
 _TOP_KEYS = ("version", "description", "rig", "routes")
 COMMAND_LINE = "command line"
 
@@ -103,6 +106,8 @@ class RouteSpec:
     min_score: float | None = None
     determine: tuple[Bound, ...] = ()
     error: str | None = None
+    topic: str | None = None  # bags: the trajectory source
+    imu_topic: str | None = None
 
     @property
     def default_gate(self) -> bool:
@@ -174,6 +179,10 @@ def _is_glob(text: str) -> bool:
 
 
 def _is_route_file(p: Path) -> bool:
+    from .bags import is_bag
+
+    if is_bag(p):
+        return True
     name = p.name.lower()
     if not p.is_file() or p.suffix.lower() not in ROUTE_SUFFIXES or name.startswith("readme"):
         return False
@@ -299,16 +308,20 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
         times = entry.get("times")
         if times is not None and not isinstance(times, str):
             raise ManifestError(f"{where}: {key}.times: expected a path, got {times!r}")
+        for k in ("topic", "imu_topic"):
+            if entry.get(k) is not None and not (isinstance(entry[k], str) and entry[k]):
+                raise ManifestError(f"{where}: {key}.{k}: expected a topic name, got {entry[k]!r}")
         min_score = _min_score(entry["min_score"], f"{key}.min_score", where) if "min_score" in entry else None
         bounds = (_resolve_bounds(entry["determine"], rig, rig_ref, f"{key}.determine", where)
                   if "determine" in entry else ())
         name = entry.get("name")
         if name is not None and not isinstance(name, str):
             raise ManifestError(f"{where}: {key}.name: expected text, got {name!r}")
-        common = dict(rig=rig_ref, source=where, min_score=min_score, determine=bounds)
+        common = dict(rig=rig_ref, source=where, min_score=min_score, determine=bounds,
+                      topic=entry.get("topic"), imu_topic=entry.get("imu_topic"))
         times_path = str(base / times) if times is not None else None
         if _is_glob(route):
-            files = [p for p in _expand(route, base) if p.is_file()]
+            files = [p for p in _expand(route, base) if p.is_file() or _is_route_file(p)]
             if not files:
                 specs.append(RouteSpec(str(base / route), name or route, error=f"{key}.route: no file matches "
                                        f"{route!r} in {_display(base)}", **common))
@@ -321,26 +334,29 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
     return specs
 
 
-def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float | None = None) -> list[RouteSpec]:
+def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float | None = None,
+            topic: str | None = None, imu_topic: str | None = None) -> list[RouteSpec]:
     """The routes named by ``paths`` (files, folders, globs, manifests), in order.
 
     Routes from the command line get ``rig`` and ``min_score``; a manifest's routes carry their
-    own expectations (``rig`` is their default rig when the manifest names none). A path that
-    does not exist becomes that route's error.
+    own expectations (``rig`` is their default rig when the manifest names none); bags from the
+    command line are read with ``topic`` and ``imu_topic``. A path that does not exist becomes
+    that route's error.
     """
     if min_score is not None and not (math.isfinite(min_score) and min_score >= 0):
         raise ManifestError(f"--min-score must be a number ≥ 0, got {min_score}")
     specs: list[RouteSpec] = []
 
     def route(p: Path) -> None:
-        specs.append(RouteSpec(str(p), _display(p), rig, min_score=min_score, times=_kitti_times(p)))
+        specs.append(RouteSpec(str(p), _display(p), rig, min_score=min_score, times=_kitti_times(p),
+                               topic=topic, imu_topic=imu_topic))
 
     for raw in paths:
         text = str(raw)
         p = Path(text)
         if p.suffix.lower() in _MANIFEST_SUFFIXES and not _is_glob(text):
             specs.extend(load_manifest(p, default_rig=rig))
-        elif p.is_dir():
+        elif p.is_dir() and not _is_route_file(p):
             files = sorted(q for q in p.iterdir() if _is_route_file(q))
             if not files:
                 specs.append(RouteSpec(text, _display(p), rig, min_score=min_score,
@@ -349,7 +365,7 @@ def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float
             for q in files:
                 route(q)
         elif _is_glob(text):
-            matches = [m for m in _expand(text) if m.is_file()]
+            matches = [m for m in _expand(text) if m.is_file() or _is_route_file(m)]
             if not matches:
                 specs.append(RouteSpec(text, text, rig, min_score=min_score, error=f"no file matches {text!r}"))
             for m in matches:
@@ -438,6 +454,7 @@ def _advice(report: Report, fails: list[Failure]) -> list[str]:
 def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
     """Evaluate one route and check it. Never raises for bad input: a route that cannot be read
     or evaluated comes back with ``error`` set (and the traceback when it was a bug)."""
+    from .bags import BagSource, is_bag
     from .routes import read_route
 
     t0 = time.perf_counter()
@@ -447,7 +464,8 @@ def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
         return res
     try:
         rig = _rig(spec.rig)
-        traj = read_route(spec.path, times=spec.times, suspension=rig.suspension)
+        bag = BagSource(spec.topic, spec.imu_topic) if is_bag(spec.path) else None
+        traj = read_route(spec.path, times=spec.times, suspension=rig.suspension, bag=bag)
         rep = evaluate(traj, rig)
     except ExciteError as exc:
         res.error = str(exc)

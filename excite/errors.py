@@ -2,6 +2,7 @@
 
     ExciteError                 base of every error excite raises on purpose
     ├── RouteError              a route file or route data is malformed (names file, line, problem)
+    │   └── BagError            a bag cannot be read as asked (excite.bags: names file, topic, problem)
     ├── RigError                a rig config is malformed (names the key)
     ├── LimitError              a request for a drive cannot be met within the vehicle's limits
     ├── EvaluationError         the information model cannot be evaluated for this input

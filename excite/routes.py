@@ -55,7 +55,7 @@ import re
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -67,6 +67,9 @@ from .errors import RouteError
 from .paths import plan_given_speed, plan_speed, profile_from_plan, smooth_path
 from .trajectory import Trajectory
 from .vehicle import ControlProfile, Limits, Suspension, drive
+
+if TYPE_CHECKING:
+    from .bags import BagSource
 
 __all__ = [
     "read_route", "read_tum", "read_kitti", "read_euroc", "read_waypoints_csv", "read_geojson",
@@ -620,19 +623,28 @@ def _sniff_txt(path: Path) -> int:
 
 def read_route(path: str | Path, times: str | Path | None = None, limits: Limits = Limits(), *,
                suspension: Suspension = Suspension(), cutoff_hz: float = DEFAULT_CUTOFF_HZ,
-               rate_hz: float | None = None) -> Trajectory:
+               rate_hz: float | None = None, bag: "BagSource | None" = None) -> Trajectory:
     """Any supported route file as a trajectory of V, the format chosen by extension and content.
 
     ``.geojson``/``.json`` → GeoJSON; ``.tum`` → TUM; ``.txt`` → KITTI (12 columns, needs
     ``times``) or TUM (8 columns); ``.csv`` → EuRoC (``#timestamp`` header or ≥ 8 numeric
-    columns), control CSV (header with ``curvature``) or waypoints. ``limits`` and ``suspension``
-    shape waypoint, GeoJSON and control routes; ``cutoff_hz``/``rate_hz`` the timed-pose fit.
+    columns), control CSV (header with ``curvature``) or waypoints; ``.bag``, ``.mcap`` or a
+    ROS 2 bag folder → :func:`excite.bags.read_bag_route` with the topic and options of ``bag``.
+    ``limits`` and ``suspension`` shape waypoint, GeoJSON and control routes;
+    ``cutoff_hz``/``rate_hz`` the timed-pose fit (bags included).
     """
+    from .bags import BagSource, is_bag, read_bag_route
+
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(2, "No such file or directory", str(path))
     ext = path.suffix.lower()
     timed = {"cutoff_hz": cutoff_hz, "rate_hz": rate_hz}
+    if is_bag(path):
+        return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
+    if bag is not None:
+        raise RouteError("--topic and the other bag options apply to bags only (.bag, .mcap, a "
+                         "ROS 2 bag folder)", source=str(path))
     if times is not None:
         return read_kitti(path, times, **timed)
     if ext in (".geojson", ".json"):
@@ -656,7 +668,8 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
             return read_control_csv(path, suspension=suspension)
         return read_waypoints_csv(path, limits=limits, suspension=suspension)
     raise RouteError(f"unknown route format {ext or '(no extension)'!r}: use .csv, .tum, .txt "
-                     "(KITTI with --times, or TUM), .geojson", source=str(path))
+                     "(KITTI with --times, or TUM), .geojson, or a bag (.bag, .mcap, ROS 2 folder)",
+                     source=str(path))
 
 
 # --------------------------------------------------------------------------------------------

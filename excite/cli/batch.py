@@ -52,13 +52,16 @@ def batch(
     junit: Annotated[Optional[Path], typer.Option(help="Write JUnit XML here (one test case per route).")] = None,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write every result and report as JSON here.")] = None,
     jobs: Annotated[Optional[int], typer.Option(help="Parallel processes (default: one per core).")] = None,
+    topic: Annotated[Optional[str], typer.Option(
+        help="Trajectory source of the bags given directly (manifest routes name their own).")] = None,
+    imu_topic: Annotated[Optional[str], typer.Option(help="IMU topic of the bags given directly.")] = None,
 ) -> None:
     """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from .. import batch as gate
 
-    specs = gate.collect(paths, rig=rig, min_score=min_score)
+    specs = gate.collect(paths, rig=rig, min_score=min_score, topic=topic, imu_topic=imu_topic)
     err = console(stderr=True)
     t0 = time.perf_counter()
     with Progress(TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

@@ -41,17 +41,44 @@ def route_summary(traj, limits, rate_hz: float = 20.0) -> dict:
     }
 
 
-@route_app.command("info")
-def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .geojson"),
-         times: Optional[Path] = typer.Option(None, "--times", help="KITTI times file"),
-         ) -> None:
-    """Duration, length, ranges of speed, acceleration, yaw rate, pitch and roll, and every
-    limit violation (default limits)."""
+def bag_table(file: Path) -> None:
+    """What a bag holds and what excite can use of it, as a table."""
     from rich.table import Table
     from rich.text import Text
 
+    from ..bags import bag_info
+
+    topics = bag_info(file)
+    table = Table(title=Text(f"{file.name}: {len(topics)} topics"))
+    for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"),
+                      ("rate [Hz]", "right"), ("span [s]", "right"), ("use (excite score --topic / --imu-topic)", "left")):
+        table.add_column(col, justify=just, overflow="fold")
+    for t in topics:
+        use = {"pose": f"--topic {t.topic}", "imu": f"--imu-topic {t.topic}",
+               "tf": "\n".join(f"--topic {s}" for s in t.sources)}.get(t.use, "—")
+        rate = "—" if t.rate_hz is None else f"{t.rate_hz:.3g}"
+        table.add_row(Text(t.topic), Text(t.msgtype.replace("/msg/", "/")), str(t.count), rate,
+                      f"{t.duration_s:.1f}", Text(use))
+    console().print(table)
+
+
+@route_app.command("info")
+def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .geojson, or a bag "
+                                               "(.bag, .mcap, ROS 2 folder)"),
+         times: Optional[Path] = typer.Option(None, "--times", help="KITTI times file"),
+         ) -> None:
+    """Duration, length, ranges of speed, acceleration, yaw rate, pitch and roll, and every
+    limit violation (default limits). For a bag: its topics, types, counts, rates and spans,
+    and which can be scored (pose topics, TF chains) or give the IMU."""
+    from rich.table import Table
+    from rich.text import Text
+
+    from ..bags import is_bag
     from ..routes import read_route
     from ..vehicle import Limits
+
+    if is_bag(file):
+        return bag_table(file)
 
     limits = Limits()
     traj = read_route(file, times=times, limits=limits)

@@ -69,7 +69,8 @@ def print_report(rep: Report, console: Any) -> None:
 @app.command(epilog=f"Bounds (excite.bounds): {bounds.describe()}.")
 def score(
     route: Annotated[Path, typer.Argument(help="Route file: waypoints/control CSV, GeoJSON, TUM, "
-                                                "KITTI (with --times), EuRoC CSV.")],
+                                                "KITTI (with --times), EuRoC CSV, or a bag (.bag, "
+                                                ".mcap, ROS 2 folder) with --topic.")],
     times: Annotated[Optional[Path], typer.Option(help="KITTI times file.")] = None,
     rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
     json_out: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
@@ -79,8 +80,21 @@ def score(
                                                       "the scaled spectrum, σ/target per parameter.")] = None,
     plot_parameter: Annotated[Optional[str], typer.Option(
         help="Colour the route by the information on this parameter (default: the weakest mode).")] = None,
+    topic: Annotated[Optional[str], typer.Option(
+        help="Bags: the trajectory source, a pose topic or a TF chain /tf:PARENT.CHILD.")] = None,
+    imu_topic: Annotated[Optional[str], typer.Option(
+        help="Bags: a sensor_msgs/Imu topic; its measured rate and specific force replace the "
+             "poses' derivatives.")] = None,
+    start: Annotated[Optional[float], typer.Option(help="Bags: window start [s from the bag's start].")] = None,
+    end: Annotated[Optional[float], typer.Option(help="Bags: window end [s from the bag's start].")] = None,
+    vehicle_frame: Annotated[Optional[str], typer.Option(
+        help="Bags: the robot frame to take as V, reached from the poses' frame via /tf_static.")] = None,
+    axes: Annotated[str, typer.Option(
+        help="Bags: axes of the logged poses: vehicle (x forward, z up) or optical (x right, "
+             "y down, z forward).")] = "vehicle",
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
+    from ..bags import BagSource, ImuTrajectory, imu_agreement
     from ..evaluate import Options, evaluate
     from ..rig import load_rig
     from ..routes import read_route
@@ -90,7 +104,14 @@ def score(
         raise typer.BadParameter(f"no parameter {plot_parameter!r} in rig {r.name} "
                                  f"(parameters: {', '.join(c.name for c in r.scored)})",
                                  param_hint="--plot-parameter")
-    traj = read_route(route, times=times, suspension=r.suspension)
+    given = (topic, imu_topic, start, end, vehicle_frame)
+    bag = None if all(x is None for x in given) and axes == "vehicle" else \
+        BagSource(topic, imu_topic, start, end, vehicle_frame, axes)
+    traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
+    if isinstance(traj, ImuTrajectory):
+        pose = r.config.vehicle.T_V_B
+        typer.echo(f"IMU {imu_topic} (frame {traj.imu_frame}) gives the angular rate and specific "
+                   f"force; {imu_agreement(traj, pose.R, pose.p).text()}", err=True)
     rep = evaluate(traj, r, Options(segments=segments))
     if plot is not None:
         from .. import plots
@@ -106,7 +127,8 @@ def score(
         print_report(rep, console())
 
 
-rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs.")
+rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs; import rigs from TF, "
+                                                 "Kalibr and Autoware files.")
 app.add_typer(rig_app, name="rig")
 
 

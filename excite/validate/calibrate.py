@@ -195,6 +195,7 @@ class _Problem:
     """Residuals and Jacobian of the joint problem for fixed data, rig and gauge reference."""
 
     def __init__(self, data: SensorData, rig: Rig, gauge_R: np.ndarray, gauge_p: np.ndarray):
+        rig = rig.with_constant_biases()  # one bias per drive, as the simulator draws it
         self.data, self.rig = data, rig
         self.coords = rig.coordinates
         self.K = data.n_keyframes

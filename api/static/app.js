@@ -1,0 +1,581 @@
+// The planners' page: plain DOM and SVG, no library, no build step. It talks only to this
+// service's own API (same origin), so it works offline.
+"use strict";
+
+const $ = (sel, root = document) => root.querySelector(sel);
+const SVG_NS = "http://www.w3.org/2000/svg";
+const state = { rigs: [], uploadedRig: null, report: null, track: null, sort: { key: null, dir: 1 }, job: null, schema: null };
+
+function el(tag, attrs = {}, ...children) {
+  const node = tag.startsWith("svg:") ? document.createElementNS(SVG_NS, tag.slice(4)) : document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (v === null || v === undefined || v === false) continue;
+    if (k === "text") node.textContent = v;
+    else node.setAttribute(k, v === true ? "" : v);
+  }
+  for (const c of children) if (c !== null && c !== undefined) node.append(c);
+  return node;
+}
+
+function fmt(x, digits = 3) {
+  if (x === null || x === undefined) return "—";
+  if (x === 0) return "0";
+  const a = Math.abs(x);
+  return a >= 1e4 || a < 1e-3 ? x.toExponential(digits - 1) : x.toPrecision(digits);
+}
+
+// ------------------------------------------------------------------------------------------
+// Talking to the service: JSON in, JSON or problem+json out.
+
+class Problem extends Error {
+  constructor(body, status) {
+    super(body.detail || `HTTP ${status}`);
+    this.status = status;
+    this.errors = body.errors || [];
+  }
+}
+
+async function api(method, path, body) {
+  const init = { method, headers: { Accept: "application/json" } };
+  if (body !== undefined) {
+    init.headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  const r = await fetch(path, init);
+  const type = r.headers.get("content-type") || "";
+  const data = type.includes("json") ? await r.json() : await r.text();
+  if (!r.ok) throw new Problem(typeof data === "object" ? data : { detail: String(data) }, r.status);
+  return data;
+}
+
+// Show each of a problem's errors next to the field it names. An error element claims the
+// fields listed in its data-field (a name or a dotted prefix: "route" takes "route.text").
+function showProblem(form, problem, fallback) {
+  clearErrors(form);
+  const targets = [...document.querySelectorAll(".error[data-field]")].filter((e) => e.dataset.field);
+  const errors = problem.errors && problem.errors.length ? problem.errors : [{ field: "", message: problem.message }];
+  for (const err of errors) {
+    const f = err.field || "";
+    let best = null, bestLen = -1;
+    for (const t of targets) {
+      for (const name of t.dataset.field.split(" ")) {
+        if ((f === name || f.startsWith(name + ".") || f.startsWith(name + "[")) && name.length > bestLen) {
+          best = t; bestLen = name.length;
+        }
+      }
+    }
+    const target = best || fallback;
+    target.textContent = (target.textContent ? target.textContent + " " : "") + (best ? err.message : `${f ? f + ": " : ""}${err.message}`);
+    const input = target.id && document.querySelector(`[aria-describedby~="${target.id}"]`);
+    if (input) input.setAttribute("aria-invalid", "true");
+  }
+}
+
+function clearErrors(form) {
+  for (const e of document.querySelectorAll(".error")) if (form.contains(e) || e.id === "rig-error") e.textContent = "";
+  for (const i of document.querySelectorAll("[aria-invalid]")) i.removeAttribute("aria-invalid");
+}
+
+// ------------------------------------------------------------------------------------------
+// Tabs
+
+function selectTab(tab) {
+  for (const t of document.querySelectorAll('[role="tab"]')) {
+    const on = t === tab;
+    t.setAttribute("aria-selected", String(on));
+    t.tabIndex = on ? 0 : -1;
+    document.getElementById(t.getAttribute("aria-controls")).hidden = !on;
+  }
+  if (tab.id === "tab-plan") loadSchema();
+}
+
+function initTabs() {
+  const tabs = [...document.querySelectorAll('[role="tab"]')];
+  tabs.forEach((t, i) => {
+    t.addEventListener("click", () => selectTab(t));
+    t.addEventListener("keydown", (ev) => {
+      const d = ev.key === "ArrowRight" ? 1 : ev.key === "ArrowLeft" ? -1 : 0;
+      if (!d) return;
+      const next = tabs[(i + d + tabs.length) % tabs.length];
+      selectTab(next);
+      next.focus();
+    });
+  });
+}
+
+// ------------------------------------------------------------------------------------------
+// Rig: a bundled one by name, or an uploaded YAML the service reads for us.
+
+async function initRigs() {
+  const select = $("#rig-select");
+  const { rigs } = await api("GET", "/v1/rigs");
+  state.rigs = rigs;
+  select.replaceChildren(...rigs.map((r) => el("option", { value: r.name, text: `${r.name} — ${r.description}` })),
+    el("option", { value: "@upload", text: "upload a rig YAML…" }));
+  select.addEventListener("change", onRigChange);
+  $("#rig-file").addEventListener("change", onRigFile);
+  onRigChange();
+}
+
+function onRigChange() {
+  const upload = $("#rig-select").value === "@upload";
+  $("#rig-upload").hidden = !upload;
+  $("#rig-error").textContent = "";
+  const rig = upload ? state.uploadedRig && state.uploadedRig.summary : state.rigs.find((r) => r.name === $("#rig-select").value);
+  $("#rig-info").textContent = rig ? `${rig.parameters.length} parameters; sensors: ${rig.sensors.map((s) => s.name).join(", ")}` : "choose a YAML file";
+}
+
+async function onRigFile() {
+  const file = $("#rig-file").files[0];
+  state.uploadedRig = null;
+  if (!file) return onRigChange();
+  try {
+    state.uploadedRig = await api("POST", "/v1/rigs/parse", { yaml: await file.text() });
+    onRigChange();
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    onRigChange();
+    $("#rig-error").textContent = err.errors.map((e) => `${e.field}: ${e.message}`).join(" ") || err.message;
+    $("#rig-file").setAttribute("aria-invalid", "true");
+  }
+}
+
+function currentRig() {
+  if ($("#rig-select").value !== "@upload") return $("#rig-select").value;
+  if (!state.uploadedRig) throw new Problem({ errors: [{ field: "rig", message: "choose a rig YAML file first" }] }, 0);
+  return state.uploadedRig.rig;
+}
+
+// ------------------------------------------------------------------------------------------
+// Score view
+
+function detectFormat(name, text) {
+  const lower = name.toLowerCase();
+  if (lower.endsWith(".tum")) return "tum";
+  if (lower.endsWith(".geojson") || lower.endsWith(".json")) return "geojson";
+  const first = text.split("\n").find((l) => l.trim()) || "";
+  if (lower.endsWith(".csv")) {
+    if (/^#\s*start:/i.test(first) || /curvature/i.test(first)) return "control_csv";
+    if (/^#\s*timestamp/i.test(first) || /p_RS_R/.test(first)) return "euroc";
+    return "waypoints_csv";
+  }
+  const cols = first.trim().split(/\s+/).length;
+  return cols === 12 ? "kitti" : "tum";
+}
+
+async function routeFromInputs() {
+  const file = $("#route-file").files[0];
+  if (!file) throw new Problem({ errors: [{ field: "route", message: "choose or drop a route file" }] }, 0);
+  const text = await file.text();
+  let format = $("#route-format").value || detectFormat(file.name, text);
+  const route = { name: file.name.replace(/\.[^.]*$/, "").replace(/[^A-Za-z0-9_.-]/g, "_").replace(/^[.-]+/, "").slice(0, 64) || "route", format, text };
+  if (format === "kitti") {
+    const times = $("#times-file").files[0];
+    if (!times) throw new Problem({ errors: [{ field: "route.times_text", message: "KITTI poses need their times file" }] }, 0);
+    route.times_text = await times.text();
+  }
+  return route;
+}
+
+function updateFormatFields() {
+  const file = $("#route-file").files[0];
+  const chosen = $("#route-format").value;
+  const guess = file && /\.txt$/i.test(file.name) ? "kitti" : "";
+  $("#times-field").hidden = (chosen || guess) !== "kitti";
+}
+
+async function onScore(ev) {
+  ev.preventDefault();
+  const form = $("#score-form");
+  clearErrors(form);
+  const busy = $("#score-busy");
+  $("#score-button").disabled = true;
+  busy.textContent = "scoring…";
+  try {
+    const body = { route: await routeFromInputs(), rig: currentRig(), segments: Number($("#segments").value), track_points: 1500 };
+    const report = await api("POST", "/v1/score", body);
+    showReport(report);
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    $("#score-result").hidden = true;
+    showProblem(form, err, $("#score-error"));
+  } finally {
+    $("#score-button").disabled = false;
+    busy.textContent = "";
+  }
+}
+
+function showReport(rep) {
+  state.report = rep;
+  $("#score-result").hidden = false;
+  const badge = el("span", { class: rep.passed ? "badge pass" : "badge fail", text: rep.passed ? "PASS" : "FAIL" });
+  $("#summary").replaceChildren(
+    el("div", { class: "big" }, el("span", { class: "label", text: "score " }), el("output", { id: "score-value", text: fmt(rep.score, 4) }), " ", badge),
+    el("div", { class: "facts", text: `${rep.route} · rig ${rep.rig} · ${rep.duration_s.toFixed(1)} s · ${rep.length_m.toFixed(0)} m · ` +
+      `rank ${rep.rank} of ${rep.column_map.length}` + (rep.nullity ? ` (${rep.nullity} unobservable)` : "") +
+      ` · score ≥ 1 means every σ within its target` }));
+  const names = rep.column_map.map((c) => c.name);
+  $("#colour-by").replaceChildren(el("option", { value: "@weak", text: "information on the weakest mode" }),
+    el("option", { value: "@score", text: "segment score (its own λ_min)" }),
+    ...names.map((n) => el("option", { value: n, text: `information on ${n}` })));
+  renderParams();
+  renderModes(rep);
+  drawRoute();
+}
+
+// σ/target table ---------------------------------------------------------------------------
+
+function paramRows() {
+  return state.report.parameters.map((p) => ({ ...p, ratio: p.sigma === null ? Infinity : p.sigma / p.target }));
+}
+
+function renderParams() {
+  const { key, dir } = state.sort;
+  const rows = paramRows();
+  if (key) rows.sort((a, b) => {
+    const x = a[key] === null ? Infinity : a[key], y = b[key] === null ? Infinity : b[key];
+    return (x < y ? -1 : x > y ? 1 : 0) * dir;
+  });
+  for (const th of document.querySelectorAll("#params thead th:has(button)")) {
+    const k = $("button", th).dataset.key;
+    th.setAttribute("aria-sort", k === key ? (dir > 0 ? "ascending" : "descending") : "none");
+  }
+  $("#params tbody").replaceChildren(...rows.map((p) => {
+    const unobs = p.sigma === null;
+    const status = unobs ? "unobservable" : p.ok ? "ok" : "over";
+    return el("tr", { class: unobs ? "unobservable" : p.ok ? "ok" : "bad", "data-name": p.name },
+      el("th", { scope: "row", text: p.name }),
+      el("td", { text: unobs ? "∞" : fmt(p.sigma) }),
+      el("td", { text: fmt(p.target) }),
+      el("td", { class: "unit", text: p.unit }),
+      el("td", { text: unobs ? "∞" : fmt(p.ratio) }),
+      el("td", { text: status }));
+  }));
+}
+
+function initSort() {
+  for (const b of document.querySelectorAll("#params th button")) {
+    b.addEventListener("click", () => {
+      const k = b.dataset.key;
+      state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : 1 };
+      renderParams();
+    });
+  }
+}
+
+function renderModes(rep) {
+  const modes = rep.weak_modes.filter((m) => m.status !== "ok");
+  const shown = modes.length ? modes : rep.weak_modes.slice(0, 1);
+  $("#modes").replaceChildren(...shown.map((m) => el("li", { class: m.status },
+    el("strong", { text: `${m.status} ` }),
+    el("span", { text: `λ = ${fmt(m.eigenvalue_scaled)}` + (m.sigma_in_targets === null ? "" : `, σ along it = ${fmt(m.sigma_in_targets)} targets`) }),
+    el("div", { class: "coords", text: m.coordinates.map(([n, v]) => `${v >= 0 ? "+" : "−"}${Math.abs(v).toFixed(2)} ${n}`).join("  ") }),
+    el("div", { class: "advice", text: m.advice }))));
+  if (!modes.length) $("#modes").prepend(el("li", { class: "ok", text: "No weak modes: the weakest direction is shown." }));
+}
+
+// Route map --------------------------------------------------------------------------------
+
+const VIRIDIS = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+
+function colour(u) {
+  const x = Math.min(1, Math.max(0, u)) * (VIRIDIS.length - 1);
+  const i = Math.min(VIRIDIS.length - 2, Math.floor(x)), f = x - i;
+  const c = VIRIDIS[i].map((a, k) => Math.round(a + f * (VIRIDIS[i + 1][k] - a)));
+  return `rgb(${c[0]},${c[1]},${c[2]})`;
+}
+
+function segmentValue(seg, key) {
+  if (key === "@weak") return seg.weakest_mode_information;
+  if (key === "@score") return seg.score;
+  return seg.parameter_information[key];
+}
+
+// A log colour scale over the positive values (zeros get the bottom colour).
+function logScale(values) {
+  const pos = values.filter((v) => v > 0);
+  if (!pos.length) return { lo: 0, hi: 0, u: () => 0 };
+  const lo = Math.log10(Math.min(...pos)), hi = Math.log10(Math.max(...pos));
+  return { lo, hi, u: (v) => (v > 0 && hi > lo ? (Math.log10(v) - lo) / (hi - lo) : v > 0 ? 1 : 0) };
+}
+
+function fitBox(xs, ys, pad) {
+  const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
+  const w = Math.max(x1 - x0, 1), h = Math.max(y1 - y0, 1), p = pad * Math.max(w, h);
+  return [x0 - p, -y1 - p, w + 2 * p, h + 2 * p];  // SVG y points down: draw at -y
+}
+
+function makeZoomable(svg, box) {
+  svg.dataset.home = box.join(" ");
+  svg.setAttribute("viewBox", svg.dataset.home);
+  if (svg.dataset.zoomable) return;
+  svg.dataset.zoomable = "1";
+  const get = () => svg.getAttribute("viewBox").split(" ").map(Number);
+  const zoom = (factor, cx, cy) => {
+    const [x, y, w, h] = get();
+    cx = cx === undefined ? x + w / 2 : cx; cy = cy === undefined ? y + h / 2 : cy;
+    svg.setAttribute("viewBox", [cx - (cx - x) * factor, cy - (cy - y) * factor, w * factor, h * factor].join(" "));
+  };
+  const pan = (fx, fy) => { const [x, y, w, h] = get(); svg.setAttribute("viewBox", [x + fx * w, y + fy * h, w, h].join(" ")); };
+  const toUser = (ev) => {
+    const pt = new DOMPoint(ev.clientX, ev.clientY).matrixTransform(svg.getScreenCTM().inverse());
+    return [pt.x, pt.y];
+  };
+  svg.addEventListener("wheel", (ev) => { ev.preventDefault(); const [cx, cy] = toUser(ev); zoom(ev.deltaY > 0 ? 1.2 : 1 / 1.2, cx, cy); }, { passive: false });
+  let drag = null;
+  svg.addEventListener("pointerdown", (ev) => { drag = toUser(ev); svg.setPointerCapture(ev.pointerId); });
+  svg.addEventListener("pointermove", (ev) => {
+    if (!drag || !svg.hasPointerCapture(ev.pointerId)) return;
+    const [x, y, w, h] = get(), [ux, uy] = toUser(ev);
+    svg.setAttribute("viewBox", [x - (ux - drag[0]), y - (uy - drag[1]), w, h].join(" "));
+  });
+  svg.addEventListener("pointerup", () => { drag = null; });
+  svg.addEventListener("keydown", (ev) => {
+    const keys = { "+": () => zoom(1 / 1.25), "=": () => zoom(1 / 1.25), "-": () => zoom(1.25), "0": () => svg.setAttribute("viewBox", svg.dataset.home),
+      ArrowLeft: () => pan(-0.1, 0), ArrowRight: () => pan(0.1, 0), ArrowUp: () => pan(0, -0.1), ArrowDown: () => pan(0, 0.1) };
+    if (keys[ev.key] && ev.target === svg) { ev.preventDefault(); keys[ev.key](); }
+  });
+  const box2 = svg.closest(".map-box");
+  for (const b of box2.querySelectorAll("[data-zoom]")) {
+    b.addEventListener("click", () => (b.dataset.zoom === "in" ? zoom(1 / 1.25) : b.dataset.zoom === "out" ? zoom(1.25) : svg.setAttribute("viewBox", svg.dataset.home)));
+  }
+}
+
+function polylinePoints(xs, ys, i0, i1) {
+  const pts = [];
+  for (let i = i0; i <= i1; i++) pts.push(`${xs[i].toFixed(2)},${(-ys[i]).toFixed(2)}`);
+  return pts.join(" ");
+}
+
+function drawRoute() {
+  const rep = state.report, tr = rep.track, svg = $("#route-map");
+  const key = $("#colour-by").value || "@weak";
+  const box = fitBox(tr.x_m, tr.y_m, 0.05);
+  makeZoomable(svg, box);
+  const segs = rep.segments;
+  const scale = logScale(segs.map((s) => segmentValue(s, key)));
+  const children = [el("svg:polyline", { points: polylinePoints(tr.x_m, tr.y_m, 0, tr.t_s.length - 1), class: "base" })];
+  const idx = (t) => { let i = 0; while (i < tr.t_s.length - 1 && tr.t_s[i] < t - 1e-9) i++; return i; };
+  segs.forEach((s, k) => {
+    const i0 = Math.max(0, idx(s.t_start_s) - (k ? 1 : 0)), i1 = idx(s.t_end_s);
+    if (i1 <= i0) return;
+    const v = segmentValue(s, key);
+    children.push(el("svg:polyline", { points: polylinePoints(tr.x_m, tr.y_m, i0, i1), class: "seg", stroke: colour(scale.u(v)),
+      tabindex: "0", "data-index": String(k), "aria-label": `segment ${k + 1}: ${s.t_start_s.toFixed(1)}–${s.t_end_s.toFixed(1)} s, value ${fmt(v)}` }));
+  });
+  children.push(el("svg:circle", { cx: tr.x_m[0], cy: -tr.y_m[0], r: 0.008 * Math.max(box[2], box[3]), class: "start" }));
+  svg.replaceChildren(...children);
+  const what = key === "@weak" ? "information on the weakest mode" : key === "@score" ? "segment score" : `information on ${key}`;
+  $("#legend").replaceChildren(el("span", { text: `${what} [targets⁻²], log scale: ` }),
+    el("span", { class: "ramp", style: `background: linear-gradient(to right, ${[0, 0.25, 0.5, 0.75, 1].map(colour).join(",")})` }),
+    el("span", { text: scale.hi > scale.lo ? ` ${fmt(10 ** scale.lo)} … ${fmt(10 ** scale.hi)}` : "" }),
+    el("span", { class: "hint", text: " · ● start · hover or Tab to a segment for its information" }));
+}
+
+function showSegment(target, ev) {
+  const k = target && target.dataset && target.dataset.index;
+  const tip = $("#tooltip");
+  if (k === undefined) { tip.hidden = true; return; }
+  const s = state.report.segments[Number(k)];
+  const top = Object.entries(s.parameter_information).sort((a, b) => a[1] - b[1]);
+  tip.replaceChildren(el("strong", { text: `segment ${Number(k) + 1}: ${s.t_start_s.toFixed(1)}–${s.t_end_s.toFixed(1)} s` }),
+    el("div", { text: `segment score ${fmt(s.score)} · weakest-mode information ${fmt(s.weakest_mode_information)}` }),
+    el("div", { class: "hint", text: "least informed parameters here [targets⁻²]:" }),
+    el("table", {}, el("tbody", {}, ...top.slice(0, 6).map(([n, v]) => el("tr", {}, el("th", { text: n }), el("td", { text: fmt(v) }))))));
+  tip.hidden = false;
+  const box = $("#route-map").closest(".map-box").getBoundingClientRect();
+  const r = ev && ev.clientX !== undefined ? { x: ev.clientX, y: ev.clientY } : (() => { const b = target.getBoundingClientRect(); return { x: b.right, y: b.top }; })();
+  tip.style.left = `${Math.min(r.x - box.left + 12, box.width - 260)}px`;
+  tip.style.top = `${r.y - box.top + 12}px`;
+}
+
+function initMap() {
+  const svg = $("#route-map");
+  svg.addEventListener("pointerover", (ev) => showSegment(ev.target, ev));
+  svg.addEventListener("pointermove", (ev) => { if (ev.target.dataset.index !== undefined) showSegment(ev.target, ev); });
+  svg.addEventListener("pointerleave", () => showSegment(null));
+  svg.addEventListener("focusin", (ev) => showSegment(ev.target));
+  svg.addEventListener("focusout", () => showSegment(null));
+  $("#colour-by").addEventListener("change", drawRoute);
+}
+
+function initDrop() {
+  const zone = $("#drop"), input = $("#route-file");
+  zone.addEventListener("dragover", (ev) => { ev.preventDefault(); zone.classList.add("over"); });
+  zone.addEventListener("dragleave", () => zone.classList.remove("over"));
+  zone.addEventListener("drop", (ev) => {
+    ev.preventDefault();
+    zone.classList.remove("over");
+    if (ev.dataTransfer.files.length) { input.files = ev.dataTransfer.files; updateFormatFields(); }
+  });
+}
+
+// ------------------------------------------------------------------------------------------
+// Plan view: defaults and limits come from the service's own OpenAPI schema.
+
+async function loadSchema() {
+  if (state.schema) return;
+  state.schema = await api("GET", "/openapi.json");
+  const s = state.schema.components.schemas;
+  for (const [name, prop] of Object.entries(s.ManeuverRequest.properties)) {
+    const input = document.getElementById(`plan-${name}`);
+    if (input && prop.default !== undefined && input.type === "number") input.value = prop.default;
+  }
+  $("#limits-fields").replaceChildren(...Object.entries(s.LimitsIn.properties).map(([name, prop]) =>
+    el("div", { class: "field" },
+      el("label", { for: `plan-limits-${name}`, text: name.replace(/_/g, " ") }),
+      el("input", { type: "number", id: `plan-limits-${name}`, "data-limit": name, value: prop.default, step: "any", "aria-describedby": `plan-limits-${name}-error` }),
+      el("p", { id: `plan-limits-${name}-error`, class: "error", role: "alert", "data-field": `limits.${name}` }))));
+}
+
+function numberOf(id) {
+  const v = $(`#${id}`).value;
+  return v === "" ? null : Number(v);
+}
+
+function maneuverRequest() {
+  const req = { rig: currentRig(), limits: {} };
+  for (const name of ["duration_s", "lot_x_m", "lot_y_m", "time_budget_s", "n_random", "seed"]) req[name] = numberOf(`plan-${name}`);
+  req.closed = $("#plan-closed").checked;
+  for (const input of document.querySelectorAll("[data-limit]")) req.limits[input.dataset.limit] = input.value === "" ? null : Number(input.value);
+  const lon = numberOf("plan-lon_deg"), lat = numberOf("plan-lat_deg");
+  if (lon !== null || lat !== null) req.origin = { lon_deg: lon, lat_deg: lat };
+  return req;
+}
+
+async function onPlan(ev) {
+  ev.preventDefault();
+  const form = $("#plan-form");
+  clearErrors(form);
+  await loadSchema();
+  try {
+    const job = await api("POST", "/v1/maneuvers", maneuverRequest());
+    state.job = job;
+    $("#plan-result").hidden = true;
+    $("#job").hidden = false;
+    $("#job-id").textContent = job.id;
+    $("#plan-button").disabled = true;
+    $("#cancel-button").disabled = false;
+    showJob(job);
+    poll(job.id);
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    showProblem(form, err, $("#plan-error"));
+  }
+}
+
+function showJob(job) {
+  const p = job.progress || {};
+  $("#job-status").textContent = job.status + (job.cancel_requested && job.status === "running" ? " (cancelling)" : "");
+  $("#job-phase").textContent = p.phase || "—";
+  $("#job-iteration").textContent = p.iteration ?? "—";
+  $("#job-score").textContent = p.score === undefined || p.score === null ? "—" : fmt(p.score, 4);
+  $("#job-elapsed").textContent = p.elapsed_s ? `${p.elapsed_s.toFixed(1)} s` : "—";
+  const budget = numberOf("plan-time_budget_s") || 1;
+  const bar = $("#job-progress");
+  if (["succeeded", "failed", "cancelled"].includes(job.status)) bar.value = 1;
+  else bar.value = Math.min(1, (p.elapsed_s || 0) / budget);
+  $("#job-message").textContent = job.error ? job.error.detail : job.result ? job.result.message || "" : "";
+}
+
+async function poll(id) {
+  let job;
+  try {
+    job = await api("GET", `/v1/jobs/${id}`);
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    $("#plan-error").textContent = err.message;
+    return finishJob();
+  }
+  if (!state.job || state.job.id !== id) return;
+  state.job = job;
+  showJob(job);
+  if (["queued", "running"].includes(job.status)) { setTimeout(() => poll(id), 500); return; }
+  finishJob();
+  if (job.result) await showPlan(job);
+}
+
+function finishJob() {
+  $("#plan-button").disabled = false;
+  $("#cancel-button").disabled = true;
+}
+
+async function onCancel() {
+  if (!state.job) return;
+  $("#cancel-button").disabled = true;
+  try {
+    showJob(await api("DELETE", `/v1/jobs/${state.job.id}`));
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    $("#plan-error").textContent = err.message;
+  }
+}
+
+function parseCsv(text) {
+  const lines = text.trim().split("\n");
+  const head = lines[0].split(",");
+  return lines.slice(1).map((l) => Object.fromEntries(l.split(",").map((v, i) => [head[i].trim(), Number(v)])));
+}
+
+async function showPlan(job) {
+  const res = job.result, rep = res.report;
+  const base = `/v1/jobs/${job.id}/maneuver`;
+  const pts = parseCsv(await (await fetch(`${base}?format=csv`)).text());
+  $("#plan-result").hidden = false;
+  drawLot(pts, job);
+  $("#plan-summary").replaceChildren(el("div", { class: "big" }, el("span", { class: "label", text: "planned maneuver score " }),
+    el("output", { id: "plan-score", text: fmt(res.score, 4) }), " ",
+    el("span", { class: rep.passed ? "badge pass" : "badge fail", text: rep.passed ? "PASS" : "FAIL" })),
+  el("div", { class: "facts", text: `${job.status} · ${res.status} after ${res.iterations} iterations in ${res.elapsed_s.toFixed(1)} s · ` +
+    `${rep.duration_s.toFixed(0)} s, ${rep.length_m.toFixed(0)} m` }));
+  const cols = [["name", "maneuver"], ["kind", "kind"], ["score", "score"], ["ratio", "planned ÷ this"], ["feasible", "feasible"]];
+  const cell = (v) => (v === null || v === undefined ? "—" : typeof v === "number" ? fmt(v, 3) : typeof v === "boolean" ? (v ? "yes" : "no") : String(v));
+  $("#comparison thead").replaceChildren(el("tr", {}, ...cols.map(([, t]) => el("th", { scope: "col", text: t }))));
+  $("#comparison tbody").replaceChildren(...res.comparison.map((r) => el("tr", { class: r.kind === "optimized" ? "mine" : null,
+    title: r.violations && r.violations.length ? `violations: ${r.violations.join("; ")}` : null },
+  ...cols.map(([c]) => el("td", { text: cell(r[c]) })))));
+  const lon = numberOf("plan-lon_deg"), lat = numberOf("plan-lat_deg");
+  const links = [["tum", "TUM poses"], ["csv", "waypoints CSV"], ["control", "control CSV"]].map(([f, t]) => el("li", {}, el("a", { href: `${base}?format=${f}`, download: "", text: t })));
+  links.push(el("li", {}, lon !== null && lat !== null
+    ? el("a", { href: `${base}?format=geojson&lon_deg=${lon}&lat_deg=${lat}`, download: "", text: "GeoJSON (WGS84)" })
+    : el("span", { class: "hint", text: "GeoJSON: set the lot's origin longitude and latitude" })));
+  $("#downloads").replaceChildren(...links);
+}
+
+function drawLot(pts, job) {
+  const svg = $("#lot-map");
+  const lx = numberOf("plan-lot_x_m"), ly = numberOf("plan-lot_y_m");
+  const xs = pts.map((p) => p.x_m).concat([-lx / 2, lx / 2]), ys = pts.map((p) => p.y_m).concat([-ly / 2, ly / 2]);
+  const box = fitBox(xs, ys, 0.06);
+  svg.setAttribute("viewBox", box.join(" "));
+  const vmax = Math.max(...pts.map((p) => p.speed_mps), 1e-9);
+  const kids = [el("svg:rect", { x: -lx / 2, y: -ly / 2, width: lx, height: ly, class: "lot" })];
+  for (let i = 1; i < pts.length; i++) {
+    const a = pts[i - 1], b = pts[i];
+    kids.push(el("svg:line", { x1: a.x_m, y1: -a.y_m, x2: b.x_m, y2: -b.y_m, stroke: colour(b.speed_mps / vmax), class: "seg" }));
+  }
+  kids.push(el("svg:circle", { cx: pts[0].x_m, cy: -pts[0].y_m, r: 0.012 * Math.max(box[2], box[3]), class: "start" }));
+  svg.replaceChildren(...kids);
+  $("#lot-legend").replaceChildren(el("span", { text: "speed: 0 " }),
+    el("span", { class: "ramp", style: `background: linear-gradient(to right, ${[0, 0.25, 0.5, 0.75, 1].map(colour).join(",")})` }),
+    el("span", { text: ` ${vmax.toFixed(1)} m/s · lot ${lx} × ${ly} m · ● start` }));
+  svg.setAttribute("aria-label", `Planned maneuver of job ${job.id} in the ${lx} × ${ly} m lot`);
+}
+
+// ------------------------------------------------------------------------------------------
+
+function main() {
+  initTabs();
+  initSort();
+  initMap();
+  initDrop();
+  $("#route-file").addEventListener("change", updateFormatFields);
+  $("#route-format").addEventListener("change", updateFormatFields);
+  $("#score-form").addEventListener("submit", onScore);
+  $("#plan-form").addEventListener("submit", onPlan);
+  $("#cancel-button").addEventListener("click", onCancel);
+  initRigs().catch((err) => { $("#rig-error").textContent = `cannot list the rigs: ${err.message}`; });
+  document.body.dataset.ready = "1";
+}
+
+document.addEventListener("DOMContentLoaded", main);

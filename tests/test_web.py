@@ -1,0 +1,330 @@
+"""The planners' page (GET /) in a real headless Chromium, against `excite serve` on loopback.
+
+Needs Debian's ``chromium`` and the ``playwright`` Python package (``.ci/run`` installs both;
+``playwright install`` is never used). Outside CI the tests skip, naming what is missing; under
+CI (``CI=true``) a missing browser fails them. Each test saves a screenshot of its view in a
+temporary directory (printed), or in ``$EXCITE_SCREENSHOTS`` when set (how docs/web-*.png are
+made).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_api_support import REPO, LiveServer
+
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+FIGURE_EIGHT = REPO / "trajectories" / "figure_eight.tum"
+
+
+def _chromium() -> str | None:
+    return os.environ.get("EXCITE_CHROMIUM") or shutil.which("chromium") or (
+        "/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
+
+
+def _unavailable(reason: str) -> None:
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"{reason} (CI must run the browser tests: .ci/run installs it)")
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        _unavailable("the playwright Python package is not installed (pip install playwright)")
+    exe = _chromium()
+    if exe is None:
+        _unavailable("no chromium executable (apt-get install chromium)")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    srv = LiveServer(tmp_path_factory.mktemp("web"), workers=1, score_workers=1,
+                     max_job_time_budget_s=30).start()
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory) -> Path:
+    out = Path(os.environ.get("EXCITE_SCREENSHOTS") or tmp_path_factory.mktemp("screenshots"))
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"screenshots in {out}")
+    return out
+
+
+def save_shot(page, shots: Path, name: str) -> None:
+    """A full-page screenshot. The copies for the README (``$EXCITE_SCREENSHOTS``) are written
+    with a 256-colour palette: the README's images are held under 200 KB (test_readme)."""
+    png = page.screenshot(full_page=True)
+    if os.environ.get("EXCITE_SCREENSHOTS"):
+        import io
+
+        from PIL import Image
+
+        im = Image.open(io.BytesIO(png)).convert("RGB")
+        im.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+            shots / name, optimize=True)
+    else:
+        (shots / name).write_bytes(png)
+
+
+class Console:
+    """Everything the page wrote to the console as an error, and uncaught exceptions."""
+
+    def __init__(self, page):
+        self.errors: list[str] = []
+        page.on("console", lambda m: m.type == "error" and self.errors.append(m.text))
+        page.on("pageerror", lambda e: self.errors.append(f"uncaught: {e}"))
+
+
+@pytest.fixture
+def page(browser, server):
+    ctx = browser.new_context(viewport={"width": 1366, "height": 900})
+    pg = ctx.new_page()
+    pg.set_default_timeout(60_000)
+    pg.console = Console(pg)
+    pg.goto(server.url + "/")
+    pg.wait_for_selector("#rig-select option[value=robotaxi]", state="attached")
+    yield pg
+    ctx.close()
+
+
+def _library_report(segments: int = 0):
+    from excite import routes
+    from excite.evaluate import Options, evaluate
+    from excite.rig import load_rig
+
+    return evaluate(routes.read_tum(FIGURE_EIGHT), load_rig("robotaxi"), Options(segments=segments))
+
+
+def test_score_a_route_through_the_file_input(page, shots):
+    """Score figure_eight.tum as a planner would: the score and verdict, the σ/target table with
+    lidar.trans_z, a segment per reported segment on the map with its information on hover,
+    sorting and keyboard zoom; the numbers are the library's on the same file."""
+    page.set_input_files("#route-file", str(FIGURE_EIGHT))
+    page.fill("#segments", "12")
+    page.click("#score-button")
+    page.wait_for_selector("#score-value")
+    lib = _library_report(segments=12)
+
+    assert float(page.inner_text("#score-value")) == pytest.approx(lib.score, rel=1e-3)
+    assert page.inner_text("#summary .badge") == ("PASS" if lib.passed else "FAIL")
+    row = page.locator('#params tr[data-name="lidar.trans_z"]')
+    assert row.is_visible()
+    sigma = next(p for p in lib.parameters if p.name == "lidar.trans_z").sigma
+    assert float(row.locator("td").nth(0).inner_text()) == pytest.approx(sigma, rel=1e-2)
+    assert page.locator("#params tbody tr").count() == len(lib.parameters)
+
+    # sorted by σ/target on a click, descending on a second click
+    page.click('#params th button[data-key="ratio"]')
+    ratios = {p.name: (np.inf if p.sigma is None else p.sigma / p.target) for p in lib.parameters}
+    shown = page.locator("#params tbody tr").evaluate_all("rows => rows.map(r => r.dataset.name)")
+    # ascending up to rounding (the service's σ and this process's may differ in the last bits,
+    # and wheel.radius_left/right tie to 4 digits)
+    assert sorted(shown) == sorted(ratios)
+    in_order = [ratios[n] for n in shown]
+    assert all(a <= b * (1 + 1e-6) for a, b in zip(in_order, in_order[1:])), list(zip(shown, in_order))
+    assert page.get_attribute('#params th:has(button[data-key="ratio"])', "aria-sort") == "ascending"
+    page.click('#params th button[data-key="ratio"]')
+    assert page.locator("#params tbody tr").first.get_attribute("data-name") == max(ratios, key=ratios.get)
+
+    # the map: one coloured polyline per segment; hovering one shows its own information
+    segs = page.locator("#route-map polyline.seg")
+    assert segs.count() == len(lib.segments)
+    # a point on the stroke of the last segment (drawn on top where the figure eight retraces
+    # itself; the bounding box's centre of a curve is off the stroke)
+    x, y = segs.last.evaluate("""l => { const p = l.points.getItem(l.points.numberOfItems >> 1);
+        const q = new DOMPoint(p.x, p.y).matrixTransform(l.getScreenCTM()); return [q.x, q.y]; }""")
+    page.mouse.move(x, y)
+    tip = page.locator("#tooltip")
+    assert tip.is_visible()
+    s = lib.segments[-1]
+    assert f"{s.t_start_s:.1f}–{s.t_end_s:.1f} s" in tip.inner_text()
+    # weak modes with advice
+    assert page.locator("#modes li .advice").count() >= 1
+    assert lib.weak_modes[0].advice in page.inner_text("#modes")
+    save_shot(page, shots, "web-score.png")
+
+    # keyboard: focus the map, zoom in with +, back with 0
+    home = page.get_attribute("#route-map", "viewBox")
+    page.focus("#route-map")
+    page.keyboard.press("+")
+    zoomed = page.get_attribute("#route-map", "viewBox")
+    assert float(zoomed.split()[2]) == pytest.approx(float(home.split()[2]) / 1.25)
+    page.keyboard.press("0")
+    assert page.get_attribute("#route-map", "viewBox") == home
+    assert page.console.errors == []
+
+
+def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
+    """A TUM file with a broken line: the service's problem (field route.text) appears beside
+    the route input, which is marked invalid; no report is shown. Likewise a broken rig YAML
+    beside the rig field, and a refused duration beside the duration field."""
+    bad = tmp_path / "broken.tum"
+    lines = FIGURE_EIGHT.read_text().splitlines()
+    lines[4] = "0.4 1.0 oops"
+    bad.write_text("\n".join(lines) + "\n")
+    page.set_input_files("#route-file", str(bad))
+    page.click("#score-button")
+    err = page.locator("#route-error")
+    err.wait_for(state="visible")
+    assert re.search(r"line 5", err.inner_text()), err.inner_text()
+    assert page.get_attribute("#route-file", "aria-invalid") == "true"
+    assert page.locator("#score-result").is_hidden()
+    assert page.inner_text("#score-error") == ""
+
+    page.select_option("#rig-select", "@upload")
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("name: r\nimu: imu.yaml\n")
+    page.set_input_files("#rig-file", str(rig))
+    page.locator("#rig-error").wait_for(state="visible")
+    assert "rig.imu" in page.inner_text("#rig-error")
+    save_shot(page, shots, "web-error.png")
+
+    # the plan form: a duration the API refuses, named beside the duration field
+    page.select_option("#rig-select", "robotaxi")
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    page.fill("#plan-duration_s", "0.5")
+    page.click("#plan-button")
+    page.locator("#plan-duration_s-error").wait_for(state="visible")
+    assert "greater than" in page.inner_text("#plan-duration_s-error")  # the API's own words and bound
+    assert page.get_attribute("#plan-duration_s", "aria-invalid") == "true"
+    assert page.locator("#job").is_hidden()
+    # the only console errors are the browser's own notes of the three refused requests
+    assert page.console.errors and all("status of 422" in e for e in page.console.errors), page.console.errors
+
+
+def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
+    """Plan a 20 s maneuver with a 1 s optimizer budget: the job's progress is shown while it
+    runs, then the maneuver in the lot, the comparison and working downloads."""
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    assert page.input_value("#plan-duration_s") == "90"  # the API's default, read from its schema
+    for field, value in {"duration_s": "20", "time_budget_s": "1", "n_random": "2",
+                         "lot_x_m": "60", "lot_y_m": "40", "lon_deg": "11.5", "lat_deg": "48.1"}.items():
+        page.fill(f"#plan-{field}", value)
+    page.click("#plan-button")
+    page.wait_for_selector("#job-id:not(:empty)")
+    job_id = page.inner_text("#job-id")
+    assert page.locator("#job-status").inner_text() in ("queued", "running", "succeeded")
+    page.wait_for_selector("#plan-score", timeout=120_000)
+    assert page.inner_text("#job-status") == "succeeded"
+    assert page.inner_text("#job-iteration") not in ("", "—")
+
+    import httpx
+
+    job = httpx.get(f"{server.url}/v1/jobs/{job_id}").json()
+    assert float(page.inner_text("#plan-score")) == pytest.approx(job["result"]["score"], rel=1e-3)
+    assert page.locator("#comparison tbody tr").count() == len(job["result"]["comparison"])
+    assert page.locator("#lot-map line.seg").count() > 10
+    lot = page.locator("#lot-map rect.lot")
+    assert float(lot.get_attribute("width")) == 60 and float(lot.get_attribute("height")) == 40
+    hrefs = page.locator("#downloads a").evaluate_all("as => as.map(a => a.getAttribute('href'))")
+    assert len(hrefs) == 4
+    for href in hrefs:
+        r = httpx.get(server.url + href)
+        assert r.status_code == 200, (href, r.text)
+    tum = np.loadtxt(httpx.get(server.url + hrefs[0]).text.splitlines())
+    assert tum.shape[1] == 8 and tum[-1, 0] - tum[0, 0] == pytest.approx(20, abs=0.5)
+    # the drawn maneuver stays in the 60 × 40 m lot, as the optimizer promises
+    assert np.all(np.abs(tum[:, 1]) <= 30) and np.all(np.abs(tum[:, 2]) <= 20)
+    save_shot(page, shots, "web-plan.png")
+    assert page.console.errors == []
+
+
+def test_cancel_a_running_job(page):
+    """A job with a long budget, cancelled from the page once it runs, ends `cancelled`."""
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    page.fill("#plan-duration_s", "60")
+    page.fill("#plan-time_budget_s", "30")
+    page.click("#plan-button")
+    page.wait_for_function("document.querySelector('#job-status').textContent.startsWith('running')")
+    page.click("#cancel-button")
+    page.wait_for_function("document.querySelector('#job-status').textContent === 'cancelled'", timeout=60_000)
+    assert page.is_disabled("#cancel-button") and page.is_enabled("#plan-button")
+    assert page.console.errors == []
+
+
+# --------------------------------------------------------------------------------------------
+# What the page needs from the API (no browser)
+
+
+def test_score_returns_the_route_path_when_asked(server):
+    """``track_points``: the drive's path at equally spaced times, in the file's frame: at the
+    file's pose times it is where the file says (within the reader's spline fit, a few mm), and
+    the polyline is as long as the report's length."""
+    import httpx
+
+    text = FIGURE_EIGHT.read_text()
+    r = httpx.post(f"{server.url}/v1/score", timeout=120,
+                   json={"route": {"format": "tum", "text": text}, "track_points": 2000})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    tr = body["track"]
+    assert len(tr["t_s"]) == len(tr["x_m"]) == len(tr["y_m"]) == 2000
+    poses = np.loadtxt(text.splitlines())
+    assert tr["t_s"][0] == pytest.approx(poses[0, 0]) and tr["t_s"][-1] == pytest.approx(poses[-1, 0])
+    for axis, col in (("x_m", 1), ("y_m", 2)):
+        at_poses = np.interp(poses[:, 0], tr["t_s"], tr[axis])
+        assert np.max(np.abs(at_poses - poses[:, col])) < 0.02, axis
+    length = np.hypot(np.diff(tr["x_m"]), np.diff(tr["y_m"])).sum()
+    assert length == pytest.approx(body["length_m"], rel=0.01)
+    # not asked: no path
+    r = httpx.post(f"{server.url}/v1/score", timeout=120, json={"route": {"format": "tum", "text": text}})
+    assert r.status_code == 200 and r.json()["track"] is None
+
+
+def test_parse_rig_yaml(server):
+    """The bundled rig's YAML comes back as the same mapping, which scores like the bundled rig;
+    broken files are refused with the field named."""
+    import httpx
+    import yaml
+
+    from excite.rig import RIGS_DIR
+
+    text = (RIGS_DIR / "robotaxi.yaml").read_text()
+    r = httpx.post(f"{server.url}/v1/rigs/parse", json={"yaml": text})
+    assert r.status_code == 200, r.text
+    assert r.json()["rig"] == yaml.safe_load(text)
+    assert [p["name"] for p in r.json()["summary"]["parameters"]][:1] == ["lidar.rot_x"]
+    route = {"control": {"t_s": [0, 10, 20, 30], "speed_mps": [0, 6, 6, 0], "curvature_1pm": [0, 0.1, -0.1, 0]}}
+    a = httpx.post(f"{server.url}/v1/score", timeout=120, json={"route": route, "rig": r.json()["rig"]}).json()
+    b = httpx.post(f"{server.url}/v1/score", timeout=120, json={"route": route, "rig": "robotaxi"}).json()
+    assert a["score"] == pytest.approx(b["score"], rel=1e-12)
+
+    for bad, field, says in [("name: [1,\n", "yaml", "line 2"), ("- a\n- b\n", "yaml", "mapping"),
+                             ("a: &x [1]\nb: *x\n", "yaml", "aliases"),
+                             ("name: r\nimu: imu.yaml\n", "rig.imu", "inline")]:
+        r = httpx.post(f"{server.url}/v1/rigs/parse", json={"yaml": bad})
+        assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json")
+        (err,) = r.json()["errors"]
+        assert err["field"] == field and says in err["message"], (bad, err)
+
+
+def test_page_and_its_files_are_served(server):
+    """GET / is the page; its script and style sheet come from /static, nothing from elsewhere."""
+    import httpx
+
+    r = httpx.get(server.url + "/")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+    refs = re.findall(r'(?:src|href)="([^"]+)"', r.text)
+    assert "/static/app.js" in refs and "/static/style.css" in refs
+    assert all(u.startswith(("/", "data:", "#")) for u in refs), refs  # offline: no other host
+    for u in ("/static/app.js", "/static/style.css"):
+        assert httpx.get(server.url + u).status_code == 200
