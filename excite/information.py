@@ -103,7 +103,7 @@ class Problem:
                 out.append(sel)
         R = self.R_W_B[k0:k1 + 1]
         for s, e in zip(starts, ends):
-            out += _gauge(R[s], s, self.local, self.state_dim) + _chain_end(e, self.local, self.state_dim)
+            out += _gauge(R[s], s, self.local) + _chain_end(e, self.local, self.state_dim)
         return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.local, tuple(starts), self.state_dim)
 
     def without_gauge(self) -> "Problem":
@@ -111,9 +111,9 @@ class Problem:
                        self.R_W_B, self.local, self.chain_starts, self.state_dim)
 
 
-def gauge_block(R_W_B: np.ndarray, keyframe: int, state_dim: int = STATE_DIM) -> FactorBlock:
+def gauge_block(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
     """A prior on the position (3) and world yaw (1) of ``keyframe``: the minimal gauge fix."""
-    Jx = np.zeros((1, 4, state_dim))
+    Jx = np.zeros((1, 4, STATE_DIM))
     Jx[0, 0:3, POS] = np.eye(3) / _GAUGE_SIGMA_POS_M
     # world yaw of a right perturbation: e_zᵀ R δθ
     Jx[0, 3, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
@@ -180,7 +180,7 @@ def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local
         # kind-major: imu, nonholonomic, wheel, sensors, each in time order (the rows of J follow it)
         parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
         g = gauge_keyframe % K
-        fixes += [b.shifted(offset) for b in _gauge(n.R[g], g, local, sd) + _chain_end(K - 1, local, sd)]
+        fixes += [b.shifted(offset) for b in _gauge(n.R[g], g, local) + _chain_end(K - 1, local, sd)]
         starts.append(offset)
         R_all.append(n.R)
         offset += K
@@ -219,9 +219,10 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBl
 
     The chunk owns the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside,
     and the non-holonomic constraint at ``k0 … k1−1`` (and at ``k1`` if it ends the drive).
-    With random-walk biases every block is widened to the bias states, the IMU factor sees the
-    bias of its interval's start (the θ column plus the state's deviation), and the random walk
-    links consecutive deviations; the deviation at the drive's last keyframe is zero (θ is the
+    With random-walk biases only the IMU factor is widened to the bias states (the other blocks
+    stay 9 wide: :func:`excite.kernels.accumulate` places them in the first 9 components); it
+    sees the bias of its interval's start (the θ column plus the state's deviation), and the random
+    walk links consecutive deviations; the deviation at the drive's last keyframe is zero (θ is the
     bias there), so the walk's last step does not reach it.
     """
     m = sub.n_keyframes - 1
@@ -233,7 +234,7 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBl
         d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
         V, P = _local_maps(sub.R, v_b, d)
         blocks = [None if b is None else _to_local(b, V, P) for b in blocks]
-    if rig.bias_random_walk:  # only the IMU factor sees the bias states (the others stay 9 wide)
+    if rig.bias_random_walk:
         imu_blk = blocks[0] = _widen(blocks[0])
         imu_blk.Jx[:, :, BIAS] = imu_blk.Jt  # b_k = θ_b + δb_k
         walk = _bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
@@ -271,10 +272,10 @@ def _bias_anchored(walk: FactorBlock, ends: np.ndarray) -> FactorBlock:
     return FactorBlock(walk.name, walk.first, walk.stride, walk.n_states, Jx, walk.Jt, walk.cols)
 
 
-def _gauge(R_W_B: np.ndarray, keyframe: int, local: bool, sd: int = STATE_DIM) -> list[FactorBlock]:
+def _gauge(R_W_B: np.ndarray, keyframe: int, local: bool) -> list[FactorBlock]:
     """The minimal gauge fix of a drive at ``keyframe``: its yaw (local states) or its position
-    and yaw (world states)."""
-    return [_yaw_gauge(R_W_B, keyframe, sd) if local else gauge_block(R_W_B, keyframe, sd)]
+    and yaw (world states). It sees trajectory states only (never the bias states)."""
+    return [_yaw_gauge(R_W_B, keyframe) if local else gauge_block(R_W_B, keyframe)]
 
 
 def _chain_end(keyframe: int, local: bool, sd: int = STATE_DIM) -> list[FactorBlock]:
@@ -310,9 +311,9 @@ def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray) -> FactorBlock:
     return FactorBlock(b.name, b.first, 1, out.shape[2] // STATE_DIM, out, b.Jt, b.cols)
 
 
-def _yaw_gauge(R_W_B: np.ndarray, keyframe: int, sd: int = STATE_DIM) -> FactorBlock:
+def _yaw_gauge(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
     """A prior on the world yaw of ``keyframe``: the one gauge of the local parametrisation."""
-    Jx = np.zeros((1, 1, sd))
+    Jx = np.zeros((1, 1, STATE_DIM))
     Jx[0, 0, ROT] = R_W_B[2] / _GAUGE_SIGMA_YAW_RAD
     return FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, 1, 0)), _NO_COLS)
 
@@ -333,16 +334,16 @@ class Piece:
     ``H_ee`` over ``e = [x_a, θ]``, ``H_be = H[x_b, e]`` and ``H_bb``; ``diag_tt`` is diag H_θθ
     of the chunk before any elimination (the scale of the data's information)."""
 
-    @property
-    def state_dim(self) -> int:
-        return self.H_bb.shape[0]
-
     a: int
     b: int
     H_ee: np.ndarray
     H_be: np.ndarray
     H_bb: np.ndarray
     diag_tt: np.ndarray
+
+    @property
+    def state_dim(self) -> int:
+        return self.H_bb.shape[0]
 
 
 def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int, sd: int) -> Piece:
@@ -472,7 +473,7 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
         blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == K - 1), col_map)
                   if b is not None and b.n_factors]
         if k0 == 0:
-            blocks += _gauge(sub.R[0], 0, True, sd)
+            blocks += _gauge(sub.R[0], 0, True)
         if k1 == K - 1:
             blocks += _chain_end(k1 - k0, True, sd)
         c2 = time.perf_counter()
