@@ -52,7 +52,8 @@ from .trajectory import Trajectory
 CHUNK_S = 1.0  # drive time per appended chunk of keyframes (and so per update)
 LOOKAHEAD_S = 5.0  # poses a stream waits for past a chunk before committing it
 RATE_WINDOW_S = 30.0  # the information rate behind an ETA is measured over this much drive time
-HORIZON_S = 3600.0  # a parameter whose ETA lies beyond this needs other motion
+HORIZON_S = 3600.0
+MAX_CHUNKS_PER_FIT = 60  # poses that arrive at once are fitted in windows of at most this many chunks  # a parameter whose ETA lies beyond this needs other motion
 
 
 class Incremental:
@@ -275,8 +276,10 @@ class _Poses:
 class PoseStream:
     """Timed poses of the vehicle frame V in, updates out (see the module docstring).
 
-    :meth:`add` takes poses in time order and returns the updates (and ``done``) of the chunks
-    they completed; :meth:`finish` ends the drive and returns the final update, which is the batch
+    :meth:`add` takes poses in time order and returns the update (and ``done``) of the drive
+    so far if they completed a chunk (one update per call: a drive that delivers its poses about
+    once a second gets about one update a second; a replay that delivers many seconds at once
+    gets one for them all); :meth:`finish` ends the drive and returns the final update, which is the batch
     evaluator's on the same poses (``type`` ``"final"``, with the whole report)."""
 
     def __init__(self, rig: Rig, *, name: str = "live", lookahead_s: float = LOOKAHEAD_S,
@@ -313,24 +316,32 @@ class PoseStream:
         self._poses.add(t, p, R)
         if self._poses.n and self._poses.t[self._poses.n - 1] - self._poses.t[0] > _max_duration():
             raise RouteError(f"the drive lasts over the limit of {_max_duration():g} s")
-        out: list[dict[str, Any]] = []
         latest = self._poses.t[self._poses.n - 1] if self._poses.n else -np.inf
-        while self._poses.n >= MIN_POSES and self._time(self._k + self._m) + self.lookahead_s <= latest:
-            self._commit(self._k, self._k + self._m)
-            self._k += self._m
-            if self.incremental.n_keyframes >= 3:
-                out += self.guide.update(self.incremental.information())
-        return out
+        ready = 0  # chunks the poses now reach lookahead_s past
+        while self._poses.n >= MIN_POSES and self._time(self._k + (ready + 1) * self._m) + self.lookahead_s <= latest:
+            ready += 1
+        for n in [MAX_CHUNKS_PER_FIT] * (ready // MAX_CHUNKS_PER_FIT) + [ready % MAX_CHUNKS_PER_FIT]:
+            if n:
+                self._commit(n)
+        if not ready or self.incremental.n_keyframes < 3:
+            return []
+        return self.guide.update(self.incremental.information())
 
-    def _commit(self, k0: int, k1: int) -> None:
+    def _commit(self, n: int) -> None:
+        """Append the next ``n`` chunks, sampled from one fit of the poses within
+        ``lookahead_s`` of them."""
         c0 = time.perf_counter()
-        t0, t1 = self._time(k0), self._time(k1)
+        k0 = self._k
+        t0, t1 = self._time(k0), self._time(k0 + n * self._m)
         lo = max(self._poses.t[0], t0 - self.lookahead_s)
         tw, pw, Rw = self._poses.since(lo, t1 + self.lookahead_s)
         traj = trajectory_from_poses(tw, pw, Rw, cutoff_hz=self.cutoff_hz, name=self.name)
-        nom = Nominal.of(traj, self.rig, t_start=t0 - tw[0], keyframes=(0, k1 - k0))
-        self.incremental.thread_ms["sample"] += (time.perf_counter() - c0) * 1e3
-        self.incremental.append(nom)
+        for j in range(n):
+            c1 = time.perf_counter()
+            nom = Nominal.of(traj, self.rig, t_start=self._time(self._k) - tw[0], keyframes=(0, self._m))
+            self.incremental.thread_ms["sample"] += (time.perf_counter() - (c0 if j == 0 else c1)) * 1e3
+            self.incremental.append(nom)
+            self._k += self._m
 
     def finish(self) -> dict[str, Any]:
         """End the drive: the batch evaluator on every pose received (the final update)."""
