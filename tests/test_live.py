@@ -423,3 +423,61 @@ def test_websocket_refuses_bad_input_with_problems(ws_client, monkeypatch):
             with pytest.raises(WebSocketDisconnect) as closed:
                 second.receive_json()
             assert closed.value.code == 1013
+
+
+def test_websocket_over_a_real_connection():
+    """The live router behind uvicorn on loopback, configured as `excite serve` configures it: a
+    drive streamed over a real WebSocket ends with `excite score`; a frame over the size bound is
+    cut off by the protocol (1009) and the server serves on."""
+    import socket
+
+    import uvicorn
+    from fastapi import FastAPI
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    from api.routers import live as router
+
+    app = FastAPI()
+    app.include_router(router.router)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
+                                           ws_max_size=router.MAX_MESSAGE_BYTES))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    rows = _tum_rows(FIGURE_EIGHT)
+    score = evaluate(read_tum(FIGURE_EIGHT), load_rig("robotaxi"))
+    try:
+        for _ in range(200):
+            if server.started:
+                break
+            time.sleep(0.05)
+        url = f"ws://127.0.0.1:{port}/v1/live"
+        for attempt in ("drive", "oversize", "drive"):
+            with connect(url, max_size=None) as ws:
+                ws.send(json.dumps({"type": "start"}))
+                assert json.loads(ws.recv(10))["type"] == "started"
+                if attempt == "oversize":
+                    ws.send(json.dumps({"type": "poses", "poses": [[0.0] * 8] * (router.MAX_MESSAGE_BYTES // 30)}))
+                    with pytest.raises(ConnectionClosed) as closed:
+                        ws.recv(10)
+                    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1009
+                    continue
+                for i in range(0, len(rows), 100):
+                    ws.send(json.dumps({"type": "poses", "poses": rows[i:i + 100]}))
+                ws.send(json.dumps({"type": "end"}))
+                events = []
+                while not events or events[-1]["type"] != "final":
+                    events.append(json.loads(ws.recv(30)))
+            for p, q in zip(events[-1]["parameters"], score.parameters):
+                assert q.sigma is None or _rel(p["sigma"], q.sigma) <= 1e-9
+        for _ in range(100):
+            if router._sessions["open"] == 0:
+                break
+            time.sleep(0.02)
+        assert router._sessions["open"] == 0
+    finally:
+        server.should_exit = True
+        th.join(10)
