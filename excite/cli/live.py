@@ -229,6 +229,22 @@ def _table(update: dict[str, Any], rig_name: str) -> Any:
     return Group(*parts)
 
 
+class _LogLines:
+    """Updates as lines (output that is not a terminal): time, distance, score, parameters within
+    target, the furthest-behind parameter and what it needs."""
+
+    def __init__(self, out: Any):
+        self.out = out
+
+    def line(self, u: dict[str, Any]) -> None:
+        ps = u["parameters"]
+        ok = sum(p["status"] == "ok" for p in ps)
+        worst = min(ps, key=lambda p: p["progress"])
+        tail = "" if worst["status"] == "ok" else f"  lowest {worst['name']} {100 * worst['progress']:.0f} %: {worst['advice']}"
+        self.out.print(f"t {u['t_s']:6.0f} s  {u['length_m'] / 1000:5.2f} km  score {u['score']:.3g}  "
+                       f"{ok}/{len(ps)} within target{tail}", markup=False, highlight=False)
+
+
 @app.command()
 def live(
     route: Annotated[Path, typer.Argument(help="Pose source: a TUM/CSV file (followed as it grows, "
@@ -262,6 +278,8 @@ def live(
             typer.echo(json.dumps(update, separators=(",", ":")))
         elif update["type"] == "done":
             out.print(f"[bold green]done[/] at t = {update['t_s']:.0f} s: {update['reason']}")
+        elif isinstance(display, _LogLines):
+            display.line(update)
         elif display is not None:
             display.update(_table(update, r.name))
 
@@ -275,6 +293,8 @@ def live(
 
     if json_out:
         done = run(None)
+    elif not out.is_terminal:  # a log: one line per update
+        done = run(_LogLines(out))
     else:
         from rich.live import Live
 
@@ -283,6 +303,7 @@ def live(
                 def update(self, renderable: Any) -> None:
                     display.update(renderable, refresh=True)
             done = run(_Refresh())
+        out.print()
     if done:
         raise typer.Exit(0)
     final = stream.finish()
