@@ -219,7 +219,12 @@ class Guide:
         for i, p in enumerate(rep.parameters):
             need = 1.0 / p.target ** 2
             eta = None if p.ok else ((need - gained[i]) / rate[i] if rate[i] > 0 else None)
-            status = "ok" if p.ok else ("gaining" if eta is not None and eta <= self.horizon_s else "needs")
+            if p.ok:
+                status = "ok"
+            elif t <= t_then:  # no rate yet: only an unobservable parameter is known to need other motion
+                status = "needs" if p.sigma is None else "gaining"
+            else:
+                status = "gaining" if eta is not None and eta <= self.horizon_s else "needs"
             params.append({
                 "name": p.name, "unit": p.unit, "sigma": p.sigma, "target": p.target,
                 "progress": 0.0 if p.sigma is None else float(min(1.0, p.target / p.sigma)),

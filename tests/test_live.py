@@ -229,16 +229,18 @@ def test_cli_kitti_00_replay_ends_with_excite_score(kitti):
 
 
 def test_cli_follows_a_growing_file_and_reads_stdin(tmp_path):
-    lines = FIGURE_EIGHT.read_text().splitlines(keepends=True)
-    score = evaluate(read_tum(FIGURE_EIGHT), load_rig("robotaxi"))
+    lines = FIGURE_EIGHT.read_text().splitlines(keepends=True)[:402]  # 40 s
+    whole = tmp_path / "whole.tum"
+    whole.write_text("".join(lines))
+    score = evaluate(read_tum(whole), load_rig("robotaxi"))
     growing = tmp_path / "drive.tum"
     growing.write_text("".join(lines[:100]))
 
     def writer():
         with open(growing, "a") as fh:
-            for i in range(100, len(lines), 100):
+            for i in range(100, len(lines), 50):
                 time.sleep(0.05)
-                fh.write("".join(lines[i:i + 100]))
+                fh.write("".join(lines[i:i + 50]))
                 fh.flush()
 
     th = threading.Thread(target=writer)

@@ -43,6 +43,7 @@ class _Lines:
 
     def parse(self, raw: str) -> tuple[float, list[float]] | None:
         from ..errors import RouteError
+        from ..routes import _is_number
 
         self.line += 1
         text = raw.strip()
@@ -90,14 +91,6 @@ class _Lines:
             raise RouteError(f"a quaternion has norm {norm[np.argmax(np.abs(norm - 1))]:.6g}, not 1",
                              source=self.source, line=self.line)
         return t, d[:, :3], Rotation.from_quat(q / norm[:, None]).as_matrix()
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _batches_of_lines(lines: Iterator[str | None], parser: _Lines) -> Iterator[tuple]:
