@@ -259,6 +259,31 @@ def test_cli_follows_a_growing_file_and_reads_stdin(tmp_path):
         assert out.exit_code == (0 if final["done"] else 1)
 
 
+def test_cli_replays_a_bag_like_excite_score(data_dir):
+    bag = str(data_dir / "nav2_turtlebot.mcap")
+    runner = CliRunner()
+    r = runner.invoke(app, ["live", bag, "--topic", "/odom", "--replay", "1000x", "--json"])
+    assert r.exit_code in (0, 1), r.output
+    final = _json_lines(r.stdout)[-1]
+    s = runner.invoke(app, ["score", bag, "--topic", "/odom", "--json"])
+    assert s.exit_code == 0, s.output
+    for a, b in zip(final["parameters"], json.loads(s.stdout)["parameters"]):
+        assert (a["sigma"] is None) == (b["sigma"] is None)
+        assert b["sigma"] is None or _rel(a["sigma"], b["sigma"]) <= 1e-9
+    assert r.exit_code == (0 if final["done"] else 1)
+
+
+def test_replay_hands_poses_over_at_the_chosen_speed():
+    from excite.cli.live import _paced
+
+    t = np.arange(101) * 0.1  # 10 s of poses
+    c0 = time.monotonic()
+    got = [tb for tb, _, _ in _paced(t, np.zeros((101, 3)), np.zeros((101, 3, 3)), 25.0)]
+    wall = time.monotonic() - c0
+    assert np.array_equal(np.concatenate(got), t)
+    assert 10 / 25 - 0.01 <= wall < 10 / 25 + 1.0
+
+
 def test_cli_errors_are_one_line(tmp_path):
     bad = tmp_path / "bad.tum"
     bad.write_text("0 0 0 0 0 0 0 1\n0.1 0 0 zero 0 0 0 1\n")
