@@ -196,6 +196,21 @@ def test_straight_then_figure_eight_progress_advice_and_done(test_rig):
 # --- excite live ---------------------------------------------------------------------------------
 
 
+def test_cli_exits_0_when_done(test_rig, tmp_path):
+    """The straight-then-figure-eight logged as TUM and replayed: `done` ends the command with 0
+    at the first update where every parameter is within target."""
+    from excite.routes import write_tum
+
+    rig_file = tmp_path / "rig.yaml"
+    rig_file.write_text(TEST_RIG)
+    tum = write_tum(_straight_then_eight(test_rig), tmp_path / "drive.tum")
+    r = CliRunner().invoke(app, ["live", str(tum), "--rig", str(rig_file), "--replay", "1000x", "--json"])
+    assert r.exit_code == 0, r.output
+    events = _json_lines(r.stdout)
+    assert events[-1]["type"] == "done" and events[-2]["type"] == "update" and events[-2]["passed"]
+    assert not any(e["passed"] for e in events[:-2]) and events[-1]["t_s"] > 15
+
+
 def _json_lines(text: str) -> list[dict]:
     return [json.loads(line) for line in text.splitlines() if line.strip()]
 
