@@ -24,8 +24,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from bench_evaluate import cpu_model, generated
+
 from excite import live
 from excite.rig import load_rig
 

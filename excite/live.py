@@ -40,9 +40,9 @@ from typing import Any, Iterator
 import numpy as np
 import scipy.linalg as sla
 
-from . import advice, information
+from . import advice, bounds, information
 from .errors import EvaluationError, RouteError
-from .evaluate import Options, Report, check_work, evaluate, report_of
+from .evaluate import Options, Report, evaluate, report_of
 from .factors.base import Nominal
 from .information import DriveInformation, Piece
 from .rig import Rig
@@ -319,8 +319,8 @@ class PoseStream:
         if t.size and np.any(np.diff(np.concatenate([[last], t])) <= 0):
             raise RouteError("pose times must be strictly increasing")
         self._poses.add(t, p, R)
-        if self._poses.n and self._poses.t[self._poses.n - 1] - self._poses.t[0] > _max_duration():
-            raise RouteError(f"the drive lasts over the limit of {_max_duration():g} s")
+        if self._poses.n and self._poses.t[self._poses.n - 1] - self._poses.t[0] > bounds.max_duration_s():
+            raise RouteError(f"the drive lasts over the limit of {bounds.max_duration_s():g} s")
         latest = self._poses.t[self._poses.n - 1] if self._poses.n else -np.inf
         ready = 0  # chunks the poses now reach lookahead_s past
         while self._poses.n >= MIN_POSES and self._time(self._k + (ready + 1) * self._m) + self.lookahead_s <= latest:
@@ -356,18 +356,11 @@ class PoseStream:
             raise RouteError(f"too few poses: {n}, need at least {MIN_POSES}")
         traj = trajectory_from_poses(self._poses.t[:n], self._poses.p[:n], self._poses.R[:n],
                                      cutoff_hz=self.cutoff_hz, name=self.name)
-        check_work([traj], self.rig)
         rep = evaluate(traj, self.rig, self.options)
         out = self.guide.describe(rep, float(self._poses.t[n - 1] - self._poses.t[0]), kind="final")
         out["report"] = rep.to_dict()
         out["done"] = self.guide.done or rep.passed
         return out
-
-
-def _max_duration() -> float:
-    from . import bounds
-
-    return bounds.max_duration_s()
 
 
 def updates_of(traj: Trajectory, rig: Rig, options: Options = Options(),

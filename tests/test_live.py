@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import excite.cli.live  # noqa: F401  (registers `excite live` on the app)
-import excite.cli.score  # noqa: F401
+import excite.cli.live  # registers `excite live` on the app
+import excite.cli.score  # noqa: F401  (and `excite score`)
 from excite import information, live, maneuvers, vehicle
 from excite.cli import app
 from excite.evaluate import evaluate, report_of
@@ -307,9 +307,10 @@ def test_cli_errors_are_one_line(tmp_path):
         r = CliRunner().invoke(app, args)
         assert r.exit_code != 0
         assert "Traceback" not in r.output
-    from excite.cli import main
     import contextlib
     import io
+
+    from excite.cli import main
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err):

@@ -7,7 +7,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Iterator, Optional, TextIO
+from typing import TYPE_CHECKING, Annotated, Any, Iterator, Optional
 
 import typer
 
