@@ -454,6 +454,8 @@ def test_websocket_refuses_bad_input_with_problems(ws_client, monkeypatch):
     _refused(ws_client, [start] + [{"type": "poses", "poses": [[i, 0, 0, 0, 0, 0, 0, 1]]} for i in range(5)],
              429, "message", 1008)
     monkeypatch.setattr(router, "BURST", 100)
+    monkeypatch.setattr(router, "IDLE_S", 0.2)
+    _refused(ws_client, [start], 408, "session", 1008)  # then silence
     monkeypatch.setattr(router, "MAX_SESSIONS", 1)
     with ws_client.websocket_connect("/v1/live") as first:
         first.send_text(json.dumps(start))

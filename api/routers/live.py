@@ -16,8 +16,9 @@ Protocol (text frames, one JSON object each):
 
 Bounds: a message is at most :data:`MAX_MESSAGE_BYTES` (uvicorn's ``ws_max_size`` bounds the
 frame before it is read) and :data:`MAX_POSES` poses; a session sends at most
-:data:`MAX_MESSAGES_PER_S` messages per second on average (burst :data:`BURST`). A session's state
-lives in its handler only: a broken connection frees everything.
+:data:`MAX_MESSAGES_PER_S` messages per second on average (burst :data:`BURST`) and is closed after
+:data:`IDLE_S` without a message. A session's state lives in its handler only: a broken
+connection frees everything.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ MAX_POSES = 5000
 MAX_MESSAGES_PER_S = 50.0
 BURST = 100
 MAX_SESSIONS = 16
+IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot freed)
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
 
 
@@ -54,9 +56,10 @@ class _Refused(Exception):
 
 def problem(status: int, field: str, message: str) -> dict[str, Any]:
     """The error frame: the fields of an RFC 9457 problem document."""
-    kind = {413: "too-large", 422: "validation", 429: "rate-limited", 503: "unavailable"}.get(status, "http-error")
-    title = {413: "Content too large", 422: "Unprocessable content", 429: "Too many requests",
-             503: "Service unavailable"}.get(status, "Bad request")
+    kind = {408: "timeout", 413: "too-large", 422: "validation", 429: "rate-limited",
+            503: "unavailable"}.get(status, "http-error")
+    title = {408: "Request timeout", 413: "Content too large", 422: "Unprocessable content",
+             429: "Too many requests", 503: "Service unavailable"}.get(status, "Bad request")
     return {"type": "error", "problem": {"type": TYPE_BASE + kind, "title": title, "status": status,
                                          "detail": f"{field}: {message}",
                                          "errors": [{"field": field, "message": message}]}}
@@ -156,7 +159,11 @@ async def _session(ws: WebSocket) -> None:
     bucket = _Bucket(MAX_MESSAGES_PER_S, BURST)
     stream: PoseStream | None = None
     while True:
-        text = await ws.receive_text()
+        with anyio.move_on_after(IDLE_S) as idle:
+            text = await ws.receive_text()
+        if idle.cancelled_caught:
+            await _refuse(ws, _Refused(408, "session", f"no message for {IDLE_S:g} s"))
+            return
         try:
             if not bucket.take():
                 raise _Refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second", 1008)
