@@ -20,7 +20,7 @@ from . import problems
 from .context import Context
 from .jobs import JobRunner
 from .middleware import BodyLimit, Metrics, TimeLimit
-from .routers import batch, health, jobs, maneuvers, page, rigs, score
+from .routers import batch, health, jobs, live, maneuvers, page, rigs, score
 from .pool import WorkerPool
 from .scoring import warm
 from .settings import Settings
@@ -71,7 +71,7 @@ def create_app(settings: Settings | None = None, *,
     app.openapi = _openapi_with_settings(app, settings)
     problems.install(app)
     app.include_router(score.bag_router)  # multipart POST /v1/score: before the JSON route
-    for module in (score, batch, maneuvers, jobs, rigs, health, page):
+    for module in (score, batch, maneuvers, jobs, rigs, health, page, live):
         app.include_router(module.router)
     app.mount("/static", page.static_files(), name="static")
     # added last = outermost: metrics see every answer, the body limit comes before the clock

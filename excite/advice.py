@@ -40,6 +40,25 @@ _ADVICE = {
 }
 
 
+# The same, in the words of whoever drives: what motion a direction still needs.
+NEEDS = {
+    ("trans", 2): "needs pitch and roll: a ramp, hard braking, brisk cornering",
+    ("trans", 0): "needs turns both ways at changing speed: a figure-eight, a slalom",
+    ("trans", 1): "needs turns both ways at changing speed: a figure-eight, a slalom",
+    ("rot", 0): "needs turns: straight driving cannot reach it",
+    ("rot", 1): "needs turns and pitch: braking, a ramp",
+    ("rot", 2): "needs straight runs and turns",
+    ("time_offset", None): "needs changing turn rate and speed: a slalom, stop-and-go",
+    ("gyro_bias", None): "needs rotation, or a longer drive",
+    ("accel_bias", 0): "needs heading changes: turn left and right",
+    ("accel_bias", 1): "needs heading changes: turn left and right",
+    ("accel_bias", 2): "needs changing speed and attitude: braking, a ramp",
+    ("radius", None): "needs several curvatures: turn left, turn right, drive straight",
+    ("track", None): "needs turns: turn both ways",
+    ("scale", None): "needs speed changes: accelerate and brake",
+}
+
+
 def vehicle_axis(rig: Rig, c: Coordinate) -> int | None:
     """The vehicle axis (0 forward, 1 lateral, 2 vertical) a vector coordinate points along."""
     if c.kind not in ("trans", "rot", "accel_bias"):
@@ -53,16 +72,24 @@ def vehicle_axis(rig: Rig, c: Coordinate) -> int | None:
     return int(np.argmax(np.abs(R_V_B @ e)))
 
 
-def describe(rig: Rig, coords: list[Coordinate], weights: np.ndarray) -> str:
-    """Motion advice for a mode: the advice of its one or two dominant kinds of coordinate."""
+def needs(rig: Rig, c: Coordinate) -> str:
+    """What motion coordinate ``c`` still needs, in the driver's words (:data:`NEEDS`)."""
+    text = NEEDS[(c.kind, vehicle_axis(rig, c) if (c.kind, 0) in NEEDS else None)]
+    return text[0].upper() + text[1:]
+
+
+def describe(rig: Rig, coords: list[Coordinate], weights: np.ndarray,
+             table: dict[tuple[str, int | None], str] = _ADVICE) -> str:
+    """Motion advice for a mode: the advice of its one or two dominant kinds of coordinate, from
+    ``table`` (the report's :data:`_ADVICE`, or :data:`NEEDS` for the driver)."""
     energy: dict[tuple[str, int | None], float] = {}
     for c, w in zip(coords, weights):
-        key = (c.kind, vehicle_axis(rig, c) if (c.kind, 0) in _ADVICE else None)
+        key = (c.kind, vehicle_axis(rig, c) if (c.kind, 0) in table else None)
         energy[key] = energy.get(key, 0.0) + float(w) ** 2
     ranked = sorted(energy.items(), key=lambda kv: -kv[1])
     parts: list[str] = []
     for k, e in ranked[:2]:
-        if (e >= 0.2 or not parts) and k in _ADVICE and _ADVICE[k] not in parts:
-            parts.append(_ADVICE[k])
+        if (e >= 0.2 or not parts) and k in table and table[k] not in parts:
+            parts.append(table[k])
     text = "; ".join(parts)
     return text[0].upper() + text[1:]

@@ -232,7 +232,18 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
         raise EvaluationError("no drive to evaluate")
     check_work(trajs, rig)
     t0 = time.perf_counter()
-    drives = information.drive_information(trajs, rig)
+    return report_of(information.drive_information(trajs, rig), rig, options, trajs, t0=t0)
+
+
+def report_of(drives: information.DriveInformation, rig: Rig, options: Options = Options(),
+              trajs: Sequence[Trajectory] = (), route: str | None = None, t0: float | None = None) -> Report:
+    """The report of the information ``drives`` of the drives ``trajs`` (needed for segments and
+    the export only; ``route`` names them otherwise): :func:`evaluate`'s second half, shared with
+    the incremental evaluator (:mod:`excite.live`). ``t0``: when the information was started."""
+    trajs = list(trajs)
+    if options.segments and not trajs:
+        raise EvaluationError("segments need the drives themselves")
+    t0 = time.perf_counter() if t0 is None else t0
     Lam_all = drives.information
     if not np.all(np.isfinite(Lam_all)):
         raise EvaluationError("the information is not finite: the drive or the rig has numbers "
@@ -299,7 +310,7 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     timings.update(report=(t4 - t3) * 1e3, segments=(t5 - t4) * 1e3, total=(t5 - t0) * 1e3)
 
     column_map = [{"index": i, "name": c.name, "unit": c.unit, "target": c.target} for i, c in enumerate(coords)]
-    names, nuisance = information.columns(rig, len(trajs))
+    names, nuisance = information.columns(rig, len(trajs) or 1)
     units = {c.name: c.unit for c in rig.coordinates}
     all_columns = [{"index": i, "name": n, "unit": units[n.split("@")[0]], "nuisance": bool(nuisance[i])}
                    for i, n in enumerate(names)]
@@ -308,7 +319,7 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
         raise EvaluationError("the evaluation produced a non-finite number: the drive or the rig "
                               "has numbers beyond what the model can represent")
     return Report(
-        route=" + ".join(t.name for t in trajs), rig=rig.name,
+        route=route if route is not None else " + ".join(t.name for t in trajs), rig=rig.name,
         duration_s=drives.duration_s, length_m=drives.length_m, n_keyframes=drives.n_keyframes,
         score=spec.score, passed=all(p.ok for p in params), rank=spec.rank, nullity=spec.nullity,
         rank_threshold=spec.threshold, rank_normalisation=spectrum.NORMALISATION,
@@ -317,6 +328,6 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
         spectrum_normalised=[float(x) for x in spec.normalised],
         column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
-        information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig), _all_columns=all_columns,
+        information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig) if trajs else None, _all_columns=all_columns,
         _information_all=Lam_all,
     )

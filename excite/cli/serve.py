@@ -35,8 +35,10 @@ def serve(
         raise ExciteError(f"invalid settings: {problems}") from None
     log_service(log_level)
     # one server process: the job store is shared, the dispatcher must be alone
+    from api.routers.live import MAX_MESSAGE_BYTES
+
     uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level,
-                timeout_graceful_shutdown=10)
+                timeout_graceful_shutdown=10, ws_max_size=MAX_MESSAGE_BYTES)
 
 
 def log_service(level: str) -> None:
