@@ -52,8 +52,8 @@ from .trajectory import Trajectory
 CHUNK_S = 1.0  # drive time per appended chunk of keyframes (and so per update)
 LOOKAHEAD_S = 5.0  # poses a stream waits for past a chunk before committing it
 RATE_WINDOW_S = 30.0  # the information rate behind an ETA is measured over this much drive time
-HORIZON_S = 3600.0
-MAX_CHUNKS_PER_FIT = 60  # poses that arrive at once are fitted in windows of at most this many chunks  # a parameter whose ETA lies beyond this needs other motion
+HORIZON_S = 3600.0  # a parameter whose ETA lies beyond this needs other motion
+MAX_CHUNKS_PER_FIT = 60  # poses that arrive at once are fitted in windows of at most this many chunks
 
 
 class Incremental:
