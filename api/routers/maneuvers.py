@@ -8,6 +8,7 @@ from fastapi import APIRouter, Response
 
 from excite.errors import ExciteError
 from excite.optimize import OptimizeSettings
+from excite.optimize.site import read_site
 from excite.vehicle import Limits
 
 from ..context import Ctx
@@ -33,11 +34,16 @@ def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
         raise ProblemError(422, f"time_budget_s: {body.time_budget_s:g} s is over the limit of "
                                 f"{s.max_job_time_budget_s:g} s",
                            errors=[{"field": "time_budget_s", "message": f"at most {s.max_job_time_budget_s:g} s"}])
+    if body.lot is not None:
+        try:
+            read_site(body.lot)
+        except ExciteError as exc:
+            raise ProblemError(422, str(exc), errors=[{"field": "lot", "message": str(exc)}]) from None
     try:
         OptimizeSettings(duration_s=body.duration_s, lot_x_m=body.lot_x_m,
                          lot_y_m=body.lot_y_m, limits=Limits(**body.limits.model_dump()),
                          seed=body.seed, time_budget_s=body.time_budget_s, closed=body.closed,
-                         n_random=body.n_random)
+                         n_random=body.n_random, criterion=body.criterion)
     except ExciteError as exc:  # the optimizer's own bounds, checked now rather than in a failed job
         field = str(exc).split(" ", 1)[0]
         raise ProblemError(422, str(exc), errors=[{"field": field, "message": str(exc)}]) from None
