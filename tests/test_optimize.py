@@ -138,7 +138,7 @@ def _toy(M_of, g_of, lbg, ubg, lbz, ubz) -> Transcription:
     return Transcription(grid=None, scales=None, limits=None, site=None, closed=False,
                          M=ca.Function("M", [z], [M_of(z)]), kin=None, g_kin=ca.Function("g", [z], [g_of(z)]),
                          lbg_kin=np.array(lbg, float), ubg_kin=np.array(ubg, float),
-                         lbz=np.array(lbz, float), ubz=np.array(ubz, float), n_params=2)
+                         lbg_ok=np.array(lbg, float), ubg_ok=np.array(ubg, float), lbz=np.array(lbz, float), ubz=np.array(ubz, float), n_params=2)
 
 
 def test_recovers_known_optimum_with_coalescing_eigenvalues():

@@ -35,7 +35,7 @@ def cobyla(tr: Transcription, z0: np.ndarray, budget_s: float, criterion: str = 
             raise _OutOfTime
         best["n"] += 1
         s = model_value(tr, z, criterion)
-        if s > best["s"] and violation(tr, z) <= FEASIBLE_TOL:
+        if s > best["s"] and violation(tr, z, within_limits=True) <= FEASIBLE_TOL:
             best["z"], best["s"] = z.copy(), s
         if progress is not None:
             progress(best["n"], best["s"])

@@ -33,6 +33,7 @@ CONSTRAINT_EVERY = 2  # nonlinear constraints (the lot) at every 2nd IMU sample 
 
 
 LOT_BUFFER_M = 0.25  # the optimizer keeps this much more than the margin (path between samples)
+CLOSURE_TOL_M, CLOSURE_TOL_RAD = 0.5, 0.02  # a closed maneuver's end pose, for the check's candidates
 
 
 @dataclass
@@ -49,6 +50,8 @@ class Transcription:
     g_kin: ca.Function
     lbg_kin: np.ndarray
     ubg_kin: np.ndarray
+    lbg_ok: np.ndarray  # the limits themselves (the optimizer's bounds are inside them)
+    ubg_ok: np.ndarray
     lbz: np.ndarray
     ubz: np.ndarray
     n_params: int
@@ -78,33 +81,40 @@ def transcribe(rig: Rig, settings, site, knot_step_s: float = 1.5, keyframe_rate
     u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
     e = CONSTRAINT_EVERY
     m = LIMIT_MARGIN
-    rows, lb, ub = [], [], []
+    rows, lb, ub, lb_ok, ub_ok = [], [], [], [], []
 
-    def add(expr, lo, hi):
+    def add(expr, lo, hi, lo_ok=None, hi_ok=None):
+        """A constraint row block: the optimizer's bounds [lo, hi] and the wider bounds [lo_ok,
+        hi_ok] within which an iterate is worth the independent check (the limits themselves)."""
+        n = expr.shape[0]
         rows.append(expr)
-        lb.append(np.broadcast_to(lo, (expr.shape[0],)))
-        ub.append(np.broadcast_to(hi, (expr.shape[0],)))
+        for out, v in ((lb, lo), (ub, hi), (lb_ok, lo if lo_ok is None else lo_ok), (ub_ok, hi if hi_ok is None else hi_ok)):
+            out.append(np.broadcast_to(v, (n,)))
+
+    def limit(expr, lo, hi, margin=m):
+        add(expr, margin * lo, margin * hi, lo, hi)
 
     # linear in z (cheap): at every sample, so the spline cannot dip below zero speed between
     # constraint points (drive() clips negative speed: a jerk spike in the independent check)
-    add(u, 0.0, m * limits.speed_max_mps)
-    add(a, -m * limits.decel_max_mps2, m * limits.accel_max_mps2)
-    add(j, -JERK_MARGIN * limits.jerk_max_mps3, JERK_MARGIN * limits.jerk_max_mps3)
-    add(k, -m * limits.curvature_max_1pm, m * limits.curvature_max_1pm)
-    add(kd, -m * limits.curvature_rate_max_1pms, m * limits.curvature_rate_max_1pms)
+    add(u, 0.0, m * limits.speed_max_mps, 0.0, limits.speed_max_mps)
+    limit(a, -limits.decel_max_mps2, limits.accel_max_mps2)
+    limit(j, -limits.jerk_max_mps3, limits.jerk_max_mps3, JERK_MARGIN)
+    limit(k, -limits.curvature_max_1pm, limits.curvature_max_1pm)
+    limit(kd, -limits.curvature_rate_max_1pms, limits.curvature_rate_max_1pms)
     # lateral acceleration at every sample: it peaks sharply in fast slaloms
-    add(u * u * k, -m * limits.lat_accel_max_mps2, m * limits.lat_accel_max_mps2)
+    limit(u * u * k, -limits.lat_accel_max_mps2, limits.lat_accel_max_mps2)
     # the lot: smooth signed distance to the nearest edge or keep-out zone
     clear = site.clearance()
-    add(clear(ca.horzcat(x[::e], y[::e]).T).T, site.margin_m + LOT_BUFFER_M, np.inf)
+    add(clear(ca.horzcat(x[::e], y[::e]).T).T, site.margin_m + LOT_BUFFER_M, np.inf, site.margin_m, np.inf)
     for cap_expr, cap in site.terrain.speed_limits(u, x, y):
-        add(cap_expr, -np.inf, m * cap)
+        add(cap_expr, -np.inf, m * cap, -np.inf, cap)
     lay_pose = z[lay.pose]
     if closed := settings.closed:
-        add(ca.vertcat(x[-1] - lay_pose[0] * sc.position_m, y[-1] - lay_pose[1] * sc.position_m), 0.0, 0.0)
+        add(ca.vertcat(x[-1] - lay_pose[0] * sc.position_m, y[-1] - lay_pose[1] * sc.position_m), 0.0, 0.0,
+            -CLOSURE_TOL_M, CLOSURE_TOL_M)
         # heading: the winding number is fixed by the start (see solve); compared via sin/cos
-        add(ca.sin(psi[-1] - lay_pose[2]), 0.0, 0.0)
-        add(ca.cos(psi[-1] - lay_pose[2]), 0.99, 1.0)
+        add(ca.sin(psi[-1] - lay_pose[2]), 0.0, 0.0, -CLOSURE_TOL_RAD, CLOSURE_TOL_RAD)
+        add(ca.cos(psi[-1] - lay_pose[2]), 0.99, 1.0, 0.98, 1.0)
     g = ca.vertcat(*rows)
     g_kin = ca.Function("g_kin", [z], [g])
     kin = ca.Function("kin", [z], [ca.horzcat(u, a, j, k, kd, x, y, psi)])
@@ -119,7 +129,8 @@ def transcribe(rig: Rig, settings, site, knot_step_s: float = 1.5, keyframe_rate
         ex, ey, eh = site.entry
         lbz[lay.pose] = ubz[lay.pose] = [ex / sc.position_m, ey / sc.position_m, eh]
     return Transcription(grid, sc, limits, site, closed, M_fun, kin, g_kin,
-                         np.concatenate(lb), np.concatenate(ub), lbz, ubz, len(crig.scored))
+                         np.concatenate(lb), np.concatenate(ub), np.concatenate(lb_ok), np.concatenate(ub_ok),
+                         lbz, ubz, len(crig.scored))
 
 
 class _IterationCallback(ca.Callback):
@@ -158,11 +169,12 @@ class _IterationCallback(ca.Callback):
         return [1 if stop else 0]
 
 
-def violation(tr: Transcription, z: np.ndarray) -> float:
-    """Largest violation of the kinematic constraints and the variable bounds at z."""
-    gv = np.array(tr.g_kin(z)).ravel()
-    v = np.maximum(tr.lbg_kin - gv, 0.0).max(initial=0.0)
-    v = max(v, np.maximum(gv - tr.ubg_kin, 0.0).max(initial=0.0))
+def violation(tr: Transcription, z: np.ndarray, g: np.ndarray | None = None, within_limits: bool = False) -> float:
+    """Largest violation at z of the optimizer's constraints (or, ``within_limits``, of the
+    limits themselves: the wider bounds) and of the variable bounds."""
+    gv = np.array(tr.g_kin(z)).ravel() if g is None else g
+    lo, hi = (tr.lbg_ok, tr.ubg_ok) if within_limits else (tr.lbg_kin, tr.ubg_kin)
+    v = max(np.maximum(lo - gv, 0.0).max(initial=0.0), np.maximum(gv - hi, 0.0).max(initial=0.0))
     v = max(v, np.maximum(tr.lbz - z, 0.0).max(initial=0.0), np.maximum(z - tr.ubz, 0.0).max(initial=0.0))
     return float(v)
 
@@ -173,7 +185,11 @@ SOFTMIN_BETA = 20.0  # sharpness of the soft minimum, in units of the start's λ
 # IPOPT's options (benchmarks/bench_ipopt.py measures alternatives on the default problem)
 IPOPT_OPTIONS: dict[str, object] = {
     "ipopt.hessian_approximation": "limited-memory", "ipopt.limited_memory_max_history": 20,
-    "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-7, "ipopt.mu_strategy": "adaptive",
+    "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-7,
+    # a small, monotone barrier: the adaptive default starts at μ = 0.1, where the barrier of the
+    # thousands of constraint rows outweighs the objective and IPOPT first drives to the middle of
+    # the feasible set (the weakest excitation); measured in benchmarks/bench_ipopt.py
+    "ipopt.mu_strategy": "monotone", "ipopt.mu_init": 1e-3,
 }
 
 # IPOPT's return status → ours. "Stopped" covers the time budget, the iteration cap and
@@ -197,10 +213,11 @@ class _Objective(ca.Callback):
     even where eigenvalues cross (a symmetric function of the spectrum)."""
 
     def __init__(self, M: ca.Function, n_z: int, criterion: str, mu: float, deadline: float = np.inf,
-                 grad: bool = False):
+                 grad: bool = False, last: dict | None = None):
         ca.Callback.__init__(self)
         self.Mf, self.n_z, self.criterion, self.mu, self.grad = M, n_z, criterion, mu, grad
         self.deadline = deadline
+        self.last = {} if last is None else last  # the last z and M(z), shared with the gradient
         self.Mrev = M.reverse(1) if grad else None
         self._revs: list[_Objective] = []  # CasADi holds raw pointers: keep them alive
         self.construct("objective_grad" if grad else "objective", {})
@@ -222,7 +239,7 @@ class _Objective(ca.Callback):
             # an iteration can take seconds on a loaded machine: stop inside it, not after it
             raise _PastDeadline
         z = np.array(arg[0]).ravel()
-        M = np.array(self.Mf(z))
+        M = self.M(z)
         w, V = np.linalg.eigh(M)
         f, dw = criteria.smooth(w, self.criterion, self.mu, SOFTMIN_BETA)
         if not self.grad:
@@ -230,11 +247,17 @@ class _Objective(ca.Callback):
         seed = float(arg[2]) * (V * dw) @ V.T
         return [self.Mrev(z, M, seed)]
 
+    def M(self, z: np.ndarray) -> np.ndarray:
+        """M(z), computed once per point (IPOPT asks for f and ∇f at the same z)."""
+        if self.last.get("z") is None or not np.array_equal(self.last["z"], z):
+            self.last.update(z=z.copy(), M=np.array(self.Mf(z)))
+        return self.last["M"]
+
     def has_reverse(self, nadj):
         return not self.grad and nadj == 1
 
     def get_reverse(self, nadj, name, inames, onames, opts):
-        rev = _Objective(self.Mf, self.n_z, self.criterion, self.mu, self.deadline, grad=True)
+        rev = _Objective(self.Mf, self.n_z, self.criterion, self.mu, self.deadline, grad=True, last=self.last)
         self._revs.append(rev)
         return rev
 
@@ -243,8 +266,10 @@ class _Objective(ca.Callback):
 class Outcome:
     """What :func:`solve` returns.
 
-    ``feasible``: every iterate (the start included) that satisfies the optimizer's constraints,
-    as ``(model criterion value, z)``, best first — candidates for the independent check.
+    ``feasible``: every iterate (the start included) within the limits themselves (the
+    optimizer's own bounds keep margins inside them, which an iterate on its way may not yet
+    respect), as ``(model criterion value, z)``, best first — candidates for the independent
+    check, which alone decides what is feasible.
     ``status``: ``converged``, ``time_budget`` (stopped by the deadline or the iteration cap),
     ``cancelled``, ``infeasible`` (IPOPT found the constraints infeasible) or ``failed``
     (any other IPOPT failure); ``ipopt_status``: IPOPT's own return status.
@@ -254,7 +279,8 @@ class Outcome:
     iterations: int
     status: str
     ipopt_status: str
-    history: list[tuple[int, float, float, float]]  # (iteration, model criterion, violation, elapsed)
+    history: list[tuple[int, float, float, float]]  # (iteration, model criterion, violation of the
+    # optimizer's constraints, elapsed)
 
     @property
     def z(self) -> np.ndarray | None:
@@ -286,16 +312,15 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     feasible: list[tuple[float, np.ndarray]] = []
     hist: list[tuple[int, float, float, float]] = []
 
-    def keep(x: np.ndarray, viol: float) -> float:
-        s = model_value(tr, x, criterion)
-        if viol <= FEASIBLE_TOL and np.isfinite(s):
+    def keep(x: np.ndarray, g: np.ndarray | None = None) -> tuple[float, float]:
+        g = np.array(tr.g_kin(x)).ravel() if g is None else g
+        s = criteria.value(obj.M(x), criterion)
+        if violation(tr, x, g, within_limits=True) <= FEASIBLE_TOL and np.isfinite(s):
             feasible.append((s, x.copy()))
-        return s
+        return s, violation(tr, x, g)
 
     def on_iter(x, f, g):
-        viol = float(max(np.maximum(tr.lbg_kin - g, 0).max(initial=0), np.maximum(g - tr.ubg_kin, 0).max(initial=0),
-                         np.maximum(tr.lbz - x, 0).max(initial=0), np.maximum(x - tr.ubz, 0).max(initial=0)))
-        s = keep(x, viol)
+        s, viol = keep(x, g)
         state["it"] = state.get("calls", 0)  # IPOPT reports its iteration 0 (the start) too
         state["calls"] = state["it"] + 1
         el = time.perf_counter() - t_start
@@ -311,11 +336,10 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
             "print_time": False, "iteration_callback": cb, "error_on_fail": False}
     solver = ca.nlpsol("optimize", "ipopt", {"x": z, "f": obj(z), "g": tr.g_kin(z)}, opts)
     solver._keep = (obj, cb)  # noqa: SLF001 — the callbacks must outlive the solver
-    keep(z0, violation(tr, z0))
+    keep(z0)
     try:
         sol = solver(x0=z0, lbx=tr.lbz, ubx=tr.ubz, lbg=tr.lbg_kin, ubg=tr.ubg_kin)
-        zf = np.array(sol["x"]).ravel()
-        keep(zf, violation(tr, zf))
+        keep(np.array(sol["x"]).ravel())
         stats = solver.stats()
         rs = str(stats.get("return_status", "unknown"))
         state["it"] = int(stats.get("iter_count", state["it"]))
