@@ -228,9 +228,6 @@ def test_cancel_returns_promptly_with_a_checked_drive(rig):
     assert check(res.profile, rig, s, s.lot)[1] == []
 
 
-@pytest.mark.xfail(reason="with this version IPOPT's 40 iterations from the chosen start did not beat "
-                          "the slalom on a loaded machine (the result was the slalom: never worse); "
-                          "see notes/issue-12", strict=False)
 def test_optimized_maneuver_beats_every_baseline_and_is_feasible(rig):
     """The issue's claim on a smaller problem that fits the test suite: 45 s in a 60 × 40 m lot,
     6 random candidates, IPOPT capped at 40 iterations (so that the outcome does not depend on
