@@ -38,7 +38,7 @@ from . import candidates as cand
 from .candidates import Candidate, as_written, check
 from .kinematics import layout, profile_from_z, z_from_profile
 from .settings import OptimizeError, OptimizeResult, OptimizeSettings, Progress
-from .solver import FEASIBLE_TOL, model_value, solve, transcribe, violation
+from .solver import FEASIBLE_TOL, model_value, restore, solve, transcribe, violation
 
 START_RANDOM = 20  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
 CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
@@ -168,7 +168,13 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
     # violating (from an infeasible start IPOPT first spends its iterations on feasibility, and
     # the excitation is lost on the way: benchmarks/bench_ipopt.py)
     ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
-    _, _, _, z_start, start = ranked[0]
+    ok, _, _, z_start, start = ranked[0]
+    start_note = ""
+    if not ok:  # e.g. every candidate starts elsewhere than the lot's entry: move to the nearest feasible
+        z_start, restored = restore(tr, z_start, time.perf_counter() + 0.25 * remaining())
+        start_note = (f"no candidate satisfied the optimizer's constraints: IPOPT started from {start.name} moved "
+                      f"to the nearest drive that does ({restored})")
+        report(0, model_value(tr, z_start, crit), violation(tr, z_start), "start")
     timings["start"] = time.perf_counter() - t0
     worker.start_rest(z_start, COBYLA_SHARE * budget, settings.n_random)
 
@@ -278,7 +284,7 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
         r["ratio"] = (rep.score / s) if s else None
     rows.sort(key=lambda r: -(r.get("score") or 0.0))
 
-    message = []
+    message = [start_note] if start_note else []
     if best.kind != "optimized":
         message.append(f"the result is {best.name} ({best.kind}): no IPOPT iterate that passed the check "
                        "was better")
