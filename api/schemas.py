@@ -366,6 +366,9 @@ class JobResult(Out):
     ipopt_status: str = ""
     source: str = "optimized"
     criterion: str = "E"
+    lot: dict[str, Any] | None = Field(None, description=(
+        "The lot planned in, in local metres: polygon and holes ([x, y] rings), entry [x, y, heading] "
+        "or null, terrain [{role, polygon}], margin_m."))
 
 
 class Job(Out):

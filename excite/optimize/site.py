@@ -46,6 +46,18 @@ class Site:
     terrain: Terrain = field(default_factory=Terrain)
     origin: tuple[float, float] | None = None
 
+    def outline(self) -> dict[str, Any]:
+        """The site in local metres as plain data (what a map draws): ``polygon`` and ``holes``
+        as lists of [x, y], ``entry`` as [x, y, heading] or None, ``terrain`` as a list of
+        ``{role, polygon}``, and the ``margin_m``."""
+        def ring(a) -> list[list[float]]:
+            return [[round(float(x), 3), round(float(y), 3)] for x, y in np.asarray(a)]
+
+        return {"polygon": ring(self.lot.polygon_m), "holes": [ring(h) for h in self.lot.holes],
+                "entry": None if self.entry is None else [float(v) for v in self.entry],
+                "terrain": [{"role": f.role, "polygon": ring(f.polygon_m)} for f in self.terrain.features],
+                "margin_m": float(self.margin_m)}
+
     @classmethod
     def rectangle(cls, length_m: float, width_m: float, **kw: Any) -> "Site":
         """``length_m`` along x × ``width_m`` along y, centred on the origin."""
