@@ -40,7 +40,7 @@ from .kinematics import layout, profile_from_z, z_from_profile
 from .settings import OptimizeError, OptimizeResult, OptimizeSettings, Progress
 from .solver import FEASIBLE_TOL, model_value, restore, solve, transcribe, violation
 
-START_RANDOM = 20  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
+START_RANDOM = 10  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
 CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
 COBYLA_SHARE = 0.15  # of the budget, for the derivative-free baseline (in the worker)
 CHECK_ITERATES = 15  # IPOPT iterates checked at most, best model value first ...
@@ -219,7 +219,7 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
     start_c = next((c for c in refs + randoms if c.name == start.name), None)
     if start_c is None:
         start_c = Candidate(start.name, "start", start, check(start, rig, settings, site)[1])
-    if start_c.feasible and (remaining() > 0 or not pool):
+    if start_c.feasible:  # always: the optimized drive is never worse than where it started
         pool.append(cand.full(start_c, rig, crit))
     cobc = None
     if cob is not None and cob["profile"] is not None and remaining() > 0:

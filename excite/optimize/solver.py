@@ -203,10 +203,6 @@ STOPPED = ("User_Requested_Stop", "Maximum_Iterations_Exceeded", "Maximum_CpuTim
 DEADLINE_GRACE_S = 0.5  # past the deadline, an objective evaluation aborts the IPOPT run
 
 
-class _PastDeadline(Exception):
-    pass
-
-
 class _Objective(ca.Callback):
     """A smooth spectral objective of M(z) (:func:`.criteria.smooth`) and its exact gradient:
     ``∂f/∂M = V diag(∂f/∂λ) Vᵀ`` pushed through one reverse sweep of the CasADi model. Smooth
@@ -236,8 +232,10 @@ class _Objective(ca.Callback):
 
     def eval(self, arg):
         if time.perf_counter() > self.deadline:
-            # an iteration can take seconds on a loaded machine: stop inside it, not after it
-            raise _PastDeadline
+            # an iteration can take seconds on a loaded machine: stop inside it, not after it (a
+            # NaN makes IPOPT give up at once; raising would print CasADi's traceback)
+            self.last["past_deadline"] = True
+            return [np.full(self.n_z, np.nan) if self.grad else np.nan]
         z = np.array(arg[0]).ravel()
         M = self.M(z)
         w, V = np.linalg.eigh(M)
@@ -356,7 +354,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
 
     cb = _IterationCallback(tr.n_z, tr.lbg_kin.size, 0, on_iter)
     opts = {**IPOPT_OPTIONS, "ipopt.max_iter": 100000 if max_iterations is None else int(max_iterations),
-            "print_time": False, "iteration_callback": cb, "error_on_fail": False}
+            "print_time": False, "iteration_callback": cb, "error_on_fail": False, "show_eval_warnings": False}
     solver = ca.nlpsol("optimize", "ipopt", {"x": z, "f": obj(z), "g": tr.g_kin(z)}, opts)
     solver._keep = (obj, cb)  # noqa: SLF001 — the callbacks must outlive the solver
     keep(z0)
@@ -367,8 +365,9 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         rs = str(stats.get("return_status", "unknown"))
         state["it"] = int(stats.get("iter_count", state["it"]))
     except RuntimeError as exc:  # IPOPT or a callback raised: what was kept stays valid
-        past = time.perf_counter() > deadline + DEADLINE_GRACE_S
-        rs = "Stopped_At_Deadline" if past else f"error: {exc}".splitlines()[0][:200]
+        rs = f"error: {exc}".splitlines()[0][:200]
+    if obj.last.get("past_deadline"):
+        rs = "Stopped_At_Deadline"
     if state["stop"]:
         status = "cancelled"
     elif rs in CONVERGED:
