@@ -7,7 +7,6 @@ projection :func:`excite.routes.read_geojson` uses, so the file reads back to th
 
 from __future__ import annotations
 
-import json
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -55,14 +54,6 @@ def maneuver_file(profile: dict[str, Any], rig: Rig, fmt: str, name: str,
 
 
 def _geojson(xyzv: np.ndarray, origin: tuple[float, float], name: str) -> str:
-    from pyproj import Transformer
+    from excite.optimize.site import maneuver_geojson
 
-    lon0, lat0 = origin
-    tm = Transformer.from_crs(f"+proj=tmerc +lat_0={lat0!r} +lon_0={lon0!r} +k=1 +x_0=0 +y_0=0 "
-                              "+ellps=WGS84 +units=m", "EPSG:4326", always_xy=True)
-    lon, lat = tm.transform(xyzv[:, 0], xyzv[:, 1])
-    coords = [[round(float(a), 9), round(float(b), 9), round(float(z), 3)]
-              for a, b, z in zip(lon, lat, xyzv[:, 2])]
-    feature = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": coords},
-               "properties": {"name": name, "speed_mps": [round(float(v), 4) for v in xyzv[:, 3]]}}
-    return json.dumps({"type": "FeatureCollection", "features": [feature]})
+    return maneuver_geojson(xyzv[:, :3], xyzv[:, 3], origin, name)

@@ -58,6 +58,7 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
                      should_stop: Callable[[], bool]) -> dict[str, Any]:
     """The default job: plan a maneuver for a :class:`~api.schemas.ManeuverRequest` (as data)."""
     from excite.optimize import OptimizeSettings, optimize
+    from excite.optimize.site import read_site
     from excite.vehicle import Limits
 
     from .scoring import Rejected, resolve_rig
@@ -72,11 +73,14 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
         duration_s=request["duration_s"], lot_x_m=request["lot_x_m"],
         lot_y_m=request["lot_y_m"], limits=Limits(**request["limits"]),
         seed=request["seed"], time_budget_s=request["time_budget_s"], closed=request["closed"],
-        n_random=request["n_random"])
+        n_random=request["n_random"], criterion=request.get("criterion", "E"),
+        site=read_site(request["lot"]) if request.get("lot") else None)
     res = optimize(rig, settings, lambda p: progress(plain(p)), should_stop)
     out = plain(res.to_dict())
     out["report"]["route"] = request.get("name") or out["report"].get("route")
-    return {**out, "profile": profile_data(res.profile)}
+    origin = settings.lot.origin  # a georeferenced lot: GeoJSON downloads need no origin
+    return {**out, "profile": profile_data(res.profile), "lot": settings.lot.outline(),
+            "origin": None if origin is None else {"lon_deg": origin[0], "lat_deg": origin[1]}}
 
 
 class JobRunner:

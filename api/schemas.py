@@ -208,6 +208,12 @@ class ManeuverRequest(In):
     closed: bool = Field(False, description="End where it started.")
     n_random: int = ranged(bounds.OPTIMIZE["n_random"], "Random candidates compared.", default=200)
     origin: Origin | None = Field(None, description="Lot origin in WGS84, for GeoJSON downloads.")
+    lot: dict[str, Any] | None = Field(None, description=(
+        "The lot as GeoJSON (replaces lot_x_m/lot_y_m): one Polygon (lon/lat, or local metres with "
+        "properties.crs = \"local\"; further rings are keep-out zones), optionally an entry Point "
+        "(role \"entry\", heading_deg) and ramp/bank/bump Polygons (see excite.optimize.site)."))
+    criterion: Literal["E", "D", "A"] = Field("E", description=(
+        "What to maximise: E (λ_min, the score), D (log det), A (−trace of the inverse)."))
 
 
 # --------------------------------------------------------------------------------------------
@@ -357,6 +363,12 @@ class JobResult(Out):
     model_score: float | None
     timings_s: dict[str, float]
     message: str
+    ipopt_status: str = ""
+    source: str = "optimized"
+    criterion: str = "E"
+    lot: dict[str, Any] | None = Field(None, description=(
+        "The lot planned in, in local metres: polygon and holes ([x, y] rings), entry [x, y, heading] "
+        "or null, terrain [{role, polygon}], margin_m."))
 
 
 class Job(Out):

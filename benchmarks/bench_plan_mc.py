@@ -23,7 +23,6 @@ Writes ``plans/*.csv``, ``results.json`` and ``table.md`` to ``--out``
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -32,9 +31,8 @@ from pathlib import Path
 
 from excite.cli.validate import with_imu_rate
 from excite.evaluate import evaluate
-from excite.maneuvers import random_candidates
 from excite.optimize import OptimizeSettings, optimize
-from excite.optimize.pipeline import _references, lot_of
+from excite.optimize import candidates as cand
 from excite.rig import load_rig
 from excite.routes import read_route, write_control_csv
 from excite.validate import MonteCarloSettings, monte_carlo
@@ -46,14 +44,8 @@ OUT = Path(__file__).parent / "out" / "plan_mc"
 def optimizer_plans(rig, duration_s: float, criteria: list[str], budget_s: float, out: Path) -> dict[str, Path]:
     """The optimizer's plan per criterion, as control CSV files."""
     plans: dict[str, Path] = {}
-    has_criterion = "criterion" in {f.name for f in dataclasses.fields(OptimizeSettings)}
     for c in criteria:
-        if c != "E" and not has_criterion:
-            print(f"criterion {c}: this optimizer maximises λ_min only (E); pass the {c}-optimal plan "
-                  f"with --plan {c}-optimal=FILE", flush=True)
-            continue
-        extra = {"criterion": c} if has_criterion else {}
-        settings = OptimizeSettings(duration_s=duration_s, time_budget_s=budget_s, n_random=0, **extra)
+        settings = OptimizeSettings(duration_s=duration_s, time_budget_s=budget_s, criterion=c)
         t0 = time.perf_counter()
         res = optimize(rig, settings)
         print(f"{c}-optimal: {res.status}, {res.iterations} iterations, score {res.report.score:.4g} "
@@ -66,13 +58,14 @@ def baseline_plans(rig, duration_s: float, n_random: int, seed: int, out: Path) 
     """The best reference maneuver and the best of ``n_random`` random candidates of this duration
     on the optimizer's default lot and limits, by the full evaluator's score."""
     settings = OptimizeSettings(duration_s=duration_s, seed=seed, n_random=n_random)
+    site = settings.lot
 
     def best(profiles):
-        return max(profiles, key=lambda p: evaluate(drive(p, rig.suspension), rig).score)
+        feasible = [p for p in profiles if not cand.check(p, rig, settings, site)[1]]
+        return max(feasible, key=lambda p: evaluate(drive(p, rig.suspension), rig).score)
 
-    ref = best(list(_references(settings).values()))
-    rand = best(random_candidates(n_random, duration_s, lot_of(settings), settings.limits, seed=seed,
-                                  suspension=rig.suspension))
+    ref = best([c.profile for c in cand.reference_profiles(rig, settings, site)])
+    rand = best(cand.random_profiles(rig, settings, site, 0, n_random, 0))
     return {f"best reference ({ref.name})": write_control_csv(ref, out / "best_reference_control.csv"),
             f"best of {n_random} random ({rand.name})": write_control_csv(rand, out / "best_random_control.csv")}
 

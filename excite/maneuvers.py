@@ -42,15 +42,25 @@ _CLOSED_SAMPLES = 400  # points per lap handed to the periodic path spline
 
 @dataclass(frozen=True)
 class Lot:
-    """A test lot: a simple polygon ``polygon_m`` (m, 2), vertices in order, not repeated."""
+    """A test lot: a simple polygon ``polygon_m`` (m, 2), vertices in order, not repeated,
+    optionally with ``holes`` (keep-out zones: simple polygons inside it)."""
 
     polygon_m: np.ndarray
+    holes: tuple[np.ndarray, ...] = ()
 
     def __post_init__(self) -> None:
-        poly = np.asarray(self.polygon_m, dtype=float)
-        if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
-            raise LimitError(f"a lot polygon needs at least 3 finite (x, y) vertices, got {poly.shape}")
-        object.__setattr__(self, "polygon_m", poly)
+        rings = []
+        for what, ring in [("a lot polygon", self.polygon_m)] + [(f"keep-out zone {i + 1}", h)
+                                                                  for i, h in enumerate(self.holes)]:
+            poly = np.asarray(ring, dtype=float)
+            if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3 or not np.all(np.isfinite(poly)):
+                raise LimitError(f"{what} needs at least 3 finite (x, y) vertices, got {poly.shape}")
+            rings.append(poly)
+        object.__setattr__(self, "polygon_m", rings[0])
+        object.__setattr__(self, "holes", tuple(rings[1:]))
+        for i, h in enumerate(self.holes):
+            if not _in_ring(rings[0], h).all():
+                raise LimitError(f"keep-out zone {i + 1} is not inside the lot")
 
     @classmethod
     def rectangle(cls, length_m: float = LOT_LENGTH_M, width_m: float = LOT_WIDTH_M) -> "Lot":
@@ -63,27 +73,50 @@ class Lot:
         return self.polygon_m.mean(axis=0)
 
     def distance_to_edge_m(self, points_m: np.ndarray) -> np.ndarray:
-        """Distance [m] from each point (n, 2) to the nearest polygon edge."""
-        p = np.asarray(points_m, dtype=float)[:, None, :2]
-        a = self.polygon_m[None]
-        ab = np.roll(self.polygon_m, -1, axis=0)[None] - a
-        u = np.clip(np.sum((p - a) * ab, axis=2) / np.sum(ab * ab, axis=2), 0.0, 1.0)
-        return np.linalg.norm(p - (a + u[..., None] * ab), axis=2).min(axis=1)
+        """Distance [m] from each point (n, 2) to the nearest edge of the lot or a hole."""
+        p = np.asarray(points_m, dtype=float)[:, :2]
+        return np.min([_ring_distance(r, p) for r in (self.polygon_m, *self.holes)], axis=0)
+
+    def clearance_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Signed distance [m] of each point to the nearest edge: positive inside the lot (and
+        outside every hole), negative outside."""
+        p = np.asarray(points_m, dtype=float)[:, :2]
+        d = self.distance_to_edge_m(p)
+        return np.where(self.contains(p), d, -d)
 
     def contains(self, points_m: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
-        """Whether each point (n, 2[+]) is inside the polygon and at least ``margin_m`` from its
-        edges (even-odd ray casting)."""
+        """Whether each point (n, 2[+]) is inside the polygon, outside every hole, and at least
+        ``margin_m`` from every edge (even-odd ray casting)."""
         p = np.asarray(points_m, dtype=float)[:, :2]
-        x, y = p[:, 0:1], p[:, 1:2]
-        a = self.polygon_m
-        b = np.roll(a, -1, axis=0)
-        crosses = (a[:, 1] > y) != (b[:, 1] > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_at = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-        inside = np.sum(crosses & (x < x_at), axis=1) % 2 == 1
+        inside = _in_ring(self.polygon_m, p)
+        for h in self.holes:
+            inside &= ~_in_ring(h, p)
         if margin_m > 0:
             inside &= self.distance_to_edge_m(p) >= margin_m
         return inside
+
+
+def _in_ring(ring: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Even-odd ray casting: whether each point (n, 2) is inside the simple polygon ``ring``."""
+    x, y = p[:, 0:1], p[:, 1:2]
+    a = ring
+    b = np.roll(a, -1, axis=0)
+    crosses = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return np.sum(crosses & (x < x_at), axis=1) % 2 == 1
+
+
+def _ring_distance(ring: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Distance from each point (n, 2) to the nearest edge of the closed polygon ``ring``."""
+    out = np.full(len(p), np.inf)
+    a = ring
+    ab = np.roll(ring, -1, axis=0) - a
+    for s in range(0, len(p), 4096):  # bounded memory for large grids
+        q = p[s:s + 4096, None, :]
+        u = np.clip(np.sum((q - a[None]) * ab[None], axis=2) / np.sum(ab * ab, axis=1), 0.0, 1.0)
+        out[s:s + 4096] = np.linalg.norm(q - (a[None] + u[..., None] * ab[None]), axis=2).min(axis=1)
+    return out
 
 
 # --------------------------------------------------------------------------------------------

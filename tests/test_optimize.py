@@ -15,12 +15,14 @@ from excite.errors import ExciteError
 from excite.evaluate import evaluate
 from excite.factors.base import Nominal
 from excite.maneuvers import Lot, slalom
+from excite.optimize import criteria
+from excite.optimize.candidates import check
 from excite.optimize.kinematics import Grid, Scales, body_samples, layout, profile_from_z, z_from_profile
 from excite.optimize.model import build_model, coarse_rig
-from excite.optimize.pipeline import feasibility
-from excite.optimize.solver import Transcription, solve_softmin
+from excite.optimize.solver import Transcription, solve
 from excite.rig import load_rig
 from excite.rig import build_rig
+from excite.routes import read_control_profile
 from excite.vehicle import ControlProfile, Limits, Suspension, check_limits, drive
 
 
@@ -56,7 +58,8 @@ def test_public_interface():
 
 @pytest.mark.parametrize("change", [dict(duration_s=-1.0), dict(duration_s=float("nan")), dict(lot_x_m=5.0),
                                     dict(time_budget_s=0.0), dict(seed=-1), dict(n_random=1.5),
-                                    dict(limits="fast"), dict(closed="yes")])
+                                    dict(limits="fast"), dict(closed="yes"), dict(criterion="F"),
+                                    dict(max_iterations=0), dict(site="80x50")])
 def test_settings_are_validated(change):
     with pytest.raises(opt.OptimizeError):
         opt.OptimizeSettings(**change)
@@ -132,16 +135,17 @@ def test_kinematics_match_the_driven_profile(rig, coarse):
 
 def _toy(M_of, g_of, lbg, ubg, lbz, ubz) -> Transcription:
     z = ca.MX.sym("z", len(lbz))
-    return Transcription(grid=None, scales=None, limits=None, half_x_m=0, half_y_m=0, closed=False,
+    return Transcription(grid=None, scales=None, limits=None, site=None, closed=False,
                          M=ca.Function("M", [z], [M_of(z)]), kin=None, g_kin=ca.Function("g", [z], [g_of(z)]),
                          lbg_kin=np.array(lbg, float), ubg_kin=np.array(ubg, float),
-                         lbz=np.array(lbz, float), ubz=np.array(ubz, float), n_params=2)
+                         lbg_ok=np.array(lbg, float), ubg_ok=np.array(ubg, float), lbz=np.array(lbz, float), ubz=np.array(ubz, float), n_params=2)
 
 
 def test_recovers_known_optimum_with_coalescing_eigenvalues():
     """max λ_min(diag(z1, z2)) s.t. z1 + z2 ≤ 2: both eigenvalues meet at the optimum (1, 1)."""
     tr = _toy(lambda z: ca.diag(z), lambda z: z[0] + z[1], [-np.inf], [2.0], [0.0, 0.0], [5.0, 5.0])
-    out = solve_softmin(tr, np.array([1.8, 0.1]), time.perf_counter() + 20)
+    out = solve(tr, np.array([1.8, 0.1]), time.perf_counter() + 20)
+    assert out.status == "converged" and out.ipopt_status == "Solve_Succeeded"
     assert out.score == pytest.approx(1.0, abs=1e-4)
     assert out.z == pytest.approx([1.0, 1.0], abs=1e-3)
 
@@ -150,43 +154,101 @@ def test_recovers_known_optimum_at_a_constraint():
     """λ_min = 1 − |z| for [[1+z1, z2], [z2, 1−z1]]; with z1 ≥ 0.3 the optimum is (0.3, 0), 0.7."""
     tr = _toy(lambda z: ca.vertcat(ca.horzcat(1 + z[0], z[1]), ca.horzcat(z[1], 1 - z[0])),
               lambda z: z[0], [0.3], [np.inf], [-1.0, -1.0], [1.0, 1.0])
-    out = solve_softmin(tr, np.array([0.9, 0.5]), time.perf_counter() + 20)
+    out = solve(tr, np.array([0.9, 0.5]), time.perf_counter() + 20)
     assert out.score == pytest.approx(0.7, abs=1e-4)
     assert out.z == pytest.approx([0.3, 0.0], abs=1e-3)
 
 
-def test_cancel_returns_promptly_with_a_feasible_drive(rig):
+def test_d_and_a_optimal_recover_known_optima():
+    """D: max log(z1 z2) s.t. z1 + 2 z2 ≤ 3 → (1.5, 0.75) (AM–GM). A: min 1/z1 + 1/z2 s.t.
+    z1 + 2 z2 ≤ 3 → z1 = √2 z2 (Lagrange), z1 = 3/(1 + √2)."""
+    tr = _toy(lambda z: ca.diag(z), lambda z: z[0] + 2 * z[1], [-np.inf], [3.0], [1e-3, 1e-3], [5.0, 5.0])
+    d = solve(tr, np.array([0.5, 0.5]), time.perf_counter() + 20, criterion="D")
+    assert d.z == pytest.approx([1.5, 0.75], abs=1e-3)
+    assert d.score == pytest.approx(np.log(1.5 * 0.75), abs=1e-5)
+    a = solve(tr, np.array([0.5, 0.5]), time.perf_counter() + 20, criterion="A")
+    z1 = 3 / (1 + np.sqrt(2))
+    assert a.z == pytest.approx([z1, z1 / np.sqrt(2)], abs=1e-3)
+    assert -a.score == pytest.approx(1 / z1 + np.sqrt(2) / z1, rel=1e-5)
+
+
+def test_criteria_equal_their_textbook_definitions():
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((6, 6))
+    M = A @ A.T + 0.1 * np.eye(6)
+    assert criteria.value(M, "E") == pytest.approx(np.linalg.eigvalsh(M).min())
+    assert criteria.value(M, "D") == pytest.approx(np.linalg.slogdet(M)[1])
+    assert criteria.value(M, "A") == pytest.approx(-np.trace(np.linalg.inv(M)))
+    singular = np.diag([1.0, 2.0, 0.0])
+    assert criteria.value(singular, "D") == -np.inf and criteria.value(singular, "A") == -np.inf
+    w = rng.standard_normal((50, 3))
+    hat = lambda v: np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])  # noqa: E731
+    ref = sum(hat(v).T @ hat(v) for v in w) / len(w)
+    assert criteria.rotation_excitation(w) == pytest.approx(np.linalg.eigvalsh(ref))
+
+
+def test_an_iteration_cap_still_returns_the_best_checked_drive(rig, tmp_path):
+    """IPOPT cannot finish (2 iterations): the result is still the best drive the run saw —
+    no candidate in the comparison that passed the check scores higher — and the files written
+    for it read back to a drive that passes the same check with the same score. (The budget is
+    generous so that the worker scores every comparison candidate even on a loaded machine; the
+    run ends when they are done.)"""
+    from excite.cli.optimize import write_outputs
+
+    s = opt.OptimizeSettings(duration_s=30.0, lot_x_m=50.0, lot_y_m=35.0, time_budget_s=120.0,
+                             n_random=6, max_iterations=2)
+    res = opt.optimize(rig, s)
+    assert res.status == "time_budget" and res.ipopt_status == "Maximum_Iterations_Exceeded"
+    assert res.iterations == 2
+    feasible = [r for r in res.comparison if r["feasible"] and r.get("score") is not None]
+    assert {r["kind"] for r in feasible} >= {"reference", "random"}
+    assert res.report.score >= max(r["score"] for r in feasible) * (1 - 1e-9)
+    chosen = [r for r in res.comparison if r["result"]]  # one drive (it may fill several rows)
+    assert chosen and all(r["score"] == pytest.approx(res.report.score, rel=1e-9) for r in chosen)
+    write_outputs(res, tmp_path)
+    prof = read_control_profile(tmp_path / "control.csv")
+    traj, bad = check(prof, rig, s, s.lot)
+    assert bad == []
+    assert evaluate(traj, rig).score == pytest.approx(res.report.score, rel=1e-9)
+    assert feasible[0]["score"] <= res.report.score * (1 + 1e-9)
+
+
+def test_cancel_returns_promptly_with_a_checked_drive(rig):
     calls = {"n": 0}
 
     def stop():
         calls["n"] += 1
-        return calls["n"] > 40
+        return calls["n"] > 3
 
     t0 = time.perf_counter()
     s = opt.OptimizeSettings(duration_s=40.0, time_budget_s=60.0, n_random=3)
     res = opt.optimize(rig, s, should_stop=stop)
     assert res.cancelled and res.status == "cancelled"
-    assert time.perf_counter() - t0 < 30.0
-    assert feasibility(res.trajectory, s) == []
-    assert {r["kind"] for r in res.comparison} <= {"optimized", "reference"}
+    assert time.perf_counter() - t0 < 40.0
+    assert check(res.profile, rig, s, s.lot)[1] == []
 
 
-def test_optimized_maneuver_beats_every_baseline_and_is_feasible(rig, monkeypatch):
+def test_optimized_maneuver_beats_every_baseline_and_is_feasible(rig):
     """The issue's claim on a smaller problem that fits the test suite: 45 s in a 60 × 40 m lot,
-    10 random candidates, IPOPT capped at 40 iterations (so that the outcome does not depend on
-    the machine's load) within a 30 s budget; COBYLA gets the same wall time IPOPT took. The 90 s,
-    80 × 50 m, 200-candidate figures are measured by benchmarks/bench_optimize.py (README)."""
-    monkeypatch.setattr("excite.optimize.solver.MAX_ITERATIONS", 40)
-    s = opt.OptimizeSettings(duration_s=45.0, lot_x_m=60.0, lot_y_m=40.0, time_budget_s=30.0,
-                             n_random=10)
+    6 random candidates, IPOPT capped at 40 iterations (so that the outcome does not depend on
+    the machine's load) within a 120 s budget. The 90 s, 80 × 50 m, 200-candidate figures are
+    measured by benchmarks/bench_optimize.py (README)."""
+    s = opt.OptimizeSettings(duration_s=45.0, lot_x_m=60.0, lot_y_m=40.0, time_budget_s=120.0,
+                             n_random=6, max_iterations=40)
     seen = []
+    t0 = time.perf_counter()
     res = opt.optimize(rig, s, progress=seen.append)
-    assert res.status in ("optimal", "time_budget") and not res.cancelled, res.message
-    assert {p.phase for p in seen} >= {"start", "optimize", "baseline", "done"}
+    assert time.perf_counter() - t0 <= 1.1 * s.time_budget_s
+    assert res.status in ("converged", "time_budget") and not res.cancelled, res.message
+    if res.status == "time_budget" and res.ipopt_status != "Maximum_Iterations_Exceeded":
+        pytest.skip(f"the machine is too loaded: IPOPT ran {res.iterations} of 40 iterations within "
+                    f"the {s.time_budget_s:g} s budget ({res.ipopt_status})")
+    assert res.source == "optimized", res.message
+    assert {p.phase for p in seen} >= {"start", "optimize", "check", "done"}
     # independent checks on the sampled result
     traj = drive(res.profile, rig.suspension)
     assert check_limits(traj, s.limits) == []
-    assert Lot.rectangle(60.0, 40.0).contains(traj.sample(traj.times(20.0)).p_W_V).all()
+    assert Lot.rectangle(60.0, 40.0).contains(traj.sample(traj.times(20.0)).p_W_V, 3.0 - 1e-3).all()
     score = evaluate(traj, rig).score
     assert score == pytest.approx(res.report.score, rel=1e-9)
     rows = {r["name"]: r for r in res.comparison}
@@ -195,3 +257,45 @@ def test_optimized_maneuver_beats_every_baseline_and_is_feasible(rig, monkeypatc
     assert score >= 1.5 * best_ref
     assert score >= 1.5 * best_rand
     assert score > rows["cobyla"]["score"]
+    for r in res.comparison:  # the criteria side by side, from the full evaluator's information
+        if r.get("score"):
+            assert r["worst_sigma_ratio"] > 0 and r["trace_inv"] > 0
+
+
+def test_kinematics_over_terrain_match_the_driven_profile(coarse):
+    """Over a ramp and a bank: the optimizer's body motion of z (its own integration, grade and
+    bank from the slope field, rates by jtimes) equals what drive() makes of the profile written
+    from z (grade and bank sampled at 20 Hz, rotations differentiated by a rotation spline)."""
+    from excite.optimize.terrain import Feature, Terrain
+
+    ramp = Feature("ramp", np.array([[5.0, -30.0], [25.0, -30.0], [25.0, 30.0], [5.0, 30.0]]), (1.0, 0.0),
+                   slope=np.tan(np.radians(6.0)))
+    bank = Feature("bank", np.array([[-30.0, -30.0], [-10.0, -30.0], [-10.0, 30.0], [-30.0, 30.0]]), (0.0, 1.0),
+                   slope=np.tan(np.radians(4.0)))
+    terrain = Terrain((ramp, bank))
+    g = Grid.make(30.0, 1.5, 2.0, 4)
+    sc = Scales.of(Limits(), 40.0)
+    lay = layout(g)
+    tk = g.t_knots[1:-1]
+    z = np.zeros(lay.size)
+    z[lay.speed] = 0.5 * (1 - np.exp(-tk / 2)) * (1 - np.exp(-(30 - tk) / 2))
+    z[lay.curv] = 0.3 * np.sin(g.t_knots / 5)
+    z[lay.pose] = [-35.0 / 40.0, 0.0, 0.0]
+    zs = ca.MX.sym("z", lay.size)
+    pose = coarse.config.vehicle.T_V_B
+    R, p, v, w, f, _ = (np.array(o) for o in ca.Function(
+        "b", [zs], list(body_samples(g, sc, zs, coarse.suspension, pose.R, pose.p, terrain)))(z))
+    prof = profile_from_z(g, sc, z, terrain=terrain)
+    assert np.abs(prof.grade_rad).max() > np.radians(2.0) and np.abs(prof.bank_rad).max() > np.radians(2.0)
+    b = drive(prof, coarse.suspension).sample(g.t).body(pose.R, pose.p)
+    inner = slice(4, -4)  # away from the ends of the rotation spline
+    assert np.abs(p.T - b.p_W_B).max() < 0.15  # metres, over a ~150 m drive climbing ~2 m
+    # at a feature's soft edge (0.4 m) the grade changes within ~0.1 s, which the profile's 20 Hz
+    # grade knots resolve only coarsely (the vertical acceleration u²·dG/ds peaks there): the
+    # worst samples differ by several % of the peak, the typical one by far less
+    dw = np.abs(w.T - b.omega_B)[inner]
+    assert dw.max() < 0.01 + 0.05 * np.abs(b.omega_B).max()
+    assert np.percentile(dw, 95) < 0.002 + 0.01 * np.abs(b.omega_B).max()
+    df = np.abs(f.T - b.specific_force_B)[inner]
+    assert df.max() < 0.15 * np.abs(b.specific_force_B).max()
+    assert np.percentile(df, 95) < 0.02 * np.abs(b.specific_force_B).max()

@@ -232,8 +232,10 @@ def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
     assert float(page.inner_text("#plan-score")) == pytest.approx(job["result"]["score"], rel=1e-3)
     assert page.locator("#comparison tbody tr").count() == len(job["result"]["comparison"])
     assert page.locator("#lot-map line.seg").count() > 10
-    lot = page.locator("#lot-map rect.lot")
-    assert float(lot.get_attribute("width")) == 60 and float(lot.get_attribute("height")) == 40
+    # the lot is drawn from the service's own outline of it: the 60 × 40 m rectangle
+    ring = np.array([[float(v) for v in pt.split()] for pt in
+                     page.get_attribute("#lot-map path.lot", "d").strip(" Z").lstrip("M").split("L")])
+    assert np.ptp(ring[:, 0]) == pytest.approx(60) and np.ptp(ring[:, 1]) == pytest.approx(40)
     hrefs = page.locator("#downloads a").evaluate_all("as => as.map(a => a.getAttribute('href'))")
     assert len(hrefs) == 4
     for href in hrefs:
@@ -245,6 +247,56 @@ def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
     assert np.all(np.abs(tum[:, 1]) <= 30) and np.all(np.abs(tum[:, 2]) <= 20)
     save_shot(page, shots, "web-plan.png")
     assert page.console.errors == []
+
+
+def test_plan_in_a_geojson_lot_with_a_hole_and_a_ramp(page, shots, server, tmp_path):
+    """Upload an L-shaped GeoJSON lot (lon/lat) with a building and a ramp: a refused lot is named
+    beside the file input, a good one is planned in and drawn (lot, keep-out zone, ramp), and the
+    GeoJSON download needs no origin typed in."""
+    import json
+
+    import httpx
+    from test_optimize_lot import l_lot
+
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    bad = tmp_path / "open.geojson"  # a ring that is not closed: the service names it
+    bad.write_text(json.dumps({"type": "Polygon", "coordinates": [[[11.5, 48.1], [11.501, 48.1], [11.501, 48.101]]]}))
+    page.set_input_files("#plan-lot-file", str(bad))
+    page.click("#plan-button")
+    page.locator("#plan-lot-file-error").wait_for(state="visible")
+    assert "ring" in page.inner_text("#plan-lot-file-error")
+    assert page.get_attribute("#plan-lot-file", "aria-invalid") == "true"
+    garbage = tmp_path / "garbage.geojson"  # not JSON at all: the page says so before sending
+    garbage.write_text("{not json")
+    page.set_input_files("#plan-lot-file", str(garbage))
+    page.click("#plan-button")
+    page.wait_for_function("document.querySelector('#plan-lot-file-error').textContent.includes('not JSON')")
+
+    good = tmp_path / "l_lot.geojson"
+    good.write_text(json.dumps(l_lot(ramp=True)))
+    page.set_input_files("#plan-lot-file", str(good))
+    for field, value in {"duration_s": "20", "time_budget_s": "15", "n_random": "2"}.items():
+        page.fill(f"#plan-{field}", value)
+    page.select_option("#plan-criterion", "D")
+    page.click("#plan-button")
+    page.wait_for_selector("#job-id:not(:empty)")
+    job_id = page.inner_text("#job-id")
+    page.wait_for_selector("#plan-score", timeout=120_000)
+    assert page.inner_text("#job-status") == "succeeded"
+    job = httpx.get(f"{server.url}/v1/jobs/{job_id}").json()
+    assert job["result"]["criterion"] == "D"
+    # drawn: the L with its keep-out zone as a second subpath, and the ramp
+    d = page.get_attribute("#lot-map path.lot", "d")
+    assert d.count("M") == 2 and page.locator("#lot-map path.terrain.ramp").count() == 1
+    assert "1 keep-out" in page.inner_text("#lot-legend") and "ramp" in page.inner_text("#lot-legend")
+    href = page.locator("#downloads a", has_text="GeoJSON").get_attribute("href")
+    assert "lon_deg" not in href
+    r = httpx.get(server.url + href)
+    assert r.status_code == 200 and r.json()["features"][0]["geometry"]["type"] == "LineString"
+    save_shot(page, shots, "web-plan-geojson.png")
+    # the only console error is the browser's own note of the one refused request
+    assert len(page.console.errors) == 1 and "status of 422" in page.console.errors[0], page.console.errors
 
 
 def test_cancel_a_running_job(page):

@@ -85,6 +85,8 @@ def download_maneuver(job_id: JobId, ctx: Ctx,
         origin = (lon_deg, lat_deg)
     elif req.get("origin"):
         origin = (req["origin"]["lon_deg"], req["origin"]["lat_deg"])
+    elif result.get("origin"):  # the request's lot was GeoJSON in lon/lat
+        origin = (result["origin"]["lon_deg"], result["origin"]["lat_deg"])
     if format == "geojson" and origin is None:
         raise ProblemError(422, "lon_deg/lat_deg: GeoJSON needs the lot's origin: give lon_deg "
                                 "and lat_deg, or origin in the request",

@@ -8,6 +8,7 @@ from fastapi import APIRouter, Response
 
 from excite.errors import ExciteError
 from excite.optimize import OptimizeSettings
+from excite.optimize.site import read_site
 from excite.vehicle import Limits
 
 from ..context import Ctx
@@ -25,27 +26,35 @@ router = APIRouter(prefix="/v1", tags=["maneuvers"])
 def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
     """Returns ``202`` with the job and its ``Location``; poll ``GET /v1/jobs/{id}``."""
     s = ctx.settings
+    errors: list[dict[str, str]] = []  # every refused field at once, so a form can mark them all
     if body.duration_s > s.max_route_duration_s:
-        raise ProblemError(422, f"duration_s: {body.duration_s:g} s is over the limit of "
-                                f"{s.max_route_duration_s:g} s",
-                           errors=[{"field": "duration_s", "message": f"at most {s.max_route_duration_s:g} s"}])
+        errors.append({"field": "duration_s", "message": f"{body.duration_s:g} s is over the limit of "
+                                                         f"{s.max_route_duration_s:g} s"})
     if body.time_budget_s > s.max_job_time_budget_s:
-        raise ProblemError(422, f"time_budget_s: {body.time_budget_s:g} s is over the limit of "
-                                f"{s.max_job_time_budget_s:g} s",
-                           errors=[{"field": "time_budget_s", "message": f"at most {s.max_job_time_budget_s:g} s"}])
+        errors.append({"field": "time_budget_s", "message": f"{body.time_budget_s:g} s is over the limit of "
+                                                            f"{s.max_job_time_budget_s:g} s"})
+    if body.lot is not None:
+        try:
+            read_site(body.lot)
+        except ExciteError as exc:
+            errors.append({"field": "lot", "message": str(exc)})
     try:
         OptimizeSettings(duration_s=body.duration_s, lot_x_m=body.lot_x_m,
                          lot_y_m=body.lot_y_m, limits=Limits(**body.limits.model_dump()),
                          seed=body.seed, time_budget_s=body.time_budget_s, closed=body.closed,
-                         n_random=body.n_random)
+                         n_random=body.n_random, criterion=body.criterion)
     except ExciteError as exc:  # the optimizer's own bounds, checked now rather than in a failed job
-        field = str(exc).split(" ", 1)[0]
-        raise ProblemError(422, str(exc), errors=[{"field": field, "message": str(exc)}]) from None
+        errors.append({"field": str(exc).split(" ", 1)[0], "message": str(exc)})
     try:
         resolve_rig(body.rig)
     except Rejected as exc:
-        raise ProblemError(exc.status, f"{exc.field}: {exc.message}",
-                           errors=[{"field": exc.field, "message": exc.message}]) from None
+        if exc.status != 422:
+            raise ProblemError(exc.status, f"{exc.field}: {exc.message}",
+                               errors=[{"field": exc.field, "message": exc.message}]) from None
+        errors.append({"field": exc.field, "message": exc.message})
+    if errors:
+        raise ProblemError(422, "; ".join(e["message"] if e["message"].startswith(e["field"]) else
+                                          f"{e['field']}: {e['message']}" for e in errors), errors=errors)
     job_id = ctx.store.create("maneuver", body.model_dump())
     ctx.runner.wake()
     response.headers["Location"] = f"/v1/jobs/{job_id}"

@@ -433,10 +433,20 @@ function numberOf(id) {
   return v === "" ? null : Number(v);
 }
 
-function maneuverRequest() {
+async function maneuverRequest() {
   const req = { rig: currentRig(), limits: {} };
   for (const name of ["duration_s", "lot_x_m", "lot_y_m", "time_budget_s", "n_random", "seed"]) req[name] = numberOf(`plan-${name}`);
   req.closed = $("#plan-closed").checked;
+  req.criterion = $("#plan-criterion").value;
+  const file = $("#plan-lot-file").files[0];
+  if (file) {
+    try {
+      req.lot = JSON.parse(await file.text());
+    } catch (err) {
+      const detail = `${file.name} is not JSON: ${err.message}`;
+      throw new Problem({ detail, errors: [{ field: "lot", message: detail }] }, 0);
+    }
+  }
   for (const input of document.querySelectorAll("[data-limit]")) req.limits[input.dataset.limit] = input.value === "" ? null : Number(input.value);
   const lon = numberOf("plan-lon_deg"), lat = numberOf("plan-lat_deg");
   if (lon !== null || lat !== null) req.origin = { lon_deg: lon, lat_deg: lat };
@@ -449,7 +459,7 @@ async function onPlan(ev) {
   clearErrors(form);
   await loadSchema();
   try {
-    const job = await api("POST", "/v1/maneuvers", maneuverRequest());
+    const job = await api("POST", "/v1/maneuvers", await maneuverRequest());
     state.job = job;
     $("#plan-result").hidden = true;
     $("#job").hidden = false;
@@ -534,32 +544,43 @@ async function showPlan(job) {
   $("#comparison tbody").replaceChildren(...res.comparison.map((r) => el("tr", { class: r.kind === "optimized" ? "mine" : null,
     title: r.violations && r.violations.length ? `violations: ${r.violations.join("; ")}` : null },
   ...cols.map(([c]) => el("td", { text: cell(r[c]) })))));
-  const lon = numberOf("plan-lon_deg"), lat = numberOf("plan-lat_deg");
+  const origin = res.origin;
+  const lon = origin ? origin.lon_deg : numberOf("plan-lon_deg"), lat = origin ? origin.lat_deg : numberOf("plan-lat_deg");
   const links = [["tum", "TUM poses"], ["csv", "waypoints CSV"], ["control", "control CSV"]].map(([f, t]) => el("li", {}, el("a", { href: `${base}?format=${f}`, download: "", text: t })));
   links.push(el("li", {}, lon !== null && lat !== null
-    ? el("a", { href: `${base}?format=geojson&lon_deg=${lon}&lat_deg=${lat}`, download: "", text: "GeoJSON (WGS84)" })
+    ? el("a", { href: origin ? `${base}?format=geojson` : `${base}?format=geojson&lon_deg=${lon}&lat_deg=${lat}`, download: "", text: "GeoJSON (WGS84)" })
     : el("span", { class: "hint", text: "GeoJSON: set the lot's origin longitude and latitude" })));
   $("#downloads").replaceChildren(...links);
 }
 
+function ringPath(ring) {
+  return ring.map(([x, y], i) => `${i ? "L" : "M"}${x} ${-y}`).join(" ") + " Z";
+}
+
 function drawLot(pts, job) {
   const svg = $("#lot-map");
-  const lx = numberOf("plan-lot_x_m"), ly = numberOf("plan-lot_y_m");
-  const xs = pts.map((p) => p.x_m).concat([-lx / 2, lx / 2]), ys = pts.map((p) => p.y_m).concat([-ly / 2, ly / 2]);
+  const lot = job.result.lot;  // the lot the service planned in, in local metres
+  const xs = pts.map((p) => p.x_m).concat(lot.polygon.map((q) => q[0]));
+  const ys = pts.map((p) => p.y_m).concat(lot.polygon.map((q) => q[1]));
   const box = fitBox(xs, ys, 0.06);
   svg.setAttribute("viewBox", box.join(" "));
   const vmax = Math.max(...pts.map((p) => p.speed_mps), 1e-9);
-  const kids = [el("svg:rect", { x: -lx / 2, y: -ly / 2, width: lx, height: ly, class: "lot" })];
+  const kids = [el("svg:path", { d: [lot.polygon, ...lot.holes].map(ringPath).join(" "), "fill-rule": "evenodd", class: "lot" })];
+  for (const f of lot.terrain) kids.push(el("svg:path", { d: ringPath(f.polygon), class: `terrain ${f.role}` }, el("svg:title", { text: f.role })));
   for (let i = 1; i < pts.length; i++) {
     const a = pts[i - 1], b = pts[i];
     kids.push(el("svg:line", { x1: a.x_m, y1: -a.y_m, x2: b.x_m, y2: -b.y_m, stroke: colour(b.speed_mps / vmax), class: "seg" }));
   }
   kids.push(el("svg:circle", { cx: pts[0].x_m, cy: -pts[0].y_m, r: 0.012 * Math.max(box[2], box[3]), class: "start" }));
   svg.replaceChildren(...kids);
+  const w = Math.max(...lot.polygon.map((q) => q[0])) - Math.min(...lot.polygon.map((q) => q[0]));
+  const h = Math.max(...lot.polygon.map((q) => q[1])) - Math.min(...lot.polygon.map((q) => q[1]));
+  const what = `lot ${w.toFixed(0)} × ${h.toFixed(0)} m` + (lot.holes.length ? `, ${lot.holes.length} keep-out` : "") +
+    (lot.terrain.length ? `, ${lot.terrain.map((f) => f.role).join(", ")}` : "");
   $("#lot-legend").replaceChildren(el("span", { text: "speed: 0 " }),
     el("span", { class: "ramp", style: `background: linear-gradient(to right, ${[0, 0.25, 0.5, 0.75, 1].map(colour).join(",")})` }),
-    el("span", { text: ` ${vmax.toFixed(1)} m/s · lot ${lx} × ${ly} m · ● start` }));
-  svg.setAttribute("aria-label", `Planned maneuver of job ${job.id} in the ${lx} × ${ly} m lot`);
+    el("span", { text: ` ${vmax.toFixed(1)} m/s · ${what} · ● start` }));
+  svg.setAttribute("aria-label", `Planned maneuver of job ${job.id} in the ${what}`);
 }
 
 // ------------------------------------------------------------------------------------------

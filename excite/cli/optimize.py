@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import re
+import os
 import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -17,32 +17,52 @@ from . import app, console
 if TYPE_CHECKING:
     from ..optimize import OptimizeResult
 
-def parse_lot(text: str) -> tuple[float, float]:
-    """``"80x50"`` → (80.0, 50.0): extent along x, then along y [m]."""
-    m = re.fullmatch(r"\s*([0-9.]+)\s*[xX×]\s*([0-9.]+)\s*", text)
-    if not m:
-        raise ExciteError(f"--lot: expected XxY in metres (extent along x, then y) such as 80x50, got {text!r}")
-    return float(m.group(1)), float(m.group(2))
+
+_WRITE_S = 1.0  # kept from the budget for writing the output files
+
+
+def _process_age_s() -> float:
+    """Seconds since this process started (Linux /proc; 0 where unknown)."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return max(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 0.0)
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+def _num(v, fmt: str = ".4g") -> str:
+    return "—" if v is None else format(v, fmt)
 
 
 def comparison_table(result: OptimizeResult):
     from rich.markup import escape
     from rich.table import Table
 
-    t = Table(title="Comparison (re-scored by the full evaluator)", title_justify="left")
+    t = Table(title="Comparison (full evaluator; every row passed the same limit and lot check "
+                    "unless marked)", title_justify="left")
     for col, just in (("candidate", "left"), ("kind", "left"), ("score λ_min", "right"),
-                      ("optimized ÷", "right"), ("feasible", "left"), ("first violation", "left")):
+                      ("worst σ/target", "right"), ("log det", "right"), ("tr M⁻¹", "right"),
+                      ("rot. exc. λ_min", "right"), ("result ÷", "right"), ("feasible", "left"),
+                      ("first violation", "left")):
         t.add_column(col, justify=just)
     for r in result.comparison:
         ratio = "—" if r.get("ratio") is None else f"{r['ratio']:.2f}×"
         feas = "[green]yes[/]" if r["feasible"] else "[red]no[/]"
         why = "" if r["feasible"] else escape(r["violations"][0][:60])
-        t.add_row(escape(r["name"]), r["kind"], f"{r['score']:.4g}", ratio, feas, why)
+        name = f"[bold]{escape(r['name'])}[/] ◀" if r.get("result") else escape(r["name"])
+        t.add_row(name, r["kind"], _num(r.get("score")), _num(r.get("worst_sigma_ratio"), ".3g"),
+                  _num(r.get("log_det"), ".1f"), _num(r.get("trace_inv"), ".3g"),
+                  _num(r.get("rotation_excitation"), ".3g"), ratio, feas, why)
     return t
 
 
-def write_outputs(result: OptimizeResult, out: Path) -> list[Path]:
-    """maneuver.tum, control.csv, waypoints.csv, report.json, comparison.json in ``out``."""
+def write_outputs(result: OptimizeResult, out: Path, origin: tuple[float, float] | None = None) -> list[Path]:
+    """maneuver.tum, control.csv, waypoints.csv, report.json, comparison.json in ``out`` (and
+    maneuver.geojson when the lot is georeferenced: ``origin`` (lon, lat))."""
+    from ..optimize.site import maneuver_geojson
     from ..routes import write_control_csv, write_tum, write_waypoints_csv
 
     out.mkdir(parents=True, exist_ok=True)
@@ -53,7 +73,12 @@ def write_outputs(result: OptimizeResult, out: Path) -> list[Path]:
     rep["optimization"] = {k: v for k, v in result.to_dict().items() if k not in ("report", "comparison")}
     (out / "report.json").write_text(json.dumps(rep, indent=2))
     (out / "comparison.json").write_text(json.dumps(result.comparison, indent=2))
-    return paths + [out / "report.json", out / "comparison.json"]
+    paths += [out / "report.json", out / "comparison.json"]
+    if origin is not None:
+        s = result.trajectory.sample(result.trajectory.times(10.0))
+        (out / "maneuver.geojson").write_text(maneuver_geojson(s.p_W_V, s.speed, origin, "maneuver"))
+        paths.append(out / "maneuver.geojson")
+    return paths
 
 
 @app.command()
@@ -61,27 +86,37 @@ def optimize(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output folder.")],
     rig: Annotated[str, typer.Option(help="Bundled rig name or rig YAML path.")] = "robotaxi",
     duration: Annotated[float, typer.Option(help=f"Maneuver duration [s], rest to rest; range {_B['duration_s']}.")] = 90.0,
-    lot: Annotated[str, typer.Option(help=f"Lot size XxY [m]: extent along x, then along y; each in {_B['lot_x_m']}.")] = "80x50",
+    lot: Annotated[str, typer.Option(help="The lot: XxY [m] (a rectangle, extent along x then y, centred) "
+                                          "or a GeoJSON file (Polygon with keep-out holes, entry Point, "
+                                          "ramp/bank/bump Polygons).")] = "80x50",
     seed: Annotated[int, typer.Option(help=f"Seed of the random candidates; range {_B['seed']}.")] = 0,
-    time_budget: Annotated[float, typer.Option(help=f"Wall-clock budget of the optimization [s]; range {_B['time_budget_s']}.")] = 60.0,
+    time_budget: Annotated[float, typer.Option(
+        help=f"Wall-clock budget of the whole command [s]; range {_B['time_budget_s']}.")] = 60.0,
     closed: Annotated[bool, typer.Option(help="End where it started (position and heading).")] = False,
     n_random: Annotated[int, typer.Option(help=f"Random candidates in the comparison; range {_B['n_random']}.")] = 200,
+    criterion: Annotated[str, typer.Option(help="What to maximise: E (λ_min, the score), D (log det), "
+                                                "A (−trace of the inverse).")] = "E",
 ) -> None:
     """Plan the drive that determines the worst-determined calibration direction best.
 
-    Ctrl-C keeps the best feasible drive found so far and writes it.
+    The result is the best drive, among everything this run has seen, that passed the limit and
+    lot check. Ctrl-C keeps the best checked drive found so far and writes it.
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ..optimize import OptimizeSettings, optimize as run_optimize
     from ..optimize import Progress as OptProgress
+    from ..optimize.site import parse_lot
     from ..rig import load_rig
 
     if out.exists() and not out.is_dir():
         raise ExciteError(f"-o/--out: {out} exists and is not a folder")
-    w, length = parse_lot(lot)
-    settings = OptimizeSettings(duration_s=duration, lot_x_m=w, lot_y_m=length, seed=seed,
-                                time_budget_s=time_budget, closed=closed, n_random=n_random)
+    site = parse_lot(lot)
+    OptimizeSettings(time_budget_s=time_budget)  # validate the budget as given
+    # the budget bounds the whole command: start-up so far and writing the files come off it
+    left = time_budget - _process_age_s() - _WRITE_S
+    settings = OptimizeSettings(duration_s=duration, site=site, seed=seed, time_budget_s=max(left, 0.5),
+                                closed=closed, n_random=n_random, criterion=criterion)
     r = load_rig(rig)
     out_console = console()
     interrupted = {"flag": False}
@@ -94,15 +129,14 @@ def optimize(
     old = signal.signal(signal.SIGINT, on_sigint)
     try:
         with Progress(TextColumn("[bold]{task.fields[phase]:<9}"), BarColumn(),
-                      TextColumn("it {task.fields[it]:>4}  λ_min {task.fields[score]}  "
+                      TextColumn("it {task.fields[it]:>4}  model {task.fields[score]}  "
                                  "violation {task.fields[viol]}"), TimeElapsedColumn(),
                       console=out_console, transient=False) as bar:
             task = bar.add_task("optimize", total=settings.time_budget_s, phase="start", it=0,
                                 score="—", viol="—")
 
             def on_progress(p: OptProgress) -> None:
-                done = min(p.elapsed_s, settings.time_budget_s) if p.phase in ("start", "optimize") \
-                    else settings.time_budget_s
+                done = settings.time_budget_s if p.phase == "done" else min(p.elapsed_s, settings.time_budget_s)
                 bar.update(task, completed=done, phase=p.phase, it=p.iteration,
                            score=f"{p.score:.4g}", viol=f"{p.constraint_violation:.2g}")
 
@@ -110,8 +144,8 @@ def optimize(
     finally:
         signal.signal(signal.SIGINT, old)
     out_console.print(comparison_table(result))
-    out_console.print(f"status [bold]{result.status}[/], {result.iterations} IPOPT iterations, "
-                  f"{result.elapsed_s:.1f} s (optimization {result.timings_s.get('optimize', 0):.1f} s); "
-                  f"score {result.report.score:.4g}" + (f"\n{result.message}" if result.message else ""))
-    for p in write_outputs(result, out):
+    out_console.print(f"status [bold]{result.status}[/] (IPOPT: {result.ipopt_status}, {result.iterations} "
+                  f"iterations); result: {result.source}; {result.elapsed_s:.1f} s of the {time_budget:g} s "
+                  f"budget; score {result.report.score:.4g}" + (f"\n{result.message}" if result.message else ""))
+    for p in write_outputs(result, out, site.origin):
         out_console.print(f"wrote {p}")

@@ -13,33 +13,33 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize
 
-from .solver import FEASIBLE_TOL, Transcription, score, violation
+from .solver import FEASIBLE_TOL, Transcription, model_value, violation
 
 
 class _OutOfTime(Exception):
     pass
 
 
-def cobyla(tr: Transcription, z0: np.ndarray, budget_s: float,
+def cobyla(tr: Transcription, z0: np.ndarray, budget_s: float, criterion: str = "E",
            should_stop: Callable[[], bool] | None = None,
            progress: Callable[[int, float], None] | None = None) -> tuple[np.ndarray | None, float, int]:
-    """Best feasible (z, model λ_min, evaluations) COBYLA finds within ``budget_s``."""
+    """Best feasible (z, model criterion value, evaluations) COBYLA finds within ``budget_s``."""
     deadline = time.perf_counter() + budget_s
     best = {"z": None, "s": -np.inf, "n": 0}
     z0 = np.asarray(z0, dtype=float)
     lo, hi = tr.lbz, tr.ubz
-    scale = max(abs(score(tr, z0)), 1e-12)
+    scale = max(abs(model_value(tr, z0, "E")), 1e-12) if criterion == "E" else 1.0
 
     def objective(z):
         if time.perf_counter() > deadline or (should_stop is not None and should_stop()):
             raise _OutOfTime
         best["n"] += 1
-        s = score(tr, z)
-        if s > best["s"] and violation(tr, z) <= FEASIBLE_TOL:
+        s = model_value(tr, z, criterion)
+        if s > best["s"] and violation(tr, z, within_limits=True) <= FEASIBLE_TOL:
             best["z"], best["s"] = z.copy(), s
         if progress is not None:
             progress(best["n"], best["s"])
-        return -s / scale
+        return -s / scale if np.isfinite(s) else 1e6
 
     def cons(z):
         g = np.array(tr.g_kin(z)).ravel()

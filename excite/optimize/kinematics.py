@@ -21,10 +21,12 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import CubicSpline
 
 from ..trajectory import GRAVITY
 from ..vehicle import ControlProfile, Limits, Suspension
+from .terrain import Terrain
 
 
 @dataclass(frozen=True)
@@ -176,35 +178,61 @@ def _rot_z(a):
     return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
 
 
-def body_function(suspension: Suspension, R_V_B: np.ndarray, p_V_B: np.ndarray) -> ca.Function:
-    """SX function of one sample's (u, a, j, j', κ, κ', κ'', ψ, x, y) → body motion.
+def _vee(W):
+    return ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
+
+
+def body_function(suspension: Suspension, R_V_B: np.ndarray, p_V_B: np.ndarray, terrain: Terrain) -> ca.Function:
+    """SX function of one sample's (u, a, j, j', κ, κ', κ'', ψ, x, y, z) → body motion.
+
+    The road frame A is ``Rz(ψ) Ry(−grade) Rx(bank)`` with the terrain's grade and bank at
+    (x, y, ψ) (:mod:`.terrain`; zero on a flat lot), the body V is tilted in it by the suspension
+    (pitch ``−k_p·a``, roll ``k_r·u²κ``), exactly as :func:`excite.vehicle.drive`. The angular
+    rate and acceleration of V are exact time derivatives of that rotation (CasADi ``jtimes``
+    along the known rates of every angle).
 
     Outputs ``R_W_B`` (3×3), ``p`` (3), ``v`` (3), ``ω_B`` (3), ``f_B`` (3), ``R_V_A`` (3×3).
     """
-    q = ca.SX.sym("q", 10)
-    u, a, j, jd, k, kd, kdd, psi, x, y = (q[i] for i in range(10))
+    q = ca.SX.sym("q", 11)
+    u, a, j, jd, k, kd, kdd, psi, x, y, zz = (q[i] for i in range(11))
     kp = np.deg2rad(suspension.pitch_deg_per_mps2)
     kr = np.deg2rad(suspension.roll_deg_per_mps2)
-    th, th1, th2 = -kp * a, -kp * j, -kp * jd  # pitch and its derivatives
+    # positions and heading with their first and second time derivatives
+    ps1, ps2 = u * k, a * k + u * kd
+    c, s = ca.cos(psi), ca.sin(psi)
+    pos, pos1 = ca.vertcat(x, y, psi), ca.vertcat(u * c, u * s, ps1)
+    pos2 = ca.vertcat(a * c - u * s * ps1, a * s + u * c * ps1, ps2)
+    gb = ca.vertcat(*terrain.grade_bank(x, y, psi))
+    gb1 = ca.jtimes(gb, pos, pos1)
+    gb2 = ca.jtimes(gb1, pos, pos1) + ca.jtimes(gb, pos, pos2)
+    # every angle of R_W_V = Rz(ψ) Ry(−G) Rx(B) Ry(θ) Rx(φ), with its rates
+    th, th1, th2 = -kp * a, -kp * j, -kp * jd
     ph = kr * u * u * k
     ph1 = kr * (2 * u * a * k + u * u * kd)
     ph2 = kr * (2 * a * a * k + 2 * u * j * k + 4 * u * a * kd + u * u * kdd)
-    ps1 = u * k
-    ps2 = a * k + u * kd
-    Rz, Ry, Rx = _rot_z(psi), _rot_y(th), _rot_x(ph)
-    R_W_A = Rz
-    R_A_V = ca.mtimes(Ry, Rx)
+    ang = ca.vertcat(psi, gb, th, ph)
+    ang1 = ca.vertcat(ps1, gb1, th1, ph1)
+    ang2 = ca.vertcat(ps2, gb2, th2, ph2)
+    A = ca.SX.sym("A", 5)
+    A1 = ca.SX.sym("A1", 5)
+    R_W_A_s = ca.mtimes([_rot_z(A[0]), _rot_y(-A[1]), _rot_x(A[2])])
+    R_A_V_s = ca.mtimes(_rot_y(A[3]), _rot_x(A[4]))
+    R_W_V_s = ca.mtimes(R_W_A_s, R_A_V_s)
+    w_s = _vee(ca.mtimes(R_W_V_s.T, ca.jtimes(R_W_V_s, A, A1)))  # body rate of V, in V
+    wA_s = _vee(ca.mtimes(R_W_A_s.T, ca.jtimes(R_W_A_s, A, A1)))  # rate of A, in A
+    rates = ca.Function("rates", [A, A1], [w_s, wA_s])
+    A2s = ca.SX.sym("A2", 5)
+    acc_f = ca.Function("acc", [A, A1, A2s], [ca.jtimes(w_s, ca.vertcat(A, A1), ca.vertcat(A1, A2s))])
+    w, wA = rates(ang, ang1)
+    al = acc_f(ang, ang1, ang2)
+    R_W_A = ca.mtimes([_rot_z(psi), _rot_y(-gb[0]), _rot_x(gb[1])])
+    R_A_V = ca.mtimes(_rot_y(th), _rot_x(ph))
     R_W_V = ca.mtimes(R_W_A, R_A_V)
-    ez, ey, ex = ca.DM([0, 0, 1]), ca.DM([0, 1, 0]), ca.DM([1, 0, 0])
-    # body rate of V = Rz(ψ) Ry(θ) Rx(φ), in V, and its derivative
-    w_rel = ca.mtimes(Rx.T, ey) * th1 + ex * ph1  # rate of Ry Rx in V
-    zV = ca.mtimes(R_A_V.T, ez)
-    w = zV * ps1 + w_rel
-    yX = ca.mtimes(Rx.T, ey)
-    al = (zV * ps2 - ca.cross(w_rel, zV * ps1) + yX * th2 - ca.cross(ex * ph1, yX * th1) + ex * ph2)
-    v_W = ca.mtimes(R_W_A, ex) * u
-    a_W = ca.mtimes(R_W_A, ex) * a + ca.mtimes(R_W_A, ey) * (u * ps1)
-    p_W = ca.vertcat(x, y, 0)
+    ex = ca.DM([1, 0, 0])
+    fwd = ca.mtimes(R_W_A, ex)
+    v_W = fwd * u
+    a_W = fwd * a + ca.mtimes(R_W_A, ca.cross(wA, ex)) * u
+    p_W = ca.vertcat(x, y, zz)
     pB = ca.DM(p_V_B)
     RVB = ca.DM(R_V_B)
     lever_v = ca.cross(w, pB)
@@ -219,28 +247,58 @@ def body_function(suspension: Suspension, R_V_B: np.ndarray, p_V_B: np.ndarray) 
                        ["q"], ["R", "p", "v", "w", "f", "R_V_A"])
 
 
-def body_samples(grid: Grid, sc: Scales, z, suspension: Suspension, R_V_B, p_V_B):
+def terrain_path(grid: Grid, sc: Scales, z, terrain: Terrain):
+    """:func:`path` on the terrain: the horizontal speed is u·cos(grade) (grade taken on the
+    flat path, a second-order error), and the height z = ∫ u sin(grade) dt. Returns
+    (u, a, j, j', κ, κ', κ'', ψ, x, y, z)."""
+    u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
+    if not terrain:
+        return u, a, j, jd, k, kd, kdd, psi, x, y, ca.MX.zeros(x.shape)
+    h = grid.dt
+    g, _ = terrain.grade_bank(x, y, psi)
+
+    def cum(f):
+        return ca.vertcat(0, ca.cumsum(0.5 * h * (f[:-1] + f[1:])))
+
+    c, s = ca.cos(psi), ca.sin(psi)
+    x = x - cum(u * (1 - ca.cos(g)) * c)
+    y = y - cum(u * (1 - ca.cos(g)) * s)
+    g, _ = terrain.grade_bank(x, y, psi)
+    return u, a, j, jd, k, kd, kdd, psi, x, y, cum(u * ca.sin(g))
+
+
+def body_samples(grid: Grid, sc: Scales, z, suspension: Suspension, R_V_B, p_V_B, terrain: Terrain = Terrain()):
     """Body motion at every sample as (9×N, 3×N, 3×N, 3×N, 3×N, 9×N) expressions of ``z``;
     matrices column-major (``ca.vec``)."""
-    cols = path(grid, sc, z)
-    Q = ca.horzcat(*cols).T  # 10 × N
-    F = body_function(suspension, R_V_B, p_V_B).map(grid.n_samples)
+    cols = terrain_path(grid, sc, z, terrain)
+    Q = ca.horzcat(*cols).T  # 11 × N
+    F = body_function(suspension, R_V_B, p_V_B, terrain).map(grid.n_samples)
     return F(Q)
 
 
 def profile_from_z(grid: Grid, sc: Scales, z: np.ndarray, rate_hz: float = 20.0,
-                   name: str = "optimized") -> ControlProfile:
+                   name: str = "optimized", terrain: Terrain = Terrain()) -> ControlProfile:
     """The control profile of ``z``: speed and curvature splines sampled at ``rate_hz`` knots
-    (:func:`~excite.vehicle.drive` interpolates them shape-preservingly)."""
+    (:func:`~excite.vehicle.drive` interpolates them shape-preservingly), with the terrain's
+    grade and bank under the path (as :func:`terrain_path` integrates it)."""
     lay = layout(grid)
     z = np.asarray(z, dtype=float).ravel()
     uk = np.concatenate([[0.0], z[lay.speed] * sc.speed_mps, [0.0]])
     kk = z[lay.curv] * sc.curvature_1pm
     t = np.linspace(0.0, grid.duration_s, int(round(grid.duration_s * rate_hz)) + 1)
-    u = CubicSpline(grid.t_knots, uk, bc_type=((1, 0.0), (1, 0.0)))(t)
+    u = np.maximum(CubicSpline(grid.t_knots, uk, bc_type=((1, 0.0), (1, 0.0)))(t), 0.0)
     k = CubicSpline(grid.t_knots, kk, bc_type="natural")(t)
     x0, y0, psi0 = z[lay.pose] * np.array([sc.position_m, sc.position_m, 1.0])
-    return ControlProfile(t_s=t, speed_mps=np.maximum(u, 0.0), curvature_1pm=k,
+    g = b = None
+    if terrain:
+        psi = psi0 + cumulative_trapezoid(u * k, t, initial=0.0)
+        horiz = np.ones_like(t)
+        for _ in range(2):
+            x = x0 + cumulative_trapezoid(u * horiz * np.cos(psi), t, initial=0.0)
+            y = y0 + cumulative_trapezoid(u * horiz * np.sin(psi), t, initial=0.0)
+            g, b = terrain.grade_bank_np(np.column_stack([x, y]), psi)
+            horiz = np.cos(g)
+    return ControlProfile(t_s=t, speed_mps=u, curvature_1pm=k, grade_rad=g, bank_rad=b,
                           start=(float(x0), float(y0), float(psi0)), name=name)
 
 

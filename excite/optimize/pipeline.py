@@ -1,213 +1,305 @@
-"""The optimization pipeline: start, optimize, baseline, re-score with the full evaluator, compare.
+"""The optimization pipeline: never worse than what it has seen, within one time budget.
 
-The time budget covers the *optimization* (problem statement, start selection, IPOPT). The
-comparison that follows (the COBYLA baseline with the same budget as IPOPT used, the full
-evaluator on every reference maneuver and random candidate) is extra; cancelling skips it.
+Within ``time_budget_s`` of wall time, all of it:
+
+1. **start** (main process): state the NLP; generate the first random candidates and the
+   reference maneuvers; choose IPOPT's start among them by the optimizer's model. A worker
+   process starts at once and, next to IPOPT, scores the reference maneuvers (full evaluator),
+   screens the random candidates chunk by chunk (evaluator on the coarse rig), then runs COBYLA
+   from the same start (:data:`COBYLA_SHARE` of the budget).
+2. **optimize**: IPOPT until it converges, or until the budget less the time kept for the
+   checks (:func:`finish_reserve_s`); every iterate that satisfies its constraints is kept.
+3. **check**: the best kept iterates (by the model) go through the independent check
+   (:func:`.candidates.check`, the same one every other candidate passed) until
+   :data:`KEEP_ITERATES` passed; the worker's finished work is collected (unfinished chunks are
+   dropped: the comparison says how many random candidates were scored); the feasible
+   iterates, COBYLA, the start and the best screened random candidates are scored by the full
+   evaluator.
+
+The result is the best candidate by the criterion among *all* that passed the check — an IPOPT
+iterate, or else whatever was better (its ``source`` says which). The returned profile is the
+one that was checked, rounded as the control CSV writes it.
 """
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import multiprocessing
+import sys
 import time
 from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import LimitError
 from ..evaluate import evaluate
-from ..maneuvers import EDGE_MARGIN_M, REFERENCE_MANEUVERS, Lot, random_candidates
 from ..rig import Rig
-from ..vehicle import ControlProfile, check_limits, drive
-from . import baselines
-from .kinematics import profile_from_z, z_from_profile
+from ..vehicle import ControlProfile, drive
+from . import candidates as cand
+from .candidates import Candidate, as_written, check
+from .kinematics import layout, profile_from_z, z_from_profile
 from .settings import OptimizeError, OptimizeResult, OptimizeSettings, Progress
-from .solver import score, solve_softmin, transcribe, violation
+from .solver import FEASIBLE_TOL, model_value, restore, solve, transcribe, violation
 
-START_RANDOM = 20  # random candidates considered as starts (the comparison scores all n_random)
-_FINISH_S = 2.0  # kept from the budget for turning the result into a drive
-
-
-def lot_of(settings: OptimizeSettings) -> Lot:
-    """The settings' lot: ``lot_x_m`` along x, ``lot_y_m`` along y, centred."""
-    return Lot.rectangle(length_m=settings.lot_x_m, width_m=settings.lot_y_m)
-
-
-def feasibility(traj, settings: OptimizeSettings, lot: Lot | None = None) -> list[str]:
-    """Every limit and lot violation of a drive, by code independent of the optimizer
-    (:func:`~excite.vehicle.check_limits` and point-in-polygon on the path at 20 Hz)."""
-    out = [str(v) for v in check_limits(traj, settings.limits)]
-    lot = lot_of(settings) if lot is None else lot
-    p = traj.sample(traj.times(20.0)).p_W_V
-    inside = lot.contains(p)
-    if not inside.all():
-        k = int(np.argmin(inside))
-        out.append(f"lot: the path leaves the lot at t={traj.times(20.0)[k]:.2f} s "
-                   f"(x={p[k, 0]:.1f} m, y={p[k, 1]:.1f} m)")
-    return out
+START_RANDOM = 10  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
+CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
+COBYLA_SHARE = 0.15  # of the budget, for the derivative-free baseline (in the worker)
+CHECK_ITERATES = 15  # IPOPT iterates checked at most, best model value first ...
+KEEP_ITERATES = 2  # ... until this many passed (each is then scored by the full evaluator)
+SCORE_RANDOM = 2  # best screened random candidates scored by the full evaluator
 
 
-def _references(settings: OptimizeSettings) -> dict[str, ControlProfile]:
-    """Every reference maneuver that fits the lot and the limits."""
-    out = {}
-    for name, gen in REFERENCE_MANEUVERS.items():
+def finish_reserve_s(budget_s: float) -> float:
+    """Wall time kept after IPOPT for the checks, the full evaluations and the worker's results."""
+    return 3.0 + 0.12 * budget_s
+
+
+class _Worker:
+    """One process next to IPOPT for the comparison candidates (spawned: the caller may hold
+    threads, and forking it would copy held locks)."""
+
+    def __init__(self, rig: Rig, settings: OptimizeSettings, site: Any):
+        self.args = (rig, settings, site)
+        self.pool = cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        # A spawned child re-imports the parent's __main__ script unless it is hidden: a script
+        # calling optimize() without an `if __name__ == "__main__"` guard would run again in it.
+        # The worker needs nothing from __main__ (its tasks live in excite.optimize.candidates).
+        main = sys.modules["__main__"]
+        hidden = {k: main.__dict__.get(k) for k in ("__file__", "__spec__") if k in main.__dict__}
+        main.__dict__.pop("__file__", None)
+        main.__spec__ = None
         try:
-            if name == "highway_run":
-                out[name] = gen(settings.duration_s, limits=settings.limits)
-            else:
-                out[name] = gen(settings.duration_s, width_m=settings.lot_y_m,
-                                length_m=settings.lot_x_m, limits=settings.limits)
-        except LimitError:
-            continue
-    return out
+            self.refs = self.pool.submit(cand.references, *self.args)  # starts the process
+        finally:
+            main.__dict__.pop("__spec__", None)
+            main.__dict__.update(hidden)
+        self.cobyla: cf.Future | None = None
+        self.chunks: list[cf.Future] = []
+
+    def start_rest(self, z_start: np.ndarray, cobyla_s: float, n_random: int) -> None:
+        # the random candidates first: the comparison the result is held to; COBYLA last
+        for c, (first, size) in enumerate(_chunks(n_random)):
+            self.chunks.append(self.pool.submit(cand.randoms, *self.args, c, size, first))
+        self.cobyla = self.pool.submit(cand.cobyla, *self.args, z_start, cobyla_s)
+
+    def close(self) -> None:
+        """Drop the worker's unfinished work at once: a task it is running (COBYLA, a chunk) is
+        cut short, so that neither this call nor the interpreter's exit waits for it."""
+        procs = list((self.pool._processes or {}).values())  # noqa: SLF001 — no public handle before 3.14
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
 
 
-def _randoms(settings: OptimizeSettings, rig: Rig, n: int) -> list[ControlProfile]:
-    if n <= 0:
-        return []
+def _chunks(n_random: int) -> list[tuple[int, int]]:
+    """(first index, size) of every chunk of random candidates (the first START_RANDOM are also
+    IPOPT's possible starts)."""
+    return [(first, min(CHUNK, n_random - first)) for first in range(0, n_random, CHUNK)]
+
+
+def _result(fut: cf.Future | None, timeout_s: float):
+    """The future's result, or None if it is not there in time, was cancelled, or failed (a
+    comparison candidate that failed is not a reason to withhold the result)."""
+    if fut is None:
+        return None
     try:
-        return random_candidates(n, settings.duration_s, lot_of(settings), settings.limits,
-                                 seed=settings.seed, suspension=rig.suspension)
-    except LimitError:
-        return []
+        return fut.result(timeout=max(timeout_s, 0.0))
+    except Exception:  # noqa: BLE001 — timeout, cancelled, or the worker broke
+        return None
 
 
 def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
              progress: Callable[[Progress], None] | None = None,
              should_stop: Callable[[], bool] | None = None) -> OptimizeResult:
-    """The drive within ``settings`` that maximises the rig's score (see the package docstring).
+    """The best drive within ``settings`` that this run has seen (see the module docstring).
 
-    ``progress`` is called after every optimizer iteration (and during the comparison); when
-    ``should_stop()`` returns True the best feasible drive found so far is returned promptly,
-    with ``cancelled=True`` and only the reference maneuvers in the comparison.
+    ``progress`` is called after every IPOPT iteration and at each phase; when ``should_stop()``
+    returns True, IPOPT stops, the worker's unfinished work is dropped and the best checked
+    drive so far is returned (``cancelled=True``).
     """
     t0 = time.perf_counter()
+    budget = settings.time_budget_s
     stop = should_stop or (lambda: False)
+    site = settings.lot
+    crit = settings.criterion
     timings: dict[str, float] = {}
 
     def report(it: int, s: float, v: float, phase: str) -> None:
         if progress is not None:
-            progress(Progress(it, float(s), float(v), time.perf_counter() - t0, phase))
+            progress(Progress(it, float(s), float(v), time.perf_counter() - t0, phase, budget))
 
-    lot = lot_of(settings)
-    half_x = 0.5 * settings.lot_x_m - EDGE_MARGIN_M
-    half_y = 0.5 * settings.lot_y_m - EDGE_MARGIN_M
-    if min(half_x, half_y) < 5.0:
-        raise OptimizeError(f"a {settings.lot_x_m:g} × {settings.lot_y_m:g} m lot leaves less than "
-                            f"5 m either side of the centre inside its {EDGE_MARGIN_M:g} m edge margin")
-    tr = transcribe(rig, settings.duration_s, settings.limits, half_x, half_y, settings.closed)
+    def remaining() -> float:
+        return t0 + budget - time.perf_counter()
 
-    # --- start: the best reference maneuver or random candidate by the optimizer's model
-    refs = _references(settings)
-    starts = [p for n, p in refs.items() if n != "highway_run"]
-    starts += _randoms(settings, rig, min(START_RANDOM, settings.n_random))
+    report(0, float("nan"), float("nan"), "start")
+    worker = _Worker(rig, settings, site)
+    try:
+        return _run(rig, settings, site, crit, worker, t0, timings, report, remaining, stop)
+    finally:
+        worker.close()
+
+
+def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remaining, stop) -> OptimizeResult:
+    budget = settings.time_budget_s
+    tr = transcribe(rig, settings, site)
+    lay = layout(tr.grid)
+
+    # --- start: the reference maneuvers and the first random candidates, by the model
+    starts = [c.profile for c in cand.reference_profiles(rig, settings, site) if c.name != "highway_run"]
+    for c, (first, size) in enumerate(_chunks(settings.n_random)):
+        if first >= START_RANDOM:
+            break
+        starts += cand.random_profiles(rig, settings, site, c, size, first)
     ranked = []
-    for i, prof in enumerate(starts):
-        z = z_from_profile(tr.grid, tr.scales, prof)
-        ranked.append((score(tr, z), -violation(tr, z), i, z, prof))
-        report(0, ranked[-1][0], -ranked[-1][1], "start")
+    for i, c in enumerate(starts):
+        z = z_from_profile(tr.grid, tr.scales, c)
+        if site.entry is not None:
+            z[lay.pose] = [site.entry[0] / tr.scales.position_m, site.entry[1] / tr.scales.position_m,
+                           site.entry[2]]
+        v = violation(tr, z)
+        s = model_value(tr, z, crit)
+        ok = v <= FEASIBLE_TOL
+        ranked.append((ok, s if ok else -v, -i, z, c))
+        report(0, s, v, "start")
     if not ranked:
-        raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits")
-    # prefer starts that nearly satisfy the optimizer's constraints; among those the best score
-    # (a little over a limit or the lot's inner edge: IPOPT restores that)
-    near = [r for r in ranked if -r[1] < 1.0] or ranked
-    near.sort(key=lambda r: (-r[0], r[2]))
-    start_score, _, _, z_start, start_prof = near[0]
+        raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits "
+                            "to start from")
+    # a start that satisfies the optimizer's constraints, the best by the model; else the least
+    # violating (from an infeasible start IPOPT first spends its iterations on feasibility, and
+    # the excitation is lost on the way: benchmarks/bench_ipopt.py)
+    ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
+    ok, _, _, z_start, start = ranked[0]
+    start_note = ""
+    if not ok:  # e.g. every candidate starts elsewhere than the lot's entry: move to the nearest feasible
+        z_start, restored = restore(tr, z_start, time.perf_counter() + 0.25 * remaining())
+        start_note = (f"no candidate satisfied the optimizer's constraints: IPOPT started from {start.name} moved "
+                      f"to the nearest drive that does ({restored})")
+        report(0, model_value(tr, z_start, crit), violation(tr, z_start), "start")
     timings["start"] = time.perf_counter() - t0
+    worker.start_rest(z_start, COBYLA_SHARE * budget, settings.n_random)
 
-    # --- optimize (multi-start when the budget allows about 40 s per start)
-    deadline = t0 + settings.time_budget_s - _FINISH_S
-    n_starts = max(1, min(len(near), int((deadline - time.perf_counter()) // 40.0)))
-    best_z, best_s, iterations, status = None, -np.inf, 0, "start_only"
-    t_opt = time.perf_counter()
-    for k in range(n_starts):
-        if stop():
-            break
-        share = (deadline - time.perf_counter()) / (n_starts - k)
-        out = solve_softmin(tr, near[k][3], time.perf_counter() + share, should_stop=stop, t_start=t0,
-                    progress=lambda it, s, v, el, base=iterations: report(base + it, s, v, "optimize"))
-        iterations += out.iterations
-        if out.z is not None and out.score > best_s:
-            best_z, best_s, status = out.z, out.score, out.status
-        if out.status == "cancelled":
-            status = "cancelled"
-            break
-    ipopt_s = time.perf_counter() - t_opt
-    timings["optimize"] = ipopt_s
-    cancelled = stop()
-    if cancelled:
-        status = "cancelled"
+    # --- optimize
+    out = solve(tr, z_start, time.perf_counter() + remaining() - finish_reserve_s(budget), crit,
+                settings.max_iterations, should_stop=stop, t_start=t0,
+                progress=lambda it, s, v, el: report(it, s, v, "optimize"))
+    timings["optimize"] = time.perf_counter() - t0 - timings["start"]
+    cancelled = out.status == "cancelled" or stop()
+    report(out.iterations, out.score, 0.0, "check")
 
-    # --- the result as a drive, checked independently
-    message = ""
-    profile, traj = None, None
-    if best_z is not None:
-        profile = profile_from_z(tr.grid, tr.scales, best_z)
-        traj = drive(profile, rig.suspension)
-        bad = feasibility(traj, settings, lot)
+    # --- check the best iterates independently
+    passed: list[Candidate] = []
+    first_failure = ""
+    n_checked = 0
+    for value, z in out.feasible[:CHECK_ITERATES]:
+        if len(passed) >= KEEP_ITERATES or (passed and remaining() < 1.0):
+            break
+        n_checked += 1
+        prof = as_written(profile_from_z(tr.grid, tr.scales, z, terrain=site.terrain))
+        traj, bad = check(prof, rig, settings, site)
         if bad:
-            message = "optimized drive failed the independent check (" + "; ".join(bad) + "); returned the start"
-            profile = None
-    if profile is not None and evaluate(traj, rig).score < evaluate(drive(start_prof, rig.suspension), rig).score:
-        # cut short before it got past its start (e.g. cancelled early): the start is better
-        message = message or "the optimizer had not improved on its start; returned the start"
-        profile = None
-    if profile is None:
-        profile, best_s = start_prof, start_score
-        traj = drive(profile, rig.suspension)
-        if status != "cancelled":
-            status = "start_only"
-    profile = ControlProfile(profile.t_s, profile.speed_mps, profile.curvature_1pm, profile.grade_rad,
-                             profile.bank_rad, profile.start, name="optimized")
-    traj = drive(profile, rig.suspension)
-    report_full = evaluate(traj, rig)
-    timings["result"] = time.perf_counter() - t0 - timings["start"] - ipopt_s
+            first_failure = first_failure or bad[0]
+            continue
+        passed.append(Candidate("optimized", "optimized", prof, bad, model=value, rotation=cand.rotation_min(traj)))
+    timings["check"] = time.perf_counter() - t0 - timings["start"] - timings["optimize"]
 
-    # --- comparison, re-scored by the full evaluator
+    # --- collect the worker's work: what it finishes while the budget lasts (less the time the
+    # full evaluations below take), all of it when IPOPT finished early
+    pending = [f for f in [worker.refs, worker.cobyla, *worker.chunks] if f is not None]
+    if not cancelled:
+        cf.wait(pending, timeout=max(remaining() - 0.6 * finish_reserve_s(budget), 0.0))
+    refs: list[Candidate] = _result(worker.refs, 0.0) or []
+    cob = _result(worker.cobyla, 0.0)
+    chunks = [f for f in worker.chunks if f.done() and not f.cancelled()]
+    randoms = [c for f in chunks for c in (_result(f, 0.0) or [])]
+    worker.close()
+
+    # --- score by the full evaluator what can win (most important first, while time lasts)
+    pool: list[Candidate] = [cand.full(c, rig, crit) for c in passed]
+    pool.extend(c for c in refs if c.feasible)
+    start_c = next((c for c in refs + randoms if c.name == start.name), None)
+    if start_c is None:
+        start_c = Candidate(start.name, "start", start, check(start, rig, settings, site)[1])
+    if start_c.feasible:  # always: the optimized drive is never worse than where it started
+        pool.append(cand.full(start_c, rig, crit))
+    cobc = None
+    if cob is not None and cob["profile"] is not None and remaining() > 0:
+        prof = as_written(cob["profile"])
+        traj, bad = check(prof, rig, settings, site)
+        cobc = Candidate("cobyla", "cobyla", prof, bad, model=cob["model"], rotation=cand.rotation_min(traj),
+                         extra={"evaluations": cob["evaluations"]})
+        if cobc.feasible:
+            pool.append(cand.full(cobc, rig, crit))
+    feas_random = sorted((c for c in randoms if c.feasible and c.model is not None), key=lambda c: -c.model)
+    top_random = []
+    for c in feas_random[:SCORE_RANDOM]:
+        if remaining() > 0 or not pool:
+            top_random.append(cand.full(c, rig, crit))
+    pool.extend(top_random)
+    # the LI-Init heuristic's pick: the candidate with the most rotation excitation
+    heur = max((c for c in refs + randoms if c.feasible and c.rotation is not None),
+               key=lambda c: c.rotation, default=None)
+    if heur is not None and not heur.row and remaining() > 0:
+        pool.append(cand.full(heur, rig, crit))
+    if not pool:
+        raise OptimizeError("no drive passed the limit and lot check (IPOPT: "
+                            f"{out.ipopt_status}, {out.iterations} iterations"
+                            + (f"; its best iterate: {first_failure}" if first_failure else "") + ")")
+    best = max(pool, key=lambda c: (c.row["value"], c.kind == "optimized"))
+
+    profile = ControlProfile(best.profile.t_s, best.profile.speed_mps, best.profile.curvature_1pm,
+                             best.profile.grade_rad, best.profile.bank_rad, best.profile.start, name="optimized")
+    traj = drive(profile, rig.suspension)
+    rep = best.report if best.report is not None else evaluate(traj, rig)
+
+    # --- the comparison
     rows: list[dict[str, Any]] = []
 
-    def row(name: str, kind: str, prof: ControlProfile, model: float | None = None) -> dict[str, Any]:
-        tj = drive(prof, rig.suspension)
-        bad = feasibility(tj, settings, lot) if kind != "reference" or name != "highway_run" \
-            else [str(v) for v in check_limits(tj, settings.limits)]
-        r = {"name": name, "kind": kind, "score": evaluate(tj, rig).score, "model_score": model,
-             "feasible": not bad, "violations": bad}
+    def row(name: str, kind: str, c: Candidate | None, **extra: Any) -> None:
+        if c is None:
+            return
+        r = {"name": name, "kind": kind, **c.row, "model_value": c.model, "rotation_excitation": c.rotation,
+             "feasible": c.feasible, "violations": c.violations, "result": c is best, **c.extra, **extra}
+        r.setdefault("score", None)
         rows.append(r)
-        return r
 
-    rows.append({"name": "optimized", "kind": "optimized", "score": report_full.score, "model_score": best_s,
-                 "feasible": not feasibility(traj, settings, lot), "violations": feasibility(traj, settings, lot)})
-    for name, prof in refs.items():
-        row(name, "reference", prof)
-    t_cmp = time.perf_counter()
-    if not cancelled:
-        row(f"start ({start_prof.name})", "start", start_prof, start_score)
-        zc, sc_, nev = baselines.cobyla(tr, z_start, max(ipopt_s, 1.0), should_stop=stop,
-                                        progress=lambda n, s: report(n, s, 0.0, "baseline") if n % 20 == 0 else None)
-        if zc is not None:
-            r = row("cobyla", "cobyla", profile_from_z(tr.grid, tr.scales, zc, name="cobyla"), sc_)
-            r["evaluations"] = nev
-        else:
-            rows.append({"name": "cobyla", "kind": "cobyla", "score": 0.0, "model_score": None,
-                         "feasible": False, "violations": ["no feasible point found"], "evaluations": nev})
-        timings["baseline"] = time.perf_counter() - t_cmp
-        best_rand = None
-        for i, prof in enumerate(_randoms(settings, rig, settings.n_random)):
-            if stop():
-                cancelled = True
-                break
-            s = evaluate(drive(prof, rig.suspension), rig).score
-            if best_rand is None or s > best_rand[0]:
-                best_rand = (s, prof)
-            report(i + 1, s, 0.0, "rescore")
-        if best_rand is not None:
-            r = row(f"best of {settings.n_random} random", "random", best_rand[1])
-            r["candidate"] = best_rand[1].name
-    best_score = report_full.score
+    if passed:
+        row("optimized", "optimized", max(passed, key=lambda c: c.row["value"]))
+    else:
+        rows.append({"name": "optimized", "kind": "optimized", "score": None, "feasible": False, "result": False,
+                     "violations": [first_failure or f"IPOPT kept no feasible iterate ({out.ipopt_status})"]})
+    for c in refs:
+        row(c.name, "reference", c)
+    if top_random:
+        top = max(top_random, key=lambda c: c.row["value"])
+        row(f"best of {len(randoms)} random", "random", top, candidate=top.name,
+            scored=len(randoms), requested=settings.n_random)
+    if cobc is not None:
+        row("cobyla", "cobyla", cobc)
+    if start_c.row:
+        row(f"start ({start.name})", "start", start_c)
+    if heur is not None and heur.row:
+        row(f"LI-Init heuristic ({heur.name})", "heuristic", heur)
     for r in rows:
-        r["ratio"] = (best_score / r["score"]) if r["score"] > 0 else None
-    rows.sort(key=lambda r: -r["score"])
-    timings["compare"] = time.perf_counter() - t_cmp
+        s = r.get("score")
+        r["ratio"] = (rep.score / s) if s else None
+    rows.sort(key=lambda r: -(r.get("score") or 0.0))
+
+    message = [start_note] if start_note else []
+    if best.kind != "optimized":
+        message.append(f"the result is {best.name} ({best.kind}): no IPOPT iterate that passed the check "
+                       "was better")
+    if first_failure:
+        message.append(f"{n_checked - len(passed)} of {n_checked} checked IPOPT iterates failed the "
+                       f"independent check, e.g. {first_failure}")
+    if len(randoms) < settings.n_random:
+        message.append(f"{len(randoms)} of {settings.n_random} random candidates were scored within the budget")
+    timings["compare"] = time.perf_counter() - t0 - sum(timings.values())
     elapsed = time.perf_counter() - t0
-    report(iterations, best_s, 0.0, "done")
-    return OptimizeResult(profile, traj, report_full, rows, status, iterations, elapsed, cancelled,
-                          model_score=float(best_s), timings_s={k: round(v, 3) for k, v in timings.items()},
-                          message=message)
+    report(out.iterations, rep.score, 0.0, "done")  # the last word: the result's score
+    return OptimizeResult(profile, traj, rep, rows, "cancelled" if cancelled else out.status, out.iterations,
+                          elapsed, cancelled, model_score=float(out.score),
+                          timings_s={k: round(v, 3) for k, v in timings.items()}, message="; ".join(message),
+                          ipopt_status=out.ipopt_status, source=best.name if best.kind != "optimized" else "optimized",
+                          criterion=crit)
+
+
