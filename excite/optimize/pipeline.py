@@ -38,8 +38,9 @@ from . import candidates as cand
 from .candidates import Candidate, as_written, check
 from .kinematics import layout, profile_from_z, z_from_profile
 from .settings import OptimizeError, OptimizeResult, OptimizeSettings, Progress
-from .solver import FEASIBLE_TOL, model_value, restore, solve, transcribe, violation
+from .solver import model_value, restore, solve, transcribe, violation
 
+NEAR_FEASIBLE = 1.0  # largest violation of the optimizer's constraints of a start used as it is
 START_RANDOM = 10  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
 CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
 COBYLA_SHARE = 0.15  # of the budget, for the derivative-free baseline (in the worker)
@@ -158,19 +159,20 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
                            site.entry[2]]
         v = violation(tr, z)
         s = model_value(tr, z, crit)
-        ok = v <= FEASIBLE_TOL
-        ranked.append((ok, s if ok else -v, -i, z, c))
+        near = v < NEAR_FEASIBLE
+        ranked.append((near, s if near else -v, -i, z, c))
         report(0, s, v, "start")
     if not ranked:
         raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits "
                             "to start from")
-    # a start that satisfies the optimizer's constraints, the best by the model; else the least
-    # violating (from an infeasible start IPOPT first spends its iterations on feasibility, and
-    # the excitation is lost on the way: benchmarks/bench_ipopt.py)
+    # the best by the model among the starts that nearly satisfy the optimizer's constraints
+    # (with the small monotone barrier IPOPT regains feasibility within a few iterations and keeps
+    # the excitation; a better start counts more than a feasible one: benchmarks/bench_ipopt.py);
+    # when none does, the least violating one, moved to the nearest point that satisfies them
     ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
-    ok, _, _, z_start, start = ranked[0]
+    near, _, _, z_start, start = ranked[0]
     start_note = ""
-    if not ok:  # e.g. every candidate starts elsewhere than the lot's entry: move to the nearest feasible
+    if not near:  # e.g. every candidate starts elsewhere than the lot's entry: move to the nearest feasible
         z_start, restored = restore(tr, z_start, time.perf_counter() + 0.25 * remaining())
         start_note = (f"no candidate satisfied the optimizer's constraints: IPOPT started from {start.name} moved "
                       f"to the nearest drive that does ({restored})")
