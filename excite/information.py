@@ -505,8 +505,9 @@ def _theta_diagonal(blocks: Sequence[FactorBlock], p: int) -> np.ndarray:
 @dataclass(frozen=True)
 class DriveInformation:
     """What :func:`drive_information` returns: Λ_θ over all rig coordinates and what the report
-    needs of the drives (their keyframe count, duration and length, diag H_θθ), with the thread
-    time spent per stage [ms] summed over chunks."""
+    needs of the drives (their keyframe count, duration and length, diag H_θθ), with the CPU time
+    the threads spent per stage [ms], summed over chunks (wall time on a loaded machine says more
+    about the other work than about this one)."""
 
     information: np.ndarray  # over :func:`columns` (each drive's nuisances apart)
     diag_tt: np.ndarray
@@ -527,7 +528,8 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
 
     Why not :class:`Piece` s: a chunk with both ends kept carries its first keyframe's state in the
     border of every elimination step (q = sd + p columns); a sweep from a drive's end has nothing
-    before it to keep (q = p), which saves about 40 % of the elimination with random-walk biases."""
+    before it to keep (q = p), which saves about 40 % of the elimination's arithmetic with random-walk
+    biases (15-wide states, p = 24)."""
     _, nuisance = columns(rig, len(trajs))
     p = nuisance.size
     sd = state_dim(rig)
@@ -564,7 +566,7 @@ def _sweep(traj: Trajectory, K: int, offset: int, chunks: Sequence[tuple[int, in
     """Eliminate the keyframes of ``chunks`` of one drive (keyframes ``k0 … k1`` each, in the order
     given: consecutive, running forward or backward) but the last one reached, carrying what is
     eliminated into it and θ: returns that information ``(H_xx, H_xθ, H_θθ)``, diag H_θθ of the
-    chunks before elimination, their path length and the thread time [s] per stage."""
+    chunks before elimination, their path length and the thread's CPU time [s] per stage."""
     carry = (np.zeros((sd, sd)), np.zeros((sd, p)), np.zeros((p, p)))
     diag, length, spent = np.zeros(p), 0.0, np.zeros(3)
     for k0, k1 in chunks:
