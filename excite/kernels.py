@@ -62,6 +62,23 @@ def _horner(c, k, j, tau, deriv):
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def segments(breaks, t):
+    """Index of the piecewise-polynomial segment (between ``breaks``, increasing) that holds every
+    time: ``clip(searchsorted(breaks, t, "right") − 1, 0, breaks.size − 2)``, walking along the
+    breaks while the times increase (a binary search only where they do not)."""
+    out = np.empty(t.size, dtype=np.int64)
+    last = breaks.size - 2
+    k = 0
+    for i in range(t.size):
+        if i == 0 or t[i] < t[i - 1]:
+            k = min(max(np.searchsorted(breaks, t[i], side="right") - 1, 0), last)
+        while k < last and breaks[k + 1] <= t[i]:
+            k += 1
+        out[i] = k
+    return out
+
+
 @nb.njit(cache=True, inline="always")
 def _rotation_at(c_rot, k, tau, R_key, R):
     """Write ``R_key[k] · Exp(φ(τ))`` to R (φ: segment k of the cubic PPoly ``c_rot``) and return
