@@ -383,8 +383,10 @@ def eliminate(band, Hxe, Hee, lo, hi):
 
     ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd blocks, d ≤ D), the border ``Hxe[j] = H[x_j, e]``
     (sd × q) and ``Hee = H_ee`` are updated in place to the Schur complement on the remaining
-    states and e. Returns −1, or the first state whose pivot block is not positive definite (to
-    rounding: a pivot below ``_PIVOT_RTOL`` of its diagonal entry)."""
+    states and e (diagonal blocks are updated on their lower triangle, which is all the Cholesky
+    factorisation reads; those of the remaining states are made symmetric at the end). Returns −1,
+    or the first state whose pivot block is not positive definite (to rounding: a pivot below
+    ``_PIVOT_RTOL`` of its diagonal entry)."""
     D = band.shape[0] - 1
     n = band.shape[1]
     sd = band.shape[2]
