@@ -1,23 +1,33 @@
 """Time the evaluator: the score of a drive with every parameter of the default rig estimated.
 
-    python benchmarks/bench_evaluate.py [--runs 7] [--skip-dense]
+    python benchmarks/bench_evaluate.py [--runs 7] [--skip-dense] [--baseline REV]
 
 The default rig (robotaxi) has an IMU at 200 Hz, keyframes at 10 Hz, a lidar and a monocular
 camera at 10 Hz, wheel encoders; all 24 calibration coordinates are estimated. Drives are
 generated (varying speed and curvature, suspension on). Timed: trajectory → report, i.e.
 sampling the motion, linearising every factor, marginalising, eigen-analysis and the report.
 
-Figures: median of ``--runs`` for a 10-minute and a 60-minute drive (alternating) and KITTI 00
-(loading the file excluded) with the rig's random-walk biases; the 10-minute drive with random-walk
-against constant biases, side by side; and the dense numpy reference against the fast path on a
-2-minute drive.
+Figures: median and range over ``--runs`` for a 10-minute and a 60-minute drive (alternating) and
+KITTI 00 (loading the file excluded) with the rig's random-walk biases; the 10-minute drive with
+random-walk against constant biases, side by side; with ``--baseline REV``, the same 10-minute
+drive scored by the package as committed at git revision REV (its default rig), alternating with
+this one; and the dense numpy reference against the fast path on a 2-minute drive.
+
+Every figure is given as wall time and as the process's CPU time. This machine is shared: when
+other work keeps its cores busy, wall times grow with the load (printed at start and end) while
+CPU time stays close to what the evaluator itself spends; on an idle machine with both cores,
+wall ≈ CPU / 2 plus the few milliseconds run on one thread.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -30,7 +40,8 @@ from excite.rig import load_rig
 from excite.routes import read_kitti
 from excite.vehicle import ControlProfile, drive
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
 
 
 def cpu_model() -> str:
@@ -40,65 +51,110 @@ def cpu_model() -> str:
     return "unknown CPU"
 
 
-def generated(duration_s: float, rig):
+def load() -> str:
+    return "load average " + " ".join(f"{x:.1f}" for x in os.getloadavg())
+
+
+def generated(duration_s: float, rig, vehicle=None):
+    v = vehicle or sys.modules[__name__]
     t = np.linspace(0.0, duration_s, int(duration_s / 2) + 1)
-    prof = ControlProfile(t, 8 + 3 * np.sin(t / 7), 0.05 * np.sin(t / 5) + 0.02 * np.sin(t / 1.7),
-                          grade_rad=0.02 * np.sin(t / 23), name=f"generated {duration_s / 60:.0f} min")
-    return drive(prof, rig.suspension)
+    prof = v.ControlProfile(t, 8 + 3 * np.sin(t / 7), 0.05 * np.sin(t / 5) + 0.02 * np.sin(t / 1.7),
+                            grade_rad=0.02 * np.sin(t / 23))
+    return v.drive(prof, rig.suspension)
 
 
-def median_ms(fn, runs: int) -> tuple[float, float]:
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times), min(times)
+def timed(fn) -> tuple[float, float]:
+    """Wall and process CPU time of one call [ms]."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    fn()
+    return (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
+
+
+def summary(xs: list[float]) -> str:
+    return f"{statistics.median(xs):7.1f} ({min(xs):.1f}–{max(xs):.1f})"
+
+
+def row(name: str, times: list[tuple[float, float]]) -> str:
+    return f"{name:34s} wall {summary([t[0] for t in times])} ms   cpu {summary([t[1] for t in times])} ms"
+
+
+def ratios(name: str, a: list[tuple[float, float]], b: list[tuple[float, float]]) -> str:
+    out = []
+    for i, kind in enumerate(("wall", "cpu")):
+        r = [x[i] / y[i] for x, y in zip(a, b)]
+        out.append(f"{kind} {statistics.median(r):.2f}x ({min(r):.2f}–{max(r):.2f})")
+    return f"{name:34s} per alternating pair: " + ", ".join(out)
+
+
+def baseline_package(rev: str, into: Path):
+    """The ``excite`` package as committed at ``rev``, importable as ``excite_baseline`` (its
+    imports within the package are relative)."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "excite"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    (into / "excite").rename(into / "excite_baseline")
+    sys.path.insert(0, str(into))
+    return (importlib.import_module("excite_baseline.evaluate"), importlib.import_module("excite_baseline.rig"),
+            importlib.import_module("excite_baseline.vehicle"))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=7)
     parser.add_argument("--skip-dense", action="store_true", help="skip the (slow) dense reference")
+    parser.add_argument("--baseline", metavar="REV", help="also time the package at this git revision, side by side")
     args = parser.parse_args()
     rig = load_rig("robotaxi")
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores; rig robotaxi "
           f"({len(rig.coordinates)} coordinates, IMU {rig.config.imu.update_rate:g} Hz, keyframes "
-          f"{rig.keyframe_rate_hz:g} Hz)")
+          f"{rig.keyframe_rate_hz:g} Hz); {load()}")
 
     # the 10- and 60-minute drives alternate, so that drifts of the machine's speed hit both alike
     drives = {minutes: generated(60.0 * minutes, rig) for minutes in (10, 60)}
-    times: dict[int, list[float]] = {10: [], 60: []}
     n_kf = {m: Nominal.grid(traj, rig)[1] for m, traj in drives.items()}
     for traj in drives.values():
         evaluate(traj, rig)  # warm up
+    times: dict[int, list] = {10: [], 60: []}
     for _ in range(args.runs):
         for minutes, traj in drives.items():
-            times[minutes].append(median_ms(lambda: evaluate(traj, rig), 1)[0])
-    rows = [(f"{m}-minute drive", statistics.median(times[m]), min(times[m])) for m in (10, 60)]
+            times[minutes].append(timed(lambda: evaluate(traj, rig)))
+    print(row("10-minute drive, random walk", times[10]))
+    print(row("60-minute drive, random walk", times[60]))
+    print(ratios("60 min / 10 min", times[60], times[10]))
+    print(f"{'':34s} per keyframe: cpu {statistics.median(t[1] for t in times[10]) / n_kf[10] * 1e3:.1f} vs "
+          f"{statistics.median(t[1] for t in times[60]) / n_kf[60] * 1e3:.1f} µs")
+
     # the same 10-minute drive with constant biases, alternating with the random-walk model: the
     # price of the drifting biases as a ratio measured side by side
     const = rig.with_constant_biases()
     evaluate(drives[10], const)
-    pairs = [(median_ms(lambda: evaluate(drives[10], rig), 1)[0], median_ms(lambda: evaluate(drives[10], const), 1)[0])
+    pairs = [(timed(lambda: evaluate(drives[10], rig)), timed(lambda: evaluate(drives[10], const)))
              for _ in range(args.runs)]
-    print(f"10-minute drive, random-walk / constant biases: median {statistics.median(p[0] for p in pairs):.1f} / "
-          f"{statistics.median(p[1] for p in pairs):.1f} ms, ratio per pair median "
-          f"{statistics.median(p[0] / p[1] for p in pairs):.2f}x")
-    stages = [evaluate(drives[10], rig).timings_ms for _ in range(args.runs)]
-    print("10-minute drive, thread time per stage summed over chunks (medians): " + ", ".join(
-        f"{k.removesuffix('_thread')} {statistics.median(t[k] for t in stages):.1f} ms"
-        for k in stages[0] if k.endswith("_thread")))
+    print(row("10-minute drive, random walk", [p[0] for p in pairs]))
+    print(row("10-minute drive, constant biases", [p[1] for p in pairs]))
+    print(ratios("random walk / constant", [p[0] for p in pairs], [p[1] for p in pairs]))
+    for name, r in (("random walk", rig), ("constant biases", const)):
+        stages = [evaluate(drives[10], r).timings_ms for _ in range(args.runs)]
+        print(f"10-minute drive, {name}: CPU time per stage summed over threads (medians): " + ", ".join(
+            f"{k.removesuffix('_thread')} {statistics.median(t[k] for t in stages):.1f} ms"
+            for k in stages[0] if k.endswith("_thread")))
+
+    if args.baseline:
+        with tempfile.TemporaryDirectory() as tmp:
+            ev, rg, vh = baseline_package(args.baseline, Path(tmp))
+            base_rig = rg.load_rig("robotaxi")
+            base_traj = generated(600.0, base_rig, vh)
+            ev.evaluate(base_traj, base_rig)  # warm up (compiles its kernels: a fresh cache)
+            trip = [(timed(lambda: evaluate(drives[10], rig)), timed(lambda: evaluate(drives[10], const)),
+                     timed(lambda: ev.evaluate(base_traj, base_rig))) for _ in range(args.runs)]
+        print(row(f"10-minute drive, {args.baseline} (its default rig)", [t[2] for t in trip]))
+        print(ratios(f"random walk / {args.baseline}", [t[0] for t in trip], [t[2] for t in trip]))
+        print(ratios(f"constant biases / {args.baseline}", [t[1] for t in trip], [t[2] for t in trip]))
+
     if DATA.is_dir():
         kitti = read_kitti(DATA / "kitti_00_poses.txt", DATA / "kitti_00_times.txt")
-        med, best = median_ms(lambda: evaluate(kitti, rig), args.runs)
-        rows.append(("KITTI 00 (470 s)", med, best))
-    for name, med, best in rows:
-        print(f"{name:22s} median {med:8.1f} ms   min {best:8.1f} ms")
-    ratios = [b / a for a, b in zip(times[10], times[60])]
-    print(f"60 min / 10 min: {rows[1][1] / rows[0][1]:.2f}x (medians); per alternating pair: median "
-          f"{statistics.median(ratios):.2f}x, range {min(ratios):.2f}–{max(ratios):.2f}x; per keyframe "
-          f"{rows[0][1] / n_kf[10] * 1e3:.2f} vs {rows[1][1] / n_kf[60] * 1e3:.2f} µs")
+        evaluate(kitti, rig)
+        print(row("KITTI 00 (470 s), random walk", [timed(lambda: evaluate(kitti, rig)) for _ in range(args.runs)]))
 
     if not args.skip_dense:
         traj = generated(120.0, rig)
@@ -106,12 +162,13 @@ def main() -> None:
         t0 = time.perf_counter()
         dense = information.marginal_dense(information.build(nom, rig))
         t_dense = time.perf_counter() - t0
-        t_fast, _ = median_ms(lambda: information.drive_information([traj], rig), 5)
+        t_fast = statistics.median(timed(lambda: information.drive_information([traj], rig))[0] for _ in range(5))
         fast = information.drive_information([traj], rig).information
         S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
         rel = np.abs((fast - dense) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
         print(f"2-minute drive: dense reference {t_dense * 1e3:.0f} ms, fast path {t_fast:.1f} ms "
               f"→ {t_dense * 1e3 / t_fast:.0f}x faster; max relative difference {rel:.1e}")
+    print(load())
 
 
 if __name__ == "__main__":

@@ -62,6 +62,23 @@ def _horner(c, k, j, tau, deriv):
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def segments(breaks, t):
+    """Index of the piecewise-polynomial segment (between ``breaks``, increasing) that holds every
+    time: ``clip(searchsorted(breaks, t, "right") − 1, 0, breaks.size − 2)``, walking along the
+    breaks while the times increase (a binary search only where they do not)."""
+    out = np.empty(t.size, dtype=np.int64)
+    last = breaks.size - 2
+    k = 0
+    for i in range(t.size):
+        if i == 0 or t[i] < t[i - 1]:
+            k = min(max(np.searchsorted(breaks, t[i], side="right") - 1, 0), last)
+        while k < last and breaks[k + 1] <= t[i]:
+            k += 1
+        out[i] = k
+    return out
+
+
 @nb.njit(cache=True, inline="always")
 def _rotation_at(c_rot, k, tau, R_key, R):
     """Write ``R_key[k] · Exp(φ(τ))`` to R (φ: segment k of the cubic PPoly ``c_rot``) and return
@@ -286,24 +303,25 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
 
 
 @nb.njit(cache=True, nogil=True)
-def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt):
-    """Add ``JᵀJ`` of a stack of factors to a block-banded information matrix.
+def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, origin, sign):
+    """Add ``JᵀJ`` of the factors ``f0 … f1−1`` of a stack to a block-banded information matrix.
 
-    Factor ``f`` touches the ``n_states`` states ``first[f] + stride · a`` (xd = nx/n_states columns
-    each of ``Jx[f]``: the first xd ≤ sd components of each state, sd the state dimension: a factor
-    that does not see the bias states leaves them out) and the calibration columns ``cols``
-    (``Jt[f]``). Storage:
-    ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
+    Factor ``f`` touches the ``n_states`` keyframes ``first[f] + stride · a`` (xd = nx/n_states
+    columns each of ``Jx[f]``: the first xd ≤ sd components of each state, sd the state dimension:
+    a factor that does not see the bias states leaves them out) and the calibration columns
+    ``cols`` (``Jt[f]``). Keyframe k is stored at position ``origin + sign · k`` (sign ±1: a window
+    of the keyframes, in either order). Storage: ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd,
+    positions), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
     N, r, nx = Jx.shape
     ns = n_states
     xd = nx // ns  # columns per state in Jx
     c = Jt.shape[2]
     M = nx + c
     w = np.empty(M)  # one row of [Jx Jt]
-    G = np.empty((M, M))  # lower triangle of [Jx Jt]ᵀ[Jx Jt] of one factor
-    for f in range(N):
+    G = np.empty((M, M))  # [Jx Jt]ᵀ[Jx Jt] of one factor
+    for f in range(f0, f1):
         G[:] = 0.0
-        for row in range(r):  # a sum of outer products: the inner loop runs over contiguous memory
+        for row in range(r):  # a sum of outer products (lower triangle): the inner loop runs over contiguous memory
             for u in range(nx):
                 w[u] = Jx[f, row, u]
             for u in range(c):
@@ -313,22 +331,23 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt):
                 if wu != 0.0:
                     for v in range(u + 1):
                         G[u, v] += wu * w[v]
+        for u in range(M):
+            for v in range(u):
+                G[v, u] = G[u, v]
         for a in range(ns):
-            i = first[f] + stride * a
-            for b in range(a + 1):
-                blk = band[stride * (a - b), first[f] + stride * b]
+            i = origin + sign * (first[f] + stride * a)
+            for b in range(a + 1):  # the later position holds the rows of its block
+                hi, lo = (a, b) if sign > 0 else (b, a)
+                blk = band[stride * (a - b), origin + sign * (first[f] + stride * lo)]
                 for u in range(xd):
                     for v in range(xd):
-                        x, y = xd * a + u, xd * b + v
-                        blk[u, v] += G[x, y] if x >= y else G[y, x]
+                        blk[u, v] += G[xd * hi + u, xd * lo + v]
             for u in range(xd):
                 for v in range(c):
-                    Hxt[i, u, cols[v]] += G[nx + v, xd * a + u]
+                    Hxt[i, u, cols[v]] += G[xd * a + u, nx + v]
         for u in range(c):
-            for v in range(u + 1):
+            for v in range(c):
                 Htt[cols[u], cols[v]] += G[nx + u, nx + v]
-                if u != v:
-                    Htt[cols[v], cols[u]] += G[nx + u, nx + v]
 
 
 @nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -344,6 +363,19 @@ def _border_update(ZT, m, Hee):
             Hee[e, e2] -= s
 
 
+@nb.njit(cache=True, inline="always")
+def _solve_lower(L, X):
+    """``X ← L⁻¹ X`` for a lower triangular L, row by row (the inner loops run along rows of X)."""
+    for row in range(X.shape[0]):
+        for k in range(row):
+            lk = L[row, k]
+            for e in range(X.shape[1]):
+                X[row, e] -= lk * X[k, e]
+        inv = 1.0 / L[row, row]
+        for e in range(X.shape[1]):
+            X[row, e] *= inv
+
+
 @nb.njit(cache=True, nogil=True)
 def eliminate(band, Hxe, Hee, lo, hi):
     """Eliminate the states ``lo … hi−1`` of a block-banded system with a border, in order (block
@@ -351,14 +383,16 @@ def eliminate(band, Hxe, Hee, lo, hi):
 
     ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd blocks, d ≤ D), the border ``Hxe[j] = H[x_j, e]``
     (sd × q) and ``Hee = H_ee`` are updated in place to the Schur complement on the remaining
-    states and e. Returns −1, or the first state whose pivot block is not positive definite (to
-    rounding: a pivot below ``_PIVOT_RTOL`` of its diagonal entry)."""
+    states and e (diagonal blocks are updated on their lower triangle, which is all the Cholesky
+    factorisation reads; those of the remaining states are made symmetric at the end). Returns −1,
+    or the first state whose pivot block is not positive definite (to rounding: a pivot below
+    ``_PIVOT_RTOL`` of its diagonal entry)."""
     D = band.shape[0] - 1
     n = band.shape[1]
     sd = band.shape[2]
     q = Hxe.shape[2]
     L = np.zeros((sd, sd))
-    C = np.zeros((D + 1, sd, sd))
+    CT = np.zeros((D + 1, sd, sd))  # CT[d, k, row] = C_d[row, k]
     Zj = np.empty((sd, q))
     ZT = np.empty((q, 16 * sd))  # Z_jᵀ of the states eliminated since the last border update
     fill = 0
@@ -375,16 +409,8 @@ def eliminate(band, Hxe, Hee, lo, hi):
                     L[col, col] = np.sqrt(s)
                 else:
                     L[row, col] = s / L[col, col]
-        for row in range(sd):  # Z_j = L⁻¹ Hxe[j]
-            for e in range(q):
-                Zj[row, e] = Hxe[j, row, e]
-            for k in range(row):
-                lk = L[row, k]
-                for e in range(q):
-                    Zj[row, e] -= lk * Zj[k, e]
-            inv = 1.0 / L[row, row]
-            for e in range(q):
-                Zj[row, e] *= inv
+        Zj[:] = Hxe[j]
+        _solve_lower(L, Zj)  # Z_j = L⁻¹ Hxe[j]
         for k in range(sd):  # H_ee −= Z_jᵀ Z_j, batched over 16 states (lower triangle; mirrored at the end)
             for e in range(q):
                 ZT[e, fill + k] = Zj[k, e]
@@ -393,33 +419,35 @@ def eliminate(band, Hxe, Hee, lo, hi):
             _border_update(ZT, fill, Hee)
             fill = 0
         nd = min(D, n - 1 - j)
-        for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ
-            B = band[d, j]
-            for row in range(sd):
-                for col in range(sd):
-                    s = B[row, col]
-                    for k in range(col):
-                        s -= C[d, row, k] * L[col, k]
-                    C[d, row, col] = s / L[col, col]
+        for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ, kept transposed (C_dᵀ = L⁻¹ H[x_j, x_{j+d}]),
+            CT[d] = band[d, j].T  # so that every inner loop below runs along a contiguous row
+            _solve_lower(L, CT[d])
         for d in range(1, nd + 1):
             X = Hxe[j + d]  # H[x_{j+d}, e] −= C_d Z_j
+            Cd = CT[d]
             for row in range(sd):
                 for k in range(sd):
-                    ck = C[d, row, k]
+                    ck = Cd[k, row]
                     for e in range(q):
                         X[row, e] -= ck * Zj[k, e]
-            for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ
+            for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ (a diagonal block: lower triangle)
                 Y = band[d2 - d, j + d]
+                C2 = CT[d2]
                 for row in range(sd):
-                    for col in range(sd):
-                        s = 0.0
-                        for k in range(sd):
-                            s += C[d2, row, k] * C[d, col, k]
-                        Y[row, col] -= s
+                    top = row + 1 if d2 == d else sd
+                    for k in range(sd):
+                        c2 = C2[k, row]
+                        for col in range(top):
+                            Y[row, col] -= c2 * Cd[k, col]
     _border_update(ZT, fill, Hee)
     for e in range(q):
         for e2 in range(e):
             Hee[e2, e] = Hee[e, e2]
+    for j in range(hi, min(hi + D, n)):  # the diagonal blocks that remain: mirror their lower triangle
+        Y = band[0, j]
+        for row in range(sd):
+            for col in range(row):
+                Y[col, row] = Y[row, col]
     return -1
 
 

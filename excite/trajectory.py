@@ -237,5 +237,8 @@ class Trajectory:
 
 
 def _segments(breaks: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Index of the piecewise-polynomial segment (between ``breaks``) that holds every time."""
-    return np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, breaks.size - 2)
+    """Index of the piecewise-polynomial segment (between ``breaks``) that holds every time
+    (compiled: :func:`excite.kernels.segments`)."""
+    from . import kernels
+
+    return kernels.segments(np.ascontiguousarray(breaks, dtype=float), np.ascontiguousarray(t, dtype=float))

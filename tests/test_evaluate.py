@@ -285,6 +285,40 @@ def test_streamed_drives_equal_the_dense_reference(rig, monkeypatch):
     assert np.abs(_scaled(got.information, slow) - ref).max() < 1e-8 * np.abs(ref).max()
 
 
+@pytest.mark.parametrize("slab", [3, 64])
+def test_sweeps_equal_the_dense_reference(rig, monkeypatch, slab):
+    """The evaluator's sweeps from both ends of a drive (5 Hz lidar: factors over two keyframes),
+    with chunks of 18 keyframes eliminated slab by slab (3 keyframes: the ring buffer moves on many
+    times per chunk, in both directions; 64: once), one and four chunks per half, random-walk and
+    constant biases: Λ_θ equals the dense reference."""
+    slow = _five_hz_lidar(rig)
+    t = np.linspace(0, 14, 15)
+    traj = drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
+                 slow.suspension)
+    monkeypatch.setattr(information, "_SLAB", slab)
+    for r in (slow, slow.with_constant_biases()):
+        ref = _scaled(information.marginal_dense(information.build(Nominal.of(traj, r), r)), r)
+        for chunk in (500, 20):
+            monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", chunk)
+            got = _scaled(information.drive_information([traj], r).information, r)
+            assert np.abs(got - ref).max() < 1e-8 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("forward", [True, False])
+def test_singular_keyframe_is_named_by_either_sweep(monkeypatch, forward):
+    """Unit priors on every state of keyframes 100..106 but 103, in one chunk eliminated slab by
+    slab of 2 keyframes from either end: the error names keyframe 103."""
+    first = np.array([0, 1, 2, 4, 5, 6])
+    Jx = np.broadcast_to(np.eye(9), (first.size, 9, 9)).copy()
+    Jt = np.zeros((first.size, 9, 1))
+    Jt[:, 0, 0] = 1.0
+    prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
+    monkeypatch.setattr(information, "_SLAB", 2)
+    carry = (np.zeros((9, 9)), np.zeros((9, 1)), np.zeros((1, 1)))
+    with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
+        information._eliminated([prior], 6, carry, forward, 100)
+
+
 def test_undetermined_trajectory_is_a_clear_error(rig, monkeypatch):
     """A rig whose sensors leave a keyframe's own state free (no IMU information) is refused by
     name, not answered with a meaningless Λ."""

@@ -72,3 +72,20 @@ def test_utm_is_recentred(real_drives):
     s = real_drives["utm"].sample(np.array([real_drives["utm"].t_start]))
     assert real_drives["utm"].t_start == 0.0
     assert np.abs(s.p_W_V).max() < 1.0
+
+
+def test_segment_index_equals_a_binary_search():
+    """The compiled segment lookup (a walk along the breaks while the times increase) gives
+    numpy's binary search, clipped to the segments, for increasing, decreasing and random times,
+    times on the breaks and times outside them."""
+    from excite import kernels
+
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        breaks = np.unique(np.round(rng.uniform(0.0, 10.0, rng.integers(2, 40)), 1 if trial % 2 else 6))
+        if breaks.size < 2:
+            breaks = np.array([0.0, 1.0])
+        t = np.concatenate([rng.uniform(-1.0, 11.0, 50), breaks, breaks[::-1]])
+        for times in (t, np.sort(t), np.sort(t)[::-1].copy()):
+            ref = np.clip(np.searchsorted(breaks, times, side="right") - 1, 0, breaks.size - 2)
+            np.testing.assert_array_equal(kernels.segments(breaks, times), ref)
