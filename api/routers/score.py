@@ -37,9 +37,9 @@ def score(body: ScoreRequest, ctx: Ctx) -> Any:
     ``segments``, ``vehicle_frame``, ``axes``. The upload is spooled to disk within the body
     limit; a truncated or corrupt bag is a 422 naming the problem."""
     limits = body.limits.model_dump() if body.limits else None
-    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits, ctx.deadline(),
-                           track_points=body.track_points)
-    (result,) = ctx.wait([fut])
+    futures = ctx.submit_scores([(body.route.model_dump(), "route")], body.rig, body.segments, limits,
+                                ctx.deadline(), track_points=body.track_points)
+    (result,) = ctx.wait(futures)
     if not result["ok"]:
         raise_problem(result)
     return {**result["report"], "track": result.get("track")}
@@ -147,9 +147,9 @@ async def _score_form(form: Any, ctx: Any) -> Any:
         with path.open("wb") as out:
             while chunk := await upload.read(1 << 20):
                 out.write(chunk)
-        fut = ctx.pool.submit(bag_score_task, str(path), filename, source, rig, segments, ctx.bounds,
-                              deadline=ctx.deadline())
-        (result,) = await anyio.to_thread.run_sync(ctx.wait, [fut])
+        futures = ctx.submit(bag_score_task, [(str(path), filename, source, rig, segments, ctx.bounds)],
+                             ctx.deadline())
+        (result,) = await anyio.to_thread.run_sync(ctx.wait, futures)
     if not result["ok"]:
         raise_problem(result)
     return JSONResponse(result["report"])
