@@ -36,6 +36,9 @@ from typing import Any, Callable
 log = logging.getLogger("excite.api")
 
 _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+# A task is admitted when its expected finish is within this share of its time left: costs are
+# recent averages, and a task that would finish just in time on average times out half the time.
+ADMIT_SHARE = 0.7
 
 
 class WorkTimeout(Exception):
@@ -339,11 +342,12 @@ class WorkerPool:
             cost = self._cost(fn)
             free = max(0, self._idle.qsize() - self._waiting)
             if n > free:
-                # seconds until a worker is free for each of ours: the queued work, about half
-                # of the running work and the warm-up of replacements, shared by the workers
+                # seconds until a worker is free for each of ours: the queued and the running
+                # work (as if it had just begun: on a loaded machine tasks take longer than
+                # their average) and the warm-up of replacements, shared by the workers
                 now = time.monotonic()
                 warming = sum(max(0.0, self._start_s - (now - t)) for t in self._starting.values())
-                wait = (self._queued_s + 0.5 * self._running_s + warming) / self.workers
+                wait = (self._queued_s + self._running_s + warming) / self.workers
                 finish = wait + cost * math.ceil(n / self.workers)
                 retry = int(min(60, max(1, math.ceil(wait))))
                 if self._waiting and self._waiting + n > self.max_queued:
@@ -351,7 +355,7 @@ class WorkerPool:
                     raise Overloaded(f"all {self.workers} scoring workers are busy and "
                                      f"{self._waiting} tasks are waiting (at most {self.max_queued})",
                                      retry)
-                if finish > deadline - now:
+                if finish > ADMIT_SHARE * (deadline - now):
                     self.shed += 1
                     raise Overloaded(f"all {self.workers} scoring workers are busy: the work queued "
                                      f"ahead would take ~{wait:.0f} s, past this request's time limit",
