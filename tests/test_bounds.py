@@ -305,6 +305,8 @@ def test_cli_edges_are_one_line_errors(tmp_path, capsys):
         (["score", route, "--rig", str(_write(tmp_path, "deep.yaml", "imu: " + "[" * 3000 + "]" * 3000))],
          "deep.yaml: nested more than"),
         (["rig", "show", str(_write(tmp_path, "big.yaml", "imu: {update_rate: 1e308}"))], "big.yaml"),
+        (["serve", "--log-level", "loud"],
+         "--log-level: 'loud' is not one of critical, error, warning, info, debug, trace"),
     ]
     for args, words in cases:
         capsys.readouterr()
