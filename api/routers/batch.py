@@ -9,12 +9,12 @@ from fastapi import APIRouter
 from ..context import Ctx
 from ..problems import ProblemError
 from ..schemas import BatchRequest, BatchResponse
-from .common import BODY
+from .common import SCORED
 
 router = APIRouter(prefix="/v1", tags=["batch"])
 
 
-@router.post("/batch", response_model=BatchResponse, responses=BODY,
+@router.post("/batch", response_model=BatchResponse, responses=SCORED,
              summary="Score many routes with one rig (a CI gate's call)")
 def batch(body: BatchRequest, ctx: Ctx) -> Any:
     """Each route gets its report, or a problem naming its field (``routes[3].text``); one bad

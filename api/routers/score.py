@@ -20,12 +20,12 @@ from ..context import Ctx, raise_problem
 from ..problems import ProblemError
 from ..scoring import bag_score_task
 from ..schemas import PlotRequest, ScoreRequest, ScoreResponse
-from .common import BODY
+from .common import SCORED
 
 router = APIRouter(prefix="/v1", tags=["score"])
 
 
-@router.post("/score", response_model=ScoreResponse, responses=BODY,
+@router.post("/score", response_model=ScoreResponse, responses=SCORED,
              summary="Score a route: how well does it determine every calibration parameter?")
 def score(body: ScoreRequest, ctx: Ctx) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
@@ -46,7 +46,7 @@ def score(body: ScoreRequest, ctx: Ctx) -> Any:
 
 
 @router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
-             responses={**BODY, 200: {"content": {"image/png": {}},
+             responses={**SCORED, 200: {"content": {"image/png": {}},
                                       "description": "route coloured by information, scaled spectrum, σ/target"}})
 def score_plot(body: PlotRequest, ctx: Ctx) -> Response:
     """The same figure as ``excite score ROUTE --plot FILE.png``: the route coloured by the
