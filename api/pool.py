@@ -11,7 +11,10 @@ is a process with a pipe of its own, lent to one task at a time:
   413 inside the worker instead of taking the machine's memory;
 - after each task the worker returns freed heap to the system (``malloc_trim``) and, if its
   resident memory is still more than ``recycle_mb`` above what it was when it was ready, it
-  exits and is replaced: the memory of one large route is not kept.
+  exits and is replaced: the memory of one large route is not kept;
+- when every worker is busy, work that would queue past ``max_queued`` tasks or could not
+  finish by its deadline (by the recent cost of the work ahead) is refused at once
+  (:class:`Overloaded`: the service answers 429 with Retry-After) rather than timed out later.
 
 Workers are forked from a forkserver that preloaded the evaluator (the server has threads, and
 forking it would copy held locks); pipes hold no named semaphores, so nothing leaks at shutdown.
@@ -21,8 +24,8 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import ctypes
-import math
 import logging
+import math
 import multiprocessing
 import multiprocessing.forkserver
 import os
@@ -144,7 +147,8 @@ class _Worker:
 
 
 class WorkerPool:
-    """``workers`` processes; :meth:`submit` runs ``fn(*args)`` in one of them by a deadline."""
+    """``workers`` processes; :meth:`submit_all` runs ``fn(*args)`` in one of them by a deadline,
+    or refuses at once the work it cannot finish by then."""
 
     def __init__(self, workers: int, memory_mb: int, recycle_mb: int,
                  warm: Callable[[], Any] | None = None, start_timeout_s: float = 300.0,
