@@ -50,7 +50,7 @@ def create_app(settings: Settings | None = None, *,
         runner=JobRunner(store, settings.workers, job_function, settings.cancel_grace_s,
                          settings.worker_memory_mb),
         pool=WorkerPool(settings.score_workers, settings.worker_memory_mb,
-                        settings.worker_recycle_mb, warm=warm),
+                        settings.worker_recycle_mb, warm=warm, max_queued=settings.max_queued_tasks),
         registry=registry,
         jobs_gauge=Gauge("excite_jobs", "Jobs in the store by status", ["status"], registry=registry),
         started_at=time.time())

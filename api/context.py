@@ -6,14 +6,14 @@ from __future__ import annotations
 import concurrent.futures as cf
 import time
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated, Any, Callable
 
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry, Gauge
 
 from .jobs import JobRunner
 from .problems import ProblemError
-from .pool import Unsendable, WorkerDied, WorkerPool, WorkTimeout
+from .pool import Overloaded, Unsendable, WorkerDied, WorkerPool, WorkTimeout
 from .scoring import Bounds, plot_task, score_task
 from .settings import Settings
 from .store import JobStore
@@ -34,16 +34,28 @@ class Context:
         s = self.settings
         return Bounds(s.max_samples, s.max_route_duration_s, s.max_route_length_m)
 
-    def submit_score(self, route: dict[str, Any], rig: Any, segments: int,
-                     limits: dict[str, float] | None, deadline: float, field: str = "route",
-                     track_points: int = 0) -> cf.Future:
-        return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field,
-                                "rig", track_points, deadline=deadline)
+    def submit(self, fn: Callable[..., Any], calls: list[tuple], deadline: float) -> list[cf.Future]:
+        """``fn(*args)`` for each ``args`` in a scoring worker, or a 429 with Retry-After when
+        the workers are too busy to finish them by ``deadline`` (honest back-pressure: the
+        client learns at once, instead of a 503 after the whole time limit)."""
+        try:
+            return self.pool.submit_all(fn, calls, deadline)
+        except Overloaded as exc:
+            raise ProblemError(429, f"the service is busy: {exc.detail}; retry in "
+                                    f"{exc.retry_after_s} s", type_="overloaded",
+                               headers={"Retry-After": str(exc.retry_after_s)}) from None
+
+    def submit_scores(self, routes: list[tuple[dict[str, Any], str]], rig: Any, segments: int,
+                      limits: dict[str, float] | None, deadline: float,
+                      track_points: int = 0) -> list[cf.Future]:
+        """Score each ``(route, field)`` (all admitted or none)."""
+        return self.submit(score_task, [(route, rig, segments, limits, self.bounds, field, "rig",
+                                         track_points) for route, field in routes], deadline)
 
     def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
                     limits: dict[str, float] | None, parameter: str | None, deadline: float) -> cf.Future:
-        return self.pool.submit(plot_task, route, rig, segments, limits, self.bounds, parameter,
-                                deadline=deadline)
+        (fut,) = self.submit(plot_task, [(route, rig, segments, limits, self.bounds, parameter)], deadline)
+        return fut
 
     def wait(self, futures: list[cf.Future]) -> list[dict[str, Any]]:
         """The results of ``futures``; 503 when the deadline they were submitted with passed

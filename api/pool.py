@@ -11,7 +11,10 @@ is a process with a pipe of its own, lent to one task at a time:
   413 inside the worker instead of taking the machine's memory;
 - after each task the worker returns freed heap to the system (``malloc_trim``) and, if its
   resident memory is still more than ``recycle_mb`` above what it was when it was ready, it
-  exits and is replaced: the memory of one large route is not kept.
+  exits and is replaced: the memory of one large route is not kept;
+- when every worker is busy, work that would queue past ``max_queued`` tasks or could not
+  finish by its deadline (by the recent cost of the work ahead) is refused at once
+  (:class:`Overloaded`: the service answers 429 with Retry-After) rather than timed out later.
 
 Workers are forked from a forkserver that preloaded the evaluator (the server has threads, and
 forking it would copy held locks); pipes hold no named semaphores, so nothing leaks at shutdown.
@@ -22,6 +25,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import ctypes
 import logging
+import math
 import multiprocessing
 import multiprocessing.forkserver
 import os
@@ -35,6 +39,9 @@ from typing import Any, Callable
 log = logging.getLogger("excite.api")
 
 _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+# A task is admitted when its expected finish is within this share of its time left: costs are
+# recent averages, and a task that would finish just in time on average times out half the time.
+ADMIT_SHARE = 0.7
 
 
 class WorkTimeout(Exception):
@@ -47,6 +54,15 @@ class WorkerDied(Exception):
 
 class Unsendable(Exception):
     """The task's arguments cannot be sent to a worker (e.g. nested too deeply to pickle)."""
+
+
+class Overloaded(Exception):
+    """Every worker is busy and the task would wait past its deadline or over the queue bound:
+    refused now (the client retries after ``retry_after_s``) instead of timing out later."""
+
+    def __init__(self, detail: str, retry_after_s: int):
+        super().__init__(detail)
+        self.detail, self.retry_after_s = detail, retry_after_s
 
 
 # --------------------------------------------------------------------------------------------
@@ -131,11 +147,24 @@ class _Worker:
 
 
 class WorkerPool:
-    """``workers`` processes; :meth:`submit` runs ``fn(*args)`` in one of them by a deadline."""
+    """``workers`` processes; :meth:`submit_all` runs ``fn(*args)`` in one of them by a deadline,
+    or refuses at once the work it cannot finish by then."""
 
     def __init__(self, workers: int, memory_mb: int, recycle_mb: int,
-                 warm: Callable[[], Any] | None = None, start_timeout_s: float = 300.0):
+                 warm: Callable[[], Any] | None = None, start_timeout_s: float = 300.0,
+                 max_queued: int = 16,
+                 preload: tuple[str, ...] = ("excite.evaluate", "excite.routes", "excite.plots", "api.scoring")):
         self.workers, self.memory_mb, self.recycle_mb = workers, memory_mb, recycle_mb
+        self.max_queued, self.preload = max_queued, list(preload)
+        # admission: tasks waiting for a worker, and the seconds of work queued and running
+        # by the recent cost of each task function (see :meth:`submit_all`)
+        self._waiting = 0
+        self._queued_s = 0.0
+        self._running_s = 0.0
+        self._cost_s: dict[str, float] = {}
+        self._starting: dict[object, float] = {}  # workers warming up → when they started
+        self._start_s = 0.0  # how long the last one took to start
+        self.shed = 0  # tasks refused as overloaded (for tests and metrics)
         self.warm, self.start_timeout_s = warm, start_timeout_s
         self._idle: queue.Queue[_Worker] = queue.Queue()
         self._all: set[_Worker] = set()
@@ -154,7 +183,7 @@ class WorkerPool:
     def _context(self) -> Any:
         if self._ctx is None:
             ctx = multiprocessing.get_context("forkserver")
-            ctx.set_forkserver_preload(["excite.evaluate", "excite.routes", "api.scoring"])
+            ctx.set_forkserver_preload(self.preload)
             # One BLAS thread per worker: the pool already has a process per core, and threaded
             # BLAS on top halves throughput. The forkserver reads the environment once, when it
             # starts; an explicit setting by the operator wins.
@@ -174,6 +203,18 @@ class WorkerPool:
         """Start one worker, wait until it is warm, and lend it out."""
         if self._closed:
             return
+        t0 = time.monotonic()
+        token = object()
+        with self._lock:
+            self._starting[token] = t0
+        try:
+            self._start_one()
+        finally:
+            with self._lock:
+                del self._starting[token]
+        self._start_s = time.monotonic() - t0
+
+    def _start_one(self) -> None:
         ctx = self._context()
         parent, child = ctx.Pipe()
         proc = ctx.Process(target=_worker_main, daemon=True, name="excite-score",
@@ -223,13 +264,45 @@ class WorkerPool:
             raise RuntimeError("the scoring workers did not start")
         self._started = True
 
-    def run(self, fn: Callable[..., Any], args: tuple, deadline: float) -> Any:
-        """``fn(*args)`` in a worker by ``deadline`` (monotonic)."""
+    def _run(self, fn: Callable[..., Any], args: tuple, deadline: float, cost: float) -> Any:
+        """``fn(*args)`` in a worker by ``deadline`` (monotonic); :meth:`submit_all` counted the
+        task as waiting, with ``cost`` seconds of work."""
+        try:
+            w = self._idle.get(timeout=max(0.0, deadline - time.monotonic()))
+        except queue.Empty:
+            raise WorkTimeout from None
+        finally:
+            self._unqueue(cost)
+        with self._lock:
+            self._running_s += cost
+        t0 = time.monotonic()
+        try:
+            value = self._run_on(w, fn, args, deadline)
+        finally:
+            with self._lock:
+                self._running_s -= cost
+        seconds = time.monotonic() - t0
+        with self._lock:  # the recent cost of this kind of task (exponential average)
+            key = fn.__qualname__
+            old = self._cost_s.get(key)
+            self._cost_s[key] = seconds if old is None else 0.7 * old + 0.3 * seconds
+        return value
+
+    def _cost(self, fn: Callable[..., Any]) -> float:
+        return self._cost_s.get(fn.__qualname__, 0.0)
+
+    def _unqueue(self, cost: float) -> None:
+        with self._lock:
+            self._waiting -= 1
+            self._queued_s -= cost
+
+    def _run_on(self, w: _Worker, fn: Callable[..., Any], args: tuple, deadline: float) -> Any:
         while True:
-            try:
-                w = self._idle.get(timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Empty:
-                raise WorkTimeout from None
+            if w is None:
+                try:
+                    w = self._idle.get(timeout=max(0.0, deadline - time.monotonic()))
+                except queue.Empty:
+                    raise WorkTimeout from None
             try:
                 w.conn.send((fn, args))
             except (RecursionError, TypeError, ValueError) as exc:  # pickling: nothing was written
@@ -237,6 +310,7 @@ class WorkerPool:
                 raise Unsendable(str(exc)) from None
             except OSError:  # the worker died while idle: take another
                 self._replace(w, "found dead")
+                w = None
                 continue
             break
         if not w.conn.poll(max(0.0, deadline - time.monotonic())):
@@ -259,8 +333,43 @@ class WorkerPool:
             raise RuntimeError(value)
         return value
 
-    def submit(self, fn: Callable[..., Any], *args: Any, deadline: float) -> cf.Future:
-        return self._threads.submit(self.run, fn, args, deadline)
+    def submit_all(self, fn: Callable[..., Any], calls: list[tuple], deadline: float) -> list[cf.Future]:
+        """``fn(*args)`` for each ``args`` of ``calls``, all admitted or none.
+
+        Refused with :class:`Overloaded` when the tasks cannot all start at once and either the
+        queue would exceed ``max_queued`` tasks or the work already queued and running (by the
+        recent cost of each kind of task) would keep them from finishing by ``deadline``: a
+        client then hears at once when to retry, instead of a timeout after the whole wait.
+        """
+        n = len(calls)
+        with self._lock:
+            cost = self._cost(fn)
+            free = max(0, self._idle.qsize() - self._waiting)
+            if n > free:
+                # seconds until a worker is free for each of ours: the queued and the running
+                # work (as if it had just begun: on a loaded machine tasks take longer than
+                # their average) and the warm-up of replacements, shared by the workers
+                now = time.monotonic()
+                warming = sum(max(0.0, self._start_s - (now - t)) for t in self._starting.values())
+                wait = (self._queued_s + self._running_s + warming) / self.workers
+                finish = wait + cost * math.ceil(n / self.workers)
+                retry = int(min(60, max(1, math.ceil(wait))))
+                if self._waiting and self._waiting + n > self.max_queued:
+                    self.shed += 1
+                    raise Overloaded(f"all {self.workers} scoring workers are busy and "
+                                     f"{self._waiting} tasks are waiting (at most {self.max_queued})",
+                                     retry)
+                if finish > ADMIT_SHARE * (deadline - now):
+                    self.shed += 1
+                    raise Overloaded(f"all {self.workers} scoring workers are busy: the work queued "
+                                     f"ahead would take ~{wait:.0f} s, past this request's time limit",
+                                     retry)
+            self._waiting += n
+            self._queued_s += n * cost
+        futures = [self._threads.submit(self._run, fn, args, deadline, cost) for args in calls]
+        for f in futures:  # cancelled before it ran (its request ended): no longer waiting
+            f.add_done_callback(lambda f: f.cancelled() and self._unqueue(cost))
+        return futures
 
     def pids(self) -> list[int]:
         with self._lock:

@@ -24,7 +24,7 @@ TYPE_BASE = "https://excite.dev/problems/"
 
 _TITLES = {400: "Bad request", 404: "Not found", 405: "Method not allowed",
            406: "Not acceptable", 408: "Request timeout", 409: "Conflict", 413: "Content too large",
-           415: "Unsupported media type", 422: "Unprocessable content",
+           415: "Unsupported media type", 422: "Unprocessable content", 429: "Too many requests",
            500: "Internal server error", 503: "Service unavailable"}
 
 

@@ -55,6 +55,14 @@ class Settings(BaseSettings):
     worker_recycle_mb: int = Field(512, ge=0, le=1_048_576,
                                    description="A scoring worker whose resident memory grew by more "
                                                "than this after a task is replaced [MiB] (0: never).")
+    max_queued_tasks: int = Field(16, ge=0, le=10_000,
+                                  description="Scoring tasks that may wait for a busy worker. A request "
+                                              "that would queue past it, or whose wait would outlast "
+                                              "its time limit, gets 429 with Retry-After at once.")
+    header_timeout_s: float = Field(10.0, gt=0, le=3600, allow_inf_nan=False,
+                                    description="Time limit to receive a request's headers [s] (a "
+                                                "client that sends them slowly, or nothing, is "
+                                                "answered 408 and disconnected).")
     body_timeout_s: float = Field(30.0, gt=0, le=3600, allow_inf_nan=False,
                                   description="Time limit to receive a request body [s] (slow "
                                               "clients get 408 and the connection is closed).")

@@ -11,8 +11,12 @@ request by weight:
 - reads: rigs, health, metrics, a job that does not exist;
 - hostile: absurd numbers (a gyro density of 1e-308, an IMU rate of 1e308, coordinates at 1e300,
   limits at 1e308), a rig nested 950 levels deep, a rig with 500 sensors, a 3-knot control
-  route over 10⁶ s, malformed JSON, a method not allowed, and a client that announces a body
-  and stops sending (it must get 408).
+  route over 10⁶ s, malformed JSON, a method not allowed, a client that announces a body and
+  stops sending, and one that sends its headers a byte every 0.5 s (both must get 408).
+
+A valid request may also be refused at once with 429 when the scoring workers cannot finish it
+within the time limit (back-pressure, not an error): the client then waits the Retry-After it
+was given. The 429s are counted and their latency printed.
 
 The service's memory is the resident set of its whole process tree (server, forkserver,
 scoring and job workers), read from /proc once the service is warm and again at the end after
@@ -46,6 +50,7 @@ FIGURE_EIGHT = {"control": {"t_s": [0, 10, 20, 30, 40, 50, 60, 70, 80, 90],
                             "speed_mps": [0, 4, 6, 6, 5, 6, 6, 5, 3, 0],
                             "curvature_1pm": [0, 0.1, 0.12, -0.1, -0.12, 0.1, 0.12, -0.1, -0.05, 0]}}
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
+OK = {200, 429}  # a valid request is served, or refused at once as overloaded (back-pressure)
 
 
 def tree_rss_mb(pid: int) -> float:
@@ -84,6 +89,8 @@ class Soak:
         self.counts: collections.Counter = collections.Counter()
         self.latency: dict[str, list[float]] = collections.defaultdict(list)
         self.unexpected: list[str] = []
+        self.shed_latency: list[float] = []  # how fast a 429 came back
+        self.details: list[str] = []  # the problem documents of 5xx answers
         rig = inline_rig()
         many = dict(rig, sensors=[dict(rig["sensors"][0], name=f"s{i}") for i in range(500)])
         deep = '{"route": {"waypoints": [[0, 0], [30, 0], [30, 20]]}, "rig": ' + '{"a": ' * 950 + "1" + "}" * 951
@@ -104,9 +111,11 @@ class Soak:
     def record(self, kind: str, status: int, seconds: float, expected: set[int]) -> None:
         with self.lock:
             self.counts[(kind, status)] += 1
-            if status < 500 and status in expected:
+            if status < 300 and status in expected:
                 self.latency[kind].append(seconds)
-            if status >= 500 or status not in expected:
+            if status == 429:
+                self.shed_latency.append(seconds)
+            elif status >= 500 or status not in expected:
                 self.unexpected.append(f"{kind}: {status}")
 
     def call(self, c: httpx.Client, kind: str, method: str, path: str, body, expected: set[int]):
@@ -124,6 +133,11 @@ class Soak:
             with self.lock:
                 self.unexpected.append(f"{kind}: {type(exc).__name__}")
         self.record(kind, status, time.perf_counter() - t0, expected)
+        if r is not None and status >= 500:
+            with self.lock:
+                self.details.append(f"{kind}: {status} after {time.perf_counter() - t0:.1f} s: {r.text[:200]}")
+        if status == 429:  # back-pressure: a well-behaved client waits as told
+            time.sleep(float(r.headers.get("retry-after", "1")))
         return r
 
     def slow_body(self) -> None:
@@ -139,6 +153,27 @@ class Soak:
         except OSError:
             pass
         self.record("slow body", status, time.perf_counter() - t0, {408})
+
+    def slow_headers(self) -> None:
+        """Headers sent a byte every 0.5 s: the server must answer 408 and disconnect."""
+        t0 = time.perf_counter()
+        status = 599
+        try:
+            with socket.create_connection(("127.0.0.1", self.srv.port), timeout=60) as s:
+                s.settimeout(0.5)
+                s.sendall(b"POST /v1/score HTTP/1.1\r\n")
+                for byte in b"Host: x\r\nContent-Type: application/json\r\n" * 20:
+                    try:
+                        s.sendall(bytes([byte]))
+                        data = s.recv(4096)
+                    except socket.timeout:
+                        continue
+                    if data.startswith(b"HTTP/1.1 "):
+                        status = int(data[9:12])
+                    break
+        except OSError:
+            pass
+        self.record("slow headers", status, time.perf_counter() - t0, {408})
 
     def job(self, c: httpx.Client) -> None:
         r = self.call(c, "maneuver job", "POST", "/v1/maneuvers",
@@ -159,19 +194,20 @@ class Soak:
 
     def client(self, stop_at: float, seed: int) -> None:
         rng = random.Random(seed)
-        kinds = ["score 90 s", "score 10 min", "plot", "batch", "job", "read", "hostile", "slow body"]
-        weights = [30, 12, 4, 4, 2, 10, 16, 1]
+        kinds = ["score 90 s", "score 10 min", "plot", "batch", "job", "read", "hostile", "slow body",
+                 "slow headers"]
+        weights = [30, 12, 4, 4, 2, 10, 16, 1, 1]
         with self.srv.client(timeout=120) as c:
             while time.monotonic() < stop_at:
                 kind = rng.choices(kinds, weights)[0]
                 if kind == "score 90 s":
-                    self.call(c, kind, "POST", "/v1/score", {"route": FIGURE_EIGHT}, {200})
+                    self.call(c, kind, "POST", "/v1/score", {"route": FIGURE_EIGHT}, OK)
                 elif kind == "score 10 min":
-                    self.call(c, kind, "POST", "/v1/score", {"route": {"format": "tum", "text": self.tum}}, {200})
+                    self.call(c, kind, "POST", "/v1/score", {"route": {"format": "tum", "text": self.tum}}, OK)
                 elif kind == "plot":
-                    self.call(c, kind, "POST", "/v1/score/plot", {"route": FIGURE_EIGHT}, {200})
+                    self.call(c, kind, "POST", "/v1/score/plot", {"route": FIGURE_EIGHT}, OK)
                 elif kind == "batch":
-                    self.call(c, kind, "POST", "/v1/batch", {"routes": [FIGURE_EIGHT, LOOP, {"waypoints": [[0, 0], [0, 0]]}]}, {200})
+                    self.call(c, kind, "POST", "/v1/batch", {"routes": [FIGURE_EIGHT, LOOP, {"waypoints": [[0, 0], [0, 0]]}]}, OK)
                 elif kind == "job":
                     self.job(c)
                 elif kind == "read":
@@ -181,8 +217,10 @@ class Soak:
                 elif kind == "hostile":
                     name, method, path, body, expected = rng.choice(self.hostile)
                     self.call(c, "hostile: " + name, method, path, body, expected)
-                else:
+                elif kind == "slow body":
                     self.slow_body()
+                else:
+                    self.slow_headers()
 
 
 def main() -> int:
@@ -193,7 +231,7 @@ def main() -> int:
     args = parser.parse_args()
     tum = route_text(600.0)
     with tempfile.TemporaryDirectory() as tmp:
-        srv = LiveServer(Path(tmp), workers=1, score_workers=2, body_timeout_s=5,
+        srv = LiveServer(Path(tmp), workers=1, score_workers=2, body_timeout_s=5, header_timeout_s=5,
                          request_timeout_s=60).start(timeout_s=300)
         try:
             soak = Soak(srv, tum, args.seed)
@@ -216,6 +254,7 @@ def main() -> int:
             rss1 = tree_rss_mb(srv.proc.pid)
         finally:
             srv.stop()
+            server_log = srv.log.read_text(errors="replace")
     total = sum(soak.counts.values())
     errors_5xx = sum(n for (k, s), n in soak.counts.items() if s >= 500)
     print(f"machine: {machine()}")
@@ -228,11 +267,19 @@ def main() -> int:
         lat = soak.latency.get(kind) or [float("nan")]
         print(f"valid {kind}: p50 {pct(lat, 50) * 1e3:.0f} ms, p99 {pct(lat, 99) * 1e3:.0f} ms "
               f"over {len(lat)} requests")
+    shed = soak.shed_latency or [float("nan")]
+    print(f"429 (overloaded, Retry-After): {len(soak.shed_latency)} answers, p50 {pct(shed, 50) * 1e3:.0f} ms, "
+          f"max {max(shed) * 1e3:.0f} ms")
     growth = (rss1 - rss0) / rss0
     print(f"service RSS (whole process tree): {rss0:.0f} MiB warm → {rss1:.0f} MiB at the end "
           f"({100 * growth:+.1f} %)")
     if soak.unexpected:
         print("unexpected:", collections.Counter(soak.unexpected).most_common(10))
+        for d in soak.details[:10]:
+            print("  ", d)
+        for line in server_log.splitlines():
+            if "WARNING" in line or "ERROR" in line:
+                print("   server:", line[:200])
     ok = errors_5xx == 0 and not soak.unexpected and abs(growth) <= 0.20
     print("PASS" if ok else "FAIL")
     return 0 if ok else 1

@@ -48,6 +48,7 @@ from typing import Callable, Iterator
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from . import bounds
 from .errors import RouteError
 from .routes import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, trajectory_from_poses
 from .trajectory import Trajectory
@@ -382,11 +383,23 @@ class _Series:
         return np.concatenate(self.t_parts), np.vstack(self.v_parts), self.frame, self.child
 
 
+def _count_bound(path: Path, topic: str, cons: list, imu: bool) -> None:
+    """Refuse a topic with more messages than a route may have samples (IMU: IMU samples),
+    from the bag's own index, before anything is read."""
+    limit, what = (bounds.MAX_IMU_SAMPLES, "IMU samples") if imu else (bounds.MAX_SAMPLES, "poses")
+    n = sum(int(getattr(c, "msgcount", 0) or 0) for c in cons)
+    if n > limit:
+        raise BagError(path, f"{n:,} messages, over the limit of {limit:,} {what} (crop the "
+                             "drive with a window)", topic)
+
+
 def _read_series(path: Path, reader, wanted: dict[str, Callable], window) -> dict[str, _Series]:
     """One pass over the bag for every topic in ``wanted`` (topic → decoder): MCAP files through
     :func:`_mcap_messages` when their chunks are in time order, everything else through
-    rosbags."""
+    rosbags. Topics with more messages than the work bounds allow are refused first."""
     cons = {topic: _connections(path, reader, topic) for topic in wanted}
+    for topic, fn in wanted.items():
+        _count_bound(path, topic, cons[topic], imu=fn is _imu_fields)
 
     def fresh() -> dict[str, _Series]:
         return {t: _Series(path, t, fn, _is_ros2(cons[t][0])) for t, fn in wanted.items()}
@@ -438,20 +451,31 @@ def _mcap_files(path: Path) -> list[Path] | None:
         return None
 
 
+MAX_CHUNK_BYTES = 1 << 30  # one MCAP chunk, decompressed (recorders write a few MB)
+
+
 def _decompress(kind: str, data: bytes, size: int) -> bytes:
+    """A chunk's records: at most the ``size`` it declares, itself bounded, so that a small
+    file cannot expand into all of memory."""
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(f"a chunk declares {size:,} bytes, over the limit of {MAX_CHUNK_BYTES:,}")
     if kind == "":
-        return data
-    if kind == "zstd":
+        out = data
+    elif kind == "zstd":
         try:
             from compression import zstd
         except ImportError:
             from backports import zstd
-        return zstd.decompress(data)
-    if kind == "lz4":
-        from lz4.frame import decompress
+        out = zstd.ZstdDecompressor().decompress(data, max_length=size + 1)
+    elif kind == "lz4":
+        from lz4.frame import LZ4FrameDecompressor
 
-        return decompress(data)
-    raise ValueError(f"unknown chunk compression {kind!r}")
+        out = LZ4FrameDecompressor().decompress(data, max_length=size + 1)
+    else:
+        raise ValueError(f"unknown chunk compression {kind!r}")
+    if len(out) != size:
+        raise ValueError(f"a chunk declares {size:,} bytes but holds {len(out):,} or more")
+    return out
 
 
 _OP_MESSAGE_INDEX = 0x07
@@ -750,6 +774,11 @@ def _checked(path: Path, topic: str, s: PoseSeries) -> PoseSeries:
                              f"({s.t_ns[k] * 1e-9:.9f} s after {s.t_ns[k - 1] * 1e-9:.9f} s)", topic)
     if s.t_ns.size < MIN_POSES:
         raise BagError(path, f"too few poses: {s.t_ns.size}, need at least {MIN_POSES}", topic)
+    # the drive they imply, before any spline or grid is built from them
+    span = float(s.t_ns[-1] - s.t_ns[0]) * 1e-9
+    too_much = bounds.work_problem(span, 1e9 / float(np.median(dt)), bounds.MAX_SAMPLES, "samples")
+    if too_much:
+        raise BagError(path, too_much, topic)
     return PoseSeries(s.t_ns, s.p, s.q / np.linalg.norm(s.q, axis=1)[:, None], s.frame, s.child)
 
 
@@ -1099,7 +1128,12 @@ def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None
         p = p + np.einsum("nij,j->ni", R, p_C_V)
         R = R @ R_C_V
     name = f"{path.stem if path.is_file() else path.name}:{topic}"
-    traj = trajectory_from_poses(s.t_s, p, R, cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=name)
+    try:
+        traj = trajectory_from_poses(s.t_s, p, R, cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=name)
+    except BagError:
+        raise
+    except RouteError as exc:
+        raise BagError(path, exc.problem, topic) from None
     if imu is None:
         return traj
     t_imu = (imu.t_ns - s.t_ns[0]).astype(float) * 1e-9

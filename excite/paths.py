@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.ndimage import minimum_filter1d, uniform_filter1d
 
 from . import bounds
 from .errors import LimitError, RouteError
@@ -206,6 +205,8 @@ def plan_speed(path: PathGeometry, limits: Limits, speed_cap_mps: np.ndarray | f
     ends), so that the averaged speed still reaches zero there. The result is re-checked
     against the caps where the smoothed car actually is.
     """
+    from scipy.ndimage import minimum_filter1d, uniform_filter1d  # planning only: not on score's cold path
+
     s = path.s_m
     ds = float(s[1] - s[0])
     w_cap = speed_caps(s, path.curvature_1pm, limits, speed_cap_mps, margin)

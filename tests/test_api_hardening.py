@@ -7,17 +7,19 @@ from __future__ import annotations
 
 import json
 import socket
+import threading
 import time
 from pathlib import Path
 
+import httpx
 import pytest
 
 from test_api_support import LiveServer
 
 TIMEOUT_S = 8.0  # a fresh worker loads the compiled kernels before its first score
 SETTINGS = {"workers": 0, "score_workers": 1, "request_timeout_s": TIMEOUT_S, "body_timeout_s": 2,
-            "max_route_duration_s": 2000, "max_job_time_budget_s": 100, "max_samples": 50_000,
-            "worker_recycle_mb": 1}
+            "header_timeout_s": 2, "max_route_duration_s": 2000, "max_job_time_budget_s": 100,
+            "max_samples": 50_000, "worker_recycle_mb": 1, "max_queued_tasks": 1}
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
 
 
@@ -30,9 +32,23 @@ def srv(tmp_path_factory):
     assert "leaked semaphore" not in log and "Traceback" not in log, log[-3000:]
 
 
+class PatientClient(httpx.Client):
+    """Waits out back-pressure as a client should: with worker_recycle_mb = 1 every task
+    replaces its worker, and a request that arrives while the replacement warms up may be
+    answered 429 with Retry-After (tested on its own below)."""
+
+    def request(self, *args, **kwargs) -> httpx.Response:
+        for _ in range(30):
+            r = super().request(*args, **kwargs)
+            if r.status_code != 429:
+                return r
+            time.sleep(float(r.headers.get("retry-after", "1")))
+        return r
+
+
 @pytest.fixture(scope="module")
 def client(srv):
-    with srv.client() as c:
+    with PatientClient(base_url=srv.url, timeout=120) as c:
         yield c
 
 
@@ -76,27 +92,53 @@ def test_a_timed_out_request_has_its_worker_killed_and_the_next_is_served(srv, c
     # within every bound, but 30 min at 100 keyframes/s and 10 kHz IMU samples take minutes
     slow_rig = _inline_rig(keyframe_rate_hz=100, update_rate=10_000)
     route = {"control": {"t_s": [0, 900, 1800], "speed_mps": [0, 5, 0], "curvature_1pm": [0, 0.05, 0]}}
+    answers: dict[str, httpx.Response] = {}
+
+    def post(name: str, body: dict) -> None:
+        with srv.client() as c:
+            answers[name] = c.post("/v1/score", json=body)
+
     t0 = time.monotonic()
-    r = client.post("/v1/score", json={"route": route, "rig": slow_rig})
-    _problem(r, 503)
-    assert time.monotonic() - t0 < TIMEOUT_S + 3
+    slow = threading.Thread(target=post, args=("slow", {"route": route, "rig": slow_rig}))
+    slow.start()
+    time.sleep(1.0)  # the only worker is busy with it
+    queued = threading.Thread(target=post, args=("queued", {"route": LOOP}))
+    queued.start()
+    time.sleep(1.0)
+    # max_queued_tasks = 1 and one request waits already: back-pressure at once, not a 503 later
+    t1 = time.monotonic()
+    with srv.client() as impatient:
+        r = impatient.post("/v1/score", json={"route": LOOP})
+    body = _problem(r, 429)
+    assert time.monotonic() - t1 < 2.0
+    assert body["type"].endswith("/overloaded") and "busy" in body["detail"], body
+    assert 1 <= int(r.headers["retry-after"]) <= 60
+    slow.join()
+    queued.join()
+    _problem(answers["slow"], 503)
+    assert time.monotonic() - t0 < TIMEOUT_S + 4
+    # the queued request waited for a worker: served if the replacement was ready in time
+    assert answers["queued"].status_code in (200, 503), answers["queued"].text[:300]
     deadline = time.monotonic() + 10
     while _score_workers(srv.proc.pid) & before and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _score_workers(srv.proc.pid) & before, "the timed-out worker is still running"
     # its replacement warms up (loads the kernels) before it takes work: ready again, then served
-    deadline = time.monotonic() + 60
-    while client.get("/readyz").status_code != 200 and time.monotonic() < deadline:
-        time.sleep(0.2)
+    _wait_ready(client)
     r = client.post("/v1/score", json={"route": LOOP})
     assert r.status_code == 200 and r.json()["score"] >= 0, r.text[:300]
 
 
+def _wait_ready(client: httpx.Client) -> None:
+    """Until the scoring workers are warm (a replacement warms up before it takes work)."""
+    deadline = time.monotonic() + 60
+    while client.get("/readyz").status_code != 200 and time.monotonic() < deadline:
+        time.sleep(0.2)
+
+
 def test_a_worker_that_grew_is_replaced_after_its_task(srv, client):
     # worker_recycle_mb = 1: every task grows a worker by more than that
-    deadline = time.monotonic() + 30
-    while len(_score_workers(srv.proc.pid)) != 1 and time.monotonic() < deadline:
-        time.sleep(0.2)
+    _wait_ready(client)
     before = _score_workers(srv.proc.pid)
     assert client.post("/v1/score", json={"route": LOOP}).status_code == 200
     deadline = time.monotonic() + 30
@@ -104,6 +146,7 @@ def test_a_worker_that_grew_is_replaced_after_its_task(srv, client):
             and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not _score_workers(srv.proc.pid) & before
+    _wait_ready(client)
     assert client.post("/v1/score", json={"route": LOOP}).status_code == 200
 
 
@@ -121,6 +164,69 @@ def test_a_slow_body_is_timed_out_and_the_connection_closed(srv):
     assert data.startswith(b"HTTP/1.1 408"), data[:200]
     assert b"did not arrive within 2 s" in data
     assert time.monotonic() - t0 < 10
+
+
+def test_slow_headers_are_timed_out_and_the_connection_closed(srv, client):
+    """A client that sends its headers a byte at a time gets 408 and is disconnected once the
+    header time limit (2 s) has passed, whatever it keeps sending; one that sends nothing is
+    disconnected too; everyone else is served meanwhile."""
+    with socket.create_connection(("127.0.0.1", srv.port), timeout=15) as trickle, \
+            socket.create_connection(("127.0.0.1", srv.port), timeout=15) as idle:
+        t0 = time.monotonic()
+        trickle.sendall(b"POST /v1/score HTTP/1.1\r\nHost: x\r\n")
+        trickle.settimeout(0.25)
+        data = b""
+        for byte in b"Content-Type: application/json\r\n" * 100:
+            assert time.monotonic() - t0 < 15, "still connected after 15 s"
+            if byte == ord("C"):  # others are served while it trickles
+                assert client.get("/healthz").status_code == 200
+            try:
+                trickle.sendall(bytes([byte]))
+                chunk = trickle.recv(65536)
+            except socket.timeout:
+                continue
+            except OSError:  # reset after the server closed
+                break
+            if not chunk:
+                break
+            data += chunk
+        cut_after = time.monotonic() - t0
+        assert data.startswith(b"HTTP/1.1 408"), data[:200]
+        assert b"headers did not arrive within 2 s" in data
+        assert 1.5 < cut_after < 8, cut_after
+        idle.settimeout(10)
+        assert idle.recv(100) == b"", "an idle connection is closed without an answer"
+        assert time.monotonic() - t0 < 10
+
+
+def test_a_pool_refuses_work_it_cannot_finish_by_the_deadline():
+    """Admission by the recent cost of a task: once a task is known to take ~1.5 s, a second one
+    while the only worker is busy cannot finish within 1 s and is refused at once with a retry
+    time; one with time enough is admitted (and a queue of one is the count bound)."""
+    from api.pool import Overloaded, WorkerPool
+
+    pool = WorkerPool(1, 0, 0, max_queued=1, preload=())
+    pool.start()
+    try:
+        soon = lambda s: time.monotonic() + s  # noqa: E731
+        (f,) = pool.submit_all(time.sleep, [(1.5,)], soon(10))
+        f.result()  # now a sleep is known to cost ~1.5 s
+        (busy,) = pool.submit_all(time.sleep, [(1.5,)], soon(10))
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        with pytest.raises(Overloaded) as exc:
+            pool.submit_all(time.sleep, [(0.0,)], soon(1.0))
+        assert time.monotonic() - t0 < 0.5 and exc.value.retry_after_s >= 1
+        assert "time limit" in exc.value.detail
+        (waits,) = pool.submit_all(time.sleep, [(0.0,)], soon(10))  # ~1.5 + 1.5 s < 10 s
+        with pytest.raises(Overloaded, match="at most 1"):
+            pool.submit_all(time.sleep, [(0.0,)], soon(60))  # one already waits
+        busy.result()
+        waits.result()
+        assert pool.submit_all(time.sleep, [(0.0,)], soon(10))[0].result() is None  # drained
+        assert pool.shed == 2
+    finally:
+        pool.close()
 
 
 def _inline_rig(**changes: float) -> dict:

@@ -25,12 +25,11 @@ def free_port() -> int:
 
 
 SERVE_WITH_JOB = """
-import uvicorn
-from api import create_app
+from api import Settings, create_app, serving
 from excite.cli.serve import log_service
 log_service("info")
-uvicorn.run(create_app(job_function={job_function!r}), host="127.0.0.1", port={port},
-            log_level="warning", timeout_graceful_shutdown=10)
+serving.run(create_app(job_function={job_function!r}), Settings().header_timeout_s, "127.0.0.1", {port},
+            "warning")
 """
 
 

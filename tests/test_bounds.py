@@ -305,6 +305,8 @@ def test_cli_edges_are_one_line_errors(tmp_path, capsys):
         (["score", route, "--rig", str(_write(tmp_path, "deep.yaml", "imu: " + "[" * 3000 + "]" * 3000))],
          "deep.yaml: nested more than"),
         (["rig", "show", str(_write(tmp_path, "big.yaml", "imu: {update_rate: 1e308}"))], "big.yaml"),
+        (["serve", "--log-level", "loud"],
+         "--log-level: 'loud' is not one of critical, error, warning, info, debug, trace"),
     ]
     for args, words in cases:
         capsys.readouterr()
@@ -337,3 +339,90 @@ def test_deeply_nested_manifest_is_an_error_not_a_crash(tmp_path):
     path = _write(tmp_path, "routes.yaml", "routes: " + "[" * 5000 + "]" * 5000 + "\n")
     with pytest.raises(ManifestError, match="nested too deeply"):
         collect([str(path)])
+
+
+# --------------------------------------------------------------------------------------------
+# Bags: the same work bounds, from the bag's index and its stamps, before anything is built
+
+
+def _pose_bag(path: Path, times_s: list[float]) -> Path:
+    """A ROS 1 bag with one PoseStamped per time on /pose (a straight line, 1 m per message)."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    M = ts.types
+    with Writer(path) as w:
+        c = w.add_connection("/pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
+        for i, t in enumerate(times_s):
+            ns = 1_700_000_000 * 10**9 + int(round(t * 1e9))
+            stamp = M["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+            msg = M["geometry_msgs/msg/PoseStamped"](
+                header=M["std_msgs/msg/Header"](seq=i, stamp=stamp, frame_id="odom"),
+                pose=M["geometry_msgs/msg/Pose"](
+                    position=M["geometry_msgs/msg/Point"](x=float(i), y=0.0, z=0.0),
+                    orientation=M["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))
+            w.write(c, ns, ts.serialize_ros1(msg, "geometry_msgs/msg/PoseStamped"))
+    return path
+
+
+BAG_EXPLOSIONS = [
+    # seven poses a second apart, then one 10⁶ s later: a 10⁶ s drive
+    ("far.bag", [0, 1, 2, 3, 4, 5, 6, 1e6], "over the limit of 14400 s"),
+    # a legal hour, but poses a microsecond apart: 3.6·10⁹ samples at the median rate
+    ("dense.bag", [0, 1e-6, 2e-6, 3e-6, 4e-6, 5e-6, 6e-6, 3600], "over the limit of 2,000,000"),
+]
+
+
+@pytest.mark.parametrize("name,times,bound", BAG_EXPLOSIONS, ids=[c[0] for c in BAG_EXPLOSIONS])
+def test_bags_whose_stamps_imply_explosive_work_are_refused_quoting_the_bound(tmp_path, capsys, name,
+                                                                              times, bound):
+    from excite.bags import BagError, read_bag_route
+    from excite.cli import main
+
+    path = _pose_bag(tmp_path / name, times)
+    with pytest.raises(BagError) as exc:
+        read_bag_route(path, "/pose")
+    assert bound in str(exc.value) and str(path) in str(exc.value) and "/pose" in str(exc.value)
+    capsys.readouterr()
+    assert main(["score", str(path), "--topic", "/pose"]) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"excite: error: {path}") and bound in lines[0], lines
+
+
+def test_a_bag_topic_with_more_messages_than_the_bounds_is_refused_before_reading(tmp_path, monkeypatch):
+    """The count comes from the bag's index: no message is decoded (nor memory taken) first."""
+    from excite import bags
+
+    path = _pose_bag(tmp_path / "many.bag", [0.1 * i for i in range(12)])
+    assert bags.read_bag_route(path, "/pose").duration == pytest.approx(1.1)
+    monkeypatch.setattr(bounds, "MAX_SAMPLES", 10)
+
+    def decoded(*_a, **_k):
+        raise AssertionError("a message was decoded before the count was checked")
+
+    monkeypatch.setattr(bags._Series, "add", decoded)
+    monkeypatch.setattr(bags._Series, "add_many", decoded)
+    with pytest.raises(bags.BagError, match=r"topic /pose: 12 messages, over the limit of 10 poses"):
+        bags.read_bag_route(path, "/pose")
+
+
+def test_a_compressed_mcap_chunk_cannot_expand_past_what_it_declares():
+    """A chunk of zeros compresses ~1000:1; it is decompressed only up to its declared size
+    (itself bounded), so a small file cannot claim all of memory."""
+    from excite import bags
+
+    try:
+        from compression import zstd
+    except ImportError:
+        from backports import zstd
+    from lz4.frame import compress as lz4
+
+    zeros = bytes(50_000_000)
+    for kind, blob in (("zstd", zstd.compress(zeros)), ("lz4", lz4(zeros))):
+        assert len(blob) < 1_000_000
+        assert bags._decompress(kind, blob, len(zeros)) == zeros
+        with pytest.raises(ValueError, match="declares 1,000 bytes but holds 1,001 or more"):
+            bags._decompress(kind, blob, 1000)
+    with pytest.raises(ValueError, match="over the limit"):
+        bags._decompress("zstd", zstd.compress(b"x"), bags.MAX_CHUNK_BYTES + 1)

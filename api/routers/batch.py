@@ -9,12 +9,12 @@ from fastapi import APIRouter
 from ..context import Ctx
 from ..problems import ProblemError
 from ..schemas import BatchRequest, BatchResponse
-from .common import BODY
+from .common import SCORED
 
 router = APIRouter(prefix="/v1", tags=["batch"])
 
 
-@router.post("/batch", response_model=BatchResponse, responses=BODY,
+@router.post("/batch", response_model=BatchResponse, responses=SCORED,
              summary="Score many routes with one rig (a CI gate's call)")
 def batch(body: BatchRequest, ctx: Ctx) -> Any:
     """Each route gets its report, or a problem naming its field (``routes[3].text``); one bad
@@ -26,8 +26,8 @@ def batch(body: BatchRequest, ctx: Ctx) -> Any:
                            errors=[{"field": "routes", "message": f"at most {n_max} routes"}])
     limits = body.limits.model_dump() if body.limits else None
     deadline = ctx.deadline()
-    futures = [ctx.submit_score(r.model_dump(), body.rig, body.segments, limits, deadline, f"routes[{i}]")
-               for i, r in enumerate(body.routes)]
+    futures = ctx.submit_scores([(r.model_dump(), f"routes[{i}]") for i, r in enumerate(body.routes)],
+                                body.rig, body.segments, limits, deadline)
     results = ctx.wait(futures)
     items, scores, passed, failed, errors = [], [], 0, 0, 0
     for i, (route, res) in enumerate(zip(body.routes, results)):

@@ -13,6 +13,7 @@ def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
             408: "The body did not arrive in time (slow client)", 409: "Conflict with the resource's state",
             413: "Body, route or batch too large (the bound is in the detail)",
             422: "Invalid input (the offending field is named in `errors`)",
+            429: "The scoring workers are too busy to finish this in time: retry after `Retry-After` seconds",
             500: "Internal error (no details; logged server-side)",
             503: "Time limit exceeded or not ready"}
     return {s: {"model": Problem, "description": text[s], "content": {PROBLEM_JSON: {}}}
@@ -20,3 +21,4 @@ def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
 
 
 BODY = problems(400, 408, 413, 422, 500, 503)
+SCORED = problems(400, 408, 413, 422, 429, 500, 503)  # operations that need a scoring worker

@@ -20,12 +20,12 @@ from ..context import Ctx, raise_problem
 from ..problems import ProblemError
 from ..scoring import bag_score_task
 from ..schemas import PlotRequest, ScoreRequest, ScoreResponse
-from .common import BODY
+from .common import SCORED
 
 router = APIRouter(prefix="/v1", tags=["score"])
 
 
-@router.post("/score", response_model=ScoreResponse, responses=BODY,
+@router.post("/score", response_model=ScoreResponse, responses=SCORED,
              summary="Score a route: how well does it determine every calibration parameter?")
 def score(body: ScoreRequest, ctx: Ctx) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
@@ -37,16 +37,16 @@ def score(body: ScoreRequest, ctx: Ctx) -> Any:
     ``segments``, ``vehicle_frame``, ``axes``. The upload is spooled to disk within the body
     limit; a truncated or corrupt bag is a 422 naming the problem."""
     limits = body.limits.model_dump() if body.limits else None
-    fut = ctx.submit_score(body.route.model_dump(), body.rig, body.segments, limits, ctx.deadline(),
-                           track_points=body.track_points)
-    (result,) = ctx.wait([fut])
+    futures = ctx.submit_scores([(body.route.model_dump(), "route")], body.rig, body.segments, limits,
+                                ctx.deadline(), track_points=body.track_points)
+    (result,) = ctx.wait(futures)
     if not result["ok"]:
         raise_problem(result)
     return {**result["report"], "track": result.get("track")}
 
 
 @router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
-             responses={**BODY, 200: {"content": {"image/png": {}},
+             responses={**SCORED, 200: {"content": {"image/png": {}},
                                       "description": "route coloured by information, scaled spectrum, σ/target"}})
 def score_plot(body: PlotRequest, ctx: Ctx) -> Response:
     """The same figure as ``excite score ROUTE --plot FILE.png``: the route coloured by the
@@ -147,9 +147,9 @@ async def _score_form(form: Any, ctx: Any) -> Any:
         with path.open("wb") as out:
             while chunk := await upload.read(1 << 20):
                 out.write(chunk)
-        fut = ctx.pool.submit(bag_score_task, str(path), filename, source, rig, segments, ctx.bounds,
-                              deadline=ctx.deadline())
-        (result,) = await anyio.to_thread.run_sync(ctx.wait, [fut])
+        futures = ctx.submit(bag_score_task, [(str(path), filename, source, rig, segments, ctx.bounds)],
+                             ctx.deadline())
+        (result,) = await anyio.to_thread.run_sync(ctx.wait, futures)
     if not result["ok"]:
         raise_problem(result)
     return JSONResponse(result["report"])

@@ -4,15 +4,19 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
-from .. import rig_import
 from .score import rig_app
 
+if TYPE_CHECKING:  # the importers need scipy and the bag reader: loaded by the commands only
+    from ..rig_import import ImportedRig
 
-def _write(rig: rig_import.ImportedRig, output: Optional[Path]) -> None:
+
+def _write(rig: "ImportedRig", output: Optional[Path]) -> None:
+    from .. import rig_import
+
     text = rig_import.rig_yaml(rig)
     if output is None:
         typer.echo(text, nl=False)
@@ -38,6 +42,8 @@ def from_tf(
     output: Output = None,
 ) -> None:
     """A rig YAML from a bag's /tf_static: T_V_B and every sensor's T_B_S composed over the tree."""
+    from .. import rig_import
+
     _write(rig_import.rig_from_tf(bag, imu=imu, base=base, lidar=lidar, camera=camera, name=name), output)
 
 
@@ -50,6 +56,8 @@ def from_kalibr(
     output: Output = None,
 ) -> None:
     """A rig YAML from a Kalibr camera-IMU calibration."""
+    from .. import rig_import
+
     _write(rig_import.rig_from_kalibr(camchain, imu_yaml, name=name, camera_rate_hz=camera_rate), output)
 
 
@@ -66,5 +74,7 @@ def from_autoware(
     output: Output = None,
 ) -> None:
     """A rig YAML from Autoware sensor-kit calibration files."""
+    from .. import rig_import
+
     _write(rig_import.rig_from_autoware(sensor_kit, imu=imu, base=base, lidar=lidar, camera=camera,
                                         sensors_calibration=sensors_calibration, name=name), output)

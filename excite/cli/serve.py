@@ -9,22 +9,28 @@ import typer
 
 from . import app
 
+# uvicorn's levels (its "trace" is below debug) → logging's numbers
+LOG_LEVELS = {"critical": 50, "error": 40, "warning": 30, "info": 20, "debug": 10, "trace": 5}
+
 
 @app.command()
 def serve(
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="Port to listen on.", min=0, max=65535)] = 8000,
-    log_level: Annotated[str, typer.Option(help="Log level (critical, error, warning, info, debug).")] = "info",
+    log_level: Annotated[str, typer.Option(help="Log level: " + ", ".join(LOG_LEVELS) + ".")] = "info",
 ) -> None:
     """Start the HTTP service (OpenAPI at /docs). Settings: EXCITE_DB_PATH, EXCITE_WORKERS,
     EXCITE_SCORE_WORKERS, EXCITE_MAX_BODY_BYTES, EXCITE_MAX_ROUTE_DURATION_S, EXCITE_MAX_SAMPLES,
     EXCITE_REQUEST_TIMEOUT_S, … (see api/settings.py)."""
-    import uvicorn
     from pydantic import ValidationError
 
-    from api import Settings, create_app
-
     from ..errors import ExciteError
+
+    if log_level.lower() not in LOG_LEVELS:
+        raise ExciteError(f"--log-level: {log_level!r} is not one of {', '.join(LOG_LEVELS)}")
+    log_level = log_level.lower()
+
+    from api import Settings, create_app, serving
 
     try:
         settings = Settings()
@@ -34,11 +40,7 @@ def serve(
         # ExciteError: the CLI's one-line message and exit code 1
         raise ExciteError(f"invalid settings: {problems}") from None
     log_service(log_level)
-    # one server process: the job store is shared, the dispatcher must be alone
-    from api.routers.live import MAX_MESSAGE_BYTES
-
-    uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level,
-                timeout_graceful_shutdown=10, ws_max_size=MAX_MESSAGE_BYTES)
+    serving.run(create_app(settings), settings.header_timeout_s, host, port, log_level)
 
 
 def log_service(level: str) -> None:
@@ -50,5 +52,5 @@ def log_service(level: str) -> None:
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
     logger = logging.getLogger("excite")
     logger.handlers[:] = [handler]
-    logger.setLevel(getattr(logging, level.upper(), logging.INFO))
+    logger.setLevel(LOG_LEVELS[level])
     logger.propagate = False
