@@ -11,6 +11,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry, Gauge
 
+from .cluster import ClusterScoring
 from .jobs import JobRunner
 from .problems import ProblemError
 from .pool import Unsendable, WorkerDied, WorkerPool, WorkTimeout
@@ -28,6 +29,7 @@ class Context:
     registry: CollectorRegistry
     jobs_gauge: Gauge
     started_at: float
+    cluster: ClusterScoring | None = None  # batch routes go to the Dask cluster when configured
 
     @property
     def bounds(self) -> Bounds:
@@ -39,6 +41,14 @@ class Context:
                      track_points: int = 0) -> cf.Future:
         return self.pool.submit(score_task, route, rig, segments, limits, self.bounds, field,
                                 "rig", track_points, deadline=deadline)
+
+    def submit_batch_score(self, route: dict[str, Any], rig: Any, segments: int,
+                           limits: dict[str, float] | None, deadline: float, field: str) -> cf.Future:
+        """A batch route: on the Dask cluster when one is configured, else as :meth:`submit_score`."""
+        if self.cluster is None:
+            return self.submit_score(route, rig, segments, limits, deadline, field)
+        return self.cluster.submit(score_task, route, rig, segments, limits, self.bounds, field, "rig", 0,
+                                   deadline=deadline)
 
     def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
                     limits: dict[str, float] | None, parameter: str | None, deadline: float) -> cf.Future:

@@ -127,7 +127,7 @@ def _run_dask(fn: Callable[[I], R], items: Sequence[I], failed: Callable[[I, Bas
               address: str, finish: Callable[[int, R], None]) -> None:
     from distributed import as_completed as dask_completed
 
-    with client(address) as c:
+    with client(address) as c, c.as_current():
         futures = c.map(fn, list(items), pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in dask_completed(futures):

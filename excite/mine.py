@@ -44,6 +44,7 @@ from .rig import Rig
 from .trajectory import Trajectory
 
 DEFAULT_CHUNK_S = 10.0
+CROP_RATE_HZ = 100.0  # poses per second of a TUM crop
 
 
 @dataclass(frozen=True)
@@ -470,34 +471,19 @@ def results_json(results: list[LogResult], window_s: float, goal: Goal | None) -
                       "error": r.error, "seconds": r.seconds} for r in results]}
 
 
-def write_tum(traj: Trajectory, start_s: float, end_s: float, path: str, rate_hz: float = 100.0) -> None:
-    """The pose of the vehicle frame over ``[start_s, end_s]`` at ``rate_hz`` as a TUM file
-    (``t x y z qx qy qz qw``, times on the log's clock): the crop a calibration pipeline reads."""
-    from scipy.spatial.transform import Rotation
-
-    n = int(math.floor((end_s - start_s) * rate_hz + 1e-9)) + 1
-    t = np.append(start_s + np.arange(n) / rate_hz, end_s) if start_s + (n - 1) / rate_hz < end_s - 1e-9 \
-        else start_s + np.arange(n) / rate_hz
-    s = traj.sample(t)
-    q = Rotation.from_matrix(s.R_W_V).as_quat()  # x y z w
-    rows = np.column_stack([s.t, s.p_W_V, q])
-    with open(path, "w") as fh:
-        fh.write("# timestamp tx ty tz qx qy qz qw (excite mine crop)\n")
-        np.savetxt(fh, rows, fmt="%.9f")
-
-
 def write_crop(window: Window, spec: Any, folder: str | Path) -> list[Path]:
     """The crop of ``window`` of the log ``spec`` (a :class:`excite.batch.RouteSpec`) in
     ``folder``: its TUM poses and, for a bag, the bag cut to the window. Returns the files."""
     from .bags import crop_bag, is_bag
     from .batch import load
+    from .routes import write_tum
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     _, traj = load(spec)
     stem = f"{Path(spec.path).stem or Path(spec.path).name}_{window.start_s:.1f}-{window.end_s:.1f}s"
     tum = folder / f"{stem}.tum"
-    write_tum(traj, window.start_s, window.end_s, str(tum))
+    write_tum(crop(traj, window.start_s, window.end_s), tum, rate_hz=CROP_RATE_HZ)
     out = [tum]
     if is_bag(spec.path):
         out.append(crop_bag(spec.path, folder / f"{stem}{'.bag' if str(spec.path).endswith('.bag') else ''}",

@@ -15,7 +15,7 @@ from excite.bags import read_bag_route, write_bag
 from excite.cli import main
 from excite.evaluate import evaluate
 from excite.rig import load_rig
-from excite.routes import read_tum
+from excite.routes import read_tum, write_tum
 from excite.vehicle import ControlProfile, drive
 
 RIG = load_rig("robotaxi")
@@ -125,7 +125,7 @@ def logs(tmp_path_factory):
     traj = varied(160.0)
     bag = write_bag(traj, d / "drive_bag", topic="/odom", rate_hz=50.0)
     tum = d / "short.tum"
-    mine.write_tum(traj, 0.0, 100.0, str(tum), rate_hz=50.0)
+    write_tum(traj.cropped(0.0, 100.0), tum, rate_hz=50.0)
     return bag, tum
 
 

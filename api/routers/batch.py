@@ -26,7 +26,7 @@ def batch(body: BatchRequest, ctx: Ctx) -> Any:
                            errors=[{"field": "routes", "message": f"at most {n_max} routes"}])
     limits = body.limits.model_dump() if body.limits else None
     deadline = ctx.deadline()
-    futures = [ctx.submit_score(r.model_dump(), body.rig, body.segments, limits, deadline, f"routes[{i}]")
+    futures = [ctx.submit_batch_score(r.model_dump(), body.rig, body.segments, limits, deadline, f"routes[{i}]")
                for i, r in enumerate(body.routes)]
     results = ctx.wait(futures)
     items, scores, passed, failed, errors = [], [], 0, 0, 0

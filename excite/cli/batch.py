@@ -60,18 +60,13 @@ def batch(
 ) -> None:
     """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
     from .. import batch as gate
-    from .mine import progress_bar
+    from .mine import ProgressBar
 
     specs = gate.collect(paths, rig=rig, min_score=min_score, topic=topic, imu_topic=imu_topic)
     t0 = time.perf_counter()
-    with progress_bar("scoring", len(specs)) as progress:
-        task = progress.add_task("", total=len(specs))
-
-        def done(r: gate.RouteResult) -> None:
-            progress.update(task, advance=1, description=f"{r.name}: {r.status}")
-
-        results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, on_result=done,
-                           scheduler=scheduler)
+    with ProgressBar("scoring", len(specs)) as bar:
+        results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, scheduler=scheduler,
+                           on_result=lambda r: bar.advance(f"{r.name}: {r.status}"))
     total_s = time.perf_counter() - t0
     out_console = console()
     out_console.print(_table(results))

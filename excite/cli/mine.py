@@ -16,14 +16,32 @@ if TYPE_CHECKING:
     from .. import mine as miner
 
 
-def progress_bar(what: str, total: int):
-    """A progress bar on stderr: tasks done / total, time spent, time left (shared by batch)."""
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                               TimeRemainingColumn)
+class ProgressBar:
+    """A progress bar on stderr (tasks done / total, time spent, time left), shown from the first
+    finished task on: an engine that fails to start leaves only its one-line error."""
 
-    return Progress(TextColumn(what), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.description}"),
-                    console=console(stderr=True), transient=True)
+    def __init__(self, what: str, total: int):
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        self._bar = Progress(TextColumn(what), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                             TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.description}"),
+                             console=console(stderr=True), transient=True)
+        self._task = self._bar.add_task("", total=total)
+        self._started = False
+
+    def advance(self, description: str) -> None:
+        if not self._started:
+            self._bar.start()
+            self._started = True
+        self._bar.update(self._task, advance=1, description=description)
+
+    def __enter__(self) -> "ProgressBar":
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        if self._started:
+            self._bar.stop()
 
 
 def _table(title: str, windows: list[miner.Window], n_params: dict[str, int]):
@@ -85,10 +103,8 @@ def mine(
     specs = gate.collect(logs, rig=rig, topic=topic, imu_topic=imu_topic)
     tasks = [miner.Task(s, window, goal, per_log, chunk) for s in specs]
     t0 = time.perf_counter()
-    with progress_bar("mining", len(tasks)) as bar:
-        task = bar.add_task("", total=len(tasks))
-        results = miner.mine_logs(tasks, jobs=jobs, scheduler=scheduler,
-                                  on_result=lambda r, _: bar.update(task, advance=1, description=r.log))
+    with ProgressBar("mining", len(tasks)) as bar:
+        results = miner.mine_logs(tasks, jobs=jobs, scheduler=scheduler, on_result=lambda r, _: bar.advance(r.log))
     total_s = time.perf_counter() - t0
     best, shortest = miner.ranked(results)
     n_params = {s.name: len(gate._rig(s.rig).scored) for s in specs if s.error is None}
