@@ -83,6 +83,7 @@ def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> 
         else:
             from .cluster import run_remote
 
+            log.info("job %s attempt %d runs on the Dask cluster at %s", job_id, attempt, address)
             result = run_remote(address, function, job["request"], progress, should_stop)
     except ExciteError as exc:
         store.finish(job_id, attempt, "failed", error={
