@@ -39,7 +39,7 @@ from . import spectrum
 from .errors import EvaluationError
 from .evaluate import _scaled, _scored_mask, evaluate
 from .factors.base import Nominal
-from .parallel import pool
+from .parallel import n_threads, pool
 from .rig import Rig
 from .trajectory import Trajectory
 
@@ -105,33 +105,46 @@ def _A(sd: int, p: int) -> np.ndarray:
     return np.r_[0:sd, 2 * sd:2 * sd + p]
 
 
-def _chunk(traj: Trajectory, rig: Rig, k0: int, k1: int, p: int, sd: int):
-    """One chunk's summary (T, gauge, cap, diag_tt, length): linearised as an inner chunk of a
-    drive, with what a window starting or ending at its ends adds kept apart."""
-    sub = Nominal.of(traj, rig, keyframes=(k0, k1))
-    m = k1 - k0
-    blocks, cap = [], []
+def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> list[tuple]:
+    """The summaries of consecutive chunks ``edges[0] … edges[-1]`` (keyframes of the drive):
+    sampled and linearised in one go (little interpreter time per keyframe), then each chunk's
+    factors split off and its inner keyframes eliminated. Each chunk is linearised as an inner
+    chunk of a drive; what a window starting or ending at its ends adds is kept apart (the gauge;
+    the non-holonomic constraint at its last keyframe, which the next chunk also holds)."""
+    k0 = int(edges[0])
+    sub = Nominal.of(traj, rig, keyframes=(k0, int(edges[-1])))
+    m = int(edges[-1]) - k0
+    blocks = []
     for b in info._linearise(sub, rig, True, last=True):
         if b is None or not b.n_factors:
             continue
-        if b.name == "nonholonomic":  # the constraint at the chunk's last keyframe: a window's end
-            cap.append(b.select(b.first == m).shifted(-m))
-            b = b.select(b.first < m)
-        elif b.name == "bias_walk":  # not anchored: the chunk's end is a window's end only sometimes
+        if b.name == "bias_walk":  # not anchored: a chunk's end is a window's end only sometimes
             b = info._bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
         blocks.append(b)
-    pc = info._piece(blocks, k0, k1, p, sd)
-    T = np.zeros((2 * sd + p,) * 2)  # over [x_a, x_b, θ]; the kernels keep H_bb's lower triangle only
-    T[np.ix_(_A(sd, p), _A(sd, p))] = pc.H_ee
-    T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
-    T[sd:2 * sd, _A(sd, p)] = pc.H_be
-    T[_A(sd, p), sd:2 * sd] = pc.H_be.T
-    gauge = _at_keyframe(info._gauge(sub.R[0], 0, True), sd, p)
-    return T, gauge, _at_keyframe(cap, sd, p), pc.diag_tt, sub.length_m
+    rel = edges - k0
+    speed = np.linalg.norm(traj.sample(sub.t).v_W, axis=1)  # the rear axle's, as Nominal.length_m
+    length = 0.5 * (speed[1:] + speed[:-1]) * np.diff(sub.t)  # per keyframe interval
+    out = []
+    for a, e in zip(rel[:-1], rel[1:]):
+        mine_ = [b.select((b.first >= a) & (b.first < e)).shifted(-a) for b in blocks]
+        cap = [b.select(b.first == e).shifted(-e) for b in blocks if b.name == "nonholonomic"]
+        pc = info._piece([b for b in mine_ if b.n_factors], k0 + a, k0 + e, p, sd)
+        T = np.zeros((2 * sd + p,) * 2)  # over [x_a, x_b, θ]; the kernels keep H_bb's lower triangle only
+        T[np.ix_(_A(sd, p), _A(sd, p))] = pc.H_ee
+        T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
+        T[sd:2 * sd, _A(sd, p)] = pc.H_be
+        T[_A(sd, p), sd:2 * sd] = pc.H_be.T
+        gauge = _at_keyframe(info._gauge(sub.R[a], 0, True), sd, p)
+        out.append((T, gauge, _at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
+    return out
+
+
+_SPAN_KEYFRAMES = 2000  # keyframes linearised in one go at most
 
 
 def summarise(traj: Trajectory, rig: Rig, chunk_s: float = DEFAULT_CHUNK_S) -> Summaries:
-    """The chunk summaries of ``traj`` (chunks of about ``chunk_s`` seconds, on the thread pool)."""
+    """The chunk summaries of ``traj`` (chunks of about ``chunk_s`` seconds; spans of chunks on
+    the thread pool)."""
     if not (math.isfinite(chunk_s) and chunk_s > 0):
         raise EvaluationError(f"chunk_s must be a duration > 0 s, got {chunk_s}")
     t0, K = Nominal.grid(traj, rig)
@@ -139,8 +152,11 @@ def summarise(traj: Trajectory, rig: Rig, chunk_s: float = DEFAULT_CHUNK_S) -> S
     edges = _chunk_edges(K, rig, chunk_s)
     p = len(info.columns(rig, 1)[0])
     sd = info.state_dim(rig)
-    parts = list(pool().map(lambda c: _chunk(traj, rig, int(edges[c]), int(edges[c + 1]), p, sd),
-                            range(edges.size - 1)))
+    C = edges.size - 1  # as many spans as a multiple of the thread count: every thread an equal share
+    n_spans = -(-max(1, -(-(K - 1) // _SPAN_KEYFRAMES)) // n_threads()) * n_threads()
+    per_span = max(1, -(-C // n_spans))
+    spans = [edges[i:i + per_span + 1] for i in range(0, edges.size - 1, per_span)]
+    parts = [x for span in pool().map(lambda e: _span(traj, rig, e, p, sd), spans) for x in span]
     T, gauge, cap, diag_tt, length = (np.array(x) for x in zip(*parts))
     return Summaries(t0, rig.keyframe_rate_hz, edges, T, gauge, cap, diag_tt, length, sd)
 
