@@ -126,9 +126,9 @@ def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> lis
     length = 0.5 * (speed[1:] + speed[:-1]) * np.diff(sub.t)  # per keyframe interval
     out = []
     for a, e in zip(rel[:-1], rel[1:]):
-        mine_ = [b.select((b.first >= a) & (b.first < e)).shifted(-a) for b in blocks]
+        own = [b.select((b.first >= a) & (b.first < e)).shifted(-a) for b in blocks]
         cap = [b.select(b.first == e).shifted(-e) for b in blocks if b.name == "nonholonomic"]
-        pc = info._piece([b for b in mine_ if b.n_factors], k0 + a, k0 + e, p, sd)
+        pc = info._piece([b for b in own if b.n_factors], k0 + a, k0 + e, p, sd)
         T = np.zeros((2 * sd + p,) * 2)  # over [x_a, x_b, θ]; the kernels keep H_bb's lower triangle only
         T[np.ix_(_A(sd, p), _A(sd, p))] = pc.H_ee
         T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
