@@ -17,6 +17,7 @@ from fastapi import FastAPI
 from prometheus_client import CollectorRegistry, Gauge
 
 from . import problems
+from .cluster import ClusterScoring
 from .context import Context
 from .jobs import JobRunner
 from .middleware import BodyLimit, Metrics, TimeLimit
@@ -48,7 +49,8 @@ def create_app(settings: Settings | None = None, *,
     ctx = Context(
         settings=settings, store=store,
         runner=JobRunner(store, settings.workers, job_function, settings.cancel_grace_s,
-                         settings.worker_memory_mb),
+                         settings.worker_memory_mb, scheduler=settings.dask_scheduler),
+        cluster=ClusterScoring(settings.dask_scheduler) if settings.dask_scheduler else None,
         pool=WorkerPool(settings.score_workers, settings.worker_memory_mb,
                         settings.worker_recycle_mb, warm=warm, max_queued=settings.max_queued_tasks),
         registry=registry,
@@ -65,6 +67,8 @@ def create_app(settings: Settings | None = None, *,
         finally:
             ctx.runner.stop()
             ctx.pool.close()
+            if ctx.cluster is not None:
+                ctx.cluster.close()
 
     app = FastAPI(title="excite", version="1", description=DESCRIPTION, lifespan=lifespan)
     app.state.ctx = ctx

@@ -11,6 +11,7 @@ from typing import Annotated, Any, Callable
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry, Gauge
 
+from .cluster import ClusterScoring
 from .jobs import JobRunner
 from .problems import ProblemError
 from .pool import Overloaded, Unsendable, WorkerDied, WorkerPool, WorkTimeout
@@ -28,6 +29,7 @@ class Context:
     registry: CollectorRegistry
     jobs_gauge: Gauge
     started_at: float
+    cluster: ClusterScoring | None = None  # batch routes go to the Dask cluster when configured
 
     @property
     def bounds(self) -> Bounds:
@@ -51,6 +53,14 @@ class Context:
         """Score each ``(route, field)`` (all admitted or none)."""
         return self.submit(score_task, [(route, rig, segments, limits, self.bounds, field, "rig",
                                          track_points) for route, field in routes], deadline)
+
+    def submit_batch_scores(self, routes: list[tuple[dict[str, Any], str]], rig: Any, segments: int,
+                            limits: dict[str, float] | None, deadline: float) -> list[cf.Future]:
+        """Batch routes: on the Dask cluster when one is configured, else as :meth:`submit_scores`."""
+        if self.cluster is None:
+            return self.submit_scores(routes, rig, segments, limits, deadline)
+        return [self.cluster.submit(score_task, route, rig, segments, limits, self.bounds, field, "rig", 0,
+                                    deadline=deadline) for route, field in routes]
 
     def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
                     limits: dict[str, float] | None, parameter: str | None, deadline: float) -> cf.Future:

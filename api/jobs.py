@@ -25,6 +25,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from excite.engine import SCHEDULER_ENV
+
 from .store import JobStore
 
 log = logging.getLogger("excite.api")
@@ -87,8 +89,9 @@ class JobRunner:
     """Runs queued jobs in worker processes (see the module docstring)."""
 
     def __init__(self, store: JobStore, workers: int, function: str, cancel_grace_s: float,
-                 memory_mb: int, poll_s: float = 0.2):
+                 memory_mb: int, poll_s: float = 0.2, scheduler: str | None = None):
         self.store, self.workers, self.function = store, workers, function
+        self.scheduler = scheduler  # a Dask scheduler the job processes submit to (api.cluster)
         self.cancel_grace_s, self.memory_mb, self.poll_s = cancel_grace_s, memory_mb, poll_s
         self._procs: dict[tuple[str, int], subprocess.Popen] = {}
         self._cancel_seen: dict[tuple[str, int], float] = {}
@@ -132,6 +135,9 @@ class JobRunner:
         env = dict(os.environ)
         paths = [p for p in sys.path if p and os.path.isdir(p)]
         env["PYTHONPATH"] = os.pathsep.join(paths + [env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        env.pop(SCHEDULER_ENV, None)
+        if self.scheduler:
+            env[SCHEDULER_ENV] = self.scheduler
         return env
 
     def _launch(self, job_id: str, attempt: int) -> None:

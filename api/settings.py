@@ -67,6 +67,22 @@ class Settings(BaseSettings):
                                   description="Time limit to receive a request body [s] (slow "
                                               "clients get 408 and the connection is closed).")
 
+    dask_scheduler: str | None = Field(
+        None, description="Dask scheduler (tcp://host:8786) that runs batch routes and optimization jobs "
+                          "(default: none, local processes). Its workers need excite installed.")
+
+    @field_validator("dask_scheduler")
+    @classmethod
+    def _scheduler(cls, v: str | None) -> str | None:
+        from excite.engine import EngineError, scheduler_address
+
+        if not v:
+            return None
+        try:
+            return scheduler_address(v)
+        except EngineError as exc:
+            raise ValueError(str(exc).replace("--scheduler: ", "")) from None
+
     @field_validator("db_path")
     @classmethod
     def _db_file(cls, v: Path) -> Path:

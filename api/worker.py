@@ -4,7 +4,9 @@ The process reads the job's request from the store, runs ``FUNCTION`` (``module:
 default :func:`api.jobs.run_optimization`) with a progress callback that writes to the store and
 a ``should_stop`` that reads the cancel flag from it, and writes the result. It dies with the
 server (parent-death signal, and a parent check in every callback): the job stays ``running``
-and the next server re-runs it.
+and the next server re-runs it. With ``EXCITE_DASK_SCHEDULER`` set (the server passes its
+setting on) the function runs on that Dask cluster and this process relays its progress and
+cancellation (:func:`api.cluster.run_remote`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import sys
 import time
 from typing import Any
 
+from excite.engine import scheduler_address
 from excite.errors import ExciteError
 
 from .store import JobStore
@@ -73,8 +76,15 @@ def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> 
             last["stopped"] = store.should_stop(job_id, attempt)
         return last["stopped"]
 
+    address = scheduler_address()
     try:
-        result = load_function(function)(job["request"], progress, should_stop)
+        if address is None:
+            result = load_function(function)(job["request"], progress, should_stop)
+        else:
+            from .cluster import run_remote
+
+            log.info("job %s attempt %d runs on the Dask cluster at %s", job_id, attempt, address)
+            result = run_remote(address, function, job["request"], progress, should_stop)
     except ExciteError as exc:
         store.finish(job_id, attempt, "failed", error={
             "type": "https://excite.dev/problems/validation", "title": "Unprocessable content",

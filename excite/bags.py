@@ -1262,3 +1262,40 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
         for t_ns, name, raw in records:
             writer.write(conns[name], t_ns, raw)
     return path
+
+
+def crop_bag(path: str | Path, out: str | Path, start_s: float, end_s: float, topic: str) -> Path:
+    """Every message of the bag at ``path`` whose time lies in ``[start_s, end_s]``, counted like
+    the trajectory of ``topic`` (seconds from its first message's stamp), copied unchanged to
+    ``out`` in the same format (a ROS 1 ``.bag``, else a ROS 2 bag folder with MCAP storage), and
+    every ``/tf_static`` message whenever it was sent (a crop needs the static frames)."""
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+
+    path, out = Path(path), Path(out)
+    if out.exists():
+        raise BagError(out, "exists already: the writer does not overwrite")
+    t0_ns = int(read_poses(path, topic).t_ns[0])
+    start_ns, stop_ns = t0_ns + int(round(start_s * 1e9)), t0_ns + int(round(end_s * 1e9))
+    with _open(path) as reader:
+        ros1 = all(c.ext.__class__.__name__ == "ConnectionExtRosbag1" for c in reader.connections)
+        if ros1 and out.suffix.lower() != ".bag":
+            out = out.with_suffix(".bag")
+        writer = Writer1(out) if ros1 else Writer2(out, version=9, storage_plugin=StoragePlugin.MCAP)
+        with writer:
+            conns = {}
+            for c in reader.connections:
+                if ros1:
+                    conns[c.id] = writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, md5sum=c.digest,
+                                                        callerid=c.ext.callerid, latching=c.ext.latching)
+                else:
+                    conns[c.id] = writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, rihs01=c.digest,
+                                                        serialization_format=c.ext.serialization_format,
+                                                        offered_qos_profiles=c.ext.offered_qos_profiles)
+            static = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC]
+            for c, t_ns, raw in (reader.messages(connections=static) if static else ()):
+                writer.write(conns[c.id], max(start_ns, min(t_ns, stop_ns)), raw)
+            moving = [c for c in reader.connections if c.topic != TF_STATIC_TOPIC]
+            for c, t_ns, raw in reader.messages(connections=moving, start=start_ns, stop=stop_ns + 1):
+                writer.write(conns[c.id], t_ns, raw)
+    return out

@@ -46,13 +46,10 @@ import fnmatch
 import glob as globmod
 import json
 import math
-import multiprocessing
 import os
-import sys
 import time
 import traceback
 import xml.etree.ElementTree as ET
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from functools import lru_cache
@@ -61,6 +58,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import yaml
 
+from . import engine
 from .errors import ExciteError, RigError
 from .evaluate import Report, evaluate
 from .rig import Rig, load_rig, parse_quantity
@@ -68,7 +66,7 @@ from .units import human
 
 __all__ = [
     "ManifestError", "Bound", "RouteSpec", "Failure", "RouteResult", "load_manifest", "collect",
-    "check", "evaluate_spec", "run", "junit_xml", "results_json", "ROUTE_SUFFIXES",
+    "check", "evaluate_spec", "load", "run", "junit_xml", "results_json", "ROUTE_SUFFIXES",
 ]
 
 ROUTE_SUFFIXES = (".csv", ".tum", ".txt", ".geojson", ".json")
@@ -455,29 +453,39 @@ def _advice(report: Report, fails: list[Failure]) -> list[str]:
     return out
 
 
-def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
-    """Evaluate one route and check it. Never raises for bad input: a route that cannot be read
-    or evaluated comes back with ``error`` set (and the traceback when it was a bug)."""
+def load(spec: RouteSpec) -> tuple[Rig, Any]:
+    """The rig and the trajectory of a route (the errors of :func:`excite.routes.read_route`)."""
     from .bags import BagSource, is_bag
     from .routes import read_route
 
+    rig = _rig(spec.rig)
+    bag = BagSource(spec.topic, spec.imu_topic) if is_bag(spec.path) else None
+    return rig, read_route(spec.path, times=spec.times, suspension=rig.suspension, bag=bag)
+
+
+def error_text(exc: Exception, path: str) -> tuple[str, str | None]:
+    """(message, traceback or None) of what kept a route from being evaluated: a known failure
+    is its message; anything else is a bug, reported with its traceback."""
+    if isinstance(exc, ExciteError):
+        return str(exc), None
+    if isinstance(exc, OSError):
+        return f"{exc.filename or path}: {exc.strerror or exc}", None
+    return f"internal error: {type(exc).__name__}: {exc}", traceback.format_exc()
+
+
+def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
+    """Evaluate one route and check it. Never raises for bad input: a route that cannot be read
+    or evaluated comes back with ``error`` set (and the traceback when it was a bug)."""
     t0 = time.perf_counter()
     res = RouteResult(spec.name, spec.path, spec.rig, spec.source, passed=False)
     if spec.error is not None:
         res.error = spec.error
         return res
     try:
-        rig = _rig(spec.rig)
-        bag = BagSource(spec.topic, spec.imu_topic) if is_bag(spec.path) else None
-        traj = read_route(spec.path, times=spec.times, suspension=rig.suspension, bag=bag)
+        rig, traj = load(spec)
         rep = evaluate(traj, rig)
-    except ExciteError as exc:
-        res.error = str(exc)
-    except OSError as exc:
-        res.error = f"{exc.filename or spec.path}: {exc.strerror or exc}"
-    except Exception as exc:  # a bug: report it for this route, with its traceback, and go on
-        res.error = f"internal error: {type(exc).__name__}: {exc}"
-        res.error_detail = traceback.format_exc()
+    except Exception as exc:  # every failure is this route's, reported; the others go on
+        res.error, res.error_detail = error_text(exc, spec.path)
     else:
         res.rig = rig.name
         res.score = rep.score
@@ -491,49 +499,33 @@ def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
     return res
 
 
-def _worker(spec: RouteSpec, keep_report: bool) -> RouteResult:
-    return evaluate_spec(spec, keep_report)
+def _evaluate_kept(spec: RouteSpec) -> RouteResult:
+    return evaluate_spec(spec, keep_report=True)
+
+
+def _lost(spec: RouteSpec, exc: BaseException) -> RouteResult:
+    return RouteResult(spec.name, spec.path, spec.rig, spec.source, False,
+                       error=f"worker failed: {type(exc).__name__}: {exc}")
 
 
 def run(specs: Sequence[RouteSpec], jobs: int | None = None, keep_reports: bool = False,
-        on_result: Callable[[RouteResult], None] | None = None) -> list[RouteResult]:
-    """Evaluate every route, ``jobs`` processes at a time (default: one per core; 1 runs in this
-    process). Results come back in the order of ``specs``; ``on_result`` is called as each one
-    finishes (a progress bar)."""
-    if jobs is None:
-        jobs = os.cpu_count() or 1
-    if jobs < 1:
+        on_result: Callable[[RouteResult], None] | None = None, scheduler: str | None = None,
+        on_progress: Callable[[engine.Progress], None] | None = None) -> list[RouteResult]:
+    """Evaluate every route, on the Dask cluster at ``scheduler`` (or :data:`engine.SCHEDULER_ENV`)
+    when there is one, else ``jobs`` local processes at a time (default: one per core; 1 runs in
+    this process): :func:`excite.engine.run`. Results come back in the order of ``specs``;
+    ``on_result`` and ``on_progress`` are called as each one finishes (a progress bar)."""
+    if jobs is not None and jobs < 1:
         raise ManifestError(f"--jobs must be ≥ 1, got {jobs}")
-    todo = [i for i, s in enumerate(specs) if s.error is None]
-    results: list[RouteResult | None] = [None] * len(specs)
-    for i, s in enumerate(specs):
-        if s.error is not None:
-            results[i] = evaluate_spec(s)
-            if on_result:
-                on_result(results[i])  # type: ignore[arg-type]
-    jobs = min(jobs, len(todo))
-    if jobs <= 1:
-        for i in todo:
-            results[i] = evaluate_spec(specs[i], keep_reports)
-            if on_result:
-                on_result(results[i])  # type: ignore[arg-type]
-    else:
-        # fork on Linux: workers start in milliseconds with excite already imported (the routes
-        # take ~0.2 s each, an interpreter with scipy ~1 s); elsewhere the platform default.
-        ctx = multiprocessing.get_context("fork") if sys.platform == "linux" else None
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            futures = {pool.submit(_worker, specs[i], keep_reports): i for i in todo}
-            for fut in as_completed(futures):
-                i = futures[fut]
-                try:
-                    results[i] = fut.result()
-                except Exception as exc:  # a worker died (killed, out of memory)
-                    s = specs[i]
-                    results[i] = RouteResult(s.name, s.path, s.rig, s.source, False,
-                                             error=f"worker failed: {type(exc).__name__}: {exc}")
-                if on_result:
-                    on_result(results[i])  # type: ignore[arg-type]
-    return [r for r in results if r is not None]
+
+    def done(_: int, r: RouteResult, progress: engine.Progress) -> None:
+        if on_result:
+            on_result(r)
+        if on_progress:
+            on_progress(progress)
+
+    return engine.run(_evaluate_kept if keep_reports else evaluate_spec, list(specs), failed=_lost, jobs=jobs,
+                      scheduler=scheduler, on_result=done)
 
 
 # --------------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ orientation.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -229,6 +230,17 @@ class Trajectory:
         """The same drive with every time stamp moved by ``dt_s``."""
         return Trajectory(self._t + dt_s, self._R, self._p, tilt_pitch_roll=self._tilt_samples,
                           velocity=self._v, name=self.name)
+
+    def cropped(self, t_start: float, t_end: float, name: str | None = None) -> "Trajectory":
+        """The same motion restricted to ``[t_start, t_end]`` (within the drive): the same splines,
+        so every sample inside the window is the whole drive's, bit for bit."""
+        if not self.t_start <= t_start < t_end <= self.t_end:
+            raise RouteError(f"window {t_start:.6g} … {t_end:.6g} s is not inside the drive "
+                             f"({self.t_start:.6g} … {self.t_end:.6g} s)")
+        out = copy.copy(self)
+        out.t_start, out.t_end = float(t_start), float(t_end)
+        out.name = name or self.name
+        return out
 
     def length_m(self, rate_hz: float = 20.0) -> float:
         """Path length of the rear axle [m]."""

@@ -26,8 +26,8 @@ def batch(body: BatchRequest, ctx: Ctx) -> Any:
                            errors=[{"field": "routes", "message": f"at most {n_max} routes"}])
     limits = body.limits.model_dump() if body.limits else None
     deadline = ctx.deadline()
-    futures = ctx.submit_scores([(r.model_dump(), f"routes[{i}]") for i, r in enumerate(body.routes)],
-                                body.rig, body.segments, limits, deadline)
+    futures = ctx.submit_batch_scores([(r.model_dump(), f"routes[{i}]") for i, r in enumerate(body.routes)],
+                                      body.rig, body.segments, limits, deadline)
     results = ctx.wait(futures)
     items, scores, passed, failed, errors = [], [], 0, 0, 0
     for i, (route, res) in enumerate(zip(body.routes, results)):

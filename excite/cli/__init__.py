@@ -25,7 +25,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                        "sensor calibration parameter?")
 
 # command → the module that registers it on `app`
-COMMANDS = {"batch": "batch", "live": "live", "optimize": "optimize", "route": "route", "rig": "rig_import",
+COMMANDS = {"batch": "batch", "live": "live", "mine": "mine", "optimize": "optimize", "route": "route", "rig": "rig_import",
             "score": "score", "serve": "serve", "validate": "validate"}
 PIPE_WIDTH = 240  # columns of output to a pipe or file: wide enough that rows stay whole
 

@@ -55,23 +55,18 @@ def batch(
     topic: Annotated[Optional[str], typer.Option(
         help="Trajectory source of the bags given directly (manifest routes name their own).")] = None,
     imu_topic: Annotated[Optional[str], typer.Option(help="IMU topic of the bags given directly.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option(
+        help="Dask scheduler to run on (tcp://host:8786; default $EXCITE_DASK_SCHEDULER, else local processes).")] = None,
 ) -> None:
     """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from .. import batch as gate
+    from .mine import ProgressBar
 
     specs = gate.collect(paths, rig=rig, min_score=min_score, topic=topic, imu_topic=imu_topic)
-    err = console(stderr=True)
     t0 = time.perf_counter()
-    with Progress(TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("{task.description}"), console=err, transient=True) as progress:
-        task = progress.add_task("", total=len(specs))
-
-        def done(r: gate.RouteResult) -> None:
-            progress.update(task, advance=1, description=f"{r.name}: {r.status}")
-
-        results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, on_result=done)
+    with ProgressBar("scoring", len(specs)) as bar:
+        results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, scheduler=scheduler,
+                           on_result=lambda r: bar.advance(f"{r.name}: {r.status}"))
     total_s = time.perf_counter() - t0
     out_console = console()
     out_console.print(_table(results))
