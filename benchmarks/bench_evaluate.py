@@ -38,7 +38,6 @@ from excite.evaluate import evaluate
 from excite.factors.base import Nominal
 from excite.rig import load_rig
 from excite.routes import read_kitti
-from excite.vehicle import ControlProfile, drive
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

@@ -95,7 +95,7 @@ def _at_keyframe(blocks: list, sd: int, p: int) -> np.ndarray:
     band = np.zeros((1, 1, sd, sd))
     Hxt, Htt = np.zeros((1, sd, p)), np.zeros((p, p))
     for b in blocks:
-        kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt)
+        kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt, 0, b.n_factors, 0, 1)
     H = band[0, 0]
     return np.tril(H) + np.tril(H, -1).T
 
