@@ -415,6 +415,7 @@ def test_live_view_done_banner_stop_and_errors(page, tmp_path):
     bad[40][4:8] = ["0", "0", "0", "2"]
     broken.write_text("\n".join(" ".join(r) for r in bad) + "\n")
     page.set_input_files("#live-file", str(broken))
+    page.select_option("#live-speed", "200")
     page.click("#live-start")
     page.wait_for_selector("#live-result[data-phase=error]")
     assert "quaternion has norm 2" in page.inner_text("#live-file-error")
