@@ -714,7 +714,8 @@ function renderLive(live, msg) {
     cells[2].textContent = fmt(p.target);
     cells[3].textContent = p.unit;
     cells[4].textContent = p.sigma === null ? "∞" : (p.sigma / p.target).toFixed(2);
-    cells[5].textContent = p.status === "ok" ? "" : p.eta_s === null ? "—" : `${Math.round(p.eta_s)} s`;
+    // an ETA only while the parameter is gaining (within the service's horizon), as `excite live`
+    cells[5].textContent = p.status === "ok" ? "" : p.status === "gaining" && p.eta_s !== null ? `${Math.round(p.eta_s)} s` : "—";
     cells[6].textContent = p.status === "ok" ? "within target" : p.advice || "";
     row.className = p.status;
     if (p.status === "ok") within++;
