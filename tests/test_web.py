@@ -335,7 +335,8 @@ def test_live_view_replays_a_drive_to_the_websocket(page, shots):
     page.select_option("#live-speed", "10")  # 9 s of streaming: the first update comes ~1 s in
     page.click("#live-start")
     page.wait_for_function("Number(document.querySelector('#live-result').dataset.updates) >= 1", timeout=60_000)
-    assert page.locator("#live-result").get_attribute("data-phase") == "streaming"
+    # an update before the final one (under load the service may still be catching up after the last pose)
+    assert page.locator("#live-result").get_attribute("data-phase") in ("streaming", "ending")
     early = page.locator("#live-params tbody progress").evaluate_all("bs => bs.map(b => b.value)")
     assert len(early) > 0 and any(0 < v < 1 for v in early)
     page.wait_for_selector("#live-result[data-phase=final]", timeout=120_000)
