@@ -317,6 +317,112 @@ def test_cancel_a_running_job(page):
 # What the page needs from the API (no browser)
 
 
+def _live(page, speed: str) -> None:
+    """Replay the chosen file in the Live view and wait for the service's final update."""
+    page.click("#tab-live")
+    page.select_option("#live-speed", speed)
+    page.click("#live-start")
+    page.wait_for_selector("#live-result[data-phase=final]", timeout=120_000)
+
+
+def test_live_view_replays_a_drive_to_the_websocket(page, shots):
+    """Live: figure_eight.tum streamed at 10× to /v1/live. Progress bars appear while it streams
+    (one row per scored parameter, updates arriving before the end), and the final state is
+    `excite score` of the same file: every bar at target/σ capped at 1, the score, no done banner
+    (the drive fails robotaxi's targets), and the weakest direction's advice shown."""
+    page.set_input_files("#live-file", str(FIGURE_EIGHT))
+    page.click("#tab-live")
+    page.select_option("#live-speed", "10")  # 9 s of streaming: the first update comes ~1 s in
+    page.click("#live-start")
+    page.wait_for_function("Number(document.querySelector('#live-result').dataset.updates) >= 1", timeout=60_000)
+    # an update before the final one (under load the service may still be catching up after the last pose)
+    assert page.locator("#live-result").get_attribute("data-phase") in ("streaming", "ending")
+    early = page.locator("#live-params tbody progress").evaluate_all("bs => bs.map(b => b.value)")
+    assert len(early) > 0 and any(0 < v < 1 for v in early)
+    page.wait_for_selector("#live-result[data-phase=final]", timeout=120_000)
+    lib = _library_report()
+
+    rows = page.locator("#live-params tbody tr")
+    assert rows.count() == len(lib.parameters)
+    shown = dict(rows.evaluate_all("rs => rs.map(r => [r.dataset.name, r.querySelector('progress').value])"))
+    expected = {p.name: (0.0 if p.sigma is None else min(1.0, p.target / p.sigma)) for p in lib.parameters}
+    assert shown.keys() == expected.keys()
+    for name, value in expected.items():
+        assert shown[name] == pytest.approx(value, rel=1e-6, abs=1e-12), name
+    n_ok = sum(p.ok for p in lib.parameters)
+    status = page.inner_text("#live-status")
+    assert f"{n_ok} of {len(lib.parameters)} parameters within target" in status
+    assert float(re.search(r"score (\S+)", status).group(1)) == pytest.approx(lib.score, rel=5e-3), status
+    assert not lib.passed and page.locator("#live-done").is_hidden()
+    assert "not yet" in status
+    # the weakest direction and a short parameter's advice are in the driver's words
+    assert page.inner_text("#live-weakest").startswith("Weakest direction")
+    worst = max(lib.parameters, key=lambda p: p.sigma / p.target)
+    assert page.inner_text(f'#live-params tr[data-name="{worst.name}"] td.needs').startswith("Needs")
+    assert int(page.locator("#live-result").get_attribute("data-updates")) >= 5
+    assert page.is_enabled("#live-start") and page.is_disabled("#live-stop")
+    save_shot(page, shots, "web-live.png")
+    assert page.console.errors == []
+
+
+def test_live_view_done_banner_stop_and_errors(page, tmp_path):
+    """With targets loose enough for figure_eight.tum (an uploaded rig YAML) the service's done
+    event shows the banner and the final says done; Stop closes the stream mid-drive; a TUM line
+    that is not 8 numbers is refused in the browser, and a quaternion of norm 2 by the service,
+    each under the file field."""
+    import yaml
+
+    from excite import routes
+    from excite.evaluate import evaluate
+    from excite.rig import RIGS_DIR, load_rig
+
+    data = yaml.safe_load((RIGS_DIR / "robotaxi.yaml").read_text())
+    data["targets"] = {"*.rot_*": "1 deg", "*.trans_*": "300 cm", "*.time_offset": "20 ms",
+                       "imu.gyro_bias_*": "0.1 deg/s", "imu.accel_bias_*": "0.1 m/s^2",
+                       "wheel.radius_*": "10 mm", "wheel.track": "50 mm"}
+    loose = tmp_path / "loose.yaml"
+    loose.write_text(yaml.safe_dump(data))
+    assert evaluate(routes.read_tum(FIGURE_EIGHT), load_rig(loose)).passed  # independent: the library
+    page.select_option("#rig-select", "@upload")
+    page.set_input_files("#rig-file", str(loose))
+    page.wait_for_selector("#rig-info:has-text('parameters')")
+    page.set_input_files("#live-file", str(FIGURE_EIGHT))
+    _live(page, "200")
+    banner = page.locator("#live-done")
+    assert banner.is_visible() and banner.inner_text().startswith("Done at t = ")
+    t_done = float(re.search(r"t = ([\d.]+) s", banner.inner_text()).group(1))
+    assert 0 < t_done < 89.9
+    assert page.inner_text("#live-status").endswith("· done")
+    assert page.locator("#live-params tbody tr.ok").count() == page.locator("#live-params tbody tr").count()
+
+    # Stop mid-drive at real time
+    page.select_option("#live-speed", "1")
+    page.click("#live-start")
+    page.wait_for_selector("#live-result[data-phase=streaming]")
+    page.click("#live-stop")
+    assert page.locator("#live-result").get_attribute("data-phase") == "stopped"
+    assert page.is_enabled("#live-start") and page.is_disabled("#live-stop")
+    assert "stopped after" in page.inner_text("#live-status")
+
+    lines = FIGURE_EIGHT.read_text().splitlines()
+    broken = tmp_path / "broken.tum"
+    broken.write_text("\n".join(lines[:10] + ["1.05 0 0 0 0 0 0"] + lines[10:]) + "\n")
+    page.set_input_files("#live-file", str(broken))
+    page.click("#live-start")
+    assert "line 11: expected 8 numbers" in page.inner_text("#live-file-error")
+    assert page.get_attribute("#live-file", "aria-invalid") == "true"
+
+    bad = [ln.split() for ln in lines[2:]]
+    bad[40][4:8] = ["0", "0", "0", "2"]
+    broken.write_text("\n".join(" ".join(r) for r in bad) + "\n")
+    page.set_input_files("#live-file", str(broken))
+    page.select_option("#live-speed", "200")
+    page.click("#live-start")
+    page.wait_for_selector("#live-result[data-phase=error]")
+    assert "quaternion has norm 2" in page.inner_text("#live-file-error")
+    assert page.console.errors == []
+
+
 def test_score_returns_the_route_path_when_asked(server):
     """``track_points``: the drive's path at equally spaced times, in the file's frame: at the
     file's pose times it is where the file says (within the reader's spline fit, a few mm), and

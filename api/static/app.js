@@ -584,6 +584,179 @@ function drawLot(pts, job) {
 }
 
 // ------------------------------------------------------------------------------------------
+// Live view: a recorded drive replayed to the live-guidance WebSocket (/v1/live) as a vehicle
+// streams it. Poses go out paced by their time stamps (divided by the replay speed), all those
+// that are due every LIVE_TICK_MS in one message; the service answers "update" (about one per
+// second of drive), "done" once, and "final" (the batch evaluator on every pose) after "end".
+
+const LIVE_TICK_MS = 100;
+const LIVE_MAX_POSES = 5000; // per message: the service's limit
+
+function parseTum(text) {
+  const poses = [];
+  const lines = text.split(/\r?\n/);
+  const refuse = (message) => { throw new Problem({ errors: [{ field: "poses", message }] }, 0); };
+  for (let i = 0; i < lines.length; i++) {
+    const line = lines[i].trim();
+    if (!line || line.startsWith("#")) continue;
+    const cols = line.split(/\s+/);
+    const row = cols.map(Number);
+    if (cols.length !== 8 || !row.every(Number.isFinite)) refuse(`line ${i + 1}: expected 8 numbers (t x y z qx qy qz qw), got "${line.slice(0, 60)}"`);
+    if (poses.length && !(row[0] > poses[poses.length - 1][0])) refuse(`line ${i + 1}: time ${row[0]} does not increase`);
+    poses.push(row);
+  }
+  if (poses.length < 2) refuse("the file holds no poses (TUM: t x y z qx qy qz qw per line)");
+  return poses;
+}
+
+function setLivePhase(phase, text) {
+  $("#live-result").dataset.phase = phase;
+  if (text !== undefined) $("#live-status").textContent = text;
+}
+
+async function onLiveStart(ev) {
+  ev.preventDefault();
+  const form = $("#live-form");
+  clearErrors(form);
+  stopLive("restarted");
+  let poses, rig;
+  try {
+    const file = $("#live-file").files[0];
+    if (!file) throw new Problem({ errors: [{ field: "poses", message: "choose a TUM file of the drive's poses" }] }, 0);
+    poses = parseTum(await file.text());
+    rig = currentRig();
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    showProblem(form, err, $("#live-error"));
+    return;
+  }
+  const name = $("#live-file").files[0].name.slice(0, 200);
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/live`);
+  const live = { ws, poses, next: 0, speed: Number($("#live-speed").value), updates: 0, timer: null, over: false };
+  state.live = live;
+  $("#live-start").disabled = true;
+  $("#live-stop").disabled = false;
+  $("#live-result").hidden = false;
+  $("#live-result").dataset.updates = "0";
+  $("#live-done").hidden = true;
+  $("#live-weakest").textContent = "";
+  $("#live-params tbody").replaceChildren();
+  setLivePhase("connecting", "connecting…");
+  ws.onopen = () => ws.send(JSON.stringify({ type: "start", rig, name }));
+  ws.onmessage = (m) => onLiveMessage(live, JSON.parse(m.data));
+  ws.onclose = (e) => onLiveClose(live, e);
+}
+
+function liveTick(live) {
+  if (live.ws.readyState !== WebSocket.OPEN || live.next >= live.poses.length) return;
+  const due = live.t0 + ((performance.now() - live.wall0) / 1000) * live.speed;
+  let end = live.next;
+  while (end < live.poses.length && live.poses[end][0] <= due && end - live.next < LIVE_MAX_POSES) end++;
+  if (end > live.next) {
+    live.ws.send(JSON.stringify({ type: "poses", poses: live.poses.slice(live.next, end) }));
+    live.next = end;
+  }
+  if (live.next === live.poses.length) {
+    clearInterval(live.timer);
+    live.ws.send(JSON.stringify({ type: "end" }));
+    setLivePhase("ending", `all ${live.poses.length} poses sent (${live.updates} updates): waiting for the final evaluation…`);
+  } else if (!live.last) {
+    setLivePhase("streaming", `streaming: ${live.next} of ${live.poses.length} poses sent, waiting for the first update…`);
+  }
+}
+
+function onLiveMessage(live, msg) {
+  if (live !== state.live) return;
+  if (msg.type === "started") {
+    $("#live-params tbody").replaceChildren(...msg.parameters.map((n) => liveRow(n)));
+    live.t0 = live.poses[0][0];
+    live.wall0 = performance.now();
+    live.timer = setInterval(() => liveTick(live), LIVE_TICK_MS);
+    liveTick(live);
+  } else if (msg.type === "update" || msg.type === "final") {
+    live.last = msg;
+    if (msg.type === "update") $("#live-result").dataset.updates = String(++live.updates);
+    renderLive(live, msg);
+  } else if (msg.type === "done") {
+    const banner = $("#live-done");
+    banner.textContent = `Done at t = ${msg.t_s.toFixed(1)} s of drive: ${msg.reason} (score ${fmt(msg.score)}). The drive can stop here.`;
+    banner.hidden = false;
+  } else if (msg.type === "error") {
+    live.over = true;
+    clearInterval(live.timer);
+    showProblem($("#live-form"), new Problem(msg.problem, msg.problem.status), $("#live-error"));
+    setLivePhase("error", `refused by the service after ${live.next} of ${live.poses.length} poses: ${msg.problem.detail}`);
+  }
+}
+
+function liveRow(name) {
+  const bar = el("progress", { max: "1", value: "0", "aria-label": `${name}: 0 % of target reached` });
+  return el("tr", { "data-name": name }, el("th", { scope: "row", text: name }),
+    el("td", {}, bar, el("span", { class: "pct", text: "—" })),
+    el("td", { text: "—" }), el("td", { text: "—" }), el("td", { class: "unit" }), el("td", { text: "—" }),
+    el("td", { text: "—" }), el("td", { class: "needs" }));
+}
+
+function renderLive(live, msg) {
+  const final = msg.type === "final";
+  const tbody = $("#live-params tbody");
+  let within = 0;
+  for (const p of msg.parameters) {
+    let row = tbody.querySelector(`tr[data-name="${CSS.escape(p.name)}"]`);
+    if (!row) tbody.append((row = liveRow(p.name)));
+    const pct = Math.floor(100 * p.progress);
+    const cells = row.querySelectorAll("td");
+    const bar = cells[0].querySelector("progress");
+    bar.value = p.progress;
+    bar.setAttribute("aria-label", `${p.name}: ${pct} % of target reached`);
+    cells[0].querySelector(".pct").textContent = `${pct} %`;
+    cells[1].textContent = p.sigma === null ? "∞" : fmt(p.sigma);
+    cells[2].textContent = fmt(p.target);
+    cells[3].textContent = p.unit;
+    cells[4].textContent = p.sigma === null ? "∞" : (p.sigma / p.target).toFixed(2);
+    // an ETA only while the parameter is gaining (within the service's horizon), as `excite live`
+    cells[5].textContent = p.status === "ok" ? "" : p.status === "gaining" && p.eta_s !== null ? `${Math.round(p.eta_s)} s` : "—";
+    cells[6].textContent = p.status === "ok" ? "within target" : p.advice || "";
+    row.className = p.status;
+    if (p.status === "ok") within++;
+  }
+  const w = msg.weakest;
+  $("#live-weakest").textContent = w ? `Weakest direction (σ ${fmt(w.sigma_in_targets)} × target; ` +
+    `${w.coordinates.slice(0, 3).map(([n, c]) => `${n} ${c >= 0 ? "+" : "−"}${Math.abs(c).toFixed(2)}`).join(", ")}): ${w.advice}` : "";
+  const facts = `t = ${msg.t_s.toFixed(1)} s · ${(msg.length_m / 1000).toFixed(2)} km · score ${fmt(msg.score)} · ` +
+    `${within} of ${msg.parameters.length} parameters within target`;
+  if (final) {
+    const verdict = msg.done ? "done" : "not yet: the drive ended before every parameter reached its target";
+    setLivePhase("final", `Final (the batch evaluator on all ${live.poses.length} poses): ${facts} · ${verdict}`);
+  } else {
+    setLivePhase(live.next === live.poses.length ? "ending" : "streaming",
+      `Live (${live.updates} updates, ${live.next} of ${live.poses.length} poses sent at ${live.speed}×): ${facts}`);
+  }
+}
+
+function onLiveClose(live, ev) {
+  clearInterval(live.timer);
+  if (live !== state.live) return;
+  $("#live-start").disabled = false;
+  $("#live-stop").disabled = true;
+  const phase = $("#live-result").dataset.phase;
+  if (!live.over && phase !== "final") {
+    setLivePhase("closed", `the connection closed (code ${ev.code}${ev.reason ? ": " + ev.reason : ""}) after ${live.next} of ${live.poses.length} poses, before the final evaluation`);
+  }
+}
+
+function stopLive(why) {
+  const live = state.live;
+  if (!live) return;
+  state.live = null;
+  clearInterval(live.timer);
+  if (live.ws.readyState <= WebSocket.OPEN) live.ws.close(1000, why);
+  $("#live-start").disabled = false;
+  $("#live-stop").disabled = true;
+  if (why === "stopped") setLivePhase("stopped", `stopped after ${live.next} of ${live.poses.length} poses (${live.updates} updates); nothing is kept on the service`);
+}
+
+// ------------------------------------------------------------------------------------------
 
 function main() {
   initTabs();
@@ -595,6 +768,8 @@ function main() {
   $("#score-form").addEventListener("submit", onScore);
   $("#plan-form").addEventListener("submit", onPlan);
   $("#cancel-button").addEventListener("click", onCancel);
+  $("#live-form").addEventListener("submit", onLiveStart);
+  $("#live-stop").addEventListener("click", () => stopLive("stopped"));
   initRigs().catch((err) => { $("#rig-error").textContent = `cannot list the rigs: ${err.message}`; });
   document.body.dataset.ready = "1";
 }
