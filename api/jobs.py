@@ -81,7 +81,7 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
     out = plain(res.to_dict())
     out["report"]["route"] = request.get("name") or out["report"].get("route")
     origin = settings.lot.origin  # a georeferenced lot: GeoJSON downloads need no origin
-    return {**out, "profile": profile_data(res.profile), "lot": settings.lot.outline(),
+    return {**out, "profile": profile_data(res.profile),
             "origin": None if origin is None else {"lon_deg": origin[0], "lat_deg": origin[1]}}
 
 

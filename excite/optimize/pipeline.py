@@ -302,6 +302,6 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
                           elapsed, cancelled, model_score=float(out.score),
                           timings_s={k: round(v, 3) for k, v in timings.items()}, message="; ".join(message),
                           ipopt_status=out.ipopt_status, source=best.name if best.kind != "optimized" else "optimized",
-                          criterion=crit)
+                          criterion=crit, lot=site.outline())
 
 

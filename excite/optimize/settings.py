@@ -137,6 +137,7 @@ class OptimizeResult:
     ipopt_status: str = ""
     source: str = "optimized"
     criterion: str = "E"
+    lot: dict[str, Any] | None = None  # the site planned in, in local metres (Site.outline)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (the report is :meth:`Report.to_dict`)."""
@@ -144,6 +145,6 @@ class OptimizeResult:
             "status": self.status, "iterations": self.iterations, "elapsed_s": self.elapsed_s,
             "cancelled": self.cancelled, "model_score": self.model_score, "score": self.report.score,
             "ipopt_status": self.ipopt_status, "source": self.source, "criterion": self.criterion,
-            "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison,
+            "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison, "lot": self.lot,
             "report": self.report.to_dict(),
         }
