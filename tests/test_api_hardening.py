@@ -199,6 +199,20 @@ def test_slow_headers_are_timed_out_and_the_connection_closed(srv, client):
         assert time.monotonic() - t0 < 10
 
 
+def test_a_websocket_outlives_the_header_time_limit(srv):
+    """The header deadline ends with the upgrade: a /v1/live session idle for longer than it
+    (2 s here) still answers."""
+    from websockets.sync.client import connect
+
+    with connect(f"ws://127.0.0.1:{srv.port}/v1/live", open_timeout=30) as ws:
+        ws.send(json.dumps({"type": "start", "rig": "robotaxi", "name": "idle"}))
+        assert json.loads(ws.recv(timeout=30))["type"] == "started"
+        time.sleep(3.0)
+        ws.send(json.dumps({"type": "nonsense"}))
+        reply = json.loads(ws.recv(timeout=30))
+    assert reply["type"] == "error" and "'poses' or 'end'" in reply["problem"]["detail"], reply
+
+
 def test_a_pool_refuses_work_it_cannot_finish_by_the_deadline():
     """Admission by the recent cost of a task: once a task is known to take ~1.5 s, a second one
     while the only worker is busy cannot finish within 1 s and is refused at once with a retry
