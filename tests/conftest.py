@@ -14,3 +14,18 @@ def data_dir() -> Path:
     if not DATA_DIR.is_dir():
         pytest.skip(f"real trajectories not found at {DATA_DIR} (CI always has them)")
     return DATA_DIR
+
+
+def pytest_sessionstart(session) -> None:
+    """Compile the evaluator's kernels once, before any test: numba caches them next to the
+    sources, so the services the tests start (whose workers warm up within a time limit) load
+    them instead of each compiling them on a fresh clone."""
+    import numpy as np
+
+    from excite.evaluate import evaluate
+    from excite.rig import load_rig
+    from excite.vehicle import ControlProfile, drive
+
+    rig = load_rig("robotaxi")
+    t = np.linspace(0.0, 20.0, 21)
+    evaluate(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), rig.suspension), rig)
