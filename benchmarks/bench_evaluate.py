@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from excite import information
+from excite import vehicle as excite_vehicle
 from excite.evaluate import evaluate
 from excite.factors.base import Nominal
 from excite.rig import load_rig
@@ -55,7 +56,7 @@ def load() -> str:
 
 
 def generated(duration_s: float, rig, vehicle=None):
-    v = vehicle or sys.modules[__name__]
+    v = vehicle or excite_vehicle  # or the baseline revision's own vehicle module
     t = np.linspace(0.0, duration_s, int(duration_s / 2) + 1)
     prof = v.ControlProfile(t, 8 + 3 * np.sin(t / 7), 0.05 * np.sin(t / 5) + 0.02 * np.sin(t / 1.7),
                             grade_rad=0.02 * np.sin(t / 23))
