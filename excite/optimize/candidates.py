@@ -163,11 +163,15 @@ def random_profiles(rig: Rig, settings, site, chunk: int, size: int, first: int)
 
 
 def randoms(rig: Rig, settings, site, chunk: int, size: int, first: int) -> list[Candidate]:
-    """:func:`random_profiles`, checked and screened by the evaluator on the optimizer's
-    coarse rig."""
+    """:func:`random_profiles`, checked and screened (:func:`screened`)."""
+    return screened(rig, settings, site, random_profiles(rig, settings, site, chunk, size, first))
+
+
+def screened(rig: Rig, settings, site, profiles: list[ControlProfile]) -> list[Candidate]:
+    """Random candidates checked and screened by the evaluator on the optimizer's coarse rig."""
     crig = coarse_rig(rig)
     out = []
-    for p in random_profiles(rig, settings, site, chunk, size, first):
+    for p in profiles:
         traj, bad = check(p, rig, settings, site)
         model = criteria.value(evaluate(traj, crig).information_scaled, settings.criterion)
         out.append(Candidate(p.name, "random", p, bad, model=model, rotation=rotation_min(traj)))

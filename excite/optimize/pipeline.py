@@ -76,10 +76,16 @@ class _Worker:
         self.cobyla: cf.Future | None = None
         self.chunks: list[cf.Future] = []
 
-    def start_rest(self, z_start: np.ndarray, cobyla_s: float, n_random: int) -> None:
+    def start_rest(self, z_start: np.ndarray, cobyla_s: float, n_random: int,
+                   drawn: list[list[ControlProfile]]) -> None:
+        """``drawn``: the first chunks' random profiles, already drawn as IPOPT's possible starts
+        (sent along rather than drawn again)."""
         # the random candidates first: the comparison the result is held to; COBYLA last
         for c, (first, size) in enumerate(_chunks(n_random)):
-            self.chunks.append(self.pool.submit(cand.randoms, *self.args, c, size, first))
+            if c < len(drawn):
+                self.chunks.append(self.pool.submit(cand.screened, *self.args, drawn[c]))
+            else:
+                self.chunks.append(self.pool.submit(cand.randoms, *self.args, c, size, first))
         self.cobyla = self.pool.submit(cand.cobyla, *self.args, z_start, cobyla_s)
 
     def close(self) -> None:
@@ -147,10 +153,9 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
 
     # --- start: the reference maneuvers and the first random candidates, by the model
     starts = [c.profile for c in cand.reference_profiles(rig, settings, site) if c.name != "highway_run"]
-    for c, (first, size) in enumerate(_chunks(settings.n_random)):
-        if first >= START_RANDOM:
-            break
-        starts += cand.random_profiles(rig, settings, site, c, size, first)
+    drawn = [cand.random_profiles(rig, settings, site, c, size, first)
+             for c, (first, size) in enumerate(_chunks(settings.n_random)) if first < START_RANDOM]
+    starts += [p for chunk in drawn for p in chunk]
     ranked = []
     for i, c in enumerate(starts):
         z = z_from_profile(tr.grid, tr.scales, c)
@@ -178,7 +183,7 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
                       f"to the nearest drive that does ({restored})")
         report(0, model_value(tr, z_start, crit), violation(tr, z_start), "start")
     timings["start"] = time.perf_counter() - t0
-    worker.start_rest(z_start, COBYLA_SHARE * budget, settings.n_random)
+    worker.start_rest(z_start, COBYLA_SHARE * budget, settings.n_random, drawn)
 
     # --- optimize
     out = solve(tr, z_start, time.perf_counter() + remaining() - finish_reserve_s(budget), crit,
