@@ -136,8 +136,14 @@ def _worker_main(conn: Connection, memory_mb: int, recycle_mb: int, server_pid: 
 class _Worker:
     def __init__(self, proc: multiprocessing.process.BaseProcess, conn: Connection):
         self.proc, self.conn = proc, conn
+        self._killed = threading.Lock()
 
     def kill(self) -> None:
+        """Idempotent and safe from several threads at once: a request thread past its deadline
+        and the pool's shutdown may both kill the same worker, and closing its pipe twice would
+        close whatever file now has that descriptor."""
+        if not self._killed.acquire(blocking=False):
+            return
         try:
             self.proc.kill()
             self.proc.join(5)

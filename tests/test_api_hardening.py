@@ -243,6 +243,34 @@ def test_a_pool_refuses_work_it_cannot_finish_by_the_deadline():
         pool.close()
 
 
+def test_a_worker_killed_by_two_threads_at_once_closes_its_pipe_once():
+    """A request thread past its deadline and the pool's shutdown can kill the same worker at
+    the same moment (a CI run ended in EBADF this way): the second kill must not close the pipe
+    again, which would close whatever file reused its descriptor."""
+    from api.pool import _Worker
+
+    class SlowProc:
+        def kill(self):
+            pass
+
+        def join(self, timeout):
+            time.sleep(0.2)  # both threads are inside kill() together
+
+    class Conn:
+        closes = 0
+
+        def close(self):
+            Conn.closes += 1
+
+    w = _Worker(SlowProc(), Conn())
+    threads = [threading.Thread(target=w.kill) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert Conn.closes == 1
+
+
 def _inline_rig(**changes: float) -> dict:
     from excite.rig import load_rig
 
