@@ -177,6 +177,18 @@ class NonHolonomic(_Model):
     vertical_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
 
 
+class SlipConfig(_Model):
+    """Tyre slip, linear in the acceleration, estimated as nuisances of each drive (not scored):
+    ``wheel.slip`` [1], the rear wheels' longitudinal slip ratio at 1 g of longitudinal
+    acceleration (a driven wheel turns faster than it travels, a braking one slower), and
+    ``vehicle.slip_angle`` [rad], the rear axle's slip angle at 1 g of lateral acceleration (in a
+    turn the axle slides outwards at ``v·β``; vehicle engineers' cornering compliance, deg/g).
+    Both are zero at the nominal point; a drive that never accelerates (or never turns) leaves
+    them undetermined, which costs the scored parameters nothing."""
+
+    estimate: bool = True
+
+
 class SuspensionConfig(_Model):
     pitch_deg_per_mps2: float = Field(default=0.3, ge=0, allow_inf_nan=False)
     roll_deg_per_mps2: float = Field(default=0.5, ge=0, allow_inf_nan=False)
@@ -186,6 +198,7 @@ class VehicleConfig(_Model):
     T_V_B: Pose = Pose()  # pose of the IMU body frame B in the vehicle frame V (rear-axle centre)
     suspension: SuspensionConfig = SuspensionConfig()
     nonholonomic: NonHolonomic = NonHolonomic()
+    slip: SlipConfig = SlipConfig()
 
 
 class RigConfig(_Model):
@@ -220,11 +233,12 @@ class Coordinate:
     name: str  # e.g. "lidar.trans_z"
     unit: str  # SI unit
     block: str  # "lidar", "imu", "wheel", ...
-    kind: str  # "rot", "trans", "time_offset", "gyro_bias", "accel_bias", "radius", "track", "scale"
+    kind: str  # "rot", "trans", "time_offset", "gyro_bias", "accel_bias", "radius", "track", "scale",
+    # "slip", "slip_angle"
     axis: int  # 0..2 for vector coordinates, else 0
     target: float  # required accuracy (1σ) in SI units; nan for nuisances
     prior_sigma: float | None = None
-    nuisance: bool = False  # estimated but not scored (monocular scale)
+    nuisance: bool = False  # estimated but not scored (monocular scale, tyre slip)
 
 
 @dataclass(frozen=True)
@@ -305,6 +319,10 @@ def _coordinates(cfg: RigConfig) -> list[tuple[str, str, str, str, int, bool]]:
         out += [("wheel.radius_left", "m", "wheel", "radius", 0, False),
                 ("wheel.radius_right", "m", "wheel", "radius", 1, False),
                 ("wheel.track", "m", "wheel", "track", 0, False)]
+    if cfg.vehicle.slip.estimate:
+        if cfg.wheels is not None:
+            out.append(("wheel.slip", "1", "wheel", "slip", 0, True))
+        out.append(("vehicle.slip_angle", "rad", "vehicle", "slip_angle", 0, True))
     return out
 
 

@@ -7,6 +7,12 @@ road-aligned axle frame A has zero lateral and vertical components, up to the sl
 
 Without it nothing ties the body's heading to its direction of travel on straight roads. The body
 rate ω_B is the nominal one (the IMU measures it far better than this constraint could).
+
+In a turn the rear tyres run at a slip angle ``β = slip_angle·a_lat/g`` and the axle slides
+outwards at ``u·β`` (``u`` its forward speed). With ``vehicle.slip`` estimated, the lateral row
+is ``e_yᵀ R_W_Aᵀ v_V + slip_angle·u·(u·ψ̇)/g`` with ``a_lat ≈ u·ψ̇`` (ψ̇ the yaw rate about A's
+normal): ``slip_angle`` (``vehicle.slip_angle``, the slip angle at 1 g, rad) is a nuisance of the
+drive, linearised at zero (:func:`lateral_slip_regressor`).
 """
 
 from __future__ import annotations
@@ -15,8 +21,8 @@ import numpy as np
 
 from .. import so3
 from ..rig import Rig
-from .base import FactorBlock, Nominal
-from .wheel import _geometry
+from .base import FactorBlock, Nominal, theta_columns
+from .wheel import G_MPS2, _geometry
 
 
 def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
@@ -29,11 +35,30 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     J = np.zeros((K, 3, 9))
     J[:, :, 0:3] = R_AB @ so3.hat(v_body)
     J[:, :, 6:9] = R_AB @ np.swapaxes(R, 1, 2)
-    Jx = J[:, 1:3] / np.array(rig.nonholonomic_sigma_mps)[None, :, None]
-    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, 0)), np.zeros(0, dtype=int))
+    sig = np.array(rig.nonholonomic_sigma_mps)
+    Jx = J[:, 1:3] / sig[None, :, None]
+    if not rig.config.vehicle.slip.estimate:
+        return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, 0)), np.zeros(0, dtype=int))
+    _, p_BV, _ = _geometry(nom)
+    Jt = np.zeros((K, 2, 1))
+    Jt[:, 0, 0] = lateral_slip_regressor(R, v, nom.omega, R_BA, p_BV) / sig[0]
+    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, Jt, theta_columns(rig, ["vehicle.slip_angle"]))
 
 
-def residual(R, v, omega_B, R_BA, p_BV) -> np.ndarray:
-    """Unwhitened lateral and vertical velocity of the rear axle in the axle frame [m/s]."""
+def lateral_slip_regressor(R, v, omega_B, R_BA, p_BV) -> np.ndarray:
+    """``u·(u·ψ̇)/g`` at every keyframe [m/s]: the rear axle's outward slide per unit slip angle at
+    1 g, ``u`` its forward speed and ψ̇ the yaw rate about A's normal (stacks (K,3,3), (K,3),
+    (K,3), (K,3,3), (3,) → (K,))."""
+    v_V = v + np.einsum("kij,kj->ki", R, np.cross(omega_B, p_BV))
+    u = np.einsum("kji,kj->ki", R @ R_BA, v_V)[:, 0]
+    yaw_rate = np.einsum("kj,kj->k", R_BA[:, :, 2], omega_B)  # e_zᵀ R_BAᵀ ω_B
+    return u * u * yaw_rate / G_MPS2
+
+
+def residual(R, v, omega_B, R_BA, p_BV, slip_angle: float = 0.0) -> np.ndarray:
+    """Unwhitened lateral and vertical velocity of the rear axle in the axle frame [m/s], less the
+    outward slide of a slip angle of ``slip_angle`` at 1 g (one keyframe)."""
     v_V = v + R @ np.cross(omega_B, p_BV)
-    return ((R @ R_BA).T @ v_V)[1:3]
+    r = ((R @ R_BA).T @ v_V)[1:3]
+    r[0] += slip_angle * lateral_slip_regressor(R[None], v[None], omega_B[None], R_BA[None], p_BV)[0]
+    return r

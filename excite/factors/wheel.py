@@ -13,6 +13,11 @@ undetermined — came out weakly determined by an O(Δψ²) artefact that shrank
 rate.) The left and right wheels
 turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with noise
 ``noise_density·√Δt`` (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`).
+
+Tyres slip: a driven wheel turns faster than it travels, a braking one slower. With
+``vehicle.slip`` estimated, both angles are multiplied by ``1 + slip·ā/g``, ``ā`` the interval's
+mean longitudinal acceleration (:func:`longitudinal_accel_g`) and ``slip`` (``wheel.slip``, the
+slip ratio at 1 g) a nuisance of the drive, linearised at zero.
 """
 
 from __future__ import annotations
@@ -22,7 +27,11 @@ import numpy as np
 
 from .. import kernels, so3
 from ..rig import Rig
+from ..trajectory import GRAVITY
 from .base import FactorBlock, Nominal, theta_columns
+
+
+G_MPS2 = float(-GRAVITY[2])  # [m/s²]: slip is stated per g
 
 
 def _geometry(nom: Nominal):
@@ -38,11 +47,20 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
     if wc is None:
         return None
     _, p_BV, R_BA = _geometry(nom)
+    names = ["wheel.radius_left", "wheel.radius_right", "wheel.track"] if wc.estimate else []
+    slip = rig.config.vehicle.slip.estimate
+    along = (longitudinal_accel_g(nom.R[:-1] @ R_BA[:-1], nom.v[:-1], nom.v[1:], nom.t[1] - nom.t[0])
+             if slip and nom.n_keyframes > 1 else np.zeros(0))
     Jx, Jt = _jacobians(nom.R, nom.p, np.ascontiguousarray(R_BA), p_BV, wc.radius_left_m, wc.radius_right_m,
-                        wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate)
-    cols = (theta_columns(rig, ["wheel.radius_left", "wheel.radius_right", "wheel.track"]) if wc.estimate
-            else np.zeros(0, dtype=int))
+                        wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate, slip, along)
+    cols = theta_columns(rig, names + (["wheel.slip"] if slip else [])) if names or slip else np.zeros(0, dtype=int)
     return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
+
+
+def longitudinal_accel_g(R_W_A_i: np.ndarray, v_i: np.ndarray, v_j: np.ndarray, dT: float) -> np.ndarray:
+    """The mean longitudinal acceleration over each keyframe interval in g, the regressor of the
+    wheel slip: ``e_xᵀ R_W_A,iᵀ (v_j − v_i) / (ΔT·g)`` (stacks (N,3,3), (N,3), (N,3) → (N,))."""
+    return np.einsum("ni,ni->n", R_W_A_i[:, :, 0], v_j - v_i) / (dT * G_MPS2)
 
 
 @nb.njit(cache=True, inline="always")
@@ -57,7 +75,7 @@ def arc_ratio(x):
 
 
 @nb.njit(cache=True, nogil=True)
-def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
+def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, along):
     """Per interval i → j, with ``R_A = R R_BA``, ``φ = Log(R_A,iᵀ R_A,j)`` (Δψ = φ_z),
     ``c = R_A,iᵀ (p_V,j − p_V,i)`` and ``Δs = mᵀc``::
 
@@ -67,11 +85,13 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
         ∂(mᵀc) = mᵀ ∂c + (m′ᵀ c) ∂Δψ,   m′ = ½(−sin Δψ/2, cos Δψ/2, 0)
         ∂Δs = a ∂(mᵀc) + a′ (mᵀc) ∂Δψ
 
-    and the wheel angles ``(Δs ∓ ½ b Δψ)/r`` differentiated in the states and in (r_l, r_r, b);
+    and the wheel angles ``(Δs ∓ ½ b Δψ)/r`` differentiated in the states and in (r_l, r_r, b)
+    and, with ``slip``, in the slip per g (the angles times ``1 + slip·along``, at slip 0);
     everything divided by σ."""
     N = R.shape[0] - 1
     Jx = np.zeros((N, 2, 18))
-    Jt = np.zeros((N, 2, 3 if estimate else 0))
+    ns = 1 if slip else 0
+    Jt = np.zeros((N, 2, (3 if estimate else 0) + ns))
     RAi, RAj, X, Y, M = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     phi, a, cc, q, qb = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     Jpsi = np.empty(18)
@@ -134,6 +154,10 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate):
             Jt[n, 1, 1] = -(ds + 0.5 * track * dpsi) / (rr * rr * sigma)
             Jt[n, 0, 2] = -0.5 * dpsi / (rl * sigma)
             Jt[n, 1, 2] = 0.5 * dpsi / (rr * sigma)
+        if slip:
+            c = Jt.shape[2] - 1
+            Jt[n, 0, c] = (ds - 0.5 * track * dpsi) / rl * along[n] / sigma
+            Jt[n, 1, c] = (ds + 0.5 * track * dpsi) / rr * along[n] / sigma
     return Jx, Jt
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..information import _GAUGE_SIGMA_YAW_RAD
 from ..rig import Rig
+from ..factors.wheel import G_MPS2
 from ..trajectory import GRAVITY
 from .settings import OptimizeError
 
@@ -164,11 +165,11 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     Dii, Djj, Bji, Ei, Ej, Htt = interval.map(K - 1)(
         R_int, f_int, p[:, sl_i], p[:, sl_j], v[:, sl_i], v[:, sl_j], w[:, sl_i], w[:, sl_j],
         RVA[:, sl_i], RVA[:, sl_j])
-    Dn = nhc.map(K)(R[:, ::n], v[:, ::n], RVA[:, ::n])
+    Dn, En, Hn = nhc.map(K)(R[:, ::n], v[:, ::n], w[:, ::n], RVA[:, ::n])
     zero81 = ca.MX(81, 1)
     zeroE = ca.MX(D * P, 1)
     Dk = Dn + ca.horzcat(Dii, zero81) + ca.horzcat(zero81, Djj)
-    Ek = ca.horzcat(Ei, zeroE) + ca.horzcat(zeroE, Ej)
+    Ek = En + ca.horzcat(Ei, zeroE) + ca.horzcat(zeroE, Ej)
     # gauge: yaw of keyframe 0; the last keyframe's increment is a placeholder held at zero
     g = np.zeros((D, D))
     g[6:9, 6:9] = np.eye(3)
@@ -185,7 +186,7 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     S = ca.reshape(last[0:81], D, D)
     F = ca.reshape(last[81:81 + D * P], D, P)
     Lacc = ca.reshape(last[81 + D * P:], P, P)
-    Htt_sum = ca.reshape(ca.sum2(Htt), P, P)
+    Htt_sum = ca.reshape(ca.sum2(Htt) + ca.sum2(Hn), P, P)
     Lam = Htt_sum - Lacc - ca.mtimes(F.T, ca.solve(S, F))
     Lam = 0.5 * (Lam + Lam.T)
     marginal = ca.Function("marginal", [R, p, v, w, f, RVA], [Lam],
@@ -195,10 +196,13 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     iS = np.flatnonzero(scored)
     iN = np.flatnonzero(~scored)
     A = Lam[iS.tolist(), iS.tolist()]
-    if iN.size:
+    if iN.size:  # as excite.evaluate._marginalise_nuisance: an undetermined nuisance removes nothing
         Bm = Lam[iS.tolist(), iN.tolist()]
         C = Lam[iN.tolist(), iN.tolist()]
-        A = A - ca.mtimes(Bm, ca.solve(C, Bm.T))
+        d = ca.sqrt(ca.fmax(ca.diag(C), 1e-300))
+        Bd = Bm / ca.repmat(d.T, iS.size, 1)
+        Cn = C / ca.mtimes(d, d.T) + 1e-12 * ca.DM.eye(iN.size)
+        A = A - ca.mtimes(Bd, ca.solve(Cn, Bd.T))
     Svec = np.array([c.target for c in rig.scored])
     M = A * ca.DM(np.outer(Svec, Svec))
     M = 0.5 * (M + M.T)
@@ -238,10 +242,13 @@ def _geometry(rig: Rig):
 
 
 def _nhc_function(rig: Rig) -> ca.Function:
-    """H_xx contribution (vec 9×9, local state) of the non-holonomic constraint at a keyframe."""
-    R_BV, _ = _geometry(rig)
+    """H_xx, H_xθ and H_θθ contributions (vec, local state) of the non-holonomic constraint at a
+    keyframe (θ: the slip angle's column, excite.factors.nonholonomic)."""
+    R_BV, p_BV = _geometry(rig)
+    P = len(rig.coordinates)
     Rv = ca.SX.sym("R", 9)
     v = ca.SX.sym("v", 3)
+    w = ca.SX.sym("w", 3)
     RVAv = ca.SX.sym("RVA", 9)
     R = ca.reshape(Rv, 3, 3)
     R_BA = ca.mtimes(ca.DM(R_BV), ca.reshape(RVAv, 3, 3))
@@ -251,8 +258,14 @@ def _nhc_function(rig: Rig) -> ca.Function:
     Jv = ca.mtimes(R_AB, R.T)
     # local: δv_world = R δv_b − R [v_b]× δθ
     Jl = ca.horzcat(Jr - ca.mtimes(ca.mtimes(Jv, R), _hat(vb)), ca.mtimes(Jv, R), ca.SX(3, 3))
-    Jl = Jl[1:3, :] / ca.DM(list(rig.nonholonomic_sigma_mps))
-    return ca.Function("nhc", [Rv, v, RVAv], [ca.vec(ca.mtimes(Jl.T, Jl))])
+    sig = ca.DM(list(rig.nonholonomic_sigma_mps))
+    Jl = Jl[1:3, :] / sig
+    Jt = ca.SX(2, P)
+    if rig.config.vehicle.slip.estimate:  # excite.factors.nonholonomic.lateral_slip_regressor
+        u = ca.dot(ca.mtimes(R, R_BA)[:, 0], v + ca.mtimes(R, ca.cross(w, ca.DM(p_BV))))
+        Jt[0, rig.index("vehicle.slip_angle")] = u * u * ca.dot(R_BA[:, 2], w) / G_MPS2 / sig[0]
+    return ca.Function("nhc", [Rv, v, w, RVAv], [ca.vec(ca.mtimes(Jl.T, Jl)), ca.vec(ca.mtimes(Jl.T, Jt)),
+                                                 ca.vec(ca.mtimes(Jt.T, Jt))])
 
 
 def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
@@ -367,6 +380,11 @@ def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
             Jt[1, ir] = -(ds + 0.5 * b * dpsi) / rr**2
             Jt[0, it] = -0.5 * dpsi / rl
             Jt[1, it] = 0.5 * dpsi / rr
+        if rig.config.vehicle.slip.estimate:
+            along = ca.dot(RAi[:, 0], vj - vi) / (dT * G_MPS2)  # excite.factors.wheel.longitudinal_accel_g
+            isl = rig.index("wheel.slip")
+            Jt[0, isl] = (ds - 0.5 * b * dpsi) / rl * along
+            Jt[1, isl] = (ds + 0.5 * b * dpsi) / rr * along
         world.append((Jx, Jt / rig.wheel_increment_sigma_rad))
 
     # exteroceptive relative poses (excite.factors.odometry), stride 1

@@ -32,7 +32,7 @@ from scipy.linalg.lapack import dpbtrf, dtbtrs
 
 from .. import information, so3
 from ..factors import imu as imu_factor
-from ..factors import wheel
+from ..factors import nonholonomic, wheel
 from ..factors.base import Nominal
 from ..rig import Rig
 from ..trajectory import GRAVITY
@@ -181,16 +181,24 @@ def odometry_residuals(X: States, omega: np.ndarray, frames: np.ndarray, R_BS: n
 
 
 def wheel_increments(X: States, R_BA: np.ndarray, p_BV: np.ndarray, radius_left: float, radius_right: float,
-                     track: float) -> np.ndarray:
-    """:func:`excite.factors.wheel.increments` of every keyframe interval (N, 2)."""
-    return wheel.increments(X.R[:-1], X.p[:-1], X.R[1:], X.p[1:], R_BA[:-1], R_BA[1:], p_BV,
-                            radius_left, radius_right, track)
+                     track: float, slip: float, dT: float) -> np.ndarray:
+    """:func:`excite.factors.wheel.increments` of every keyframe interval (N, 2), times the slip
+    ``1 + slip·ā/g`` (:func:`excite.factors.wheel.longitudinal_accel_g`)."""
+    inc = wheel.increments(X.R[:-1], X.p[:-1], X.R[1:], X.p[1:], R_BA[:-1], R_BA[1:], p_BV,
+                           radius_left, radius_right, track)
+    if slip:
+        inc = inc * (1.0 + slip * wheel.longitudinal_accel_g(X.R[:-1] @ R_BA[:-1], X.v[:-1], X.v[1:], dT))[:, None]
+    return inc
 
 
-def nonholonomic_residuals(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray) -> np.ndarray:
+def nonholonomic_residuals(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray,
+                           slip_angle: float) -> np.ndarray:
     """:func:`excite.factors.nonholonomic.residual` at every keyframe (K, 2)."""
     v_V = X.v + np.einsum("kij,kj->ki", X.R, np.cross(omega, p_BV))
-    return np.einsum("kji,kj->ki", X.R @ R_BA, v_V)[:, 1:3]
+    r = np.einsum("kji,kj->ki", X.R @ R_BA, v_V)[:, 1:3]
+    if slip_angle:
+        r[:, 0] += slip_angle * nonholonomic.lateral_slip_regressor(X.R, X.v, omega, R_BA, p_BV)
+    return r
 
 
 def keyframe_rates(data: SensorData, b_g: np.ndarray) -> np.ndarray:
@@ -247,12 +255,12 @@ class _Problem:
         cov = imu_factor.preintegration(nom, ic.gyroscope_noise_density, ic.accelerometer_noise_density)["cov"]
         L = np.linalg.cholesky(cov)
         r_imu = np.linalg.solve(L, imu_residuals(X, pre, self.dT)[:, :, None])[..., 0]
-        r_nh = (nonholonomic_residuals(X, omega, self.R_BA, self.p_BV) - d.slip) / np.array(
+        r_nh = (nonholonomic_residuals(X, omega, self.R_BA, self.p_BV, cal.slip[1]) - d.slip) / np.array(
             self.rig.nonholonomic_sigma_mps)
         parts = [r_imu.ravel(), r_nh.ravel()]
         kinds = ["imu", "nonholonomic"]
         if cfg.wheels is not None:
-            parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel) - self.inc)
+            parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel, cal.slip[0], self.dT) - self.inc)
                           / self.rig.wheel_increment_sigma_rad).ravel())
             kinds.append("wheel")
         for s in self.sensors:

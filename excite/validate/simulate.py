@@ -58,7 +58,8 @@ class Calibration:
 
     ``extrinsics[name] = (R_B_S, p_B_S)``, ``time_offsets[name]`` [s] (stamp t shows the body at
     t + t_d), ``scales[name]`` (monocular cameras; 1 otherwise), IMU biases [rad/s, m/s²] and
-    ``wheel = (radius_left, radius_right, track)`` [m] (None without wheels). Offsets over the
+    ``wheel = (radius_left, radius_right, track)`` [m] (None without wheels), ``slip`` the tyre
+    slip nuisances ``(wheel.slip, vehicle.slip_angle)`` [1, rad] at 1 g. Offsets over the
     rig's coordinates follow the library's conventions: right perturbation of ``R_B_S``, additive
     elsewhere (:meth:`plus`, :meth:`minus`).
     """
@@ -69,6 +70,7 @@ class Calibration:
     gyro_bias: np.ndarray
     accel_bias: np.ndarray
     wheel: tuple[float, float, float] | None
+    slip: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
     def nominal(cls, rig: Rig) -> "Calibration":
@@ -90,6 +92,7 @@ class Calibration:
         t_d, scale = dict(self.time_offsets), dict(self.scales)
         bg, ba = self.gyro_bias.copy(), self.accel_bias.copy()
         wh = None if self.wheel is None else list(self.wheel)
+        slip = list(self.slip)
         rot: dict[str, np.ndarray] = {}
         for c, d in zip(rig.coordinates, delta):
             if c.kind == "rot":
@@ -108,10 +111,14 @@ class Calibration:
                 wh[c.axis] += d
             elif c.kind == "track":
                 wh[2] += d
+            elif c.kind == "slip":
+                slip[0] += d
+            elif c.kind == "slip_angle":
+                slip[1] += d
         for name, phi in rot.items():
             R, p = ext[name]
             ext[name] = (R @ so3.exp(phi[None])[0], p)  # (so3.exp needs a batch axis)
-        return Calibration(ext, t_d, scale, bg, ba, None if wh is None else tuple(wh))
+        return Calibration(ext, t_d, scale, bg, ba, None if wh is None else tuple(wh), tuple(slip))
 
     def minus(self, other: "Calibration", rig: Rig) -> np.ndarray:
         """``self ⊟ other`` over ``rig.coordinates`` (rotations: ``Log(R_otherᵀ R_self)``)."""
@@ -134,6 +141,10 @@ class Calibration:
                 out[i] = self.wheel[c.axis] - other.wheel[c.axis]
             elif c.kind == "track":
                 out[i] = self.wheel[2] - other.wheel[2]
+            elif c.kind == "slip":
+                out[i] = self.slip[0] - other.slip[0]
+            elif c.kind == "slip_angle":
+                out[i] = self.slip[1] - other.slip[1]
         return out
 
     def rig(self, rig: Rig) -> Rig:
@@ -150,8 +161,10 @@ class Calibration:
 
 
 def offset_sigma(rig: Rig, in_targets: float, scale_sigma: float = 0.01) -> np.ndarray:
-    """σ per coordinate of a random calibration offset: ``in_targets`` × target (scale: ``scale_sigma``)."""
-    return np.array([scale_sigma if c.nuisance else in_targets * c.target for c in rig.coordinates])
+    """σ per coordinate of a random calibration offset: ``in_targets`` × target (scale: ``scale_sigma``;
+    tyre slip: none, the simulator's physics sets it)."""
+    return np.array([scale_sigma if c.kind == "scale" else 0.0 if c.nuisance else in_targets * c.target
+                     for c in rig.coordinates])
 
 
 # ------------------------------------------------------------------------------------------------
