@@ -240,3 +240,53 @@ def test_nonholonomic_jacobian(rig, nom):
     _assert_close(blk.Jx[k], _fd(r_x, 9), 1e-6)
     # and the generated drive satisfies the constraint it linearises
     assert np.abs(nonholonomic.residual(nom.R[k], nom.v[k], nom.omega[k], R_BA, p_BV)).max() < 1e-3
+
+
+def test_wheel_slip_column_is_the_derivative_of_the_slipping_wheels(rig, nom):
+    """``wheel.slip``: the angles times ``1 + slip·ā/g`` (the calibrator's nonlinear model),
+    differentiated at slip 0; and ā is the drive's mean longitudinal acceleration over the
+    interval (integrated independently from the drive's own acceleration)."""
+    from excite.validate.calibrate import States, wheel_increments
+
+    blk = wheel.blocks(nom, rig)
+    wc = rig.config.wheels
+    R_BV = nom.R_V_B.T
+    p_BV = -R_BV @ nom.p_V_B
+    R_BA = R_BV @ nom.R_V_A
+    dT = nom.t[1] - nom.t[0]
+    X = States(nom.R, nom.p, nom.v)
+
+    def r(d):
+        return wheel_increments(X, nom.omega, R_BA, p_BV, wc.radius_left_m, wc.radius_right_m, wc.track_m, d[0],
+                                dT) / rig.wheel_increment_sigma_rad
+
+    col = rig.index("wheel.slip")
+    fd = _fd(r, 1)[:, 0, :]  # (intervals, 2)
+    _assert_close(blk.Jt_full(len(rig.coordinates))[:, :, col], fd, 1e-6)
+    assert np.abs(fd).max() > 0.1  # the drive accelerates: the column is not zero
+    f = 31
+    t = np.linspace(nom.t[f], nom.t[f + 1], 201)
+    a_long = drive(_PROFILE, rig.suspension).sample(t).accel_long
+    along = wheel.longitudinal_accel_g(nom.R @ R_BA, wheel.axle_velocity(nom.R, nom.v, nom.omega, p_BV), dT)
+    assert along[f] * wheel.G_MPS2 == pytest.approx(np.trapezoid(a_long, t) / dT, rel=1e-3)
+
+
+def test_slip_angle_column_is_the_derivative_of_the_sliding_axle(rig, nom):
+    """``vehicle.slip_angle``: the lateral row plus ``slip_angle·u·(u·ψ̇)/g`` (the nonlinear model),
+    differentiated at zero; and ``u·ψ̇`` is the drive's lateral acceleration (no sideways slide in
+    the generated drive, so the centripetal part is all of it, up to grade and bank)."""
+    blk = nonholonomic.blocks(nom, rig)
+    R_BV = nom.R_V_B.T
+    p_BV = -R_BV @ nom.p_V_B
+    sig = np.array(rig.nonholonomic_sigma_mps)
+    col = rig.index("vehicle.slip_angle")
+    Jt = blk.Jt_full(len(rig.coordinates))[:, :, col]
+    for k in (7, 19, 44):
+        R_BA = R_BV @ nom.R_V_A[k]
+        fd = _fd(lambda d: nonholonomic.residual(nom.R[k], nom.v[k], nom.omega[k], R_BA, p_BV, d[0]) / sig, 1)
+        _assert_close(Jt[k], fd[:, 0], 1e-6)
+    s = drive(_PROFILE, rig.suspension).sample(nom.t)
+    u = s.speed
+    reg = nonholonomic.lateral_slip_regressor(nom.R, nom.v, nom.omega, R_BV @ nom.R_V_A, p_BV)
+    assert np.abs(Jt[:, 1]).max() == 0.0  # the vertical row does not slide
+    assert np.abs(reg * wheel.G_MPS2 / u - s.accel_lat).max() < 0.05 * np.abs(s.accel_lat).max() + 0.02

@@ -22,7 +22,7 @@ import numpy as np
 from .. import so3
 from ..rig import Rig
 from .base import FactorBlock, Nominal, theta_columns
-from .wheel import G_MPS2, _geometry
+from .wheel import G_MPS2, _geometry, axle_velocity
 
 
 def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
@@ -49,7 +49,7 @@ def lateral_slip_regressor(R, v, omega_B, R_BA, p_BV) -> np.ndarray:
     """``u·(u·ψ̇)/g`` at every keyframe [m/s]: the rear axle's outward slide per unit slip angle at
     1 g, ``u`` its forward speed and ψ̇ the yaw rate about A's normal (stacks (K,3,3), (K,3),
     (K,3), (K,3,3), (3,) → (K,))."""
-    v_V = v + np.einsum("kij,kj->ki", R, np.cross(omega_B, p_BV))
+    v_V = axle_velocity(R, v, omega_B, p_BV)
     u = np.einsum("kji,kj->ki", R @ R_BA, v_V)[:, 0]
     yaw_rate = np.einsum("kj,kj->k", R_BA[:, :, 2], omega_B)  # e_zᵀ R_BAᵀ ω_B
     return u * u * yaw_rate / G_MPS2

@@ -49,18 +49,27 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
     _, p_BV, R_BA = _geometry(nom)
     names = ["wheel.radius_left", "wheel.radius_right", "wheel.track"] if wc.estimate else []
     slip = rig.config.vehicle.slip.estimate
-    along = (longitudinal_accel_g(nom.R[:-1] @ R_BA[:-1], nom.v[:-1], nom.v[1:], nom.t[1] - nom.t[0])
-             if slip and nom.n_keyframes > 1 else np.zeros(0))
+    v_V = axle_velocity(nom.R, nom.v, nom.omega, p_BV) if slip else np.zeros((0, 3))
+    dT = nom.t[1] - nom.t[0] if nom.n_keyframes > 1 else 1.0
     Jx, Jt = _jacobians(nom.R, nom.p, np.ascontiguousarray(R_BA), p_BV, wc.radius_left_m, wc.radius_right_m,
-                        wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate, slip, along)
+                        wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate, slip, v_V, dT)
     cols = theta_columns(rig, names + (["wheel.slip"] if slip else [])) if names or slip else np.zeros(0, dtype=int)
     return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
 
 
-def longitudinal_accel_g(R_W_A_i: np.ndarray, v_i: np.ndarray, v_j: np.ndarray, dT: float) -> np.ndarray:
-    """The mean longitudinal acceleration over each keyframe interval in g, the regressor of the
-    wheel slip: ``e_xᵀ R_W_A,iᵀ (v_j − v_i) / (ΔT·g)`` (stacks (N,3,3), (N,3), (N,3) → (N,))."""
-    return np.einsum("ni,ni->n", R_W_A_i[:, :, 0], v_j - v_i) / (dT * G_MPS2)
+def axle_velocity(R: np.ndarray, v: np.ndarray, omega_B: np.ndarray, p_BV: np.ndarray) -> np.ndarray:
+    """World velocity of the rear axle's centre ``v + R (ω_B × p_B_V)`` (stacks (K,3,3), (K,3), (K,3))."""
+    return v + np.einsum("kij,kj->ki", R, np.cross(omega_B, p_BV))
+
+
+def longitudinal_accel_g(R_W_A: np.ndarray, v_V: np.ndarray, dT: float) -> np.ndarray:
+    """The axle's mean longitudinal acceleration over each keyframe interval in g, the regressor
+    of the wheel slip: ``mᵀ R_W_A,iᵀ (v_V,j − v_V,i) / (ΔT·g)`` along the interval's mean heading
+    ``m`` (the chord's); stacks (K,3,3), (K,3) → (K−1,)."""
+    RAi, RAj = R_W_A[:-1], R_W_A[1:]
+    h = 0.5 * so3.log(np.swapaxes(RAi, 1, 2) @ RAj)[:, 2]
+    dv = np.einsum("nji,nj->ni", RAi, v_V[1:] - v_V[:-1])
+    return (np.cos(h) * dv[:, 0] + np.sin(h) * dv[:, 1]) / (dT * G_MPS2)
 
 
 @nb.njit(cache=True, inline="always")
@@ -75,7 +84,7 @@ def arc_ratio(x):
 
 
 @nb.njit(cache=True, nogil=True)
-def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, along):
+def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, v_V, dT):
     """Per interval i → j, with ``R_A = R R_BA``, ``φ = Log(R_A,iᵀ R_A,j)`` (Δψ = φ_z),
     ``c = R_A,iᵀ (p_V,j − p_V,i)`` and ``Δs = mᵀc``::
 
@@ -86,8 +95,8 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, along):
         ∂Δs = a ∂(mᵀc) + a′ (mᵀc) ∂Δψ
 
     and the wheel angles ``(Δs ∓ ½ b Δψ)/r`` differentiated in the states and in (r_l, r_r, b)
-    and, with ``slip``, in the slip per g (the angles times ``1 + slip·along``, at slip 0);
-    everything divided by σ."""
+    and, with ``slip``, in the slip at 1 g (the angles times ``1 + slip·ā/g`` at slip 0, ā of
+    :func:`longitudinal_accel_g` from the axle velocities ``v_V``); everything divided by σ."""
     N = R.shape[0] - 1
     Jx = np.zeros((N, 2, 18))
     ns = 1 if slip else 0
@@ -155,9 +164,13 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, along):
             Jt[n, 0, 2] = -0.5 * dpsi / (rl * sigma)
             Jt[n, 1, 2] = 0.5 * dpsi / (rr * sigma)
         if slip:
+            for k in range(3):
+                a[k] = v_V[j, k] - v_V[i, k]
+            kernels.tmulv(RAi, a, q)
+            along = (cs * q[0] + sn * q[1]) / (dT * G_MPS2)
             c = Jt.shape[2] - 1
-            Jt[n, 0, c] = (ds - 0.5 * track * dpsi) / rl * along[n] / sigma
-            Jt[n, 1, c] = (ds + 0.5 * track * dpsi) / rr * along[n] / sigma
+            Jt[n, 0, c] = (ds - 0.5 * track * dpsi) / rl * along / sigma
+            Jt[n, 1, c] = (ds + 0.5 * track * dpsi) / rr * along / sigma
     return Jx, Jt
 
 

@@ -381,7 +381,9 @@ def _interval_function(rig: Rig, n: int, dT: float) -> ca.Function:
             Jt[0, it] = -0.5 * dpsi / rl
             Jt[1, it] = 0.5 * dpsi / rr
         if rig.config.vehicle.slip.estimate:
-            along = ca.dot(RAi[:, 0], vj - vi) / (dT * G_MPS2)  # excite.factors.wheel.longitudinal_accel_g
+            # excite.factors.wheel.longitudinal_accel_g: the axle's, along the interval's mean heading
+            dvV = vj + ca.mtimes(Rj, ca.cross(wj, pBV)) - vi - ca.mtimes(Ri, ca.cross(wi, pBV))
+            along = ca.dot(m, ca.mtimes(RAi.T, dvV)) / (dT * G_MPS2)
             isl = rig.index("wheel.slip")
             Jt[0, isl] = (ds - 0.5 * b * dpsi) / rl * along
             Jt[1, isl] = (ds + 0.5 * b * dpsi) / rr * along

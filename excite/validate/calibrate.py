@@ -180,14 +180,15 @@ def odometry_residuals(X: States, omega: np.ndarray, frames: np.ndarray, R_BS: n
     return np.hstack([so3.log(np.swapaxes(R_meas, 1, 2) @ R_rel), scale * t_rel - t_meas])
 
 
-def wheel_increments(X: States, R_BA: np.ndarray, p_BV: np.ndarray, radius_left: float, radius_right: float,
-                     track: float, slip: float, dT: float) -> np.ndarray:
+def wheel_increments(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray, radius_left: float,
+                     radius_right: float, track: float, slip: float, dT: float) -> np.ndarray:
     """:func:`excite.factors.wheel.increments` of every keyframe interval (N, 2), times the slip
     ``1 + slip·ā/g`` (:func:`excite.factors.wheel.longitudinal_accel_g`)."""
     inc = wheel.increments(X.R[:-1], X.p[:-1], X.R[1:], X.p[1:], R_BA[:-1], R_BA[1:], p_BV,
                            radius_left, radius_right, track)
     if slip:
-        inc = inc * (1.0 + slip * wheel.longitudinal_accel_g(X.R[:-1] @ R_BA[:-1], X.v[:-1], X.v[1:], dT))[:, None]
+        along = wheel.longitudinal_accel_g(X.R @ R_BA, wheel.axle_velocity(X.R, X.v, omega, p_BV), dT)
+        inc = inc * (1.0 + slip * along)[:, None]
     return inc
 
 
@@ -260,7 +261,7 @@ class _Problem:
         parts = [r_imu.ravel(), r_nh.ravel()]
         kinds = ["imu", "nonholonomic"]
         if cfg.wheels is not None:
-            parts.append(((wheel_increments(X, self.R_BA, self.p_BV, *cal.wheel, cal.slip[0], self.dT) - self.inc)
+            parts.append(((wheel_increments(X, omega, self.R_BA, self.p_BV, *cal.wheel, cal.slip[0], self.dT) - self.inc)
                           / self.rig.wheel_increment_sigma_rad).ravel())
             kinds.append("wheel")
         for s in self.sensors:
