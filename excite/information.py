@@ -632,6 +632,21 @@ def state_names(n_keyframes: int, local: bool = True, state_dim: int = STATE_DIM
     return [f"x{k}.{c}" for k in range(n_keyframes) for c in comps]
 
 
+def at_keyframe(blocks: list, sd: int, p: int) -> np.ndarray:
+    """``JᵀJ`` over ``[x, θ]`` ((sd + p) square) of factors that see one keyframe's state only
+    (the gauge; the non-holonomic constraint, whose slip angle is a θ column)."""
+    band = np.zeros((1, 1, sd, sd))
+    Hxt, Htt = np.zeros((1, sd, p)), np.zeros((p, p))
+    for b in blocks:
+        kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt, 0, b.n_factors, 0, 1)
+    H = np.zeros((sd + p, sd + p))
+    H[:sd, :sd] = np.tril(band[0, 0]) + np.tril(band[0, 0], -1).T
+    H[:sd, sd:] = Hxt[0]
+    H[sd:, :sd] = Hxt[0].T
+    H[sd:, sd:] = Htt
+    return H
+
+
 def marginal_dense(problem: Problem, gauge: bool = True) -> np.ndarray:
     """Dense reference: form J and H in full and take the Schur complement with numpy.
 

@@ -138,9 +138,9 @@ class Incremental:
         H = self._state.copy()
         diag_tt = self._diag_tt.copy()
         if self._end_nhc is not None and self._end_nhc.n_factors:
-            Jx = self._end_nhc.Jx[0]
-            w = Jx.shape[1]
-            H[:w, :w] += Jx.T @ Jx
+            cap = information.at_keyframe([self._end_nhc.shifted(-int(self._end_nhc.first[0]))], sd, self.p)
+            H += cap
+            diag_tt += np.diag(cap)[sd:]
         keep = np.r_[0:6, sd:sd + self.p]  # rotation and body velocity of x_end, then θ
         H = H[np.ix_(keep, keep)]
         Lam = H[6:, 6:] - H[6:, :6] @ _solve(H[:6, :6], H[:6, 6:], self.n_keyframes - 1)

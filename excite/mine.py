@@ -53,8 +53,8 @@ class Summaries:
 
     ``T[c]`` is chunk ``c``'s information over ``[x_a, x_b, θ]`` (states of dimension ``sd``,
     θ over :func:`excite.information.columns` of one drive); ``gauge[c]`` and ``cap[c]`` the
-    information a window adds at its first keyframe ``edges[c]`` (the yaw gauge) and at its last
-    keyframe ``edges[c + 1]`` (the non-holonomic constraint there), each sd × sd; ``diag_tt[c]``
+    information a window adds at its first keyframe ``edges[c]`` (the yaw gauge, sd × sd) and at
+    its last keyframe ``edges[c + 1]`` (the non-holonomic constraint there, over ``[x_b, θ]``); ``diag_tt[c]``
     diag H_θθ of the chunk before elimination."""
 
     t0: float  # time of keyframe 0 [s]
@@ -62,7 +62,7 @@ class Summaries:
     edges: np.ndarray  # keyframe of each chunk boundary (C + 1)
     T: np.ndarray  # (C, 2 sd + p, 2 sd + p)
     gauge: np.ndarray  # (C, sd, sd)
-    cap: np.ndarray  # (C, sd, sd)
+    cap: np.ndarray  # (C, sd + p, sd + p)
     diag_tt: np.ndarray  # (C, p)
     length_m: np.ndarray  # (C,)
     sd: int
@@ -86,18 +86,6 @@ def _chunk_edges(K: int, rig: Rig, chunk_s: float) -> np.ndarray:
     if len(edges) > 2 and edges[-1] - edges[-2] < step:  # no sliver of a chunk at the end
         del edges[-2]
     return np.array(edges)
-
-
-def _at_keyframe(blocks: list, sd: int, p: int) -> np.ndarray:
-    """``JᵀJ`` over one keyframe's state of factors that see only it (and no θ), sd × sd."""
-    from . import kernels
-
-    band = np.zeros((1, 1, sd, sd))
-    Hxt, Htt = np.zeros((1, sd, p)), np.zeros((p, p))
-    for b in blocks:
-        kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt, 0, b.n_factors, 0, 1)
-    H = band[0, 0]
-    return np.tril(H) + np.tril(H, -1).T
 
 
 def _A(sd: int, p: int) -> np.ndarray:
@@ -134,8 +122,8 @@ def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> lis
         T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
         T[sd:2 * sd, _A(sd, p)] = pc.H_be
         T[_A(sd, p), sd:2 * sd] = pc.H_be.T
-        gauge = _at_keyframe(info._gauge(sub.R[a], 0, True), sd, p)
-        out.append((T, gauge, _at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
+        gauge = info.at_keyframe(info._gauge(sub.R[a], 0, True), sd, p)[:sd, :sd]
+        out.append((T, gauge, info.at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
     return out
 
 
@@ -187,7 +175,7 @@ def _close(T: np.ndarray, gauge: np.ndarray, cap: np.ndarray, sd: int) -> np.nda
     the last, whose increment and bias deviation are held at zero (deleted); both states eliminated."""
     T = T.copy()
     T[:, :sd, :sd] += gauge
-    T[:, sd:2 * sd, sd:2 * sd] += cap
+    T[:, sd:, sd:] += cap
     x = np.r_[0:sd, sd:sd + 6]  # the last keyframe keeps its rotation and body velocity only
     th = np.arange(2 * sd, T.shape[1])
     Exx = T[:, x[:, None], x]
@@ -205,7 +193,7 @@ def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[
         for c in range(first + 1, first + L):
             T = _join(T[None], s.T[c][None], s.sd)[0]
         return (_close(T[None], s.gauge[first][None], s.cap[first + L - 1][None], s.sd),
-                s.diag_tt[first:first + L].sum(axis=0)[None])
+                (s.diag_tt[first:first + L].sum(axis=0) + _cap_diag(s.cap[first + L - 1], s.sd))[None])
     C, sd = s.n_chunks, s.sd
     if not 1 <= L <= C:
         raise EvaluationError(f"a window of {L} chunks does not fit a log of {C}")
@@ -225,7 +213,12 @@ def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[
     if split.any():
         W[split] = _join(suf[starts[split]], pre[ends[split]], sd)
     csum = np.vstack([np.zeros(s.diag_tt.shape[1]), np.cumsum(s.diag_tt, axis=0)])
-    return _close(W, s.gauge[starts], s.cap[ends], sd), csum[ends + 1] - csum[starts]
+    return _close(W, s.gauge[starts], s.cap[ends], sd), csum[ends + 1] - csum[starts] + _cap_diag(s.cap[ends], sd)
+
+
+def _cap_diag(cap: np.ndarray, sd: int) -> np.ndarray:
+    """diag H_θθ of the constraint at a window's last keyframe (its slip-angle column)."""
+    return np.diagonal(cap[..., sd:, sd:], axis1=-2, axis2=-1)
 
 
 @dataclass

@@ -214,8 +214,9 @@ def test_marginal_does_not_depend_on_the_gauge_fix(rig, general_drive):
 
 
 def _scaled(L, rig):
-    """Λ in units of the targets (entries commensurate; nuisances unscaled)."""
-    S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
+    """Λ in units of the targets (entries commensurate; nuisances in units of 0.01, the size of a
+    scale error or a tyre's slip ratio or slip angle at 1 g)."""
+    S = np.array([0.01 if c.nuisance else c.target for c in rig.coordinates])
     S = np.concatenate([S, np.ones(L.shape[0] - S.size)])  # further drives' nuisances
     return L * np.outer(S, S)
 
@@ -232,17 +233,25 @@ def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
     nom = Nominal.of(traj, rig)
     fast = _scaled(information.marginal(information.build(nom, rig)), rig)
     fast_world = _scaled(information.marginal(information.build(nom, rig, local=False)), rig)
-    scale = np.abs(fast).max()
-    assert np.abs(fast_world - fast).max() < 1e-8 * scale
+    d = np.sqrt(np.diag(fast))
+
+    def err(ref):  # correlation-normalised: independent of units and targets
+        return (np.abs(fast - ref) / np.outer(d, d)).max()
+
+    # Round-off differs between the parametrisations: in local states with the gauge prior the
+    # dense reference agrees to ~1e-11; world-frame states (the fast path's or the dense one's)
+    # and the pseudo-inverse without a gauge lose digits (measured 2e-7 … 2.4e-6 on this drive).
+    assert err(fast_world) < 1e-5
     references = [
-        information.marginal_dense(information.build(nom, rig, local=False)),
-        information.marginal_dense(information.build(nom, rig, local=False), gauge=False),
-        information.marginal_dense(information.build(nom, rig)),
-        information.marginal_dense(information.build(nom, rig), gauge=False),
+        (information.marginal_dense(information.build(nom, rig)), 1e-9),
+        (information.marginal_dense(information.build(nom, rig), gauge=False), 1e-5),
+        (information.marginal_dense(information.build(nom, rig, local=False)), 1e-5),
+        (information.marginal_dense(information.build(nom, rig, local=False), gauge=False), 1e-5),
     ]
-    for ref in map(lambda L: _scaled(L, rig), references):
-        assert np.abs(fast - ref).max() < 1e-8 * scale
-        np.testing.assert_allclose(np.linalg.eigvalsh(fast), np.linalg.eigvalsh(ref), atol=1e-8 * scale)
+    for ref, tol in references:
+        ref = _scaled(ref, rig)
+        assert err(ref) < tol
+        np.testing.assert_allclose(np.linalg.eigvalsh(fast), np.linalg.eigvalsh(ref), rtol=tol, atol=0)
 
 
 def _five_hz_lidar(rig):
@@ -408,7 +417,7 @@ def test_export_npz_round_trip(rig, tmp_path):
     H = sp.coo_matrix((z["H_data"], (z["H_row"], z["H_col"])), shape=tuple(z["H_shape"])).toarray()
     np.testing.assert_allclose(J.T @ J, H, atol=1e-9 * np.abs(H).max())
     order = list(z["variable_order"])
-    assert len(order) == J.shape[1] and order[-1] == "wheel.track" and order[0] == "x0.rot_x"
+    assert len(order) == J.shape[1] and order[-1] == "vehicle.slip_angle" and order[0] == "x0.rot_x"
     # the exported H reproduces the exported marginal
     p = len(rig.coordinates)
     Hxx, Hxt, Htt = H[:-p, :-p], H[:-p, -p:], H[-p:, -p:]

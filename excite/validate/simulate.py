@@ -20,11 +20,13 @@ sensors record:
 - **Wheel encoders**: cumulative ticks (quantisation ``2π/ticks_per_rev``) of each wheel's angle
   plus white noise, so that the total noise of one increment (white + two quantisation errors)
   equals the rig's (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`). Physical: the angle integrates the wheel's contact-point speed
-  with a slip ratio that grows with longitudinal and lateral acceleration; model: the increments
-  of :func:`excite.factors.wheel.increments`.
+  with a slip ratio that grows linearly with longitudinal acceleration (what the rig's
+  ``wheel.slip`` nuisance models) and with the square of the lateral one (which nothing models);
+  model: the increments of :func:`excite.factors.wheel.increments`.
 - **Non-holonomic constraint**: a pseudo-measurement of zero lateral/vertical axle velocity with
   white slip of the configured σ. Physical: the body also yaws into every turn by the rear tyres'
-  slip angle, so the axle really slides outwards, which the constraint does not model.
+  slip angle, so the axle really slides outwards (what the rig's ``vehicle.slip_angle`` nuisance
+  models, to first order in the angle and with the lateral acceleration taken as u·ψ̇).
 
 The suspension tilt ``R_V_A`` and the IMU pose in the vehicle frame are known inputs, as in the
 information model.
