@@ -485,7 +485,10 @@ def test_each_added_physics_changes_the_data_and_is_absorbed_or_flagged(rig, opt
 def test_convergence_on_a_short_optimized_plan_in_the_physical_simulator(rig, optimized):
     """The calibrator converges on the plans the optimizer sells, with the physical simulator's data
     (IMU at 8× its rate, random-walk biases, wheel slip, tyre slip angle): every trial of 8 here,
-    ≥ 95 % in the benchmark's 50. And the model check says that this data is not the model's."""
+    ≥ 95 % in the benchmark's 50. With the tyre slip in the model the residuals are the model's
+    (the model check flagged this data, 2·cost/dof > 1.025, while the model lacked slip); what the
+    residuals cannot see (the IMU's discretisation, the loaded tyres' scrub) still moves the
+    estimate by more than half a σ somewhere, and the systematic run reports it."""
     from excite.cli.validate import crop
 
     traj = crop(optimized, 10.0)
@@ -494,6 +497,6 @@ def test_convergence_on_a_short_optimized_plan_in_the_physical_simulator(rig, op
     assert res.failures == 0, res.stop_reasons
     assert all(t.status == "converged" and t.reason for t in res.trials)
     mc, (lo, hi) = res.model_check()
-    assert mc > hi, (mc, hi)
-    # and the physics alone moves the estimate by more than half a σ somewhere (README: which)
-    assert res.systematic is not None and max(abs(v) for v in res.systematic.values()) > 0.5
+    assert lo <= mc <= hi, (mc, lo, hi)
+    worst = max(abs(v) for v in res.systematic.values())
+    assert 0.5 < worst < 1.5, res.systematic
