@@ -2,12 +2,14 @@
 
 The same factors as :mod:`excite.factors` (IMU preintegration with bias Jacobians and propagated
 covariance, exteroceptive relative poses with extrinsic / time-offset / monocular-scale columns,
-wheel increments, the non-holonomic constraint), the same local trajectory parametrisation and
+wheel increments with the tyres' slip column, the non-holonomic constraint with the slip-angle
+column), the same local trajectory parametrisation and
 gauge as :func:`excite.information.build`, written as CasADi SX so that IPOPT gets exact
 derivatives of everything downstream. The trajectory is eliminated by sequential block
 elimination of the block-tridiagonal H_xx (one 9×9 Cholesky per keyframe, a
 :meth:`casadi.Function.mapaccum` over the keyframes: cost linear in the drive length, no dense
-H_xx), then the nuisance coordinates (a monocular camera's scale).
+H_xx), then the nuisance coordinates (a monocular camera's scale, the tyre slip: what slip costs
+the calibration is in the objective, so plans that brake and turn hard pay for it).
 
 The optimizer runs it on a coarse copy of the rig (:func:`coarse_rig`: fewer keyframes, a few IMU
 samples per keyframe interval, per-measurement noise scaled so that the information per second
