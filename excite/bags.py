@@ -50,7 +50,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from . import bounds
 from .errors import RouteError
-from .routes import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, trajectory_from_poses
+from .routes import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, is_bag, trajectory_from_poses  # noqa: F401 (is_bag: here too)
 from .trajectory import Trajectory
 
 __all__ = [
@@ -74,14 +74,6 @@ class BagError(RouteError):
         where = f"topic {topic}: " if topic else ""
         super().__init__(where + problem, source=str(path))
         self.topic = topic
-
-
-def is_bag(path: str | Path) -> bool:
-    """Whether ``path`` is a bag excite reads: ``.bag``, ``.mcap`` or a ROS 2 bag folder."""
-    p = Path(path)
-    if p.is_dir():
-        return (p / "metadata.yaml").is_file()
-    return p.suffix.lower() in (".bag", ".mcap")
 
 
 # --------------------------------------------------------------------------------------------

@@ -623,6 +623,14 @@ def _sniff_txt(path: Path) -> int:
     raise RouteError("the file has no data rows (empty file)", source=str(path))
 
 
+def is_bag(path: str | Path) -> bool:
+    """Whether ``path`` is a bag excite reads: ``.bag``, ``.mcap`` or a ROS 2 bag folder."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    return p.suffix.lower() in (".bag", ".mcap")
+
+
 def read_route(path: str | Path, times: str | Path | None = None, limits: Limits = Limits(), *,
                suspension: Suspension = Suspension(), cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None, bag: "BagSource | None" = None) -> Trajectory:
@@ -635,14 +643,14 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
     ``limits`` and ``suspension`` shape waypoint, GeoJSON and control routes;
     ``cutoff_hz``/``rate_hz`` the timed-pose fit (bags included).
     """
-    from .bags import BagSource, is_bag, read_bag_route
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(2, "No such file or directory", str(path))
     ext = path.suffix.lower()
     timed = {"cutoff_hz": cutoff_hz, "rate_hz": rate_hz}
     if is_bag(path):
+        from .bags import BagSource, read_bag_route  # the bag readers only for bags
+
         return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
     if bag is not None:
         raise RouteError("--topic and the other bag options apply to bags only (.bag, .mcap, a "

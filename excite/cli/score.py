@@ -94,7 +94,6 @@ def score(
              "y down, z forward).")] = "vehicle",
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
-    from ..bags import BagSource, ImuTrajectory, imu_agreement
     from ..evaluate import Options, evaluate
     from ..rig import load_rig
     from ..routes import read_route
@@ -104,14 +103,19 @@ def score(
         raise typer.BadParameter(f"no parameter {plot_parameter!r} in rig {r.name} "
                                  f"(parameters: {', '.join(c.name for c in r.scored)})",
                                  param_hint="--plot-parameter")
-    given = (topic, imu_topic, start, end, vehicle_frame)
-    bag = None if all(x is None for x in given) and axes == "vehicle" else \
-        BagSource(topic, imu_topic, start, end, vehicle_frame, axes)
+    bag = None
+    if any(x is not None for x in (topic, imu_topic, start, end, vehicle_frame)) or axes != "vehicle":
+        from ..bags import BagSource  # the bag readers only for bags: not on a file's cold path
+
+        bag = BagSource(topic, imu_topic, start, end, vehicle_frame, axes)
     traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
-    if isinstance(traj, ImuTrajectory):
-        pose = r.config.vehicle.T_V_B
-        typer.echo(f"IMU {imu_topic} (frame {traj.imu_frame}) gives the angular rate and specific "
-                   f"force; {imu_agreement(traj, pose.R, pose.p).text()}", err=True)
+    if bag is not None:  # a bag was read (with --imu-topic: its measured IMU too)
+        from ..bags import ImuTrajectory, imu_agreement
+
+        if isinstance(traj, ImuTrajectory):
+            pose = r.config.vehicle.T_V_B
+            typer.echo(f"IMU {imu_topic} (frame {traj.imu_frame}) gives the angular rate and specific "
+                       f"force; {imu_agreement(traj, pose.R, pose.p).text()}", err=True)
     rep = evaluate(traj, r, Options(segments=segments))
     if plot is not None:
         from .. import plots
