@@ -1,7 +1,5 @@
 """``python -m excite.cli``: the same as the ``excite`` command."""
 
-import sys
+from . import run
 
-from . import main
-
-sys.exit(main())
+run()
