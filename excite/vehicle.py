@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import PchipInterpolator
 
 from . import bounds, so3
@@ -140,7 +139,10 @@ def drive(profile: ControlProfile, suspension: Suspension = Suspension()) -> Tra
     t = np.linspace(profile.t_s[0], profile.t_s[-1], n)
     c = profile.at(t)
     u, kappa = c["speed_mps"], c["curvature_1pm"]
-    yaw = profile.start[2] + cumulative_trapezoid(u * kappa, t, initial=0.0)
+    yaw_rate = u * kappa
+    # the trapezoid rule (scipy.integrate.cumulative_trapezoid's arithmetic; scipy.integrate
+    # would be imported for this line alone)
+    yaw = profile.start[2] + np.concatenate([[0.0], np.cumsum(np.diff(t) * (yaw_rate[1:] + yaw_rate[:-1]) / 2.0)])
     R_W_A = so3.rot_z(yaw) @ so3.rot_y(-c["grade_rad"]) @ so3.rot_x(c["bank_rad"])
     v_W = u[:, None] * R_W_A[:, :, 0]
     pitch = -np.deg2rad(suspension.pitch_deg_per_mps2) * c["accel_mps2"]

@@ -32,6 +32,25 @@ def test_circle_speed_and_yaw_rate_equal_the_controls():
     assert np.all(s.specific_force_V[:, 1] > 0)
 
 
+def test_generated_heading_is_the_trapezoid_integral_of_the_yaw_rate():
+    """The heading of a generated drive at its grid times is the start heading plus the
+    trapezoid-rule integral of speed × curvature, as scipy's ``cumulative_trapezoid`` computes it
+    (excite integrates it with numpy so that scoring does not import scipy.integrate)."""
+    from scipy.integrate import cumulative_trapezoid
+
+    from excite import so3
+
+    t = np.linspace(0.0, 12.0, 25)
+    prof = ControlProfile(t_s=t, speed_mps=4.0 + np.sin(t), curvature_1pm=0.08 * np.cos(0.7 * t),
+                          start=(0.0, 0.0, 0.4))
+    traj = drive(prof, Suspension.rigid())
+    grid = np.linspace(0.0, 12.0, 1201)  # the drive's 100 Hz integration grid
+    c = prof.at(grid)
+    want = 0.4 + cumulative_trapezoid(c["speed_mps"] * c["curvature_1pm"], grid, initial=0.0)
+    yaw = so3.yaw_pitch_roll(traj.sample(grid).R_W_A)[:, 0]
+    np.testing.assert_allclose(np.angle(np.exp(1j * (yaw - want))), 0.0, atol=1e-9)
+
+
 @pytest.fixture(scope="module")
 def real_drives(data_dir):
     return {
