@@ -1,6 +1,7 @@
 """A command imports only what it uses (the cold path a person waits on): `excite --help` loads
-neither scipy nor numba, `excite score` neither the optimizer, the plots, the service nor the
-path planner's filters."""
+neither scipy nor numba, `excite score` of a file neither the optimizer, the plots, the service,
+the path planner's filters nor the bag readers; and the `excite` process ends with the command's
+exit code and all of its output."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,8 +41,26 @@ def test_help_imports_neither_scipy_nor_numba():
     assert rc == 0 and mods == [], mods
 
 
-def test_score_imports_only_what_scoring_uses():
-    rc, mods = _loaded(["score", "trajectories/figure_eight_control.csv"],
-                       {"matplotlib", "fastapi", "casadi", "uvicorn"},
-                       {"scipy.ndimage", "excite.optimize", "excite.plots", "excite.rig_import"})
+@pytest.mark.parametrize("route", ["figure_eight_control.csv", "figure_eight.tum"])
+def test_score_imports_only_what_scoring_uses(route):
+    rc, mods = _loaded(["score", f"trajectories/{route}"],
+                       {"matplotlib", "fastapi", "casadi", "uvicorn", "rosbags"},
+                       {"scipy.ndimage", "scipy.integrate", "excite.optimize", "excite.plots",
+                        "excite.rig_import", "excite.bags"})
     assert rc == 0 and mods == [], mods
+
+
+def test_the_excite_process_exits_with_the_commands_code_and_all_its_output():
+    """``python -m excite.cli`` runs what the ``excite`` script runs (:func:`excite.cli.run`,
+    which leaves the interpreter with the command's exit code after freezing the collector)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+    cmd = [sys.executable, "-m", "excite.cli", "score"]
+    ok = subprocess.run([*cmd, "trajectories/figure_eight.tum", "--json"], cwd=REPO, env=env,
+                        capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    report = json.loads(ok.stdout)  # the whole report reached the pipe
+    assert report["route"] == "figure_eight" and len(report["parameters"]) > 0
+    bad = subprocess.run([*cmd, "no_such_route.tum"], cwd=REPO, env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert bad.returncode == 1 and bad.stdout == ""
+    assert bad.stderr.splitlines() == ["excite: error: no_such_route.tum: No such file or directory"]
