@@ -215,7 +215,7 @@ def state_dim(rig: Rig) -> int:
     return BIAS_STATE_DIM if rig.bias_random_walk else STATE_DIM
 
 
-def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBlock | None]:
+def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool, walk: bool = True) -> list[FactorBlock | None]:
     """Every factor of one chunk ``k0 … k1`` of a drive (indices relative to ``k0``), per kind.
 
     The chunk owns the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside,
@@ -224,7 +224,8 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBl
     stay 9 wide: :func:`excite.kernels.accumulate` places them in the first 9 components); it
     sees the bias of its interval's start (the θ column plus the state's deviation), and the random
     walk links consecutive deviations; the deviation at the drive's last keyframe is zero (θ is the
-    bias there), so the walk's last step does not reach it.
+    bias there), so the walk's last step does not reach it. ``walk=False`` leaves the walk out
+    (the sweep adds its constant information directly: :func:`_eliminated`).
     """
     m = sub.n_keyframes - 1
     nhc = nonholonomic.blocks(sub, rig)
@@ -234,12 +235,14 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool) -> list[FactorBl
         v_b = np.einsum("kji,kj->ki", sub.R, sub.v)
         d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
         V, P = _local_maps(sub.R, v_b, d)
-        blocks = [None if b is None else _to_local(b, V, P) for b in blocks]
+        sd = state_dim(rig)  # the IMU block is written widened to the bias states
+        blocks = [None if b is None else _to_local(b, V, P, sd if i == 0 else STATE_DIM) for i, b in enumerate(blocks)]
     if rig.bias_random_walk:
-        imu_blk = blocks[0] = _widen(blocks[0])
+        imu_blk = blocks[0] = blocks[0] if local else _widen(blocks[0])
         imu_blk.Jx[:, :, BIAS] = imu_blk.Jt  # b_k = θ_b + δb_k
-        walk = _bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
-        blocks.append(_bias_anchored(walk, np.array([m])) if last else walk)
+        if walk:
+            steps = _bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
+            blocks.append(_bias_anchored(steps, np.array([m])) if last else steps)
     return blocks
 
 
@@ -254,12 +257,17 @@ def _widen(b: FactorBlock) -> FactorBlock:
 def _bias_walk(rig: Rig, n_intervals: int, dT: float) -> FactorBlock:
     """The random walk of the IMU biases over each keyframe interval: ``δb_j − δb_i`` with
     σ = random-walk density · √ΔT (Kalibr's ``*_random_walk`` units)."""
-    imu = rig.config.imu
-    w = 1.0 / (np.repeat([imu.gyroscope_random_walk, imu.accelerometer_random_walk], 3) * np.sqrt(dT))
+    w = _walk_weights(rig, dT)
     Jx = np.zeros((n_intervals, 6, 2 * BIAS_STATE_DIM))
     Jx[:, :, BIAS] = -np.diag(w)
     Jx[:, :, BIAS_STATE_DIM + 9:] = np.diag(w)
     return FactorBlock("bias_walk", np.arange(n_intervals), 1, 2, Jx, np.zeros((n_intervals, 6, 0)), _NO_COLS)
+
+
+def _walk_weights(rig: Rig, dT: float) -> np.ndarray:
+    """1/σ of a random-walk step of the biases (gyro xyz, accel xyz) over ``dT``."""
+    imu = rig.config.imu
+    return 1.0 / (np.repeat([imu.gyroscope_random_walk, imu.accelerometer_random_walk], 3) * np.sqrt(dT))
 
 
 def _bias_anchored(walk: FactorBlock, ends: np.ndarray) -> FactorBlock:
@@ -301,15 +309,16 @@ def _local_maps(R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> tuple[np.ndarr
     return V, P
 
 
-def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray) -> FactorBlock:
+def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray, sd: int = STATE_DIM) -> FactorBlock:
     """Re-express a block's world-state Jacobian in local states (maps from :func:`_local_maps`).
 
     Positions enter every factor only through differences (its position Jacobians sum to zero),
     so ``Σ_a J_p,a δp_{k_a} = Σ_a J_p,a Σ_{first ≤ q < k_a} δ(p_{q+1} − p_q)`` and the position of
-    the factor's first keyframe drops out.
+    the factor's first keyframe drops out. ``sd`` columns per state (the 9 trajectory states
+    first; with ``sd`` = 15 the bias columns are left zero).
     """
-    out = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P)
-    return FactorBlock(b.name, b.first, 1, out.shape[2] // STATE_DIM, out, b.Jt, b.cols)
+    out = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P, sd)
+    return FactorBlock(b.name, b.first, 1, out.shape[2] // sd, out, b.Jt, b.cols)
 
 
 def _yaw_gauge(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
@@ -444,10 +453,12 @@ def _separators(problem: Problem) -> np.ndarray:
     return np.array(edges)
 
 
+_BIAS_DIAG = np.arange(BIAS.start, BIAS.stop)
 _SLAB = 64  # keyframes accumulated and eliminated together by a sweep (their storage stays in the cache)
 
 
-def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bool, k0: int) -> tuple:
+def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bool, k0: int,
+                walk: tuple[np.ndarray, bool] | None = None) -> tuple:
     """One step of a sweep (:func:`_sweep`): the information of chunk ``0 … m`` (``blocks``, keyframe
     indices relative to its start ``k0``) plus ``carry`` on its first keyframe in the sweep's
     order (0 forward, m backward) and θ, with every keyframe but the last one in that order
@@ -456,7 +467,13 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
     Slab by slab of ``_SLAB`` keyframes, in a ring buffer: the factors whose first keyframe (in
     the sweep's order) is in the slab are accumulated, then the slab's keyframes are eliminated
     (every factor that touches them is in by then), and the few keyframes the next slab shares
-    move to the ring's front."""
+    move to the ring's front.
+
+    ``walk = (w², anchored)``: the bias random walk of every interval ``k → k+1`` of the chunk
+    (:func:`_bias_walk`, whitened by ``w``), added as its information ``w²`` on the bias
+    deviations of both keyframes and ``−w²`` between them (the same numbers as the accumulated
+    ``JᵀJ``, without forming J); ``anchored``: the last step ends at the drive's end (only its
+    first keyframe, see :func:`_bias_anchored`)."""
     sd, p = carry[0].shape[0], carry[2].shape[0]
     spans = [blk.stride * (blk.n_states - 1) for blk in blocks]
     D = max([1] + spans)
@@ -479,6 +496,16 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
             if f1 > f0:
                 kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states, band, Hxt, Htt,
                                    f0, f1, -s if forward else m - s, 1 if forward else -1)
+        if walk is not None:  # the steps k → k+1 whose first keyframe in the sweep's order is in the slab
+            f = np.arange(s, hi) if forward else np.arange(max(0, m - edge[i + 1]), m - s)
+            at = (f - s) if forward else (m - s - f)  # positions of k and (below) of k + 1
+            w2, anchored = walk
+            band[0, at[:, None], _BIAS_DIAG, _BIAS_DIAG] += w2
+            if anchored:
+                f, at = f[f < m - 1], at[f < m - 1]
+            nxt = at + 1 if forward else at - 1
+            band[0, nxt[:, None], _BIAS_DIAG, _BIAS_DIAG] += w2
+            band[1, np.minimum(at, nxt)[:, None], _BIAS_DIAG, _BIAS_DIAG] -= w2
         bad = kernels.eliminate(band, Hxt, Htt, 0, hi - s)
         if bad >= 0:
             _check_pivot(s + bad if forward else m - s - bad, k0)
@@ -573,14 +600,15 @@ def _sweep(traj: Trajectory, K: int, offset: int, chunks: Sequence[tuple[int, in
         c0 = time.thread_time()
         sub = Nominal.of(traj, rig, keyframes=(k0, k1))
         c1 = time.thread_time()
-        blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == K - 1), col_map)
+        blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == K - 1, walk=False), col_map)
                   if b is not None and b.n_factors]
         if k0 == 0:
             blocks += _gauge(sub.R[0], 0, True)
         if k1 == K - 1:
             blocks += _chain_end(k1 - k0, True, sd)
+        walk = (_walk_weights(rig, float(sub.t[1] - sub.t[0])) ** 2, k1 == K - 1) if rig.bias_random_walk else None
         c2 = time.thread_time()
-        carry = _eliminated(blocks, k1 - k0, carry, forward, offset + k0)
+        carry = _eliminated(blocks, k1 - k0, carry, forward, offset + k0, walk)
         diag += _theta_diagonal(blocks, p)
         c3 = time.thread_time()
         length += sub.length_m

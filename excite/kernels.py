@@ -452,20 +452,21 @@ def eliminate(band, Hxe, Hee, lo, hi):
 
 
 @nb.njit(cache=True, nogil=True)
-def to_local(Jx, first, stride, V, P):
+def to_local(Jx, first, stride, V, P, sd):
     """World-state Jacobians ``Jx`` (N × r × 9·n_states) of factors at keyframes ``first + stride·a``
-    re-expressed in local states over every keyframe they span (N × r × 9·(span + 1)); the maps
+    re-expressed in local states over every keyframe they span (N × r × sd·(span + 1): sd ≥ 9
+    columns per state, the 9 trajectory states first, any further ones zero); the maps
     ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information._to_local`."""
     N, r, nx = Jx.shape
     ns = nx // 9
     span = stride * (ns - 1)
-    out = np.zeros((N, r, 9 * (span + 1)))
+    out = np.zeros((N, r, sd * (span + 1)))
     for f in range(N):
         J = Jx[f]
         O = out[f]
         for a in range(ns):
             k = first[f] + a * stride
-            col = 9 * a * stride
+            col = sd * a * stride
             for row in range(r):
                 for c in range(3):
                     O[row, col + c] += J[row, 9 * a + c]
@@ -487,7 +488,7 @@ def to_local(Jx, first, stride, V, P):
                         j2 += J[row, 9 * a + 5]
                 for c in range(6):
                     s = j0 * P[k, 0, c] + j1 * P[k, 1, c] + j2 * P[k, 2, c]
-                    O[row, 9 * q + (c if c < 3 else c + 3)] += s
+                    O[row, sd * q + (c if c < 3 else c + 3)] += s
     return out
 
 
