@@ -453,7 +453,6 @@ def _separators(problem: Problem) -> np.ndarray:
     return np.array(edges)
 
 
-_BIAS_DIAG = np.arange(BIAS.start, BIAS.stop)
 _SLAB = 64  # keyframes accumulated and eliminated together by a sweep (their storage stays in the cache)
 
 
@@ -482,6 +481,7 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
     Hxt = np.zeros((n, sd, p))
     band[0, 0] = carry[0]
     Hxt[0] = carry[1]
+    diag = band.reshape(D + 1, n, sd * sd)[:, :, (sd + 1) * BIAS.start::sd + 1]  # views of the bias deviations' diagonals
     Htt = carry[2].copy()
     slabs = np.arange(0, m, _SLAB)
     # per block, the factors whose first keyframe in the sweep's order is in each slab: f0 … f1−1
@@ -496,16 +496,15 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
             if f1 > f0:
                 kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states, band, Hxt, Htt,
                                    f0, f1, -s if forward else m - s, 1 if forward else -1)
-        if walk is not None:  # the steps k → k+1 whose first keyframe in the sweep's order is in the slab
-            f = np.arange(s, hi) if forward else np.arange(max(0, m - edge[i + 1]), m - s)
-            at = (f - s) if forward else (m - s - f)  # positions of k and (below) of k + 1
-            w2, anchored = walk
-            band[0, at[:, None], _BIAS_DIAG, _BIAS_DIAG] += w2
-            if anchored:
-                f, at = f[f < m - 1], at[f < m - 1]
-            nxt = at + 1 if forward else at - 1
-            band[0, nxt[:, None], _BIAS_DIAG, _BIAS_DIAG] += w2
-            band[1, np.minimum(at, nxt)[:, None], _BIAS_DIAG, _BIAS_DIAG] -= w2
+        if walk is not None:  # the steps whose first keyframe in the sweep's order is in the slab: positions
+            w2, anchored = walk  # 0 … n−1 of the ring to 1 … n (either direction), less a step into the drive's end
+            n_steps = hi - s if forward else m - s - max(0, m - edge[i + 1])
+            cut = anchored and (hi == m if forward else s == 0)
+            lo = 1 if cut and not forward else 0
+            n_in = n_steps - 1 if cut and forward else n_steps
+            diag[0, 0 if forward else 1:n_steps + (0 if forward else 1)] += w2
+            diag[0, (1 if forward else 0) + lo:(1 if forward else 0) + n_in] += w2
+            diag[1, lo:n_in] -= w2
         bad = kernels.eliminate(band, Hxt, Htt, 0, hi - s)
         if bad >= 0:
             _check_pivot(s + bad if forward else m - s - bad, k0)

@@ -317,37 +317,60 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     xd = nx // ns  # columns per state in Jx
     c = Jt.shape[2]
     M = nx + c
-    w = np.empty(M)  # one row of [Jx Jt]
-    G = np.empty((M, M))  # [Jx Jt]ᵀ[Jx Jt] of one factor
+    w = np.empty((3, M))  # three rows of [Jx Jt]
+    G = np.empty((M, M))  # lower triangle of [Jx Jt]ᵀ[Jx Jt] of one factor
+    T = np.zeros((c, c))  # lower triangle of Σ Jtᵀ Jt over the factors (added to Htt at the end)
     for f in range(f0, f1):
-        G[:] = 0.0
-        for row in range(r):  # a sum of outer products (lower triangle): the inner loop runs over contiguous memory
-            for u in range(nx):
-                w[u] = Jx[f, row, u]
-            for u in range(c):
-                w[nx + u] = Jt[f, row, u]
-            for u in range(M):
-                wu = w[u]
-                if wu != 0.0:
-                    for v in range(u + 1):
-                        G[u, v] += wu * w[v]
         for u in range(M):
-            for v in range(u):
-                G[v, u] = G[u, v]
+            for v in range(u + 1):
+                G[u, v] = 0.0
+        for row0 in range(0, r, 3):  # outer products of three rows at a time (lower triangle; contiguous inner loop)
+            nr = min(3, r - row0)
+            w[:] = 0.0
+            for k in range(nr):
+                for u in range(nx):
+                    w[k, u] = Jx[f, row0 + k, u]
+                for u in range(c):
+                    w[k, nx + u] = Jt[f, row0 + k, u]
+            w0, w1, w2 = w[0], w[1], w[2]
+            for u in range(M):
+                a0, a1, a2 = w0[u], w1[u], w2[u]
+                if a0 != 0.0 or a1 != 0.0 or a2 != 0.0:
+                    for v in range(u + 1):
+                        G[u, v] += a0 * w0[v] + a1 * w1[v] + a2 * w2[v]
         for a in range(ns):
             i = origin + sign * (first[f] + stride * a)
-            for b in range(a + 1):  # the later position holds the rows of its block
-                hi, lo = (a, b) if sign > 0 else (b, a)
-                blk = band[stride * (a - b), origin + sign * (first[f] + stride * lo)]
-                for u in range(xd):
-                    for v in range(xd):
-                        blk[u, v] += G[xd * hi + u, xd * lo + v]
+            blk = band[0, i]
+            o = xd * a
+            for u in range(xd):
+                for v in range(u):
+                    g = G[o + u, o + v]
+                    blk[u, v] += g
+                    blk[v, u] += g
+                blk[u, u] += G[o + u, o + u]
+            for b in range(a):  # a later state of the factor than b
+                ob = xd * b
+                if sign > 0:  # the later position a holds the rows
+                    blk = band[stride * (a - b), i - sign * stride * (a - b)]
+                    for u in range(xd):
+                        for v in range(xd):
+                            blk[u, v] += G[o + u, ob + v]
+                else:
+                    blk = band[stride * (a - b), i]
+                    for u in range(xd):
+                        for v in range(xd):
+                            blk[u, v] += G[o + v, ob + u]
             for u in range(xd):
                 for v in range(c):
-                    Hxt[i, u, cols[v]] += G[xd * a + u, nx + v]
+                    Hxt[i, u, cols[v]] += G[nx + v, o + u]
         for u in range(c):
-            for v in range(c):
-                Htt[cols[u], cols[v]] += G[nx + u, nx + v]
+            for v in range(u + 1):
+                T[u, v] += G[nx + u, nx + v]
+    for u in range(c):
+        for v in range(u):
+            Htt[cols[u], cols[v]] += T[u, v]
+            Htt[cols[v], cols[u]] += T[u, v]
+        Htt[cols[u], cols[u]] += T[u, u]
 
 
 @nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -364,13 +387,27 @@ def _border_update(ZT, m, Hee):
 
 
 @nb.njit(cache=True, inline="always")
+def _subtract_combination(x, c, Z, n, top):
+    """``x[:top] −= Σ_{k<n} c[k] Z[k, :top]``, three rows of Z per pass over x (a third of the loads
+    and stores of x; the inner loops run along rows)."""
+    k = 0
+    while k + 3 <= n:
+        c0, c1, c2 = c[k], c[k + 1], c[k + 2]
+        for e in range(top):
+            x[e] -= c0 * Z[k, e] + c1 * Z[k + 1, e] + c2 * Z[k + 2, e]
+        k += 3
+    while k < n:
+        ck = c[k]
+        for e in range(top):
+            x[e] -= ck * Z[k, e]
+        k += 1
+
+
+@nb.njit(cache=True, inline="always")
 def _solve_lower(L, X):
     """``X ← L⁻¹ X`` for a lower triangular L, row by row (the inner loops run along rows of X)."""
     for row in range(X.shape[0]):
-        for k in range(row):
-            lk = L[row, k]
-            for e in range(X.shape[1]):
-                X[row, e] -= lk * X[k, e]
+        _subtract_combination(X[row], L[row], X, row, X.shape[1])
         inv = 1.0 / L[row, row]
         for e in range(X.shape[1]):
             X[row, e] *= inv
@@ -426,19 +463,12 @@ def eliminate(band, Hxe, Hee, lo, hi):
             X = Hxe[j + d]  # H[x_{j+d}, e] −= C_d Z_j
             Cd = CT[d]
             for row in range(sd):
-                for k in range(sd):
-                    ck = Cd[k, row]
-                    for e in range(q):
-                        X[row, e] -= ck * Zj[k, e]
+                _subtract_combination(X[row], Cd[:, row], Zj, sd, q)
             for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ (a diagonal block: lower triangle)
                 Y = band[d2 - d, j + d]
                 C2 = CT[d2]
                 for row in range(sd):
-                    top = row + 1 if d2 == d else sd
-                    for k in range(sd):
-                        c2 = C2[k, row]
-                        for col in range(top):
-                            Y[row, col] -= c2 * Cd[k, col]
+                    _subtract_combination(Y[row], C2[:, row], Cd, sd, row + 1 if d2 == d else sd)
     _border_update(ZT, fill, Hee)
     for e in range(q):
         for e2 in range(e):
