@@ -49,17 +49,25 @@ def _coeffs(theta):
 
 
 @nb.njit(cache=True, inline="always")
-def _horner(c, k, j, tau, deriv):
-    """Component j of the value (deriv 0), first or second derivative of PPoly segment k at tau."""
-    deg = c.shape[0] - 1
+def _horner(c, k, j, tau):
+    """Component j of the value of PPoly segment k at tau."""
     out = 0.0
-    for m in range(deg + 1 - deriv):
-        p = deg - m
-        coef = 1.0
-        for d in range(deriv):
-            coef *= p - d
-        out = out * tau + coef * c[m, k, j]
+    for m in range(c.shape[0]):
+        out = out * tau + c[m, k, j]
     return out
+
+
+@nb.njit(cache=True, inline="always")
+def _horner2(c, k, j, tau):
+    """Value, first and second derivative of component j of PPoly segment k at tau, in one pass."""
+    p = c[0, k, j]
+    d = 0.0
+    dd = 0.0  # half the second derivative
+    for m in range(1, c.shape[0]):
+        dd = dd * tau + d
+        d = d * tau + p
+        p = p * tau + c[m, k, j]
+    return p, d, 2.0 * dd
 
 
 @nb.njit(cache=True, nogil=True)
@@ -84,9 +92,9 @@ def _rotation_at(c_rot, k, tau, R_key, R):
     """Write ``R_key[k] · Exp(φ(τ))`` to R (φ: segment k of the cubic PPoly ``c_rot``) and return
     the body rate ``ω = J_r(φ) φ̇`` and angular acceleration ``α = J_r φ̈ + J̇_r φ̇``, in vector
     form (``[φ]× x = φ × x``)."""
-    fx, fy, fz = _horner(c_rot, k, 0, tau, 0), _horner(c_rot, k, 1, tau, 0), _horner(c_rot, k, 2, tau, 0)
-    dx, dy, dz = _horner(c_rot, k, 0, tau, 1), _horner(c_rot, k, 1, tau, 1), _horner(c_rot, k, 2, tau, 1)
-    ddx, ddy, ddz = _horner(c_rot, k, 0, tau, 2), _horner(c_rot, k, 1, tau, 2), _horner(c_rot, k, 2, tau, 2)
+    fx, dx, ddx = _horner2(c_rot, k, 0, tau)
+    fy, dy, ddy = _horner2(c_rot, k, 1, tau)
+    fz, dz, ddz = _horner2(c_rot, k, 2, tau)
     theta = np.sqrt(fx * fx + fy * fy + fz * fz)
     a, b, c, eb, ec = _coeffs(theta)
     cos = 1.0 - b * theta * theta
@@ -146,9 +154,9 @@ def imu_samples(t, seg_rot, x_rot, c_rot, R_key, seg_acc, x_acc, c_acc, gravity,
         wx, wy, wz, alx, aly, alz = _rotation_at(c_rot, k, t[i] - x_rot[k], R_key, R)
         j = seg_acc[i]
         tj = t[i] - x_acc[j]
-        ax = _horner(c_acc, j, 0, tj, 0) - gravity[0]
-        ay = _horner(c_acc, j, 1, tj, 0) - gravity[1]
-        az = _horner(c_acc, j, 2, tj, 0) - gravity[2]
+        ax = _horner(c_acc, j, 0, tj) - gravity[0]
+        ay = _horner(c_acc, j, 1, tj) - gravity[1]
+        az = _horner(c_acc, j, 2, tj) - gravity[2]
         # specific force at the IMU point, in V: Rᵀ(a − g) + α × p + ω × (ω × p)
         l1x, l1y, l1z = _cross(alx, aly, alz, px, py, pz)
         wpx, wpy, wpz = _cross(wx, wy, wz, px, py, pz)
