@@ -523,8 +523,8 @@ def _theta_diagonal(blocks: Sequence[FactorBlock], p: int) -> np.ndarray:
     is eliminated."""
     out = np.zeros(p)
     for b in blocks:
-        if b.cols.size:
-            out += np.bincount(b.cols, weights=(b.Jt ** 2).sum(axis=(0, 1)), minlength=p)
+        if b.cols.size:  # a block's columns are distinct
+            out[b.cols] += np.einsum("frc,frc->c", b.Jt, b.Jt)
     return out
 
 

@@ -179,6 +179,7 @@ def inverse_cholesky(cov):
     N, m, _ = cov.shape
     W = np.zeros((N, m, m))
     L = np.empty((m, m))
+    inv = np.empty(m)  # 1 / diag L
     for i in range(N):
         C = cov[i]
         for r in range(m):
@@ -190,16 +191,17 @@ def inverse_cholesky(cov):
                     if acc <= 0.0:
                         raise ValueError("covariance is not positive definite")
                     L[r, r] = np.sqrt(acc)
+                    inv[r] = 1.0 / L[r, r]
                 else:
-                    L[r, c] = acc / L[c, c]
+                    L[r, c] = acc * inv[c]
         Wi = W[i]
         for c in range(m):  # forward substitution, column c of L⁻¹
-            Wi[c, c] = 1.0 / L[c, c]
+            Wi[c, c] = inv[c]
             for r in range(c + 1, m):
                 acc = 0.0
                 for k in range(c, r):
                     acc -= L[r, k] * Wi[k, c]
-                Wi[r, c] = acc / L[r, r]
+                Wi[r, c] = acc * inv[r]
     return W
 
 
@@ -412,13 +414,13 @@ def _subtract_combination(x, c, Z, n, top):
 
 
 @nb.njit(cache=True, inline="always")
-def _solve_lower(L, X):
-    """``X ← L⁻¹ X`` for a lower triangular L, row by row (the inner loops run along rows of X)."""
+def _solve_lower(L, inv, X):
+    """``X ← L⁻¹ X`` for a lower triangular L (``inv``: the reciprocals of its diagonal), row by
+    row (the inner loops run along rows of X)."""
     for row in range(X.shape[0]):
         _subtract_combination(X[row], L[row], X, row, X.shape[1])
-        inv = 1.0 / L[row, row]
         for e in range(X.shape[1]):
-            X[row, e] *= inv
+            X[row, e] *= inv[row]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -437,6 +439,7 @@ def eliminate(band, Hxe, Hee, lo, hi):
     sd = band.shape[2]
     q = Hxe.shape[2]
     L = np.zeros((sd, sd))
+    inv = np.empty(sd)  # 1 / diag L
     CT = np.zeros((D + 1, sd, sd))  # CT[d, k, row] = C_d[row, k]
     Zj = np.empty((sd, q))
     ZT = np.empty((q, 16 * sd))  # Z_jᵀ of the states eliminated since the last border update
@@ -452,10 +455,11 @@ def eliminate(band, Hxe, Hee, lo, hi):
                     if not s > _PIVOT_RTOL * A[col, col]:  # singular, or singular to rounding
                         return j
                     L[col, col] = np.sqrt(s)
+                    inv[col] = 1.0 / L[col, col]
                 else:
-                    L[row, col] = s / L[col, col]
+                    L[row, col] = s * inv[col]
         Zj[:] = Hxe[j]
-        _solve_lower(L, Zj)  # Z_j = L⁻¹ Hxe[j]
+        _solve_lower(L, inv, Zj)  # Z_j = L⁻¹ Hxe[j]
         for k in range(sd):  # H_ee −= Z_jᵀ Z_j, batched over 16 states (lower triangle; mirrored at the end)
             for e in range(q):
                 ZT[e, fill + k] = Zj[k, e]
@@ -466,7 +470,7 @@ def eliminate(band, Hxe, Hee, lo, hi):
         nd = min(D, n - 1 - j)
         for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ, kept transposed (C_dᵀ = L⁻¹ H[x_j, x_{j+d}]),
             CT[d] = band[d, j].T  # so that every inner loop below runs along a contiguous row
-            _solve_lower(L, CT[d])
+            _solve_lower(L, inv, CT[d])
         for d in range(1, nd + 1):
             X = Hxe[j + d]  # H[x_{j+d}, e] −= C_d Z_j
             Cd = CT[d]
