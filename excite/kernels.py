@@ -399,12 +399,15 @@ def _border_update(ZT, m, Hee):
 @nb.njit(cache=True, inline="always")
 def _subtract_combination(x, c, Z, n, top):
     """``x[:top] −= Σ_{k<n} c[k] Z[k, :top]``, three rows of Z per pass over x (a third of the loads
-    and stores of x; the inner loops run along rows)."""
+    and stores of x; the inner loops run along rows), skipping three zero coefficients (with
+    random-walk biases, C_1 = H[x_{j+1}, x_j] L⁻ᵀ has a zero block: no factor links the trajectory
+    of one keyframe with the bias deviations of the next)."""
     k = 0
     while k + 3 <= n:
         c0, c1, c2 = c[k], c[k + 1], c[k + 2]
-        for e in range(top):
-            x[e] -= c0 * Z[k, e] + c1 * Z[k + 1, e] + c2 * Z[k + 2, e]
+        if c0 != 0.0 or c1 != 0.0 or c2 != 0.0:
+            for e in range(top):
+                x[e] -= c0 * Z[k, e] + c1 * Z[k + 1, e] + c2 * Z[k + 2, e]
         k += 3
     while k < n:
         ck = c[k]
