@@ -105,18 +105,15 @@ def _jacobians(R, p, v, dT, g, dR, G_R, V_g, P_g, P_a, W, estimate):
         kernels.hat(dp, X)
         kernels.put(A, 6, 0, X, 1.0)
         Wn = W[n]
-        for r in range(9):  # W is lower triangular
-            for c in range(18):
-                s = 0.0
-                for k in range(r + 1):
-                    s += Wn[r, k] * A[k, c]
-                Jx[n, r, c] = s
-            if estimate:
-                for c in range(6):
-                    s = 0.0
-                    for k in range(r + 1):
-                        s += Wn[r, k] * B[k, c]
-                    Jt[n, r, c] = s
+        for r in range(9):  # W is lower triangular; the inner loops run along rows of A and B
+            Jr, Tr = Jx[n, r], Jt[n, r]
+            for k in range(r + 1):
+                wk = Wn[r, k]
+                for c in range(18):
+                    Jr[c] += wk * A[k, c]
+                if estimate:
+                    for c in range(6):
+                        Tr[c] += wk * B[k, c]
     return Jx, Jt
 
 
