@@ -409,6 +409,8 @@ def test_live_view_done_banner_stop_and_errors(page, tmp_path):
     broken.write_text("\n".join(lines[:10] + ["1.05 0 0 0 0 0 0"] + lines[10:]) + "\n")
     page.set_input_files("#live-file", str(broken))
     page.click("#live-start")
+    # the page reads the file asynchronously (await file.text()) before it shows the error
+    page.wait_for_selector("#live-file-error:has-text('line 11')")
     assert "line 11: expected 8 numbers" in page.inner_text("#live-file-error")
     assert page.get_attribute("#live-file", "aria-invalid") == "true"
 
