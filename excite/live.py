@@ -89,7 +89,7 @@ class Incremental:
             if b is None or not b.n_factors:
                 continue
             if b.name == "nonholonomic":  # the one at the chunk's end belongs to the next chunk
-                end_nhc = b.select(b.first == m)
+                end_nhc = b.select(b.first == m).shifted(-m)
                 b = b.select(b.first < m)
             elif b.name == "bias_walk":  # the walk into the end keyframe is not anchored yet
                 b = information._bias_walk(self.rig, m, float(nom.t[1] - nom.t[0]))
@@ -138,7 +138,7 @@ class Incremental:
         H = self._state.copy()
         diag_tt = self._diag_tt.copy()
         if self._end_nhc is not None and self._end_nhc.n_factors:
-            cap = information.at_keyframe([self._end_nhc.shifted(-int(self._end_nhc.first[0]))], sd, self.p)
+            cap = information.at_keyframe([self._end_nhc], sd, self.p)
             H += cap
             diag_tt += np.diag(cap)[sd:]
         keep = np.r_[0:6, sd:sd + self.p]  # rotation and body velocity of x_end, then θ

@@ -287,6 +287,8 @@ def test_slip_angle_column_is_the_derivative_of_the_sliding_axle(rig, nom):
         _assert_close(Jt[k], fd[:, 0], 1e-6)
     s = drive(_PROFILE, rig.suspension).sample(nom.t)
     u = s.speed
-    reg = nonholonomic.lateral_slip_regressor(nom.R, nom.v, nom.omega, R_BV @ nom.R_V_A, p_BV)
+    R_BA = R_BV @ nom.R_V_A
+    reg = nonholonomic.lateral_slip_regressor(nom.R @ R_BA, wheel.axle_velocity(nom.R, nom.v, nom.omega, p_BV),
+                                              nom.omega, R_BA)
     assert np.abs(Jt[:, 1]).max() == 0.0  # the vertical row does not slide
     assert np.abs(reg * wheel.G_MPS2 / u - s.accel_lat).max() < 0.05 * np.abs(s.accel_lat).max() + 0.02

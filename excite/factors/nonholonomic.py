@@ -41,16 +41,15 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
         return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, 0)), np.zeros(0, dtype=int))
     _, p_BV, _ = _geometry(nom)
     Jt = np.zeros((K, 2, 1))
-    Jt[:, 0, 0] = lateral_slip_regressor(R, v, nom.omega, R_BA, p_BV) / sig[0]
+    Jt[:, 0, 0] = lateral_slip_regressor(R @ R_BA, axle_velocity(R, v, nom.omega, p_BV), nom.omega, R_BA) / sig[0]
     return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, Jt, theta_columns(rig, ["vehicle.slip_angle"]))
 
 
-def lateral_slip_regressor(R, v, omega_B, R_BA, p_BV) -> np.ndarray:
+def lateral_slip_regressor(R_W_A, v_V, omega_B, R_BA) -> np.ndarray:
     """``u·(u·ψ̇)/g`` at every keyframe [m/s]: the rear axle's outward slide per unit slip angle at
-    1 g, ``u`` its forward speed and ψ̇ the yaw rate about A's normal (stacks (K,3,3), (K,3),
-    (K,3), (K,3,3), (3,) → (K,))."""
-    v_V = axle_velocity(R, v, omega_B, p_BV)
-    u = np.einsum("kji,kj->ki", R @ R_BA, v_V)[:, 0]
+    1 g, ``u`` its forward speed (from its world velocity ``v_V``, :func:`~excite.factors.wheel.axle_velocity`)
+    and ψ̇ the yaw rate about A's normal (stacks (K,3,3), (K,3), (K,3), (K,3,3) → (K,))."""
+    u = np.einsum("kj,kj->k", R_W_A[:, :, 0], v_V)  # e_xᵀ R_W_Aᵀ v_V
     yaw_rate = np.einsum("kj,kj->k", R_BA[:, :, 2], omega_B)  # e_zᵀ R_BAᵀ ω_B
     return u * u * yaw_rate / G_MPS2
 
@@ -58,7 +57,8 @@ def lateral_slip_regressor(R, v, omega_B, R_BA, p_BV) -> np.ndarray:
 def residual(R, v, omega_B, R_BA, p_BV, slip_angle: float = 0.0) -> np.ndarray:
     """Unwhitened lateral and vertical velocity of the rear axle in the axle frame [m/s], less the
     outward slide of a slip angle of ``slip_angle`` at 1 g (one keyframe)."""
-    v_V = v + R @ np.cross(omega_B, p_BV)
-    r = ((R @ R_BA).T @ v_V)[1:3]
-    r[0] += slip_angle * lateral_slip_regressor(R[None], v[None], omega_B[None], R_BA[None], p_BV)[0]
+    v_V = axle_velocity(R[None], v[None], omega_B[None], p_BV)
+    R_W_A = R[None] @ R_BA[None]
+    r = (R_W_A[0].T @ v_V[0])[1:3]
+    r[0] += slip_angle * lateral_slip_regressor(R_W_A, v_V, omega_B[None], R_BA[None])[0]
     return r

@@ -195,10 +195,11 @@ def wheel_increments(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.nd
 def nonholonomic_residuals(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray,
                            slip_angle: float) -> np.ndarray:
     """:func:`excite.factors.nonholonomic.residual` at every keyframe (K, 2)."""
-    v_V = X.v + np.einsum("kij,kj->ki", X.R, np.cross(omega, p_BV))
-    r = np.einsum("kji,kj->ki", X.R @ R_BA, v_V)[:, 1:3]
+    v_V = wheel.axle_velocity(X.R, X.v, omega, p_BV)
+    R_W_A = X.R @ R_BA
+    r = np.einsum("kji,kj->ki", R_W_A, v_V)[:, 1:3]
     if slip_angle:
-        r[:, 0] += slip_angle * nonholonomic.lateral_slip_regressor(X.R, X.v, omega, R_BA, p_BV)
+        r[:, 0] += slip_angle * nonholonomic.lateral_slip_regressor(R_W_A, v_V, omega, R_BA)
     return r
 
 
