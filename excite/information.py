@@ -287,11 +287,23 @@ def _gauge(R_W_B: np.ndarray, keyframe: int, local: bool) -> list[FactorBlock]:
     return [_yaw_gauge(R_W_B, keyframe) if local else gauge_block(R_W_B, keyframe)]
 
 
+def _end_held(sd: int, local: bool = True) -> list[int]:
+    """Columns of a drive's last keyframe held at zero (see :func:`_chain_end`)."""
+    return (list(range(6, 9)) if local else []) + (list(range(9, 15)) if sd == BIAS_STATE_DIM else [])
+
+
+def end_free(sd: int) -> np.ndarray:
+    """Columns of a drive's last keyframe (local states) that stay free when a drive is closed
+    there: its rotation and body velocity. :mod:`excite.live` and :mod:`excite.mine` close a
+    drive "so far" or a window with them, as :func:`_chain_end` closes a whole drive."""
+    return np.setdiff1d(np.arange(sd), _end_held(sd))
+
+
 def _chain_end(keyframe: int, local: bool, sd: int = STATE_DIM) -> list[FactorBlock]:
     """Columns of the last keyframe of a drive that no factor reaches, held at zero: in local
     states its increment (it has no successor), with random-walk biases its bias deviation
     (θ holds the bias there)."""
-    rows = (list(range(6, 9)) if local else []) + (list(range(9, 15)) if sd == BIAS_STATE_DIM else [])
+    rows = _end_held(sd, local)
     if not rows:
         return []
     Jx = np.zeros((1, len(rows), sd))

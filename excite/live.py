@@ -141,9 +141,11 @@ class Incremental:
             cap = information.at_keyframe([self._end_nhc], sd, self.p)
             H += cap
             diag_tt += np.diag(cap)[sd:]
-        keep = np.r_[0:6, sd:sd + self.p]  # rotation and body velocity of x_end, then θ
+        free = information.end_free(sd)
+        n = free.size
+        keep = np.r_[free, sd:sd + self.p]  # what stays free of x_end, then θ
         H = H[np.ix_(keep, keep)]
-        Lam = H[6:, 6:] - H[6:, :6] @ _solve(H[:6, :6], H[:6, 6:], self.n_keyframes - 1)
+        Lam = H[n:, n:] - H[n:, :n] @ _solve(H[:n, :n], H[:n, n:], self.n_keyframes - 1)
         return DriveInformation(
             information=0.5 * (Lam + Lam.T), diag_tt=diag_tt, nuisance=self.nuisance,
             n_keyframes=self.n_keyframes, duration_s=(self.n_keyframes - 1) / self.rig.keyframe_rate_hz,

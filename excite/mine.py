@@ -176,7 +176,7 @@ def _close(T: np.ndarray, gauge: np.ndarray, cap: np.ndarray, sd: int) -> np.nda
     T = T.copy()
     T[:, :sd, :sd] += gauge
     T[:, sd:, sd:] += cap
-    x = np.r_[0:sd, sd:sd + 6]  # the last keyframe keeps its rotation and body velocity only
+    x = np.r_[0:sd, sd + info.end_free(sd)]  # the last keyframe: what stays free of it
     th = np.arange(2 * sd, T.shape[1])
     Exx = T[:, x[:, None], x]
     Etx = T[:, th[:, None], x]
