@@ -18,7 +18,11 @@ Three layers, each usable alone:
   (:func:`excite.evaluate.report_of`), per parameter σ/target, "% of target reached"
   (target/σ, capped at 100 %), an ETA at the information rate of the last ``window_s``, the
   motion a parameter still needs in the vehicle's words (:func:`excite.advice.needs`), the
-  weakest direction, and ``done`` once every parameter is within target.
+  weakest direction, and ``done``: once every parameter is within target (``passed``), or, with
+  ``passed`` false, when nothing more is gained from the motion so far — every parameter not
+  within target has needed other motion (no gain, or an ETA past ``horizon_s``) for a whole
+  ``window_s``. That one says which parameters need which motion; it fires again only after some
+  parameter has gained again (the driver changed the motion) and stalled for a whole window.
 - :class:`PoseStream` turns timed poses arriving one by one into keyframe chunks. Batch
   evaluation fits smoothing splines to a whole file (:func:`excite.routes.trajectory_from_poses`),
   so a pose's fitted value depends (exponentially weakly) on every later pose: a stream can only
@@ -194,19 +198,34 @@ class Guide:
     def __init__(self, rig: Rig, options: Options = Options(), window_s: float = RATE_WINDOW_S,
                  horizon_s: float = HORIZON_S, name: str = "live"):
         self.rig, self.options, self.window_s, self.horizon_s, self.name = rig, options, window_s, horizon_s, name
-        self.done = False
+        self.done = False  # every parameter was within target at some update
+        self._stalled = False  # a "nothing more to gain" done fired, and nothing has gained since
+        self._gained_s = 0.0  # drive time at which some parameter last started gaining again
         self._history: deque[tuple[float, np.ndarray]] = deque()
 
     def update(self, drive: DriveInformation, elapsed_s: float | None = None) -> list[dict[str, Any]]:
-        """The update for ``drive`` (and a ``done`` event the first time every parameter is
-        within target). ``elapsed_s``: drive time (default: the keyframes' duration)."""
+        """The update for ``drive``, followed by a ``done`` event the first time every parameter
+        is within target, or when nothing more is gained from the motion so far (see the module
+        docstring). ``elapsed_s``: drive time (default: the keyframes' duration)."""
         rep = report_of(drive, self.rig, self.options, route=self.name)
         t = drive.duration_s if elapsed_s is None else elapsed_s
-        out = [self.describe(rep, t)]
-        if rep.passed and not self.done:
-            self.done = True
-            out.append({"type": "done", "t_s": t, "reason": "every parameter is within its target",
-                        "score": rep.score})
+        upd = self.describe(rep, t)
+        out = [upd]
+        status = [p["status"] for p in upd["parameters"]]
+        if rep.passed:
+            if not self.done:
+                self.done = True
+                out.append({"type": "done", "t_s": t, "passed": True,
+                            "reason": "every parameter is within its target", "score": rep.score})
+        elif self._stalled:
+            if "gaining" in status:
+                self._stalled, self._gained_s = False, t
+        elif "gaining" not in status and t - self._gained_s >= self.window_s:
+            self._stalled = True
+            needs = [{"name": p["name"], "advice": p["advice"]} for p in upd["parameters"] if p["status"] == "needs"]
+            out.append({"type": "done", "t_s": t, "passed": False, "score": rep.score, "needs": needs,
+                        "reason": f"nothing more to gain from the motion so far: {len(needs)} of "
+                                  f"{len(status)} parameters need other motion"})
         return out
 
     def describe(self, rep: Report, t: float, kind: str = "update") -> dict[str, Any]:

@@ -155,11 +155,15 @@ def test_every_prefix_closes_like_a_whole_drive(test_rig):
         live.Incremental(rig).append(Nominal.of(traj, rig, keyframes=(0, 0)))
 
 
-def _straight_then_eight(rig):
-    """15 s straight (accelerate to 5 m/s and stop), then 90 s of figure-eight."""
+LONG_STRAIGHT_S = 120.0
+
+
+def _straight_then_eight(rig, straight_s: float = 15.0):
+    """A straight (accelerate to 5 m/s, cruise, stop: 15 s by default), then 90 s of figure-eight."""
     fe = maneuvers.figure_eight(90.0)
-    t = np.concatenate([[0, 4, 8, 12, 15], fe.t_s[1:] + 15])
-    v = np.concatenate([[0, 3, 5, 3, 0], fe.speed_mps[1:]])
+    S = straight_s
+    t = np.concatenate([[0, 4, 8, S - 4, S] if S > 16 else [0, 4, 8, 12, 15], fe.t_s[1:] + S])
+    v = np.concatenate([[0, 3, 5, 5, 0] if S > 16 else [0, 3, 5, 3, 0], fe.speed_mps[1:]])
     k = np.concatenate([[0] * 5, fe.curvature_1pm[1:]])
     return vehicle.drive(vehicle.ControlProfile(t, v, k, start=fe.start, name="straight_then_eight"),
                          rig.suspension)
@@ -183,7 +187,7 @@ def test_straight_then_figure_eight_progress_advice_and_done(test_rig):
     assert updates[5]["weakest"]["advice"].startswith("Needs")
     # done fires once, at the first update whose prefix the batch evaluator passes
     done = [i for i, e in enumerate(events) if e["type"] == "done"]
-    assert len(done) == 1
+    assert len(done) == 1 and events[done[0]]["passed"]
     at = events[done[0] - 1]
     assert at["type"] == "update" and at["passed"] and events[done[0]]["t_s"] == at["t_s"]
     first_pass = next(i for i, u in enumerate(updates) if u["passed"])
@@ -191,6 +195,30 @@ def test_straight_then_figure_eight_progress_advice_and_done(test_rig):
     for u in updates[max(0, first_pass - 3):first_pass + 2] + updates[::15]:
         k1 = u["n_keyframes"] - 1
         assert _batch_prefix(traj, rig, k1).passed == u["passed"], u["t_s"]
+
+
+def test_a_straight_long_enough_stalls_then_the_figure_eight_passes(test_rig):
+    """Two minutes of straight driving, then a figure-eight. Once the rotations a straight can
+    determine are within target, nothing more is gained from driving on straight: a ``done``
+    with ``passed`` false fires (after a whole rate window), naming exactly the parameters the
+    batch evaluator still fails on that prefix, each with the motion it needs, and they still
+    fail at the end of the straight (driving on did not help). The figure-eight then brings the
+    passed ``done``, once."""
+    rig = test_rig
+    S = LONG_STRAIGHT_S
+    traj = _straight_then_eight(rig, S)
+    events = list(live.updates_of(traj, rig))
+    done = [(i, e) for i, e in enumerate(events) if e["type"] == "done"]
+    assert [e["passed"] for _, e in done] == [False, True], [(e["t_s"], e["passed"]) for _, e in done]
+    (i_stall, stall), (i_pass, passed) = done
+    assert live.RATE_WINDOW_S <= stall["t_s"] < S - 8  # while cruising straight
+    named = {n["name"]: n["advice"] for n in stall["needs"]}
+    assert "turn" in named["wheel.track"] and "pitch" in named["lidar.trans_z"]
+    at_stall = _batch_prefix(traj, rig, events[i_stall - 1]["n_keyframes"] - 1)
+    assert {p.name for p in at_stall.parameters if not p.ok} == set(named)
+    end_of_straight = _batch_prefix(traj, rig, int((S - 8) * rig.keyframe_rate_hz))
+    assert {p.name for p in end_of_straight.parameters if not p.ok} == set(named)
+    assert passed["t_s"] > S and events[i_pass - 1]["passed"]
 
 
 # --- excite live ---------------------------------------------------------------------------------
@@ -209,6 +237,24 @@ def test_cli_exits_0_when_done(test_rig, tmp_path):
     events = _json_lines(r.stdout)
     assert events[-1]["type"] == "done" and events[-2]["type"] == "update" and events[-2]["passed"]
     assert not any(e["passed"] for e in events[:-2]) and events[-1]["t_s"] > 15
+
+
+def test_cli_says_what_a_stalled_drive_needs_and_goes_on(test_rig, tmp_path):
+    """A long straight before the figure-eight: `excite live` prints the non-passed done (which
+    parameters need which motion), keeps reading, and exits 0 at the passed done."""
+    from excite.routes import write_tum
+
+    rig_file = tmp_path / "rig.yaml"
+    rig_file.write_text(TEST_RIG)
+    tum = write_tum(_straight_then_eight(test_rig, LONG_STRAIGHT_S), tmp_path / "drive.tum")
+    args = ["live", str(tum), "--rig", str(rig_file), "--replay", "1000x"]
+    r = CliRunner().invoke(app, args + ["--json"])
+    assert r.exit_code == 0, r.output
+    done = [e for e in _json_lines(r.stdout) if e["type"] == "done"]
+    assert [e["passed"] for e in done] == [False, True] and done[0]["t_s"] < LONG_STRAIGHT_S < done[1]["t_s"]
+    r = CliRunner().invoke(app, args)  # the log form: one line per update, and what is needed
+    assert r.exit_code == 0, r.output
+    assert "nothing more to gain" in r.output and "wheel.track: Needs turns" in r.output
 
 
 def _json_lines(text: str) -> list[dict]:

@@ -9,8 +9,9 @@ Protocol (text frames, one JSON object each):
   model's IMU factor is predicted from the pose trajectory, as in batch evaluation);
 - client → ``{"type": "end"}``: the server answers the ``final`` update (``excite score`` on the
   same poses) and closes;
-- server → ``update`` (about once per second of drive), ``done`` (every parameter within target,
-  once), ``final``; on bad input ``{"type": "error", "problem": {RFC 9457 fields}}`` and the
+- server → ``update`` (about once per second of drive), ``done`` (``passed``: every parameter
+  within target, once; or, ``passed`` false, nothing more gained from the motion so far, with
+  the ``needs`` of each parameter short of target: again only after the motion changed), ``final``; on bad input ``{"type": "error", "problem": {RFC 9457 fields}}`` and the
   connection closes (1008; 1009 for a message over :data:`MAX_MESSAGE_BYTES`; 1013 when
   :data:`MAX_SESSIONS` are already streaming).
 

@@ -587,7 +587,7 @@ function drawLot(pts, job) {
 // Live view: a recorded drive replayed to the live-guidance WebSocket (/v1/live) as a vehicle
 // streams it. Poses go out paced by their time stamps (divided by the replay speed), all those
 // that are due every LIVE_TICK_MS in one message; the service answers "update" (about one per
-// second of drive), "done" once, and "final" (the batch evaluator on every pose) after "end".
+// second of drive), "done" (passed: once; or nothing more to gain from the motion so far), and "final" (the batch evaluator on every pose) after "end".
 
 const LIVE_TICK_MS = 100;
 const LIVE_MAX_POSES = 5000; // per message: the service's limit
@@ -679,7 +679,10 @@ function onLiveMessage(live, msg) {
     renderLive(live, msg);
   } else if (msg.type === "done") {
     const banner = $("#live-done");
-    banner.textContent = `Done at t = ${msg.t_s.toFixed(1)} s of drive: ${msg.reason} (score ${fmt(msg.score)}). The drive can stop here.`;
+    banner.textContent = msg.passed
+      ? `Done at t = ${msg.t_s.toFixed(1)} s of drive: ${msg.reason} (score ${fmt(msg.score)}). The drive can stop here.`
+      : `At t = ${msg.t_s.toFixed(1)} s of drive, ${msg.reason}. Change the motion or stop: `
+        + msg.needs.map((n) => `${n.name}: ${n.advice}`).join("; ");
     banner.hidden = false;
   } else if (msg.type === "error") {
     live.over = true;

@@ -254,7 +254,8 @@ def live(
 ) -> None:
     """Live guidance during the drive: each parameter's progress to its target, the motion it
     still needs, and done. Exit code 0 when every parameter is within target, 1 when the source
-    ends first (after the final update, which is `excite score` on the same poses)."""
+    ends first (after the final update, which is `excite score` on the same poses). When nothing
+    more is gained from the motion so far, it says which parameters need which motion, and goes on."""
     from ..live import PoseStream
     from ..rig import load_rig
 
@@ -269,8 +270,13 @@ def live(
     def emit(update: dict[str, Any], display: Any) -> None:
         if json_out:
             typer.echo(json.dumps(update, separators=(",", ":")))
-        elif update["type"] == "done":
+        elif update["type"] == "done" and update["passed"]:
             out.print(f"[bold green]done[/] at t = {update['t_s']:.0f} s: {update['reason']}")
+        elif update["type"] == "done":  # nothing more to gain from this motion: say what helps
+            out.print(f"[bold yellow]nothing more to gain[/] at t = {update['t_s']:.0f} s from the motion so far; "
+                      "change it or stop:")
+            for n in update["needs"]:
+                out.print(f"  {n['name']}: {n['advice']}", markup=False)
         elif isinstance(display, _LogLines):
             display.line(update)
         elif display is not None:
@@ -280,7 +286,7 @@ def live(
         for t, p, R in batches:
             for update in stream.add(t, p, R):
                 emit(update, display)
-                if update["type"] == "done":
+                if update["type"] == "done" and update["passed"]:
                     return True
         return False
 
