@@ -16,11 +16,11 @@ Routes manifest (YAML)::
     version: 1                       # optional
     rig: robotaxi                    # default rig of every route (bundled name or YAML path)
     routes:
-      - route: highway_run_control.csv   # file or glob, relative to the manifest (required)
+      - route: highway_run_control.csv   # file or glob relative to the manifest, or a URL (required)
         name: highway_run                # test-case name (default: the file name)
         description: free text
         rig: robotaxi                    # this route's rig
-        times: kitti_00_times.txt        # KITTI times file, relative to the manifest
+        times: kitti_00_times.txt        # KITTI times file, relative to the manifest, or a URL
         topic: /odom                     # bags: pose topic or TF chain /tf:PARENT.CHILD
         imu_topic: /imu                  # bags: measured IMU (optional)
         min_score: 1.0e-4                # λ_min(SΛS) must reach this
@@ -37,7 +37,8 @@ Paths given to :func:`collect`: route files; bags (``.bag``, ``.mcap``, ROS 2 ba
 trajectory source is ``topic``); folders (their route files: ``.csv .tum .txt .geojson .json``
 and bags, without README, manifests and KITTI times files); globs; and manifests
 (``.yaml``/``.yml``). A KITTI poses file ``…poses….txt`` pairs with the ``…times….txt`` next
-to it when there is one.
+to it when there is one. A URL (``https://…``, ``s3://…``) is one route, read where it is
+evaluated (:mod:`excite.remote`: a worker on a cluster fetches it itself).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import yaml
 
-from . import engine
+from . import engine, remote
 from .errors import ExciteError, RigError
 from .evaluate import Report, evaluate
 from .rig import Rig, load_rig, parse_quantity
@@ -321,8 +322,10 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
             raise ManifestError(f"{where}: {key}.name: expected text, got {name!r}")
         common = dict(rig=rig_ref, source=where, min_score=min_score, determine=bounds,
                       topic=entry.get("topic"), imu_topic=entry.get("imu_topic"))
-        times_path = str(base / times) if times is not None else None
-        if _is_glob(route):
+        times_path = None if times is None else times if remote.is_url(times) else str(base / times)
+        if remote.is_url(route):
+            specs.append(RouteSpec(route, name or remote.name_of(route), times=times_path, **common))
+        elif _is_glob(route):
             files = [p for p in _expand(route, base) if p.is_file() or _is_route_file(p)]
             if not files:
                 specs.append(RouteSpec(str(base / route), name or route, error=f"{key}.route: no file matches "
@@ -356,7 +359,10 @@ def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float
     for raw in paths:
         text = str(raw)
         p = Path(text)
-        if p.suffix.lower() in _MANIFEST_SUFFIXES and not _is_glob(text):
+        if remote.is_url(text):  # read by whichever process evaluates it (excite.remote)
+            specs.append(RouteSpec(text, remote.name_of(text), rig, min_score=min_score, topic=topic,
+                                   imu_topic=imu_topic))
+        elif p.suffix.lower() in _MANIFEST_SUFFIXES and not _is_glob(text):
             specs.extend(load_manifest(p, default_rig=rig))
         elif p.is_dir() and not _is_route_file(p):
             files = sorted(q for q in p.iterdir() if _is_route_file(q))
@@ -459,8 +465,9 @@ def load(spec: RouteSpec) -> tuple[Rig, Any]:
     from .routes import read_route
 
     rig = _rig(spec.rig)
-    bag = BagSource(spec.topic, spec.imu_topic) if is_bag(spec.path) else None
-    return rig, read_route(spec.path, times=spec.times, suspension=rig.suspension, bag=bag)
+    with remote.local(spec.path) as path, remote.local(spec.times) as times:
+        bag = BagSource(spec.topic, spec.imu_topic) if is_bag(path) else None
+        return rig, read_route(path, times=times, suspension=rig.suspension, bag=bag)
 
 
 def error_text(exc: Exception, path: str) -> tuple[str, str | None]:

@@ -35,6 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from . import information as info
+from . import remote
 from . import spectrum
 from .errors import EvaluationError
 from .evaluate import _scaled, _scored_mask, evaluate
@@ -490,11 +491,13 @@ def write_crop(window: Window, spec: Any, folder: str | Path) -> list[Path]:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     _, traj = load(spec)
-    stem = f"{Path(spec.path).stem or Path(spec.path).name}_{window.start_s:.1f}-{window.end_s:.1f}s"
+    name = remote.name_of(spec.path) if remote.is_url(spec.path) else spec.path
+    stem = f"{Path(name).stem or Path(name).name}_{window.start_s:.1f}-{window.end_s:.1f}s"
     tum = folder / f"{stem}.tum"
     write_tum(crop(traj, window.start_s, window.end_s), tum, rate_hz=CROP_RATE_HZ)
     out = [tum]
     if is_bag(spec.path):
-        out.append(crop_bag(spec.path, folder / f"{stem}{'.bag' if str(spec.path).endswith('.bag') else ''}",
-                            window.start_s, window.end_s, spec.topic))
+        with remote.local(spec.path) as path:
+            out.append(crop_bag(path, folder / f"{stem}{'.bag' if str(spec.path).endswith('.bag') else ''}",
+                                window.start_s, window.end_s, spec.topic))
     return out

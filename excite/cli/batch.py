@@ -43,7 +43,7 @@ def _table(results: list[gate.RouteResult]):
 
 @app.command()
 def batch(
-    paths: Annotated[list[str], typer.Argument(help="Route files, folders, globs and routes manifests (.yaml).")],
+    paths: Annotated[list[str], typer.Argument(help="Route files, folders, globs, routes manifests (.yaml) and URLs (https://…, s3://…).")],
     rig: Annotated[str, typer.Option(help="Rig of the routes given directly (and of manifest routes "
                                           "whose manifest names none).")] = "robotaxi",
     min_score: Annotated[Optional[float], typer.Option(

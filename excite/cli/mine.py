@@ -64,7 +64,7 @@ def _table(title: str, windows: list[miner.Window], n_params: dict[str, int]):
 
 @app.command()
 def mine(
-    logs: Annotated[list[str], typer.Argument(help="Logs: route files, bags, folders, globs and routes manifests.")],
+    logs: Annotated[list[str], typer.Argument(help="Logs: route files, bags, folders, globs, routes manifests and URLs.")],
     window: Annotated[float, typer.Option(help="Length of the windows ranked [s] (rounded to whole chunks).")] = 120.0,
     min_score: Annotated[Optional[float], typer.Option(
         help="Also find each log's shortest window whose score reaches this.")] = None,
