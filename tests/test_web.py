@@ -170,6 +170,26 @@ def test_score_a_route_through_the_file_input(page, shots):
     assert page.console.errors == []
 
 
+def test_drop_a_route_file_on_the_score_form(page):
+    """A route file dropped on the form (a real DataTransfer carrying figure_eight.tum's bytes)
+    becomes the route: its name shows, the zone lights up while dragged over, and scoring gives
+    the library's score on the same file."""
+    page.evaluate("""text => {
+        const dt = new DataTransfer();
+        dt.items.add(new File([text], "figure_eight.tum", {type: "text/plain"}));
+        const zone = document.querySelector("#drop");
+        zone.dispatchEvent(new DragEvent("dragover", {dataTransfer: dt, bubbles: true, cancelable: true}));
+        window.__over = zone.classList.contains("over");
+        zone.dispatchEvent(new DragEvent("drop", {dataTransfer: dt, bubbles: true, cancelable: true}));
+    }""", FIGURE_EIGHT.read_text())
+    assert page.evaluate("window.__over") and not page.locator("#drop.over").count()
+    assert page.evaluate("document.querySelector('#route-file').files[0].name") == "figure_eight.tum"
+    page.click("#score-button")
+    page.wait_for_selector("#score-value")
+    assert float(page.inner_text("#score-value")) == pytest.approx(_library_report().score, rel=1e-3)
+    assert page.console.errors == []
+
+
 def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
     """A TUM file with a broken line: the service's problem (field route.text) appears beside
     the route input, which is marked invalid; no report is shown. Likewise a broken rig YAML
