@@ -453,13 +453,14 @@ def test_each_added_physics_changes_the_data_and_is_absorbed_or_flagged(rig, opt
     assert np.array_equal(d.wheel_ticks, np.round(d.wheel_ticks))
     assert 0.2 < np.abs(d.wheel_ticks - angle).max() <= 1.0
     assert err < 0.5 and cost - cost0 < flag, (err, cost)
-    # IMU integrated at 8× its rate, output as the mean over each sample: different samples. The
-    # trajectory absorbs the discretisation error (the residuals do not show it), yet it moves the
-    # estimate by 0.6 σ at 100 Hz on this plan (first order in dt: ~0.3 σ at the rig's 200 Hz)
+    # IMU integrated at 8× its rate, output as the mean over each sample: different samples,
+    # which the preintegration applies in the attitude of each sample's middle: absorbed (applied
+    # in the attitude at the sample's start, they moved the estimate by 0.6 σ at 100 Hz on this
+    # plan, and the residuals did not show it)
     d, err, cost, _ = _physics_effect(traj, rig, truth, sigma, SimulationSettings.model(imu_oversampling=8, **base))
     ic = rig.config.imu
     assert np.abs(d.accel - ref.accel).max() > ic.accelerometer_noise_density * 10.0  # > one sample's noise σ
-    assert cost - cost0 < flag and 0.5 < err < 1.0, (err, cost)
+    assert cost - cost0 < flag and err < 0.2, (err, cost)
     # wheel slip growing with longitudinal acceleration: increments differ by up to about a σ,
     # systematically (with the acceleration); the rig's tyre-slip nuisance takes it (it biased the
     # estimate by 2.5 σ before the model had it): the slip ratio at 1 g comes out as simulated

@@ -7,7 +7,10 @@ Residuals of the interval ``i → j`` (ΔT long, n IMU samples of dt each, held 
     r_p = R_iᵀ (p_j − p_i − v_i ΔT − ½ g ΔT²) − Δp(b)
 
 with ``ΔR, Δv, Δp`` preintegrated from the gyro and accelerometer samples corrected by the
-biases b (constant over the drive: they are calibration parameters). The covariance of the
+biases b (constant over the drive: they are calibration parameters). The nonlinear model
+(:func:`preintegrate`) applies each sample's specific force in the attitude of the sample's
+middle (a sample is the mean over its interval); the Jacobians and the covariance take the
+attitude at its start, which differs from it by O(ω·dt). The covariance of the
 preintegrated measurement is propagated from the Kalibr noise densities at the IMU rate
 (discrete white noise σ²/dt per sample); the bias Jacobians are the exact sums of the same
 discrete scheme. Both are computed for all intervals at once from running sums over the samples.
@@ -120,12 +123,15 @@ def _jacobians(R, p, v, dT, g, dR, G_R, V_g, P_g, P_a, W, estimate):
 # --- nonlinear model (finite-difference tests, simulation, batch calibration) -----------------
 
 def preintegrate(omega: np.ndarray, f: np.ndarray, dt: float, b_g: np.ndarray, b_a: np.ndarray):
-    """``(ΔR, Δv, Δp)`` of IMU samples ``omega, f`` (n,3) held over ``dt``, minus biases."""
+    """``(ΔR, Δv, Δp)`` of IMU samples ``omega, f`` (n,3) held over ``dt``, minus biases. A sample
+    is the mean over its interval (what an IMU outputs): its specific force is applied in the
+    attitude of the interval's middle, ``ΔR_s Exp(ω_s dt/2)`` (in the attitude at its start, the
+    error ½·ω·dt of attitude on the specific force shows up as an accelerometer bias)."""
     dR = np.eye(3)
     dv = np.zeros(3)
     dp = np.zeros(3)
     for w, a in zip(omega - b_g, f - b_a):
-        acc = dR @ a
+        acc = dR @ so3.exp(0.5 * w * dt) @ a
         dp = dp + dv * dt + 0.5 * acc * dt * dt
         dv = dv + acc * dt
         dR = dR @ so3.exp(w * dt)

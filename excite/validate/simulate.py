@@ -7,9 +7,8 @@ sensors record:
 - **IMU** samples at its rate with white noise of discrete σ = density·√rate (Kalibr keys) and
   the true biases, which random-walk per the Kalibr random-walk keys (physical) or stay constant
   (model). Physical: the IMU integrates the true motion at a multiple of its output rate and
-  outputs the mean rate and specific force over each sample; the model's preintegration holds
-  each sample in the attitude at the sample's start, a discretisation error (≈ ½·ω·dt of attitude
-  on the specific force) it does not carry. Model: sample ``s`` is the *increment-equivalent*
+  outputs the mean rate and specific force over each sample, which the calibrator's
+  preintegration applies in the attitude of the sample's middle. Model: sample ``s`` is the *increment-equivalent*
   rate over ``[τ_s, τ_s + dt)`` (``ω_s = Log(R_sᵀR_{s+1})/dt``, accelerations that reproduce the
   keyframe states), which the preintegration of :mod:`excite.factors.imu` turns exactly into the
   drive's keyframe states.
@@ -367,7 +366,8 @@ def _imu_increment_equivalent(traj: Trajectory, nom: Nominal, t_imu: np.ndarray,
     e_p = (nom.p[1:] - nom.p[:-1] - nom.v[:-1] * (n * dt)) - np.einsum("s,nsi->ni", w, a_int) * dt
     wc_ = w - w.mean()
     a_int = a_int + (e_p / (dt * (wc_**2).sum()))[:, None, :] * wc_[None, :, None]
-    f = np.einsum("nji,nj->ni", R_s[:-1], a_int.reshape(-1, 3) - GRAVITY)
+    R_mid = R_s[:-1] @ so3.exp(0.5 * omega * dt)  # the preintegration applies f mid-sample
+    f = np.einsum("nji,nj->ni", R_mid, a_int.reshape(-1, 3) - GRAVITY)
     return omega, f
 
 
