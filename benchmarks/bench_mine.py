@@ -9,7 +9,8 @@ file paths to the ranked windows (reading the logs, chunk summaries, every windo
 window of each log confirmed by the exact evaluator):
 
 - the local engine (one process per core);
-- a two-worker ``distributed.LocalCluster`` started by this script (its start-up not timed; one
+- a two-worker ``distributed.LocalCluster`` started by this script with excite's worker settings
+  (:data:`excite.engine.WORKER_CONFIG`; ``--dask-default-env``: Dask's) (its start-up not timed; one
   untimed warm-up on a short log, so the workers have imported excite and loaded the compiled
   kernels).
 
@@ -72,6 +73,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--scratch-sample", type=int, default=12)
     ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--dask-default-env", action="store_true",
+                    help="workers with Dask's default MALLOC_TRIM_THRESHOLD_ (not excite's WORKER_CONFIG)")
     args = ap.parse_args()
     rig = load_rig("robotaxi")
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start")
@@ -125,10 +128,16 @@ def main() -> None:
 
         if args.no_dask:
             return
+        import dask
         from distributed import Client, LocalCluster
 
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None, silence_logs=40) as cluster, Client(cluster):
+        from excite import engine
+
+        config = {} if args.dask_default_env else engine.WORKER_CONFIG
+        with dask.config.set(config):  # the workers' environment is set as they spawn
+            cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=None, silence_logs=40)
+        with cluster, Client(cluster):
             warm = write_control_csv(fleet_log(99, 0.05), Path(d) / "warm_control.csv")
             warm_task = mine.Task(gate.collect([str(warm)])[0], args.window, None, 1, args.chunk)
             run([warm_task] * 2, scheduler=cluster.scheduler_address)  # imports, compiled kernels

@@ -6,7 +6,11 @@ calling ``on_result`` as each one finishes (progress bars). With a scheduler add
 (``--scheduler tcp://host:8786`` or :data:`SCHEDULER_ENV`) the tasks are submitted to that
 Dask cluster: its workers need excite installed and must reach the inputs the items name (file
 paths on shared storage, or the bytes themselves for small inputs); results come back pickled.
-A task whose worker dies is re-run by the scheduler on another worker (Dask's
+Workers should be started with Dask's ``MALLOC_TRIM_THRESHOLD_`` unset
+(:data:`WORKER_CONFIG`): Dask's nanny sets it to 64 KiB by default, which fixes glibc's
+thresholds, so every large array is mapped and unmapped afresh; the evaluation then runs 1.7–2.6×
+slower than in a local process (``benchmarks/bench_mine.py``). :func:`run` warns once when the
+workers it gets have it set. A task whose worker dies is re-run by the scheduler on another worker (Dask's
 ``allowed-failures``, 3 by default); one that keeps killing workers comes back as
 ``failed(item, error)``, like a task whose process died in the local pool. Without a scheduler
 the tasks run on a process pool forked from this one (one per core by default; ``jobs=1`` runs
@@ -28,6 +32,10 @@ from .errors import ExciteError
 
 SCHEDULER_ENV = "EXCITE_DASK_SCHEDULER"
 CONNECT_TIMEOUT_S = 10.0
+WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+"""The Dask configuration excite's workers want (``dask.config.set(WORKER_CONFIG)`` around a
+``LocalCluster``; for ``dask worker``, the same key in a Dask YAML config file: README)."""
+_TRIM = "MALLOC_TRIM_THRESHOLD_"
 
 I = TypeVar("I")
 R = TypeVar("R")
@@ -123,11 +131,35 @@ def client(address: str) -> Any:
         raise EngineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
 
 
+def _trim_threshold() -> str | None:
+    """(On a worker) glibc's trim threshold as the environment fixes it, if it does."""
+    return os.environ.get(_TRIM)
+
+
+def slow_workers(settings: dict[str, str | None]) -> str | None:
+    """The warning for workers (address → their ``MALLOC_TRIM_THRESHOLD_``) that run with the
+    threshold fixed, or None."""
+    slow = sorted(w for w, v in settings.items() if v is not None)
+    if not slow:
+        return None
+    return (f"{len(slow)} of {len(settings)} Dask workers run with {_TRIM}={settings[slow[0]]} (Dask's "
+            f"default), which makes excite's evaluation about 2x slower: start them with "
+            f"distributed.nanny.pre-spawn-environ.{_TRIM} set to null (README: On a Dask cluster)")
+
+
 def _run_dask(fn: Callable[[I], R], items: Sequence[I], failed: Callable[[I, BaseException], R],
               address: str, finish: Callable[[int, R], None]) -> None:
+    import warnings
+
     from distributed import as_completed as dask_completed
 
     with client(address) as c, c.as_current():
+        try:
+            message = slow_workers(c.run(_trim_threshold))
+        except Exception:  # a worker that cannot answer is not a reason to fail the work
+            message = None
+        if message:
+            warnings.warn(message, RuntimeWarning, stacklevel=3)
         futures = c.map(fn, list(items), pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in dask_completed(futures):

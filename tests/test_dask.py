@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 distributed = pytest.importorskip("distributed")
+import dask  # noqa: E402
 
 from excite import batch as gate  # noqa: E402
 from excite import engine, mine  # noqa: E402
@@ -25,10 +26,21 @@ ROOT = Path(__file__).resolve().parents[1]
 def cluster():
     # the workers also import the tests' stand-in job (test_api_support)
     path = os.pathsep.join([str(ROOT / "tests"), str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None, silence_logs=40, env={"PYTHONPATH": path}) as c, \
-            distributed.Client(c, set_as_default=False) as client:
+    with dask.config.set(engine.WORKER_CONFIG):  # the workers' environment is set as they spawn
+        c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                     dashboard_address=None, silence_logs=40, env={"PYTHONPATH": path})
+    with c, distributed.Client(c, set_as_default=False) as client:
         yield c.scheduler_address, client
+
+
+def test_the_recommended_worker_config_reaches_the_workers(cluster):
+    """Dask's nanny fixes glibc's trim threshold (MALLOC_TRIM_THRESHOLD_=65536) unless told not
+    to: excite's setting reaches the spawned workers, and the engine would warn otherwise."""
+    _, client = cluster
+    settings = client.run(engine._trim_threshold)
+    assert len(settings) == 2 and engine.slow_workers(settings) is None
+    message = engine.slow_workers({**settings, "tcp://10.0.0.9:4001": "65536"})
+    assert message.startswith("1 of 3 Dask workers run with MALLOC_TRIM_THRESHOLD_=65536")
 
 
 @pytest.fixture(scope="module")
