@@ -14,8 +14,9 @@ preintegration, the dense numpy marginal).
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
+
+from .compiled import numba as nb  # numba, or its ahead-of-time stand-in
 
 _SERIES = 1e-2  # below this rotation angle, series expansions (exact to ~1e-16)
 # a pivot below this fraction of its diagonal entry has lost every digit to cancellation: the

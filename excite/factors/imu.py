@@ -18,9 +18,9 @@ discrete scheme. Both are computed for all intervals at once from running sums o
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from ..compiled import numba as nb  # numba, or its ahead-of-time stand-in
 from .. import kernels, so3
 from ..rig import Rig
 from ..trajectory import GRAVITY

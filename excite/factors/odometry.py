@@ -13,9 +13,9 @@ additive on ``p_B_S``.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from ..compiled import numba as nb  # numba, or its ahead-of-time stand-in
 from .. import kernels, so3
 from ..rig import Rig, SensorConfig
 from .base import FactorBlock, Nominal, theta_columns

@@ -22,9 +22,9 @@ slip ratio at 1 g) a nuisance of the drive, linearised at zero.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from ..compiled import numba as nb  # numba, or its ahead-of-time stand-in
 from .. import kernels, so3
 from ..rig import Rig
 from ..trajectory import GRAVITY
