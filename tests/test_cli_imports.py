@@ -64,3 +64,27 @@ def test_the_excite_process_exits_with_the_commands_code_and_all_its_output():
                          text=True, timeout=300)
     assert bad.returncode == 1 and bad.stdout == ""
     assert bad.stderr.splitlines() == ["excite: error: no_such_route.tum: No such file or directory"]
+
+
+EXCITE_PROCESS = """
+import atexit, json, sys
+from excite import compiled
+from excite.cli import run
+atexit.register(lambda: print(json.dumps([compiled.mode(), sorted(m for m in sys.modules
+                                           if m.split(".")[0] in ("numba", "llvmlite"))]), file=sys.stderr))
+sys.argv = ["excite", *sys.argv[1:]]
+run()
+"""
+
+
+@pytest.mark.parametrize("args, mode", [(["score", "trajectories/figure_eight.tum"], "aot"),
+                                        (["route", "info", "trajectories/figure_eight_control.csv"], "aot"),
+                                        (["score", "--help"], "undecided")])
+def test_one_shot_commands_run_without_numba(args, mode):
+    """The ``excite`` process of a one-shot command loads the kernels built ahead of time
+    (excite.compiled) and never imports numba (about a second of a cold command)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, "-c", EXCITE_PROCESS, *args], cwd=REPO, env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads(r.stderr.strip().splitlines()[-1]) == [mode, []]
