@@ -166,7 +166,7 @@ def _paths(directory: Path, k: str) -> tuple[Path, Path, Path]:
 def load(directory: Path, k: str) -> tuple[Any, dict] | None:
     """The module built for key ``k`` in ``directory`` and its manifest, or None."""
     so, manifest, _ = _paths(directory, k)
-    if not so.is_file():
+    if not (so.is_file() and manifest.is_file()):
         return None
     table = json.loads(manifest.read_text())
     if table["key"] != k:
@@ -209,7 +209,9 @@ def _load_or_build(directory: Path) -> tuple[Any, dict] | None:
         return found
     except OSError as exc:
         _say(f"using numba's JIT: the ahead-of-time kernels cannot be stored in {directory} ({exc.strerror or exc})")
-        return None
+    except (ImportError, ValueError) as exc:  # a damaged module or manifest
+        _say(f"using numba's JIT: the ahead-of-time kernels in {directory} cannot be loaded ({exc})")
+    return None
 
 
 # --- the ahead-of-time process's kernels ------------------------------------------------------
@@ -279,16 +281,13 @@ class _AheadOfTime:
     def __init__(self, module: Any, table: dict):
         self.module, self.table = module, table
 
-    def njit(self, *args: Any, **options: Any) -> Callable:
-        if args:
-            raise TypeError("the kernels are decorated as nb.njit(**options)")
-
+    def njit(self, *args: Any, **options: Any) -> Any:
         def bind(func: Callable) -> Any:
             if options.get("inline") == "always":
                 return func
             exports = self.table["kernels"].get(f"{func.__module__}.{func.__qualname__}", [])
             return Kernel(func, [(getattr(self.module, sym), specs) for sym, specs in exports])
-        return bind
+        return bind(args[0]) if args else bind  # @nb.njit or @nb.njit(**options)
 
 
 # --- the build --------------------------------------------------------------------------------
@@ -348,7 +347,7 @@ def build(directory: Path) -> Path:
     so, manifest, failed = _paths(directory, k)
     with open(directory / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if so.is_file():
+        if so.is_file() and manifest.is_file():
             return so
         _compile(directory, k, so, manifest)
         failed.unlink(missing_ok=True)
