@@ -21,8 +21,9 @@ sources; the module and its manifest), rig and route, the first and a second eva
 
 Last, the evaluation of a generated 10-minute drive in a warm process of each kind (median of
 ``--runs`` evaluations after one warm-up): what the ahead-of-time kernels cost when the work is
-large, both with the evaluator's two threads (the exports release the GIL, as the JIT's nogil
-kernels do), and the cost of the argument checks of :class:`excite.compiled.Kernel` per call.
+large, both with the evaluator's two threads; whether a kernel releases the GIL (the pace of a
+Python loop while a kernel runs in another thread); and the cost of the argument checks of
+:class:`excite.compiled.Kernel` per call.
 
     python benchmarks/bench_cli.py [--runs 5]
 """
@@ -136,6 +137,26 @@ if sys.argv[1] == "aot":  # the argument checks: a call of the wrapper against t
     compiled.Kernel.__call__ = counted
     evaluate(traj, rig)
     out["calls"] = calls[0]
+    compiled.Kernel.__call__ = call
+# the GIL: a Python loop's pace in this thread while a kernel runs in another, over its pace alone
+import threading
+a = np.random.default_rng(0).normal(size=(100000, 9, 9))
+cov = np.einsum("nij,nkj->nik", a, a) + 9.0 * np.eye(9)
+def pace(busy):
+    n, t0 = 0, time.perf_counter()
+    while (busy.is_alive() if busy else time.perf_counter() - t0 < 0.3):
+        n += 1
+    return n / (time.perf_counter() - t0)
+def beside(kernel):
+    alone = pace(None)
+    kernel(cov[:10])
+    busy = threading.Thread(target=lambda: [kernel(cov) for _ in range(5)])
+    busy.start()
+    return pace(busy) / alone
+out["gil"] = beside(kernels.inverse_cholesky)
+if sys.argv[1] == "jit":  # for comparison: the same kernel compiled without nogil
+    import numba
+    out["gil_held"] = beside(numba.njit(kernels.inverse_cholesky.py_func))
 print(json.dumps(out))
 """
 
@@ -203,6 +224,8 @@ def main() -> None:
         print(f"  {name:<14} wall {summary(r['wall'], 'ms', 1e3, 0)}, CPU {summary(r['cpu'], 'ms', 1e3, 0)}")
     print(f"  argument checks of the ahead-of-time wrapper: {aot['check_us']:.1f} µs per call, "
           f"{aot['calls']} kernel calls per evaluation of the 10-minute drive")
+    print(f"  a Python loop beside a running kernel, pace against alone (~0 if the kernel held the GIL): "
+          f"ahead of time {aot['gil']:.2f}, numba JIT {jit['gil']:.2f}, the JIT without nogil {jit['gil_held']:.2f}")
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
