@@ -40,6 +40,7 @@ class ClusterScoring:
         with self._lock:
             if self._client is None:
                 self._client = engine.client(self.address)
+                engine.check_workers(self._client)
             return self._client
 
     def submit(self, fn: Callable[..., Any], *args: Any, deadline: float) -> cf.Future:

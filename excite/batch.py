@@ -197,7 +197,10 @@ def _kitti_times(p: Path) -> str | None:
 
 
 def _display(p: Path | str) -> str:
-    """A path relative to the working directory when it is below it (shorter in tables)."""
+    """A path relative to the working directory when it is below it (shorter in tables); a URL
+    as it is."""
+    if remote.is_url(p):
+        return str(p)
     p = Path(p)
     try:
         return str(p.resolve().relative_to(Path.cwd().resolve()))
@@ -360,8 +363,7 @@ def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float
         text = str(raw)
         p = Path(text)
         if remote.is_url(text):  # read by whichever process evaluates it (excite.remote)
-            specs.append(RouteSpec(text, remote.name_of(text), rig, min_score=min_score, topic=topic,
-                                   imu_topic=imu_topic))
+            specs.append(RouteSpec(text, text, rig, min_score=min_score, topic=topic, imu_topic=imu_topic))
         elif p.suffix.lower() in _MANIFEST_SUFFIXES and not _is_glob(text):
             specs.extend(load_manifest(p, default_rig=rig))
         elif p.is_dir() and not _is_route_file(p):

@@ -9,7 +9,7 @@ paths on shared storage, or the bytes themselves for small inputs); results come
 Workers should be started with Dask's ``MALLOC_TRIM_THRESHOLD_`` unset
 (:data:`WORKER_CONFIG`): Dask's nanny sets it to 64 KiB by default, which fixes glibc's
 thresholds, so every large array is mapped and unmapped afresh; the evaluation then runs 1.7–2.6×
-slower than in a local process (``benchmarks/bench_mine.py``). :func:`run` warns once when the
+slower than in a local process (``benchmarks/bench_mine.py``). :func:`run` logs a warning when the
 workers it gets have it set. A task whose worker dies is re-run by the scheduler on another worker (Dask's
 ``allowed-failures``, 3 by default); one that keeps killing workers comes back as
 ``failed(item, error)``, like a task whose process died in the local pool. Without a scheduler
@@ -142,24 +142,32 @@ def slow_workers(settings: dict[str, str | None]) -> str | None:
     slow = sorted(w for w, v in settings.items() if v is not None)
     if not slow:
         return None
-    return (f"{len(slow)} of {len(settings)} Dask workers run with {_TRIM}={settings[slow[0]]} (Dask's "
-            f"default), which makes excite's evaluation about 2x slower: start them with "
-            f"distributed.nanny.pre-spawn-environ.{_TRIM} set to null (README: On a Dask cluster)")
+    value = settings[slow[0]]
+    return (f"excite: warning: {len(slow)} of {len(settings)} Dask workers run with {_TRIM}={value}"
+            f"{' (Dask’s default)' if value == '65536' else ''}, which makes excite's evaluation about 2x "
+            f"slower: start them with distributed.nanny.pre-spawn-environ.{_TRIM} set to null (README: "
+            f"On a Dask cluster)")
+
+
+def check_workers(c: Any) -> None:
+    """Log :func:`slow_workers`' warning for the workers of client ``c`` (one line on stderr
+    from a command; the service's log)."""
+    import logging
+
+    try:
+        message = slow_workers(c.run(_trim_threshold))
+    except Exception:  # a worker that cannot answer is not a reason to fail the work
+        return
+    if message:
+        logging.getLogger("excite.engine").warning(message)
 
 
 def _run_dask(fn: Callable[[I], R], items: Sequence[I], failed: Callable[[I, BaseException], R],
               address: str, finish: Callable[[int, R], None]) -> None:
-    import warnings
-
     from distributed import as_completed as dask_completed
 
     with client(address) as c, c.as_current():
-        try:
-            message = slow_workers(c.run(_trim_threshold))
-        except Exception:  # a worker that cannot answer is not a reason to fail the work
-            message = None
-        if message:
-            warnings.warn(message, RuntimeWarning, stacklevel=3)
+        check_workers(c)
         futures = c.map(fn, list(items), pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in dask_completed(futures):

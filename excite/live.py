@@ -20,9 +20,10 @@ Three layers, each usable alone:
   motion a parameter still needs in the vehicle's words (:func:`excite.advice.needs`), the
   weakest direction, and ``done``: once every parameter is within target (``passed``), or, with
   ``passed`` false, when nothing more is gained from the motion so far — every parameter not
-  within target has needed other motion (no gain, or an ETA past ``horizon_s``) for a whole
-  ``window_s``. That one says which parameters need which motion; it fires again only after some
-  parameter has gained again (the driver changed the motion) and stalled for a whole window.
+  within target has needed other motion (no gain, or an ETA past ``horizon_s``) at every update
+  of a whole ``window_s``. That one says which parameters need which motion; it fires again only
+  after some parameter has gained again (the driver changed the motion) and then nothing has for
+  a whole window.
 - :class:`PoseStream` turns timed poses arriving one by one into keyframe chunks. Batch
   evaluation fits smoothing splines to a whole file (:func:`excite.routes.trajectory_from_poses`),
   so a pose's fitted value depends (exponentially weakly) on every later pose: a stream can only
@@ -200,7 +201,7 @@ class Guide:
         self.rig, self.options, self.window_s, self.horizon_s, self.name = rig, options, window_s, horizon_s, name
         self.done = False  # every parameter was within target at some update
         self._stalled = False  # a "nothing more to gain" done fired, and nothing has gained since
-        self._gained_s = 0.0  # drive time at which some parameter last started gaining again
+        self._gained_s = 0.0  # drive time of the last update at which some parameter was gaining
         self._history: deque[tuple[float, np.ndarray]] = deque()
 
     def update(self, drive: DriveInformation, elapsed_s: float | None = None) -> list[dict[str, Any]]:
@@ -212,15 +213,14 @@ class Guide:
         upd = self.describe(rep, t)
         out = [upd]
         status = [p["status"] for p in upd["parameters"]]
+        if "gaining" in status:
+            self._stalled, self._gained_s = False, t
         if rep.passed:
             if not self.done:
                 self.done = True
                 out.append({"type": "done", "t_s": t, "passed": True,
                             "reason": "every parameter is within its target", "score": rep.score})
-        elif self._stalled:
-            if "gaining" in status:
-                self._stalled, self._gained_s = False, t
-        elif "gaining" not in status and t - self._gained_s >= self.window_s:
+        elif not self._stalled and "gaining" not in status and t - self._gained_s >= self.window_s:
             self._stalled = True
             needs = [{"name": p["name"], "advice": p["advice"]} for p in upd["parameters"] if p["status"] == "needs"]
             out.append({"type": "done", "t_s": t, "passed": False, "score": rep.score, "needs": needs,

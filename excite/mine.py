@@ -28,7 +28,7 @@ length; the exact evaluator confirms every reported window).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -490,14 +490,14 @@ def write_crop(window: Window, spec: Any, folder: str | Path) -> list[Path]:
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _, traj = load(spec)
-    name = remote.name_of(spec.path) if remote.is_url(spec.path) else spec.path
+    name = remote.name_of(spec.path) if remote.is_url(spec.path) else str(spec.path)
     stem = f"{Path(name).stem or Path(name).name}_{window.start_s:.1f}-{window.end_s:.1f}s"
-    tum = folder / f"{stem}.tum"
-    write_tum(crop(traj, window.start_s, window.end_s), tum, rate_hz=CROP_RATE_HZ)
-    out = [tum]
-    if is_bag(spec.path):
-        with remote.local(spec.path) as path:
-            out.append(crop_bag(path, folder / f"{stem}{'.bag' if str(spec.path).endswith('.bag') else ''}",
+    with remote.local(spec.path) as path:  # a URL is fetched once, for the route and the bag
+        _, traj = load(replace(spec, path=path))
+        tum = folder / f"{stem}.tum"
+        write_tum(crop(traj, window.start_s, window.end_s), tum, rate_hz=CROP_RATE_HZ)
+        out = [tum]
+        if is_bag(path):
+            out.append(crop_bag(path, folder / f"{stem}{'.bag' if name.endswith('.bag') else ''}",
                                 window.start_s, window.end_s, spec.topic))
     return out

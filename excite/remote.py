@@ -41,15 +41,30 @@ def name_of(url: str) -> str:
 @contextmanager
 def local(path: str | None, max_bytes: int = MAX_FETCH_BYTES) -> Iterator[str | None]:
     """``path`` itself when it is local (or None); for a URL, a local copy for the duration of
-    the ``with`` block."""
+    the ``with`` block. Errors raised inside the block name the URL, not the copy."""
     if not is_url(path):
         yield path
         return
     assert path is not None
+    if any(c in name_of(path) for c in "*[]"):
+        raise RouteError(f"{path}: globs are not expanded in URLs: name each file")
     with tempfile.TemporaryDirectory(prefix="excite-fetch-") as d:
         dst = Path(d) / name_of(path)
         _fetch(path, dst, max_bytes)
-        yield str(dst)
+        try:
+            yield str(dst)
+        except Exception as exc:
+            _rename(exc, str(dst), path)
+            raise
+
+
+def _rename(exc: BaseException, copy: str, url: str) -> None:
+    """Put the URL where an error names the local copy (its message, an OSError's file name)."""
+    exc.args = tuple(a.replace(copy, url) if isinstance(a, str) else a for a in exc.args)
+    if isinstance(getattr(exc, "filename", None), str):
+        exc.filename = exc.filename.replace(copy, url)  # type: ignore[attr-defined]
+    if isinstance(getattr(exc, "source", None), str):
+        exc.source = exc.source.replace(copy, url)  # type: ignore[attr-defined]
 
 
 def _fetch(url: str, dst: Path, max_bytes: int) -> None:
@@ -61,16 +76,20 @@ def _fetch(url: str, dst: Path, max_bytes: int) -> None:
         raise RouteError(f"cannot read {url}: {exc}") from None
     except ValueError as exc:  # an unknown scheme
         raise RouteError(f"cannot read {url}: {exc}") from None
+    budget = [max_bytes, max_bytes]  # bytes still allowed (shared by every file of a folder), the limit
     try:
-        if fs.isdir(rpath):  # a ROS 2 bag folder: every file below it
-            files = [f for f in fs.find(rpath) if not fs.isdir(f)]
-            total = sum(int(fs.size(f) or 0) for f in files)
-            if total > max_bytes:
-                raise RouteError(f"{url}: {total} bytes, over the limit of {max_bytes} for one route")
-            for f in files:
-                _copy(fs, f, dst / posixpath.relpath(f, rpath), url, max_bytes)
+        # a folder only when it is a ROS 2 bag (its metadata.yaml): an HTTP page with links
+        # (a listing, a login page) looks like a folder to fsspec
+        if fs.isdir(rpath) and fs.exists(posixpath.join(rpath.rstrip("/"), "metadata.yaml")):
+            base = rpath.rstrip("/")
+            for f in fs.find(base):
+                rel = posixpath.relpath(f, base)
+                target = (dst / rel).resolve()
+                if rel.startswith("..") or not target.is_relative_to(dst.resolve()):
+                    raise RouteError(f"{url}: {f} lies outside the folder")
+                _copy(fs, f, target, url, budget)
         else:
-            _copy(fs, rpath, dst, url, max_bytes)
+            _copy(fs, rpath, dst, url, budget)
     except RouteError:
         raise
     except FileNotFoundError:
@@ -79,12 +98,12 @@ def _fetch(url: str, dst: Path, max_bytes: int) -> None:
         raise RouteError(f"cannot read {url}: {type(exc).__name__}: {exc}".splitlines()[0][:300]) from None
 
 
-def _copy(fs, rpath: str, dst: Path, url: str, max_bytes: int) -> None:
+def _copy(fs, rpath: str, dst: Path, url: str, budget: list[int]) -> None:
     dst.parent.mkdir(parents=True, exist_ok=True)
-    copied = 0
-    with fs.open(rpath, "rb") as src, open(dst, "wb") as out:
+    # block_size=0: one streaming read (HTTP servers need not support range requests)
+    with fs.open(rpath, "rb", block_size=0) as src, open(dst, "wb") as out:
         while chunk := src.read(1 << 20):
-            copied += len(chunk)
-            if copied > max_bytes:
-                raise RouteError(f"{url}: over the limit of {max_bytes} bytes for one route")
+            budget[0] -= len(chunk)
+            if budget[0] < 0:
+                raise RouteError(f"{url}: over the limit of {budget[1]} bytes for one route")
             out.write(chunk)

@@ -40,7 +40,8 @@ def test_the_recommended_worker_config_reaches_the_workers(cluster):
     settings = client.run(engine._trim_threshold)
     assert len(settings) == 2 and engine.slow_workers(settings) is None
     message = engine.slow_workers({**settings, "tcp://10.0.0.9:4001": "65536"})
-    assert message.startswith("1 of 3 Dask workers run with MALLOC_TRIM_THRESHOLD_=65536")
+    assert message.startswith("excite: warning: 1 of 3 Dask workers run with MALLOC_TRIM_THRESHOLD_=65536 "
+                              "(Dask’s default)") and "\n" not in message
 
 
 @pytest.fixture(scope="module")

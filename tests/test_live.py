@@ -200,7 +200,7 @@ def test_straight_then_figure_eight_progress_advice_and_done(test_rig):
 def test_a_straight_long_enough_stalls_then_the_figure_eight_passes(test_rig):
     """Two minutes of straight driving, then a figure-eight. Once the rotations a straight can
     determine are within target, nothing more is gained from driving on straight: a ``done``
-    with ``passed`` false fires (after a whole rate window), naming exactly the parameters the
+    with ``passed`` false fires (a whole rate window later), naming exactly the parameters the
     batch evaluator still fails on that prefix, each with the motion it needs, and they still
     fail at the end of the straight (driving on did not help). The figure-eight then brings the
     passed ``done``, once."""
@@ -219,6 +219,27 @@ def test_a_straight_long_enough_stalls_then_the_figure_eight_passes(test_rig):
     end_of_straight = _batch_prefix(traj, rig, int((S - 8) * rig.keyframe_rate_hz))
     assert {p.name for p in end_of_straight.parameters if not p.ok} == set(named)
     assert passed["t_s"] > S and events[i_pass - 1]["passed"]
+
+
+def test_the_stall_needs_a_whole_window_without_gain(monkeypatch, test_rig):
+    """The "nothing more to gain" done fires only after a whole rate window in which no update
+    had a gaining parameter, counted from the last one that had, and once per stall."""
+    from types import SimpleNamespace
+
+    class Scripted(live.Guide):
+        def describe(self, rep, t, kind="update"):
+            state = "gaining" if t in gaining else "needs"
+            return {"type": kind, "t_s": t, "parameters": [{"name": "wheel.track", "status": "ok", "advice": None},
+                                                          {"name": "lidar.trans_z", "status": state, "advice": "Needs pitch"}]}
+
+    monkeypatch.setattr(live, "report_of", lambda *a, **k: SimpleNamespace(passed=False, score=0.0))
+    W = live.RATE_WINDOW_S
+    gaining = {1.0, 2.0, 20.0, 55.0, 70.0}
+    guide = Scripted(test_rig)
+    fired = [t for t in np.arange(1.0, 140.0) for e in guide.update(SimpleNamespace(duration_s=t))
+             if e["type"] == "done"]
+    # after the gain at 20 s: a stall at 20 + W; the gains at 55 and 70 s re-arm it: 70 + W
+    assert fired == [20.0 + W, 70.0 + W]
 
 
 # --- excite live ---------------------------------------------------------------------------------

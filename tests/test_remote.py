@@ -48,7 +48,7 @@ def test_batch_of_a_url_equals_the_file(served, tmp_path, capsys):
     assert main(["batch", f"{base}/figure_eight.tum", "--min-score", "0", "--json", str(out_url)]) == 0
     assert main(["batch", str(d / "figure_eight.tum"), "--min-score", "0", "--json", str(out_file)]) == 0
     url, local = (json.loads(p.read_text())["routes"][0] for p in (out_url, out_file))
-    assert url["name"] == "figure_eight.tum" and url["path"] == f"{base}/figure_eight.tum"
+    assert url["name"] == url["path"] == f"{base}/figure_eight.tum"
     assert url["score"] == local["score"] > 0
     assert url["report"]["parameters"] == local["report"]["parameters"]
 
@@ -104,6 +104,34 @@ def test_a_bag_folder_by_url_is_copied_whole(data_dir):
     a, b = gate.evaluate_spec(spec_url, keep_report=True), gate.evaluate_spec(spec_dir, keep_report=True)
     assert a.error is None and b.error is None, (a.error, b.error)
     assert a.report["parameters"] == b.report["parameters"]
+
+
+def test_a_large_file_from_a_server_without_range_requests(served, tmp_path):
+    """Python's http.server answers no range requests: a file larger than fsspec's 5 MiB read
+    block must still arrive whole (one streaming read)."""
+    base, d = served
+    big = d / "big.tum"
+    lines = FIGURE_EIGHT.read_text().splitlines(keepends=True)
+    with big.open("w") as out:
+        while out.tell() < 6 * 2**20:
+            out.writelines(lines)
+    with remote.local(f"{base}/big.tum") as p:
+        assert Path(p).read_bytes() == big.read_bytes()
+
+
+def test_errors_name_the_url_not_the_copy(served, tmp_path):
+    """A route that cannot be parsed, a JUnit report, a glob: the URL the user gave, never the
+    temporary copy's path."""
+    base, d = served
+    (d / "bad.tum").write_text("0 0 0 0 0 0 0 1\n1 0 x 0 0 0 0 1\n")
+    res, = gate.run(gate.collect([f"{base}/bad.tum"]), jobs=1)
+    assert res.error.startswith(f"{base}/bad.tum, line 2") and "excite-fetch" not in res.error, res.error
+    junit = tmp_path / "junit.xml"
+    assert main(["batch", f"{base}/no_such.tum", "--junit", str(junit)]) == 1
+    assert f"{base}/no_such.tum" in junit.read_text()
+    with pytest.raises(RouteError, match="globs are not expanded in URLs"):
+        with remote.local(f"{base}/*.tum"):
+            pass
 
 
 def test_the_copy_is_bounded_while_it_streams(served):

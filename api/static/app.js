@@ -676,9 +676,15 @@ function onLiveMessage(live, msg) {
   } else if (msg.type === "update" || msg.type === "final") {
     live.last = msg;
     if (msg.type === "update") $("#live-result").dataset.updates = String(++live.updates);
+    // a "nothing more to gain" banner goes once the motion changed and a parameter gains again
+    if (live.stalled && msg.parameters.some((p) => p.status === "gaining")) {
+      live.stalled = false;
+      $("#live-done").hidden = true;
+    }
     renderLive(live, msg);
   } else if (msg.type === "done") {
     const banner = $("#live-done");
+    live.stalled = !msg.passed;
     banner.textContent = msg.passed
       ? `Done at t = ${msg.t_s.toFixed(1)} s of drive: ${msg.reason} (score ${fmt(msg.score)}). The drive can stop here.`
       : `At t = ${msg.t_s.toFixed(1)} s of drive, ${msg.reason}. Change the motion or stop: `
