@@ -327,24 +327,28 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     xd = nx // ns  # columns per state in Jx
     c = Jt.shape[2]
     M = nx + c
-    w = np.empty(M)  # one row of [Jx Jt]
+    w = np.empty((3, M))  # three rows of [Jx Jt]
     G = np.empty((M, M))  # lower triangle of [Jx Jt]ᵀ[Jx Jt] of one factor
     T = np.zeros((c, c))  # lower triangle of Σ Jtᵀ Jt over the factors (added to Htt at the end)
     for f in range(f0, f1):
         for u in range(M):
             for v in range(u + 1):
                 G[u, v] = 0.0
-        for row in range(r):  # a sum of outer products (lower triangle): the inner loop runs over contiguous memory
-            for u in range(nx):
-                w[u] = Jx[f, row, u]
-            for u in range(c):
-                w[nx + u] = Jt[f, row, u]
+        for row0 in range(0, r, 3):  # outer products of three rows at a time (lower triangle; contiguous inner loop)
+            nr = min(3, r - row0)
+            w[:] = 0.0
+            for k in range(nr):
+                for u in range(nx):
+                    w[k, u] = Jx[f, row0 + k, u]
+                for u in range(c):
+                    w[k, nx + u] = Jt[f, row0 + k, u]
+            w0, w1, w2 = w[0], w[1], w[2]
             for u in range(M):
-                wu = w[u]
-                if wu != 0.0:
+                a0, a1, a2 = w0[u], w1[u], w2[u]
+                if a0 != 0.0 or a1 != 0.0 or a2 != 0.0:
                     for v in range(u + 1):
-                        G[u, v] += wu * w[v]
-        for a in range(ns):  # scattered from the lower triangle (no mirrored copy of G)
+                        G[u, v] += a0 * w0[v] + a1 * w1[v] + a2 * w2[v]
+        for a in range(ns):
             i = origin + sign * (first[f] + stride * a)
             blk = band[0, i]
             o = xd * a
@@ -394,14 +398,22 @@ def _border_update(ZT, m, Hee):
 
 @nb.njit(cache=True, inline="always")
 def _subtract_combination(x, c, Z, n, top):
-    """``x[:top] −= Σ_{k<n} c[k] Z[k, :top]`` (the inner loop runs along a row of Z), skipping zero
-    coefficients (with random-walk biases, C_1 = H[x_{j+1}, x_j] L⁻ᵀ has a zero block: no factor
-    links the trajectory of one keyframe with the bias deviations of the next)."""
-    for k in range(n):
-        ck = c[k]
-        if ck != 0.0:
+    """``x[:top] −= Σ_{k<n} c[k] Z[k, :top]``, three rows of Z per pass over x (a third of the loads
+    and stores of x; the inner loops run along rows), skipping three zero coefficients (with
+    random-walk biases, C_1 = H[x_{j+1}, x_j] L⁻ᵀ has a zero block: no factor links the trajectory
+    of one keyframe with the bias deviations of the next)."""
+    k = 0
+    while k + 3 <= n:
+        c0, c1, c2 = c[k], c[k + 1], c[k + 2]
+        if c0 != 0.0 or c1 != 0.0 or c2 != 0.0:
             for e in range(top):
-                x[e] -= ck * Z[k, e]
+                x[e] -= c0 * Z[k, e] + c1 * Z[k + 1, e] + c2 * Z[k + 2, e]
+        k += 3
+    while k < n:
+        ck = c[k]
+        for e in range(top):
+            x[e] -= ck * Z[k, e]
+        k += 1
 
 
 @nb.njit(cache=True, inline="always")
