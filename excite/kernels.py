@@ -321,7 +321,8 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     a factor that does not see the bias states leaves them out) and the calibration columns
     ``cols`` (``Jt[f]``). Keyframe k is stored at position ``origin + sign · k`` (sign ±1: a window
     of the keyframes, in either order). Storage: ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd,
-    positions), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
+    positions; of the diagonal blocks d = 0 the lower triangle only, all that :func:`eliminate` reads),
+    ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
     N, r, nx = Jx.shape
     ns = n_states
     xd = nx // ns  # columns per state in Jx
@@ -352,12 +353,9 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
             i = origin + sign * (first[f] + stride * a)
             blk = band[0, i]
             o = xd * a
-            for u in range(xd):
-                for v in range(u):
-                    g = G[o + u, o + v]
-                    blk[u, v] += g
-                    blk[v, u] += g
-                blk[u, u] += G[o + u, o + u]
+            for u in range(xd):  # a diagonal block: its lower triangle (all that eliminate reads)
+                for v in range(u + 1):
+                    blk[u, v] += G[o + u, o + v]
             for b in range(a):  # a later state of the factor than b
                 ob = xd * b
                 if sign > 0:  # the later position a holds the rows
