@@ -1,6 +1,6 @@
 """Time the evaluator: the score of a drive with every parameter of the default rig estimated.
 
-    python benchmarks/bench_evaluate.py [--runs 7] [--skip-dense] [--baseline REV]
+    python benchmarks/bench_evaluate.py [--runs 7] [--skip-dense] [--baseline REV] [--when-idle S]
 
 The default rig (robotaxi) has an IMU at 200 Hz, keyframes at 10 Hz, a lidar and a monocular
 camera at 10 Hz, wheel encoders; all 24 calibration coordinates are estimated. Drives are
@@ -16,7 +16,9 @@ this one; and the dense numpy reference against the fast path on a 2-minute driv
 Every figure is given as wall time and as the process's CPU time. This machine is shared: when
 other work keeps its cores busy, wall times grow with the load (printed at start and end) while
 CPU time stays close to what the evaluator itself spends; on an idle machine with both cores,
-wall ≈ CPU / 2 plus the few milliseconds run on one thread.
+wall ≈ CPU / 2 plus the few milliseconds run on one thread. ``--when-idle S`` waits up to S seconds
+before each timed run until the machine's cores were ≥ 90 % idle over 0.2 s, and says how many
+runs started that way: the wall time the evaluator takes on this machine when nothing else runs.
 """
 
 from __future__ import annotations
@@ -63,8 +65,30 @@ def generated(duration_s: float, rig, vehicle=None):
     return v.drive(prof, rig.suspension)
 
 
+IDLE_WAIT_S = 0.0  # --when-idle
+_started_idle = [0, 0]  # timed runs that started on an idle machine, timed runs
+
+
+def idle_fraction(dt: float = 0.2) -> float:
+    """Fraction of the machine's CPU time that was idle over the next ``dt`` seconds."""
+    def read():
+        v = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+        return v[3] + v[4], sum(v)
+    i0, t0 = read()
+    time.sleep(dt)
+    i1, t1 = read()
+    return (i1 - i0) / max(1, t1 - t0)
+
+
 def timed(fn) -> tuple[float, float]:
-    """Wall and process CPU time of one call [ms]."""
+    """Wall and process CPU time of one call [ms] (with ``--when-idle``, started once the machine is idle)."""
+    if IDLE_WAIT_S:
+        end = time.monotonic() + IDLE_WAIT_S
+        idle = False
+        while not idle and time.monotonic() < end:
+            idle = idle_fraction() >= 0.9
+        _started_idle[0] += idle
+    _started_idle[1] += 1
     t0, c0 = time.perf_counter(), time.process_time()
     fn()
     return (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
@@ -103,7 +127,11 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=7)
     parser.add_argument("--skip-dense", action="store_true", help="skip the (slow) dense reference")
     parser.add_argument("--baseline", metavar="REV", help="also time the package at this git revision, side by side")
+    parser.add_argument("--when-idle", type=float, default=0.0, metavar="S",
+                        help="wait up to S seconds before each timed run for the machine to be idle")
     args = parser.parse_args()
+    global IDLE_WAIT_S
+    IDLE_WAIT_S = args.when_idle
     rig = load_rig("robotaxi")
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores; rig robotaxi "
           f"({len(rig.coordinates)} coordinates, IMU {rig.config.imu.update_rate:g} Hz, keyframes "
@@ -168,6 +196,8 @@ def main() -> None:
         rel = np.abs((fast - dense) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
         print(f"2-minute drive: dense reference {t_dense * 1e3:.0f} ms, fast path {t_fast:.1f} ms "
               f"→ {t_dense * 1e3 / t_fast:.0f}x faster; max relative difference {rel:.1e}")
+    if IDLE_WAIT_S:
+        print(f"timed runs started on an idle machine (≥ 90 % idle over 0.2 s): {_started_idle[0]} of {_started_idle[1]}")
     print(load())
 
 
