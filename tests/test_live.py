@@ -133,12 +133,12 @@ def test_incremental_equals_batch_on_kitti_00(kitti, kitti_report):
 
     The bound comes from the arithmetic, not from observed gaps. Each way of eliminating the
     trajectory returns the exact σ of a slightly perturbed information matrix: in the Jacobi
-    scaling Ĥ = diag(H)^-½ H diag(H)^-½ (unit diagonal, entries ≤ 1 by Cauchy–Schwarz, and the
-    scaling does not change the elimination's rounding), Cholesky-type elimination and the
-    accumulation of JᵀJ are backward stable with a perturbation E on H's nonzero pattern whose
-    entries are sums of at most m rounded terms (m: the longest column of H's band, ≈ 3 keyframe
-    states + θ): |E_ik| ≤ m·u, and ~√m·u for rounding errors of random sign (Higham & Mary's
-    probabilistic analysis). σ_j² = (Ĥ⁻¹)_jj / H_jj, and to first order
+    scaling Ĥ = diag(H)^-½ H diag(H)^-½ (unit diagonal, entries ≤ 1 by Cauchy–Schwarz; the
+    componentwise backward error of Cholesky, |E| ≤ γ_m |Rᵀ||R|, does not depend on the scaling),
+    Cholesky-type elimination and the accumulation of JᵀJ are backward stable with a perturbation
+    E on H's nonzero pattern whose entries are sums of at most m rounded terms (m: the longest
+    column of H's band, at most 3 keyframe states + θ): |E_ik| ≤ m·u, and ~√m·u for rounding errors
+    of random sign (Higham & Mary's probabilistic analysis). σ_j² = (Ĥ⁻¹)_jj / H_jj, and to first order
     Δσ_j²/σ_j² = −ẑᵀEẑ / ẑ_j with ẑ = Ĥ⁻¹e_j. So
 
         κ_j = √(Σ_{(i,k) ∈ pattern(H)} ẑ_i² ẑ_k²) / ẑ_j,
@@ -154,7 +154,7 @@ def test_incremental_equals_batch_on_kitti_00(kitti, kitti_report):
         |Δσ_j/σ_j| ≤ max(1e-9, C·u·κ_j),  C = 3·(√2/2)·√m  (≈ 17: m = 62).
 
     The worst case (all m·u rounding errors aligned with ẑ) would replace √m by m and the pattern
-    sum by (Σ_i |ẑ_i|)² and bound nothing useful (≈ 0.4 for the gyro z bias). The floor 1e-9 is
+    sum by (Σ_i |ẑ_i|)² and bound nothing useful (≈ 0.35 for the gyro z bias). The floor 1e-9 is
     the claim for every well-conditioned parameter (C·u·κ_j < 1e-9 for κ_j < ~5e5); it also covers
     θ's own sums over the whole drive (≤ √(70 000)·u ≈ 3e-14)."""
     rig = load_rig("robotaxi")
