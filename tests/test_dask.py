@@ -133,7 +133,7 @@ def test_a_worker_killed_mid_run_loses_no_route(cluster, routes, local):
 def test_the_service_runs_batches_and_jobs_on_the_cluster(cluster, tmp_path):
     """With EXCITE_DASK_SCHEDULER the service's batch routes and optimization jobs run on the
     cluster (seen in its task stream); a Dask worker killed mid-job loses nothing: the job
-    completes from the durable record's process."""
+    completes from the durable record's process; a job cancelled while on the cluster stops."""
     from test_api_support import LiveServer, wait_job
 
     from excite.evaluate import evaluate
@@ -158,7 +158,16 @@ def test_the_service_runs_batches_and_jobs_on_the_cluster(cluster, tmp_path):
             assert busy, f"the job runs on a Dask worker: {client.processing()}\n{srv.log.read_text()[-3000:]}"
             os.kill(client.run(os.getpid, workers=busy)[busy[0]], signal.SIGKILL)
             done = wait_job(c, loc, timeout_s=90)
+            # a job cancelled while it runs on the cluster: the task itself stops (60 s of
+            # iterations were asked for) and the record says cancelled, keeping the best so far
+            job = c.post("/v1/maneuvers", json={"duration_s": 30, "time_budget_s": 60})
+            loc2 = job.headers["location"]
+            wait_job(c, loc2, lambda j: (j["progress"] or {}).get("iteration", -1) >= 1, timeout_s=90)
+            assert c.delete(loc2).status_code == 202
+            cancelled = wait_job(c, loc2, timeout_s=45)
         assert done["status"] == "succeeded" and done["result"]["score"] > 0, done
+        assert cancelled["status"] == "cancelled" and cancelled["result"]["cancelled"] is True, cancelled
+        assert cancelled["result"]["iterations"] < 590  # stopped well before its 60 s of iterations
         ran = {str(t["key"]).split("-")[0] for t in stream.data}
         assert {"score_task", "remote_job"} <= ran, ran
     finally:
