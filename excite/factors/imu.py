@@ -131,10 +131,12 @@ def preintegrate(omega: np.ndarray, f: np.ndarray, dt: float, b_g: np.ndarray, b
     dv = np.zeros(3)
     dp = np.zeros(3)
     for w, a in zip(omega - b_g, f - b_a):
-        acc = dR @ so3.exp(0.5 * w * dt) @ a
+        h = so3.exp(0.5 * w * dt)  # Exp(ω dt) = Exp(ω dt/2)²
+        half = dR @ h  # the mid-sample attitude
+        acc = half @ a
         dp = dp + dv * dt + 0.5 * acc * dt * dt
         dv = dv + acc * dt
-        dR = dR @ so3.exp(w * dt)
+        dR = half @ h
     return dR, dv, dp
 
 

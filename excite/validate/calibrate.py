@@ -150,10 +150,12 @@ def preintegrate_all(gyro: np.ndarray, accel: np.ndarray, n: int, dt: float, b_g
     Rs = np.empty((N, n, 3, 3))
     for s in range(n):
         Rs[:, s] = dR
-        acc = np.einsum("nij,nj->ni", dR @ so3.exp(0.5 * w[:, s] * dt), a[:, s])  # mid-sample attitude
+        h = so3.exp(0.5 * w[:, s] * dt)  # Exp(ω dt) = Exp(ω dt/2)²
+        half = dR @ h  # the mid-sample attitude
+        acc = np.einsum("nij,nj->ni", half, a[:, s])
         dp = dp + dv * dt + 0.5 * acc * dt * dt
         dv = dv + acc * dt
-        dR = dR @ so3.exp(w[:, s] * dt)
+        dR = half @ h
     return dR, dv, dp, Rs
 
 
