@@ -22,6 +22,12 @@ Python's bytecode cache matters: with ``PYTHONDONTWRITEBYTECODE`` set (as on the
 figures were first taken on) excite's own modules are compiled from source in every process;
 the benchmark says which.
 
+Last, the same ``excite score`` commands answered by a resident process (``excite resident``,
+:mod:`excite.resident`): one is started in a temporary runtime directory, and each command runs
+``--runs`` times through the ``excite`` script's client, alternating with a cold run in the
+calling process (``EXCITE_RESIDENT=0``), so the ratio is measured side by side. The resident
+process's own count of commands served is checked against the runs.
+
     python benchmarks/bench_cli.py [--runs 7]
 """
 
@@ -31,8 +37,10 @@ import argparse
 import json
 import os
 import statistics
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -87,16 +95,46 @@ FLOOR = ["start python", "import numpy", "import numba", PHASE_NAMES[2], PHASE_N
          "kernel loads (first − second evaluation)", "exit"]
 
 
+CLIENT = [sys.executable, "-c", "from excite.resident import run; run()"]  # what the `excite` script runs
+
+
 def _env(**extra: str) -> dict[str, str]:
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
-                **extra)
+                EXCITE_RESIDENT="0", **extra)
 
 
-def wall(args: list[str]) -> float:
+def wall(args: list[str], command: list[str] | None = None, env: dict | None = None) -> float:
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "excite.cli", *args], cwd=REPO, env=_env(), check=True,
-                   stdout=subprocess.DEVNULL)
+    subprocess.run([*(command or [sys.executable, "-m", "excite.cli"]), *args], cwd=REPO, env=env or _env(),
+                   check=True, stdout=subprocess.DEVNULL)
     return time.perf_counter() - t0
+
+
+def served(runs: int) -> None:
+    """The score commands through the client of a resident process, alternating with cold runs."""
+    home = tempfile.mkdtemp(prefix="rt", dir="/tmp")
+    env = _env(XDG_RUNTIME_DIR=home)
+    del env["EXCITE_RESIDENT"]
+    t0 = time.perf_counter()
+    subprocess.run([*CLIENT, "resident", "start", "--idle-minutes", "10"], cwd=REPO, env=env, check=True,
+                   stdout=subprocess.DEVNULL)
+    print(f"resident process started and warmed up in {time.perf_counter() - t0:.1f} s")
+    try:
+        n = 0
+        for name, argv in COMMANDS.items():
+            if argv[0] != "score":
+                continue
+            pairs = [(wall(argv, CLIENT, env), wall(argv)) for _ in range(runs)]
+            n += runs
+            hot, cold = [p[0] for p in pairs], [p[1] for p in pairs]
+            print(f"{name} served by the resident process: {summary(hot)}; alternating cold runs "
+                  f"{summary(cold)}; cold/served per pair: median {statistics.median(c / h for h, c in pairs):.1f}x")
+        status = subprocess.run([*CLIENT, "resident", "status", "--json"], cwd=REPO, env=env, check=True,
+                                capture_output=True, text=True).stdout
+        assert json.loads(status)["served"] == n, status  # every timed run was served
+    finally:
+        subprocess.run([*CLIENT, "resident", "stop"], cwd=REPO, env=env, stdout=subprocess.DEVNULL)
+        shutil.rmtree(home, ignore_errors=True)
 
 
 def phases() -> dict[str, float]:
@@ -142,6 +180,7 @@ def main() -> None:
         print(f"  {name:<58} {summary([r[name] for r in runs])}")
     print(f"floor with numba ({' + '.join(FLOOR)}): {summary([r['floor'] for r in runs])}")
     print(cache_report())
+    served(args.runs)
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 

@@ -21,3 +21,12 @@ def pool() -> ThreadPoolExecutor:
         _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=n_threads(),
                                                  thread_name_prefix="excite"))
     return _POOL[1]
+
+
+def close() -> None:
+    """End the pool's threads (a process about to fork children that must not inherit a pool
+    whose threads they do not have: :mod:`excite.resident`)."""
+    global _POOL
+    if _POOL is not None:
+        _POOL[1].shutdown(wait=True)
+        _POOL = None

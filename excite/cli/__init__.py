@@ -26,8 +26,8 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                        "sensor calibration parameter?")
 
 # command → the module that registers it on `app`
-COMMANDS = {"batch": "batch", "live": "live", "mine": "mine", "optimize": "optimize", "route": "route", "rig": "rig_import",
-            "score": "score", "serve": "serve", "validate": "validate"}
+COMMANDS = {"batch": "batch", "live": "live", "mine": "mine", "optimize": "optimize", "resident": "resident",
+            "route": "route", "rig": "rig_import", "score": "score", "serve": "serve", "validate": "validate"}
 PIPE_WIDTH = 240  # columns of output to a pipe or file: wide enough that rows stay whole
 
 
@@ -55,7 +55,7 @@ def console(stderr: bool = False) -> Any:
     return Console(stderr=stderr, width=PIPE_WIDTH if piped else None)
 
 
-def _register(argv: list[str]) -> None:
+def register(argv: list[str]) -> None:
     """Import the module of the command being run (all of them for the overview help)."""
     words = [a for a in argv if not a.startswith("-")]
     wanted = [COMMANDS[words[0]]] if words and words[0] in COMMANDS else sorted(set(COMMANDS.values()))
@@ -80,7 +80,7 @@ def _click_exceptions() -> tuple[type[Exception], ...]:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    _register(argv)
+    register(argv)
     try:
         # without standalone mode click returns a command's exit code instead of exiting
         rc = app(args=argv, standalone_mode=False, prog_name="excite")
@@ -107,14 +107,19 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run() -> None:
-    """The ``excite`` process: :func:`main`, then exit.
+    """``python -m excite.cli``: :func:`main` in this process, then :func:`leave`. (The ``excite``
+    script, :func:`excite.resident.run`, first asks a resident process to run the command.)"""
+    leave(main())
+
+
+def leave(rc: int) -> None:
+    """End the process with exit code ``rc``.
 
     What the command imported (numpy, scipy, numba's registries: ~150 000 objects) lives until
     the process ends; at exit the interpreter's cyclic garbage collector would walk all of it
     again while tearing the modules down (~0.3 s of a cold ``excite score``; see
     ``benchmarks/bench_cli.py``). :func:`gc.freeze` leaves those objects out of that walk; they are
     still released, atexit handlers run and streams are flushed as usual."""
-    rc = main()
     gc.freeze()
     sys.exit(rc)
 
