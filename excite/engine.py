@@ -108,13 +108,17 @@ def run(fn: Callable[[I], R], items: Sequence[I], *, failed: Callable[[I, BaseEx
     ctx = multiprocessing.get_context("fork") if sys.platform == "linux" else None
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
-        for fut in as_completed(futures):
-            i = futures[fut]
-            try:
-                r = fut.result()
-            except Exception as exc:  # the process died (killed, out of memory)
-                r = failed(items[i], exc)
-            finish(i, r)
+        try:
+            for fut in as_completed(futures):
+                i = futures[fut]
+                try:
+                    r = fut.result()
+                except Exception as exc:  # the process died (killed, out of memory)
+                    r = failed(items[i], exc)
+                finish(i, r)
+        except BaseException:  # Ctrl-C: the tasks not started are dropped, not waited for
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
     return results
 
 

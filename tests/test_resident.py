@@ -13,6 +13,7 @@ import pty
 import re
 import shutil
 import signal
+import socket
 import struct
 import subprocess
 import sys
@@ -215,23 +216,107 @@ def test_a_directory_others_can_enter_is_not_used(started, home):
     assert _served(started) == n
 
 
-def test_ctrl_c_and_a_vanished_caller_reach_the_command(started, tmp_path):
-    """The served command blocks opening a named pipe nobody writes: Ctrl-C of the caller
-    interrupts it (exit code 130), and killing the caller ends its command."""
-    fifo = tmp_path / "route.tum"
-    os.mkfifo(fifo)
-    for how in ("interrupt", "kill"):
-        proc = subprocess.Popen([*CLIENT, "score", str(fifo)], env=started, cwd=tmp_path,
+def _group(pgid: int) -> list[int]:
+    """Live processes of process group ``pgid``."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            out.append(int(stat.parent.name))
+    return out
+
+
+def test_signals_and_a_vanished_caller_reach_the_command_and_its_workers(started, tmp_path):
+    """A served `batch --jobs 2` whose two routes are named pipes nobody writes: the command and
+    its two worker processes block. Ctrl-C of the caller interrupts them all (exit code 130, as
+    in the caller), SIGTERM ends them and the caller dies of SIGTERM as it would have, and a
+    caller killed outright takes them with it."""
+    for name in ("a.tum", "b.tum"):
+        os.mkfifo(tmp_path / name)
+    for how in ("interrupt", "terminate", "kill"):
+        proc = subprocess.Popen([*CLIENT, "batch", "a.tum", "b.tum", "--jobs", "2"], env=started, cwd=tmp_path,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert _wait(lambda: (_status(started) or {}).get("running") == 1, 30)
-        if how == "interrupt":
-            proc.send_signal(signal.SIGINT)
-            out, err = proc.communicate(timeout=30)
-            assert proc.returncode == 130 and "Traceback" not in err, err  # as at Ctrl-C in the caller
-        else:
-            proc.kill()
-            proc.wait(timeout=30)
+        assert _wait(lambda: len((_status(started) or {}).get("commands", [])) == 1, 30)
+        (command,) = _status(started)["commands"]
+        assert _wait(lambda: len(_group(command)) == 3, 30), _group(command)  # the command and its workers
+        getattr(proc, {"interrupt": "send_signal", "terminate": "terminate", "kill": "kill"}[how])(
+            *([signal.SIGINT] if how == "interrupt" else []))
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == {"interrupt": 130, "terminate": -signal.SIGTERM, "kill": -signal.SIGKILL}[how], err
+        assert "Traceback" not in err, err
+        assert _wait(lambda: not _group(command), 30), (how, _group(command))
         assert _wait(lambda: _status(started)["running"] == 0, 30), how
+
+
+def test_a_running_command_does_not_keep_a_new_resident_process_from_starting(tmp_path):
+    """Neither a served command nor the processes it starts hold the resident process's lock:
+    stopped while a command runs, it can be started again at once; two starts at once give one
+    resident process."""
+    home, env = _home()
+    try:
+        starts = [subprocess.Popen([*CLIENT, "resident", "start"], env=env, cwd=REPO, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True) for _ in range(2)]
+        outs = [p.communicate(timeout=300) for p in starts]
+        assert [p.returncode for p in starts] == [0, 0], outs
+        first = _status(env)["pid"]
+        assert all(str(first) in out for out, _ in outs), outs
+        os.mkfifo(tmp_path / "a.tum")
+        blocked = subprocess.Popen([*CLIENT, "batch", "a.tum", "a.tum", "--jobs", "2"], env=env, cwd=tmp_path,
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        assert _wait(lambda: len((_status(env) or {}).get("commands", [])) == 1, 30)
+        (command,) = _status(env)["commands"]
+        assert _wait(lambda: len(_group(command)) == 3, 30)
+        _stop(env)
+        again = _excite(["resident", "start"], env, REPO)
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert _status(env)["pid"] != first
+        blocked.kill()
+        blocked.wait(timeout=30)
+        assert _wait(lambda: not _group(command), 30)
+    finally:
+        _stop(env)
+        shutil.rmtree(home, ignore_errors=True)
+
+
+def test_silent_or_foreign_requests_do_not_stop_it(started):
+    """Connections that send nothing, or a request that is not one, neither delay nor end it."""
+    path = home_socket = Path(started["XDG_RUNTIME_DIR"]) / "excite" / f"{started['_KEY']}.sock"
+    silent = []
+    for _ in range(3):
+        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c.connect(str(path))
+        silent.append(c)
+    t0 = time.monotonic()
+    assert _status(started) is not None
+    assert time.monotonic() - t0 < 2.0  # the silent ones are dropped after 5 s each, not waited for in turn
+    for body in (b"[1, 2]", b"not json", b'{"op": "run"}'):
+        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c.connect(str(home_socket))
+        c.sendall(struct.pack("!4sI", b"EXCR", len(body)) + body)
+        c.close()
+    for c in silent:
+        c.close()
+    assert _status(started) is not None
+
+
+def test_the_callers_umask_and_locale_are_its_own(started, tmp_path):
+    """A file the command writes has the caller's umask; another locale is another key (file
+    names are decoded by it)."""
+    shutil.copy(ROUTE, tmp_path / "route.csv")
+    n = _served(started)
+    for env, out in ((started, "served.npz"), (dict(started, EXCITE_RESIDENT="0"), "local.npz")):
+        r = subprocess.run([*CLIENT, "score", "route.csv", "--export", out], env=env, cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300, preexec_fn=lambda: os.umask(0o077))
+        assert r.returncode == 0, r.stderr
+    assert _served(started) == n + 1
+    assert (tmp_path / "served.npz").stat().st_mode & 0o777 == (tmp_path / "local.npz").stat().st_mode & 0o777 == 0o600
+    base = {k: v for k, v in started.items() if not k.startswith(("LANG", "LC_"))}
+    assert resident.key(base) != resident.key(dict(base, LC_ALL="C"))
+    assert resident.key(base) != resident.key(dict(base, LANG="de_DE.ISO-8859-1"))
+    assert resident.key(base) == resident.key(dict(base, EXCITE_RESIDENT="1", HOME="/elsewhere"))
 
 
 def test_it_starts_itself_only_at_a_terminal_and_leaves_when_idle():
@@ -255,7 +340,19 @@ def _starts_itself(home: Path, env: dict) -> None:
     rc, again = _in_pty(["score", str(ROUTE)], env, REPO)
     assert rc == 0 and "started a resident process" not in again
     assert _served(env) == 1
-    _stop(env)
+
+    # another setting is another key: that command runs here, and the resident process it
+    # starts replaces the one of the same installation that no longer matches
+    first = _status(env)["pid"]
+    other = dict(env, EXCITE_ANYTHING="1")
+    other["_KEY"] = _key(other)
+    try:
+        rc, out = _in_pty(["score", str(ROUTE)], other, REPO)
+        assert rc == 0 and "excite: started a resident process" in out  # so it ran here
+        assert _wait(lambda: _gone(first), 30)
+        assert _wait(lambda: _status(other) is not None, 120)
+    finally:
+        _stop(other)
     assert _status(env) is None
 
     r = _excite(["resident", "start", "--idle-minutes", "0.02"], env, REPO)  # 1.2 s
