@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import time
 from typing import Annotated
 
@@ -20,6 +21,8 @@ app.add_typer(resident_app, name="resident")
 
 
 def _where() -> dict:
+    if not sys.platform.startswith("linux"):
+        raise ExciteError("the resident process runs on Linux only: here every command runs in its own process")
     try:
         return resident._paths(resident.key(), create=True)
     except OSError as exc:
