@@ -116,8 +116,9 @@ def run(fn: Callable[[I], R], items: Sequence[I], *, failed: Callable[[I, BaseEx
                 except Exception as exc:  # the process died (killed, out of memory)
                     r = failed(items[i], exc)
                 finish(i, r)
-        except BaseException:  # Ctrl-C: the tasks not started are dropped, not waited for
-            pool.shutdown(wait=False, cancel_futures=True)
+        except BaseException:  # Ctrl-C: the tasks not started are dropped, not waited for (the
+            # running ones had the signal too: the workers are in this process's group)
+            pool.shutdown(wait=True, cancel_futures=True)
             raise
     return results
 

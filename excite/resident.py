@@ -597,6 +597,9 @@ def _command(conn: socket.socket, fds: list[int], request: dict) -> int:
                 return
 
     threading.Thread(target=watch, daemon=True).start()
+    # a process the command forks (batch's workers) must not hold the caller's connection: the
+    # caller would wait for it, and could not tell its command has ended
+    os.register_at_fork(after_in_child=conn.close)
     from .cli import main
 
     try:
