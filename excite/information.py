@@ -37,7 +37,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from . import kernels, so3
+from . import kernels
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
 from .factors.base import BIAS, BIAS_STATE_DIM, POS, ROT, STATE_DIM, FactorBlock, Nominal
