@@ -37,7 +37,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from . import kernels, so3
+from . import kernels
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
 from .factors.base import BIAS, BIAS_STATE_DIM, POS, ROT, STATE_DIM, FactorBlock, Nominal
@@ -232,9 +232,7 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool, walk: bool = Tru
     blocks = [imu.blocks(sub, rig), nhc if last else nhc.select(nhc.first < m),
               wheel.blocks(sub, rig)] + [odometry.blocks(sub, rig, s) for s in rig.config.sensors]
     if local:
-        v_b = np.einsum("kji,kj->ki", sub.R, sub.v)
-        d = np.einsum("kji,kj->ki", sub.R[:-1], np.diff(sub.p, axis=0))
-        V, P = _local_maps(sub.R, v_b, d)
+        V, P = _local_maps(sub.R, sub.v, sub.p)
         sd = state_dim(rig)  # the IMU block is written widened to the bias states
         blocks = [None if b is None else _to_local(b, V, P, sd if i == 0 else STATE_DIM) for i, b in enumerate(blocks)]
     if rig.bias_random_walk:
@@ -311,14 +309,13 @@ def _chain_end(keyframe: int, local: bool, sd: int = STATE_DIM) -> list[FactorBl
     return [FactorBlock("placeholder", np.array([keyframe]), 1, 1, Jx, np.zeros((1, len(rows), 0)), _NO_COLS)]
 
 
-def _local_maps(R: np.ndarray, v_b: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per keyframe, how world velocity and position perturbations follow from local ones:
-    ``δv_world = V_k [δθ_k; δv_k]`` with ``V_k = [−R_k[v_k]×, R_k]`` and
-    ``δ(p_{k+1} − p_k) = P_k [δθ_k; δd_k]`` with ``P_k = [−R_k[d_k]×, R_k]`` (each 3 × 6)."""
-    V = np.concatenate([-R @ so3.hat(v_b), R], axis=2)
-    P = np.zeros_like(V)
-    P[:-1] = np.concatenate([-R[:-1] @ so3.hat(d), R[:-1]], axis=2)
-    return V, P
+def _local_maps(R: np.ndarray, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per keyframe (orientation ``R``, world velocity ``v`` and position ``p``), how world velocity
+    and position perturbations follow from local ones: ``δv_world = V_k [δθ_k; δv_k]`` with
+    ``V_k = [−R_k[v_k]×, R_k]`` (body velocity ``v_k = R_kᵀ v``) and ``δ(p_{k+1} − p_k) = P_k [δθ_k; δd_k]``
+    with ``P_k = [−R_k[d_k]×, R_k]`` (increment ``d_k = R_kᵀ(p_{k+1} − p_k)``), each 3 × 6
+    (compiled: :func:`excite.kernels.local_maps`)."""
+    return kernels.local_maps(R, v, p)
 
 
 def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray, sd: int = STATE_DIM) -> FactorBlock:
@@ -486,57 +483,40 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
     ``JᵀJ``, without forming J); ``anchored``: the last step ends at the drive's end (only its
     first keyframe, see :func:`_bias_anchored`)."""
     sd, p = carry[0].shape[0], carry[2].shape[0]
-    spans = [blk.stride * (blk.n_states - 1) for blk in blocks]
-    D = max([1] + spans)
+    D = max([1] + [blk.stride * (blk.n_states - 1) for blk in blocks])
     n = _SLAB + D
     band = np.zeros((D + 1, n, sd, sd))
     Hxt = np.zeros((n, sd, p))
     band[0, 0] = carry[0]
     Hxt[0] = carry[1]
-    diag = band.reshape(D + 1, n, sd * sd)[:, :, (sd + 1) * BIAS.start::sd + 1]  # views of the bias deviations' diagonals
     Htt = carry[2].copy()
+    w2, anchored = walk if walk is not None else (np.zeros(0), False)
+    bad = kernels.eliminate_slabs(_as_tuple(blocks), m, _SLAB, forward, band, Hxt, Htt, w2, anchored)
+    if bad >= 0:
+        _check_pivot(bad, k0)
     slabs = np.arange(0, m, _SLAB)
-    # per block, the factors whose first keyframe in the sweep's order is in each slab: f0 … f1−1
-    # (the last slab also takes those at m); blocks list their factors by first keyframe
-    edge = np.append(slabs, m + 1)
-    bounds = [np.searchsorted(blk.first, edge) if forward else
-              np.searchsorted(blk.first, m - span - edge, side="right") for blk, span in zip(blocks, spans)]
-    for i, s in enumerate(slabs):
-        hi = min(s + _SLAB, m)
-        for blk, b in zip(blocks, bounds):
-            f0, f1 = (b[i], b[i + 1]) if forward else (b[i + 1], b[i])
-            if f1 > f0:
-                kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states, band, Hxt, Htt,
-                                   f0, f1, -s if forward else m - s, 1 if forward else -1)
-        if walk is not None:  # the steps whose first keyframe in the sweep's order is in the slab: positions
-            w2, anchored = walk  # 0 … n−1 of the ring to 1 … n (either direction), less a step into the drive's end
-            n_steps = hi - s if forward else m - s - max(0, m - edge[i + 1])
-            cut = anchored and (hi == m if forward else s == 0)
-            lo = 1 if cut and not forward else 0
-            n_in = n_steps - 1 if cut and forward else n_steps
-            diag[0, 0 if forward else 1:n_steps + (0 if forward else 1)] += w2
-            diag[0, (1 if forward else 0) + lo:(1 if forward else 0) + n_in] += w2
-            diag[1, lo:n_in] -= w2
-        bad = kernels.eliminate(band, Hxt, Htt, 0, hi - s)
-        if bad >= 0:
-            _check_pivot(s + bad if forward else m - s - bad, k0)
-        if hi < m:
-            k = hi - s
-            band[:, :D] = band[:, k:k + D]
-            band[:, D:] = 0.0
-            Hxt[:D] = Hxt[k:k + D]
-            Hxt[D:] = 0.0
     last = m - slabs[-1] if slabs.size else 0
     return band[0, last].copy(), Hxt[last].copy(), Htt
 
 
+_NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), _NO_COLS, np.zeros(0, dtype=np.int64), 1, 1)
+
+
+def _as_tuple(blocks: Sequence[FactorBlock]) -> tuple:
+    """``blocks`` for the compiled sweep (:func:`excite.kernels.eliminate_slabs`): a tuple of
+    ``(Jx, Jt, cols, first, stride, n_states)``, padded with empty blocks to a multiple of 8, so
+    that its type, and with it the compiled code, is the same for every rig (up to 8 blocks)."""
+    out = [(np.ascontiguousarray(b.Jx), np.ascontiguousarray(b.Jt), np.ascontiguousarray(b.cols, dtype=np.int64),
+            np.ascontiguousarray(b.first, dtype=np.int64), int(b.stride), int(b.n_states)) for b in blocks]
+    return tuple(out + [_NO_BLOCK] * (-len(out) % 8))
+
+
 def _theta_diagonal(blocks: Sequence[FactorBlock], p: int) -> np.ndarray:
     """diag H_θθ of ``blocks``: each calibration coordinate's information before the trajectory
-    is eliminated."""
+    is eliminated (compiled: :func:`excite.kernels.theta_diagonal`, 8 blocks at a time)."""
     out = np.zeros(p)
-    for b in blocks:
-        if b.cols.size:  # a block's columns are distinct
-            out[b.cols] += np.einsum("frc,frc->c", b.Jt, b.Jt)
+    for i in range(0, len(blocks), 8):
+        out += kernels.theta_diagonal(_as_tuple(blocks[i:i + 8]), p)
     return out
 
 

@@ -381,6 +381,84 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
         Htt[cols[u], cols[u]] += T[u, u]
 
 
+@nb.njit(cache=True, nogil=True)
+def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
+    """The slab loop of :func:`excite.information._eliminated` (documented there), compiled: the
+    factors of ``blocks`` (a tuple of ``(Jx, Jt, cols, first, stride, n_states)``, keyframe
+    indices 0 … m of a chunk: :func:`excite.information._as_tuple`) are accumulated and eliminated ``slab`` keyframes at a time in the
+    ring buffer ``band, Hxt`` (``slab + D`` positions, D the widest factor's span; position 0
+    holds what is carried in), in the sweep's order; with random-walk biases (``w2``: 1/σ² of a
+    step's six components; empty without) the walk's information is added on the bias deviations'
+    diagonals. Returns −1, or the keyframe (0 … m) whose pivot failed (:func:`eliminate`)."""
+    D = band.shape[0] - 1
+    n_slabs = (m + slab - 1) // slab
+    edge = np.empty(n_slabs + 1, dtype=np.int64)
+    for i in range(n_slabs):
+        edge[i] = i * slab
+    edge[n_slabs] = m + 1
+    # per block, the factors whose first keyframe in the sweep's order is in each slab: f0 … f1−1
+    # (the last slab also takes those at m); blocks list their factors by first keyframe
+    bounds = np.empty((len(blocks), n_slabs + 1), dtype=np.int64)
+    for bi in range(len(blocks)):
+        first, span = blocks[bi][3], blocks[bi][4] * (blocks[bi][5] - 1)
+        for i in range(n_slabs + 1):
+            bounds[bi, i] = (np.searchsorted(first, edge[i]) if forward else
+                             np.searchsorted(first, m - span - edge[i], side="right"))
+    o = 9  # the bias deviations' first component in a state (information.BIAS)
+    for i in range(n_slabs):
+        s = i * slab
+        hi = min(s + slab, m)
+        for bi in range(len(blocks)):
+            Jx, Jt, cols, first, stride, ns = blocks[bi]
+            f0, f1 = (bounds[bi, i], bounds[bi, i + 1]) if forward else (bounds[bi, i + 1], bounds[bi, i])
+            if f1 > f0:
+                accumulate(Jx, Jt, cols, first, stride, ns, band, Hxt, Htt, f0, f1, -s if forward else m - s,
+                           1 if forward else -1)
+        if w2.size:  # the steps whose first keyframe in the sweep's order is in the slab: positions
+            # 0 … n−1 of the ring to 1 … n (either direction), less a step into the drive's end
+            n_steps = hi - s if forward else m - s - max(0, m - edge[i + 1])
+            cut = anchored and (hi == m if forward else s == 0)
+            lo = 1 if cut and not forward else 0
+            n_in = n_steps - 1 if cut and forward else n_steps
+            a0 = 0 if forward else 1
+            for j in range(a0, n_steps + a0):
+                for c in range(6):
+                    band[0, j, o + c, o + c] += w2[c]
+            for j in range(1 - a0 + lo, 1 - a0 + n_in):
+                for c in range(6):
+                    band[0, j, o + c, o + c] += w2[c]
+            for j in range(lo, n_in):
+                for c in range(6):
+                    band[1, j, o + c, o + c] -= w2[c]
+        bad = eliminate(band, Hxt, Htt, 0, hi - s)
+        if bad >= 0:
+            return s + bad if forward else m - s - bad
+        if hi < m:  # the keyframes the next slab shares move to the ring's front
+            k = hi - s
+            band[:, :D] = band[:, k:k + D]
+            band[:, D:] = 0.0
+            Hxt[:D] = Hxt[k:k + D]
+            Hxt[D:] = 0.0
+    return -1
+
+
+@nb.njit(cache=True, nogil=True)
+def theta_diagonal(blocks, p):
+    """diag H_θθ = Σ Jt² per calibration column of the factors of ``blocks`` (as for
+    :func:`eliminate_slabs`)."""
+    out = np.zeros(p)
+    for bi in range(len(blocks)):
+        Jt, cols = blocks[bi][1], blocks[bi][2]
+        acc = np.zeros(Jt.shape[2])  # the block's columns (distinct), scattered at the end
+        for f in range(Jt.shape[0]):
+            for k in range(Jt.shape[1]):
+                for u in range(Jt.shape[2]):
+                    acc[u] += Jt[f, k, u] * Jt[f, k, u]
+        for u in range(Jt.shape[2]):
+            out[cols[u]] += acc[u]
+    return out
+
+
 @nb.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _border_update(ZT, m, Hee):
     """``Hee −= ZT[:, :m] ZT[:, :m]ᵀ`` on the lower triangle: dot products of contiguous rows, which
@@ -495,6 +573,38 @@ def eliminate(band, Hxe, Hee, lo, hi):
 
 
 @nb.njit(cache=True, nogil=True)
+def local_maps(R, v, p):
+    """The maps ``V, P`` (K × 3 × 6) of :func:`excite.information._local_maps` from the keyframes'
+    orientation, world velocity and position: ``V_k = [−R_k[v_k]×, R_k]`` with the body velocity
+    ``v_k = R_kᵀ v``, ``P_k = [−R_k[d_k]×, R_k]`` with the increment ``d_k = R_kᵀ(p_{k+1} − p_k)``
+    (zero for the last keyframe, which has none)."""
+    K = R.shape[0]
+    V = np.empty((K, 3, 6))
+    P = np.zeros((K, 3, 6))
+    x, d = np.empty(3), np.empty(3)
+    for k in range(K):
+        tmulv(R[k], v[k], x)
+        _skew_map(R[k], x, V[k])
+        if k + 1 < K:
+            for c in range(3):
+                d[c] = p[k + 1, c] - p[k, c]
+            tmulv(R[k], d, x)
+            _skew_map(R[k], x, P[k])
+    return V, P
+
+
+@nb.njit(cache=True, inline="always")
+def _skew_map(R, x, out):
+    """out (3 × 6) = [−R[x]×, R]"""
+    for r in range(3):
+        out[r, 0] = -(R[r, 1] * x[2] - R[r, 2] * x[1])
+        out[r, 1] = -(R[r, 2] * x[0] - R[r, 0] * x[2])
+        out[r, 2] = -(R[r, 0] * x[1] - R[r, 1] * x[0])
+        for c in range(3):
+            out[r, 3 + c] = R[r, c]
+
+
+@nb.njit(cache=True, nogil=True)
 def to_local(Jx, first, stride, V, P, sd):
     """World-state Jacobians ``Jx`` (N × r × 9·n_states) of factors at keyframes ``first + stride·a``
     re-expressed in local states over every keyframe they span (N × r × sd·(span + 1): sd ≥ 9
@@ -510,28 +620,31 @@ def to_local(Jx, first, stride, V, P, sd):
         for a in range(ns):
             k = first[f] + a * stride
             col = sd * a * stride
+            Vk = V[k]
             for row in range(r):
+                Jr, Or = J[row], O[row]
                 for c in range(3):
-                    O[row, col + c] += J[row, 9 * a + c]
-                for c in range(6):  # velocity: δv_world = V_k [δθ_k; δv_k]
-                    s = 0.0
-                    for m in range(3):
-                        s += J[row, 9 * a + 6 + m] * V[k, m, c]
-                    O[row, col + c] += s
+                    Or[col + c] += Jr[9 * a + c]
+                j0, j1, j2 = Jr[9 * a + 6], Jr[9 * a + 7], Jr[9 * a + 8]
+                if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:  # (lidar, camera and wheels see no velocity)
+                    for c in range(6):  # velocity: δv_world = V_k [δθ_k; δv_k]
+                        Or[col + c] += j0 * Vk[0, c] + j1 * Vk[1, c] + j2 * Vk[2, c]
         for q in range(span):  # increment q moves the position of every later state of the factor
-            k = first[f] + q
+            Pk = P[first[f] + q]
             for row in range(r):
+                Jr = J[row]
                 j0 = 0.0
                 j1 = 0.0
                 j2 = 0.0
                 for a in range(ns):
                     if a * stride > q:
-                        j0 += J[row, 9 * a + 3]
-                        j1 += J[row, 9 * a + 4]
-                        j2 += J[row, 9 * a + 5]
-                for c in range(6):
-                    s = j0 * P[k, 0, c] + j1 * P[k, 1, c] + j2 * P[k, 2, c]
-                    O[row, sd * q + (c if c < 3 else c + 3)] += s
+                        j0 += Jr[9 * a + 3]
+                        j1 += Jr[9 * a + 4]
+                        j2 += Jr[9 * a + 5]
+                if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:
+                    Or = O[row]
+                    for c in range(6):
+                        Or[sd * q + (c if c < 3 else c + 3)] += j0 * Pk[0, c] + j1 * Pk[1, c] + j2 * Pk[2, c]
     return out
 
 

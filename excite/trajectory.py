@@ -25,7 +25,7 @@ import numpy as np
 from scipy.interpolate import BSpline, PPoly, make_interp_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
-from . import bounds, so3
+from . import bounds
 from .errors import RouteError
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])
@@ -85,17 +85,25 @@ class MotionSamples:
 
     def body(self, R_V_B: np.ndarray, p_V_B: np.ndarray) -> "BodySamples":
         """Motion of a frame B rigidly attached to V at pose ``(R_V_B, p_V_B)`` (e.g. the IMU)."""
-        R_V_B = np.asarray(R_V_B, dtype=float)
+        R_W_B, p_W_B, v_W_B, omega_B = rigid_body(self.R_W_V, self.p_W_V, self.v_W, self.omega_V, R_V_B, p_V_B)
         p_V_B = np.asarray(p_V_B, dtype=float)
-        w, al = self.omega_V, self.alpha_V
-        lever_vel_V = np.cross(w, p_V_B)
-        lever_acc_V = np.cross(al, p_V_B) + np.cross(w, lever_vel_V)
-        R_W_B = self.R_W_V @ R_V_B
-        p_W_B = self.p_W_V + np.einsum("nij,j->ni", self.R_W_V, p_V_B)
-        v_W_B = self.v_W + np.einsum("nij,nj->ni", self.R_W_V, lever_vel_V)
+        w = self.omega_V
+        lever_acc_V = np.cross(self.alpha_V, p_V_B) + np.cross(w, np.cross(w, p_V_B))
         a_W_B = self.a_W + np.einsum("nij,nj->ni", self.R_W_V, lever_acc_V)
-        omega_B = w @ R_V_B  # R_V_Bᵀ ω
         return BodySamples(t=self.t, R_W_B=R_W_B, p_W_B=p_W_B, v_W=v_W_B, a_W=a_W_B, omega_B=omega_B)
+
+
+def rigid_body(R_W_V: np.ndarray, p_W_V: np.ndarray, v_W: np.ndarray, omega_V: np.ndarray, R_V_B: np.ndarray,
+               p_V_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Orientation, position, world velocity and body rate of a frame B rigidly attached to V at
+    pose ``(R_V_B, p_V_B)``, from V's (stacks): ``R_W_V R_V_B``, ``p + R_W_V p_V_B``,
+    ``v + R_W_V (ω × p_V_B)`` and ``R_V_Bᵀ ω``."""
+    R_V_B = np.asarray(R_V_B, dtype=float)
+    p_V_B = np.asarray(p_V_B, dtype=float)
+    R_W_B = R_W_V @ R_V_B
+    p_W_B = p_W_V + np.einsum("nij,j->ni", R_W_V, p_V_B)
+    v_W_B = v_W + np.einsum("nij,nj->ni", R_W_V, np.cross(omega_V, p_V_B))
+    return R_W_B, p_W_B, v_W_B, omega_V @ R_V_B
 
 
 @dataclass(frozen=True)
@@ -176,27 +184,39 @@ class Trajectory:
         n = int(np.floor(self.duration * rate_hz + 1e-9)) + 1
         return self.t_start + np.arange(n) / rate_hz
 
-    def _rotation(self, t: np.ndarray):
-        """Orientation of V at ``t``, its body rate and angular acceleration: the cubic
+    def rotation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Orientation of V at ``t`` (clipped to the drive), its body rate and angular acceleration: the cubic
         rotation-vector spline of ``RotationSpline`` (R = R_k·Exp(φ(t)) on segment k), evaluated
         in one compiled loop (:func:`excite.kernels.rotation_samples`) rather than through scipy's
         rotation objects."""
         from . import kernels
 
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
         rot = self._rot.interpolator
         return kernels.rotation_samples(t, _segments(rot.x, t), rot.x, rot.c, self._R)
 
     def sample(self, t: np.ndarray) -> MotionSamples:
         """The motion at times ``t`` (clipped to the drive)."""
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
-        R, omega, alpha = self._rotation(t)
+        R, omega, alpha = self.rotation(t)
+        p, v, R_V_A = self.translation(t)
+        return MotionSamples(t=t, R_W_V=R, p_W_V=p, v_W=v, a_W=self._acc(t), omega_V=omega, alpha_V=alpha,
+                             R_V_A=R_V_A)
+
+    def translation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position ``p_W_V`` and world velocity of V and the suspension tilt ``R_V_A`` at ``t``
+        (clipped to the drive): :meth:`sample` without the rotation and the acceleration."""
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
         if self._tilt is None:
             R_V_A = np.broadcast_to(np.eye(3), (t.size, 3, 3)).copy()
         else:
-            pr = self._tilt(t)
-            R_V_A = np.swapaxes(so3.rot_y(pr[:, 0]) @ so3.rot_x(pr[:, 1]), 1, 2)
-        return MotionSamples(t=t, R_W_V=R, p_W_V=self._pos(t), v_W=self._vel(t), a_W=self._acc(t),
-                             omega_V=omega, alpha_V=alpha, R_V_A=R_V_A)
+            pr = self._tilt(t)  # R_V_A = (R_y(pitch) R_x(roll))ᵀ, written out
+            cp, sp, cr, sr = np.cos(pr[:, 0]), np.sin(pr[:, 0]), np.cos(pr[:, 1]), np.sin(pr[:, 1])
+            R_V_A = np.zeros((t.size, 3, 3))
+            R_V_A[:, 0, 0], R_V_A[:, 0, 2] = cp, -sp
+            R_V_A[:, 1, 0], R_V_A[:, 1, 1], R_V_A[:, 1, 2] = sp * sr, cr, cp * sr
+            R_V_A[:, 2, 0], R_V_A[:, 2, 1], R_V_A[:, 2, 2] = sp * cr, -sr, cp * cr
+        return self._pos(t), self._vel(t), R_V_A
 
     def imu(self, t: np.ndarray, R_V_B: np.ndarray, p_V_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What a perfect IMU at pose ``(R_V_B, p_V_B)`` in V sees at ``t``: its orientation

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rig import Rig
-from ..trajectory import Trajectory
+from ..trajectory import Trajectory, rigid_body
 
 STATE_DIM = 9
 ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -81,14 +81,16 @@ class Nominal:
         imu_rate = rig.config.imu.update_rate
         n = int(round(imu_rate / rig.keyframe_rate_hz))
         t_imu = t0 + np.arange(k0 * n, k1 * n + 1) / imu_rate
-        pose = rig.config.vehicle.T_V_B
-        imu_R, imu_w, imu_f = traj.imu(t_imu, pose.R, pose.p)
-        s = traj.sample(t_imu[::n])
-        body = s.body(pose.R, pose.p)
-        length = float(np.trapezoid(np.linalg.norm(s.v_W, axis=1), s.t))
-        return cls(t=body.t, R=body.R_W_B, p=body.p_W_B, v=body.v_W, omega=body.omega_B, R_V_A=s.R_V_A,
-                   imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f, imu_per_keyframe=n, R_V_B=pose.R, p_V_B=pose.p,
-                   length_m=length)
+        R_V_B, p_V_B = rig.config.vehicle.T_V_B.R, rig.config.vehicle.T_V_B.p
+        imu_R, imu_w, imu_f = traj.imu(t_imu, R_V_B, p_V_B)
+        # the keyframes: what :meth:`Trajectory.sample` and ``body`` give, less the accelerations
+        t = np.clip(t_imu[::n], traj.t_start, traj.t_end)
+        R_W_V, omega_V, _ = traj.rotation(t)
+        p_V, v_V, R_V_A = traj.translation(t)
+        R, p, v, omega = rigid_body(R_W_V, p_V, v_V, omega_V, R_V_B, p_V_B)
+        length = float(np.trapezoid(np.linalg.norm(v_V, axis=1), t))
+        return cls(t=t, R=R, p=p, v=v, omega=omega, R_V_A=R_V_A, imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f,
+                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length)
 
 
 @dataclass(frozen=True)

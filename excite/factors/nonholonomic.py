@@ -17,9 +17,10 @@ drive, linearised at zero (:func:`lateral_slip_regressor`).
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
-from .. import so3
+from .. import kernels
 from ..rig import Rig
 from .base import FactorBlock, Nominal, theta_columns
 from .wheel import G_MPS2, _geometry, axle_velocity
@@ -27,22 +28,44 @@ from .wheel import G_MPS2, _geometry, axle_velocity
 
 def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
     """Whitened Jacobians of the constraint at every keyframe."""
-    R, v = nom.R, nom.v
-    _, _, R_BA = _geometry(nom)
+    slip = rig.config.vehicle.slip.estimate
+    p_BV, R_BA, v_V = _geometry(nom, slip)
+    sig_lat, sig_vert = rig.nonholonomic_sigma_mps
+    Jx, Jt = _jacobians(nom.R, nom.v, nom.omega, R_BA, v_V, sig_lat, sig_vert, slip)
     K = nom.n_keyframes
-    R_AB = np.swapaxes(R_BA, 1, 2)
-    v_body = np.einsum("nji,nj->ni", R, v)  # R_W_Bᵀ v
-    J = np.zeros((K, 3, 9))
-    J[:, :, 0:3] = R_AB @ so3.hat(v_body)
-    J[:, :, 6:9] = R_AB @ np.swapaxes(R, 1, 2)
-    sig = np.array(rig.nonholonomic_sigma_mps)
-    Jx = J[:, 1:3] / sig[None, :, None]
-    if not rig.config.vehicle.slip.estimate:
-        return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, np.zeros((K, 2, 0)), np.zeros(0, dtype=int))
-    _, p_BV, _ = _geometry(nom)
-    Jt = np.zeros((K, 2, 1))
-    Jt[:, 0, 0] = lateral_slip_regressor(R @ R_BA, axle_velocity(R, v, nom.omega, p_BV), nom.omega, R_BA) / sig[0]
-    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, Jt, theta_columns(rig, ["vehicle.slip_angle"]))
+    cols = theta_columns(rig, ["vehicle.slip_angle"]) if slip else np.zeros(0, dtype=int)
+    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, Jt, cols)
+
+
+@nb.njit(cache=True, nogil=True)
+def _jacobians(R, v, omega_B, R_BA, v_V, sig_lat, sig_vert, slip):
+    """Per keyframe, the lateral and vertical rows (e_y, e_z) of ``R_W_Aᵀ v_V`` w.r.t. the state
+    ``[δθ, δp, δv]`` (the body rate is nominal), with ``v_body = Rᵀ v``::
+
+        ∂/∂θ = R_BAᵀ [v_body]×     ∂/∂v = R_BAᵀ Rᵀ
+
+    and, with ``slip``, the slip angle's column :func:`lateral_slip_regressor` (from the axle
+    velocities ``v_V``) in the lateral row; rows divided by their σ."""
+    K = R.shape[0]
+    Jx = np.zeros((K, 2, 9))
+    Jt = np.zeros((K, 2, 1 if slip else 0))
+    sig = (sig_lat, sig_vert)
+    vb = np.empty(3)
+    X, Y, RA = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    for k in range(K):
+        kernels.tmulv(R[k], v[k], vb)
+        kernels.hat(vb, X)
+        kernels.tmul(R_BA[k], X, Y)  # R_BAᵀ [v_body]×
+        kernels.mul(R[k], R_BA[k], RA)  # R_W_A; R_BAᵀ Rᵀ = R_W_Aᵀ
+        for r in range(2):
+            for c in range(3):
+                Jx[k, r, c] = Y[1 + r, c] / sig[r]
+                Jx[k, r, 6 + c] = RA[c, 1 + r] / sig[r]
+        if slip:
+            u = RA[0, 0] * v_V[k, 0] + RA[1, 0] * v_V[k, 1] + RA[2, 0] * v_V[k, 2]
+            yaw_rate = R_BA[k, 0, 2] * omega_B[k, 0] + R_BA[k, 1, 2] * omega_B[k, 1] + R_BA[k, 2, 2] * omega_B[k, 2]
+            Jt[k, 0, 0] = u * u * yaw_rate / G_MPS2 / sig_lat
+    return Jx, Jt
 
 
 def lateral_slip_regressor(R_W_A, v_V, omega_B, R_BA) -> np.ndarray:

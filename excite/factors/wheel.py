@@ -34,11 +34,32 @@ from .base import FactorBlock, Nominal, theta_columns
 G_MPS2 = float(-GRAVITY[2])  # [m/s²]: slip is stated per g
 
 
-def _geometry(nom: Nominal):
-    R_BV = nom.R_V_B.T
+def _geometry(nom: Nominal, slip: bool = False):
+    """The rear axle seen from B: ``p_BV`` (origin of V in B), ``R_BA = R_BV R_V_A`` at every
+    keyframe and, with ``slip``, the axle's world velocity :func:`axle_velocity` (else an empty
+    stack); compiled (:func:`_axle`), as these run per keyframe on every evaluation."""
+    R_BV = np.ascontiguousarray(nom.R_V_B.T)
     p_BV = -R_BV @ nom.p_V_B  # origin of V in B
-    R_BA = R_BV @ nom.R_V_A  # (K,3,3)
-    return R_BV, p_BV, R_BA
+    R_BA, v_V = _axle(nom.R, nom.v, nom.omega, np.ascontiguousarray(nom.R_V_A), R_BV, p_BV, slip)
+    return p_BV, R_BA, v_V
+
+
+@nb.njit(cache=True, nogil=True)
+def _axle(R, v, omega_B, R_V_A, R_BV, p_BV, velocity):
+    """``R_BA = R_BV R_V_A`` per keyframe and, if ``velocity``, ``v + R (ω_B × p_BV)``
+    (:func:`axle_velocity`; else (0, 3))."""
+    K = R.shape[0]
+    R_BA = np.empty((K, 3, 3))
+    v_V = np.empty((K if velocity else 0, 3))
+    a, b = np.empty(3), np.empty(3)
+    for k in range(K):
+        kernels.mul(R_BV, R_V_A[k], R_BA[k])
+        if velocity:
+            kernels.cross(omega_B[k], p_BV, a)
+            kernels.mulv(R[k], a, b)
+            for c in range(3):
+                v_V[k, c] = v[k, c] + b[c]
+    return R_BA, v_V
 
 
 def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
@@ -46,12 +67,11 @@ def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
     wc = rig.config.wheels
     if wc is None:
         return None
-    _, p_BV, R_BA = _geometry(nom)
     names = ["wheel.radius_left", "wheel.radius_right", "wheel.track"] if wc.estimate else []
     slip = rig.config.vehicle.slip.estimate
-    v_V = axle_velocity(nom.R, nom.v, nom.omega, p_BV) if slip else np.zeros((0, 3))
+    p_BV, R_BA, v_V = _geometry(nom, slip)
     dT = nom.t[1] - nom.t[0] if nom.n_keyframes > 1 else 1.0
-    Jx, Jt = _jacobians(nom.R, nom.p, np.ascontiguousarray(R_BA), p_BV, wc.radius_left_m, wc.radius_right_m,
+    Jx, Jt = _jacobians(nom.R, nom.p, R_BA, p_BV, wc.radius_left_m, wc.radius_right_m,
                         wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate, slip, v_V, dT)
     cols = theta_columns(rig, names + (["wheel.slip"] if slip else [])) if names or slip else np.zeros(0, dtype=int)
     return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
