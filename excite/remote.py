@@ -76,7 +76,7 @@ def _fetch(url: str, dst: Path, max_bytes: int) -> None:
         raise RouteError(f"cannot read {url}: {exc}") from None
     except ValueError as exc:  # an unknown scheme
         raise RouteError(f"cannot read {url}: {exc}") from None
-    budget = [max_bytes, max_bytes]  # bytes still allowed (shared by every file of a folder), the limit
+    budget = [max_bytes]  # bytes still allowed, shared by every file of a folder
     try:
         # a folder only when it is a ROS 2 bag (its metadata.yaml): an HTTP page with links
         # (a listing, a login page) looks like a folder to fsspec
@@ -87,9 +87,9 @@ def _fetch(url: str, dst: Path, max_bytes: int) -> None:
                 target = (dst / rel).resolve()
                 if rel.startswith("..") or not target.is_relative_to(dst.resolve()):
                     raise RouteError(f"{url}: {f} lies outside the folder")
-                _copy(fs, f, target, url, budget)
+                _copy(fs, f, target, url, budget, max_bytes)
         else:
-            _copy(fs, rpath, dst, url, budget)
+            _copy(fs, rpath, dst, url, budget, max_bytes)
     except RouteError:
         raise
     except FileNotFoundError:
@@ -98,12 +98,12 @@ def _fetch(url: str, dst: Path, max_bytes: int) -> None:
         raise RouteError(f"cannot read {url}: {type(exc).__name__}: {exc}".splitlines()[0][:300]) from None
 
 
-def _copy(fs, rpath: str, dst: Path, url: str, budget: list[int]) -> None:
+def _copy(fs, rpath: str, dst: Path, url: str, budget: list[int], max_bytes: int) -> None:
     dst.parent.mkdir(parents=True, exist_ok=True)
     # block_size=0: one streaming read (HTTP servers need not support range requests)
     with fs.open(rpath, "rb", block_size=0) as src, open(dst, "wb") as out:
         while chunk := src.read(1 << 20):
             budget[0] -= len(chunk)
             if budget[0] < 0:
-                raise RouteError(f"{url}: over the limit of {budget[1]} bytes for one route")
+                raise RouteError(f"{url}: over the limit of {max_bytes} bytes for one route")
             out.write(chunk)

@@ -169,6 +169,12 @@ def _paths(k: str, create: bool = False) -> dict[str, Path]:
     return paths
 
 
+def _installation() -> dict[str, str]:
+    """The interpreter and the excite package of this process (what the resident processes of
+    one installation share whatever their key)."""
+    return {"python": os.path.realpath(sys.executable), "package": str(Path(__file__).resolve().parent)}
+
+
 def _peer_uid(s: socket.socket) -> int:
     creds = s.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
     return struct.unpack("3i", creds)[1]
@@ -341,7 +347,8 @@ def start(idle_minutes: float = IDLE_MINUTES, wait_s: float = 0.0) -> int:
 
     if not sys.platform.startswith("linux"):
         raise RuntimeError("the resident process runs on Linux only")
-    paths = _paths(key(), create=True)
+    k = key()
+    paths = _paths(k, create=True)
     paths["failed"].unlink(missing_ok=True)
     with open(paths["log"], "ab") as log:  # the resident process that takes the lock empties it
         proc = subprocess.Popen([sys.executable, "-c", "from excite.resident import main; main()",
@@ -350,7 +357,7 @@ def start(idle_minutes: float = IDLE_MINUTES, wait_s: float = 0.0) -> int:
                                 start_new_session=True, close_fds=True)  # the caller's directory: a
         # relative entry of PYTHONPATH resolves in it, as it did for the caller (and the key)
     deadline = time.monotonic() + wait_s
-    while wait_s > 0 and (answer := control("status")) is None:
+    while wait_s > 0 and (answer := control("status", k)) is None:
         if proc.poll() not in (None, _LOST_THE_LOCK) or time.monotonic() > deadline:
             raise RuntimeError(f"the resident process did not start (its log: {paths['log']})")
         time.sleep(0.1)
@@ -360,11 +367,11 @@ def start(idle_minutes: float = IDLE_MINUTES, wait_s: float = 0.0) -> int:
 def _retire_others(k: str) -> None:
     """Stop the resident processes of this same installation whose key no longer matches (a
     source file edited, a setting changed): nothing will ask them again."""
-    me = (os.path.realpath(sys.executable), str(Path(__file__).resolve().parent))
+    me = _installation()
     for sock in private_home(False).glob("*.sock"):
         if sock.name != f"{k}.sock":
             status = control("status", path=sock)
-            if status is not None and (status.get("python"), status.get("package")) == me:
+            if status is not None and {name: status.get(name) for name in me} == me:
                 control("stop", path=sock)
 
 
@@ -419,8 +426,7 @@ class _Resident:
     def status(self) -> dict:
         return {"pid": os.getpid(), "key": self.key, "started": self.started, "served": self.served,
                 "running": len(self.children), "commands": sorted(self.children), "idle_s": round(time.monotonic() - self.last, 1),
-                "leaves_after_idle_s": self.idle_s, "python": os.path.realpath(sys.executable),
-                "package": str(Path(__file__).resolve().parent)}
+                "leaves_after_idle_s": self.idle_s, **_installation()}
 
     def serve(self) -> None:
         import select
@@ -563,9 +569,9 @@ def _command(conn: socket.socket, fds: list[int], request: dict) -> int:
     import threading
 
     os.setpgid(0, 0)  # the command and the processes it starts: one group, as at a terminal
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    for name in ("SIGTERM", "SIGHUP", "SIGQUIT"):
-        signal.signal(getattr(signal, name), signal.SIG_DFL)
+    forwarded = [getattr(signal, name) for name in _FORWARDED]
+    for sig in forwarded:  # as in a fresh process: Ctrl-C raises KeyboardInterrupt, the others end it
+        signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
     conn.settimeout(None)
     declined = _take_on(request["settings"])
     if declined is not None:
@@ -586,7 +592,7 @@ def _command(conn: socket.socket, fds: list[int], request: dict) -> int:
     conn.sendall(json.dumps({"pid": os.getpid()}).encode() + b"\n")
 
     def watch() -> None:  # the caller's forwarded signals, to the whole group; its end ends it
-        signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT])
+        signal.pthread_sigmask(signal.SIG_BLOCK, forwarded)
         while True:
             try:
                 got = conn.recv(1)

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from ..errors import ExciteError
+from ..resident import command_of
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   rich_markup_mode=None,
@@ -57,8 +58,8 @@ def console(stderr: bool = False) -> Any:
 
 def register(argv: list[str]) -> None:
     """Import the module of the command being run (all of them for the overview help)."""
-    words = [a for a in argv if not a.startswith("-")]
-    wanted = [COMMANDS[words[0]]] if words and words[0] in COMMANDS else sorted(set(COMMANDS.values()))
+    command = command_of(argv)
+    wanted = [COMMANDS[command]] if command in COMMANDS else sorted(set(COMMANDS.values()))
     for module in wanted:
         importlib.import_module(f".{module}", __name__)
 
