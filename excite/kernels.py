@@ -325,55 +325,77 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
     N, r, nx = Jx.shape
     ns = n_states
-    xd = nx // ns  # columns per state in Jx
+    xd = nx // ns
     c = Jt.shape[2]
     M = nx + c
-    w = np.empty((3, M))  # three rows of [Jx Jt]
-    G = np.empty((M, M))  # lower triangle of [Jx Jt]ᵀ[Jx Jt] of one factor
-    T = np.zeros((c, c))  # lower triangle of Σ Jtᵀ Jt over the factors (added to Htt at the end)
+    # G's columns: the calibration columns first, then the factor's states in the order of their
+    # positions (state a of the factor is state a of G for sign > 0, state ns−1−a for sign < 0), so
+    # that every block added below is a run of contiguous entries in a row of G's lower triangle
+    # and in a row of its destination (the sums are those of the factor's own column order: the
+    # same rows in the same order, each product commuted, bit for bit)
+    w = np.empty((3, M))
+    G = np.empty((M, M))
+    T = np.zeros((c, c))
+    c0 = cols[0] if c else 0
+    runs = True  # the calibration columns are one run c0 … c0+c−1
+    for v in range(1, c):
+        runs = runs and cols[v] == c0 + v
     for f in range(f0, f1):
         for u in range(M):
             for v in range(u + 1):
                 G[u, v] = 0.0
-        for row0 in range(0, r, 3):  # outer products of three rows at a time (lower triangle; contiguous inner loop)
+        for row0 in range(0, r, 3):
             nr = min(3, r - row0)
             w[:] = 0.0
             for k in range(nr):
-                for u in range(nx):
-                    w[k, u] = Jx[f, row0 + k, u]
+                Jr = Jx[f, row0 + k]
                 for u in range(c):
-                    w[k, nx + u] = Jt[f, row0 + k, u]
+                    w[k, u] = Jt[f, row0 + k, u]
+                for a in range(ns):
+                    src = xd * a
+                    dst = c + xd * (a if sign > 0 else ns - 1 - a)
+                    for u in range(xd):
+                        w[k, dst + u] = Jr[src + u]
             w0, w1, w2 = w[0], w[1], w[2]
             for u in range(M):
                 a0, a1, a2 = w0[u], w1[u], w2[u]
                 if a0 != 0.0 or a1 != 0.0 or a2 != 0.0:
                     for v in range(u + 1):
                         G[u, v] += a0 * w0[v] + a1 * w1[v] + a2 * w2[v]
-        for a in range(ns):
+        for g in range(ns):  # state g of G (sweep order): position i
+            a = g if sign > 0 else ns - 1 - g
             i = origin + sign * (first[f] + stride * a)
+            o = c + xd * g
             blk = band[0, i]
-            o = xd * a
-            for u in range(xd):  # a diagonal block: its lower triangle (all that eliminate reads)
-                for v in range(u + 1):
-                    blk[u, v] += G[o + u, o + v]
-            for b in range(a):  # a later state of the factor than b
-                ob = xd * b
-                if sign > 0:  # the later position a holds the rows
-                    blk = band[stride * (a - b), i - sign * stride * (a - b)]
-                    for u in range(xd):
-                        for v in range(xd):
-                            blk[u, v] += G[o + u, ob + v]
-                else:
-                    blk = band[stride * (a - b), i]
-                    for u in range(xd):
-                        for v in range(xd):
-                            blk[u, v] += G[o + v, ob + u]
             for u in range(xd):
-                for v in range(c):
-                    Hxt[i, u, cols[v]] += G[nx + v, o + u]
+                Gu = G[o + u]
+                bu = blk[u]
+                for v in range(u + 1):
+                    bu[v] += Gu[o + v]
+            for h in range(g):  # an earlier state of G, h: its position is i − stride·(g − h)
+                d = stride * (g - h)
+                blk = band[d, i - d]
+                oh = c + xd * h
+                for u in range(xd):
+                    Gu = G[o + u]
+                    bu = blk[u]
+                    for v in range(xd):
+                        bu[v] += Gu[oh + v]
+            if runs:
+                for u in range(xd):
+                    Gu = G[o + u]
+                    Hu = Hxt[i, u]
+                    for v in range(c):
+                        Hu[c0 + v] += Gu[v]
+            else:
+                for u in range(xd):
+                    Gu = G[o + u]
+                    Hu = Hxt[i, u]
+                    for v in range(c):
+                        Hu[cols[v]] += Gu[v]
         for u in range(c):
             for v in range(u + 1):
-                T[u, v] += G[nx + u, nx + v]
+                T[u, v] += G[u, v]
     for u in range(c):
         for v in range(u):
             Htt[cols[u], cols[v]] += T[u, v]
@@ -391,6 +413,7 @@ def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
     step's six components; empty without) the walk's information is added on the bias deviations'
     diagonals. Returns −1, or the keyframe (0 … m) whose pivot failed (:func:`eliminate`)."""
     D = band.shape[0] - 1
+    sd = band.shape[2]
     n_slabs = (m + slab - 1) // slab
     edge = np.empty(n_slabs + 1, dtype=np.int64)
     for i in range(n_slabs):
@@ -430,7 +453,12 @@ def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
             for j in range(lo, n_in):
                 for c in range(6):
                     band[1, j, o + c, o + c] -= w2[c]
-        bad = eliminate(band, Hxt, Htt, 0, hi - s)
+        if D == 1 and sd == 15:  # random-walk biases, consecutive keyframes: sizes known to the compiler
+            bad = _eliminate(band, Hxt, Htt, 0, hi - s, 1, 15)
+        elif D == 1 and sd == 9:  # constant biases
+            bad = _eliminate(band, Hxt, Htt, 0, hi - s, 1, 9)
+        else:
+            bad = eliminate(band, Hxt, Htt, 0, hi - s)
         if bad >= 0:
             return s + bad if forward else m - s - bad
         if hi < m:  # the keyframes the next slab shares move to the ring's front
@@ -513,9 +541,15 @@ def eliminate(band, Hxe, Hee, lo, hi):
     factorisation reads; those of the remaining states are made symmetric at the end). Returns −1,
     or the first state whose pivot block is not positive definite (to rounding: a pivot below
     ``_PIVOT_RTOL`` of its diagonal entry)."""
-    D = band.shape[0] - 1
+    return _eliminate(band, Hxe, Hee, lo, hi, band.shape[0] - 1, band.shape[2])
+
+
+@nb.njit(cache=True, inline="always")
+def _eliminate(band, Hxe, Hee, lo, hi, D, sd):
+    """:func:`eliminate` with the band's width D and the state dimension sd as arguments: inlined
+    where they are constants (the common cases of :func:`eliminate_slabs`), the compiler sizes its
+    loops for them."""
     n = band.shape[1]
-    sd = band.shape[2]
     q = Hxe.shape[2]
     L = np.zeros((sd, sd))
     inv = np.empty(sd)  # 1 / diag L
