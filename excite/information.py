@@ -29,7 +29,7 @@ drives. The marginal on θ does not depend on the parametrisation (the tests com
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import time
 from collections.abc import Sequence
@@ -151,7 +151,7 @@ def _drive_column_map(rig: Rig, drive: int, n_drives: int) -> np.ndarray:
 
 def _on_drive_columns(blocks: list, col_map: np.ndarray) -> list:
     return [b if b is None or not b.cols.size else
-            FactorBlock(b.name, b.first, b.stride, b.n_states, b.Jx, b.Jt, col_map[b.cols]) for b in blocks]
+            FactorBlock(b.name, b.first, b.stride, b.n_states, b.Jx, b.Jt, col_map[b.cols], b.xcols) for b in blocks]
 
 
 def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
@@ -238,6 +238,8 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool, walk: bool = Tru
     if rig.bias_random_walk:
         imu_blk = blocks[0] = blocks[0] if local else _widen(blocks[0])
         imu_blk.Jx[:, :, BIAS] = imu_blk.Jt  # b_k = θ_b + δb_k
+        if imu_blk.xcols is not None:
+            blocks[0] = replace(imu_blk, xcols=np.union1d(imu_blk.xcols, np.arange(BIAS.start, BIAS.stop)))
         if walk:
             steps = _bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
             blocks.append(_bias_anchored(steps, np.array([m])) if last else steps)
@@ -326,8 +328,8 @@ def _to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray, sd: int = STATE_DIM)
     the factor's first keyframe drops out. ``sd`` columns per state (the 9 trajectory states
     first; with ``sd`` = 15 the bias columns are left zero).
     """
-    out = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P, sd)
-    return FactorBlock(b.name, b.first, 1, out.shape[2] // sd, out, b.Jt, b.cols)
+    out, seen = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P, sd)
+    return FactorBlock(b.name, b.first, 1, out.shape[2] // sd, out, b.Jt, b.cols, np.flatnonzero(seen))
 
 
 def _yaw_gauge(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
@@ -392,7 +394,7 @@ def _accumulated(blocks: Sequence[FactorBlock], m: int, p: int, sd: int) -> tupl
     Htt = np.zeros((p, p))
     for blk in blocks:
         kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states, band, Hxt, Htt,
-                           0, blk.n_factors, 0, 1)
+                           0, blk.n_factors, 0, 1, blk.nonzero_columns())
     return band, Hxt, Htt
 
 
@@ -499,15 +501,17 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
     return band[0, last].copy(), Hxt[last].copy(), Htt
 
 
-_NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), _NO_COLS, np.zeros(0, dtype=np.int64), 1, 1)
+_NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), _NO_COLS, np.zeros(0, dtype=np.int64), 1, 1,
+             np.zeros(0, dtype=np.int64))
 
 
 def _as_tuple(blocks: Sequence[FactorBlock]) -> tuple:
     """``blocks`` for the compiled sweep (:func:`excite.kernels.eliminate_slabs`): a tuple of
-    ``(Jx, Jt, cols, first, stride, n_states)``, padded with empty blocks to a multiple of 8, so
+    ``(Jx, Jt, cols, first, stride, n_states, xcols)``, padded with empty blocks to a multiple of 8, so
     that its type, and with it the compiled code, is the same for every rig (up to 8 blocks)."""
     out = [(np.ascontiguousarray(b.Jx), np.ascontiguousarray(b.Jt), np.ascontiguousarray(b.cols, dtype=np.int64),
-            np.ascontiguousarray(b.first, dtype=np.int64), int(b.stride), int(b.n_states)) for b in blocks]
+            np.ascontiguousarray(b.first, dtype=np.int64), int(b.stride), int(b.n_states),
+            np.ascontiguousarray(b.nonzero_columns(), dtype=np.int64)) for b in blocks]
     return tuple(out + [_NO_BLOCK] * (-len(out) % 8))
 
 
@@ -657,7 +661,8 @@ def at_keyframe(blocks: list, sd: int, p: int) -> np.ndarray:
     band = np.zeros((1, 1, sd, sd))
     Hxt, Htt = np.zeros((1, sd, p)), np.zeros((p, p))
     for b in blocks:
-        kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt, 0, b.n_factors, 0, 1)
+        kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt, 0, b.n_factors, 0, 1,
+                           b.nonzero_columns())
     H = np.zeros((sd + p, sd + p))
     H[:sd, :sd] = np.tril(band[0, 0]) + np.tril(band[0, 0], -1).T
     H[:sd, sd:] = Hxt[0]

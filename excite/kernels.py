@@ -313,29 +313,60 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
 
 
 @nb.njit(cache=True, nogil=True)
-def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, origin, sign):
+def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, origin, sign, xc):
     """Add ``JᵀJ`` of the factors ``f0 … f1−1`` of a stack to a block-banded information matrix.
 
     Factor ``f`` touches the ``n_states`` keyframes ``first[f] + stride · a`` (xd = nx/n_states
     columns each of ``Jx[f]``: the first xd ≤ sd components of each state, sd the state dimension:
     a factor that does not see the bias states leaves them out) and the calibration columns
-    ``cols`` (``Jt[f]``). Keyframe k is stored at position ``origin + sign · k`` (sign ±1: a window
-    of the keyframes, in either order). Storage: ``band[d, j] = H[x_{j+d}, x_j]`` (sd × sd,
-    positions; of the diagonal blocks d = 0 the lower triangle only, all that :func:`eliminate` reads),
-    ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``."""
+    ``cols`` (``Jt[f]``); of ``Jx`` only the columns ``xc`` (increasing) are read, every other one
+    being zero (``FactorBlock.xcols``). Keyframe k is stored at position ``origin + sign · k``
+    (sign ±1: a window of the keyframes, in either order). Storage: ``band[d, j] = H[x_{j+d}, x_j]``
+    (sd × sd, positions; of the diagonal blocks d = 0 the lower triangle only, all that
+    :func:`eliminate` reads), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``.
+
+    Per factor, ``G = [Jt Jxc]ᵀ[Jt Jxc]`` (lower triangle): the calibration columns first, then the
+    columns ``xc`` of the factor's states in the order of their positions (state a is state a of G
+    for sign > 0, state ns−1−a for sign < 0), so that each block added below is a run of contiguous
+    entries in a row of G and in a row of its destination. The sums are those over the full columns
+    in the factor's own order, bit for bit (the same rows in the same order, each product commuted;
+    a zero column adds exact zeros)."""
     N, r, nx = Jx.shape
     ns = n_states
     xd = nx // ns
     c = Jt.shape[2]
-    M = nx + c
-    # G's columns: the calibration columns first, then the factor's states in the order of their
-    # positions (state a of the factor is state a of G for sign > 0, state ns−1−a for sign < 0), so
-    # that every block added below is a run of contiguous entries in a row of G's lower triangle
-    # and in a row of its destination (the sums are those of the factor's own column order: the
-    # same rows in the same order, each product commuted, bit for bit)
+    nxc = xc.size
+    M = nxc + c
+    # G's column c + u is column gx[u] of Jx: component gc[u] of G's state gg[u]
+    gx = np.empty(nxc, dtype=np.int64)
+    gg = np.empty(nxc, dtype=np.int64)
+    gc = np.empty(nxc, dtype=np.int64)
+    u = 0
+    for g in range(ns):
+        a = g if sign > 0 else ns - 1 - g
+        for t in range(nxc):
+            if xc[t] // xd == a:
+                gx[u] = xc[t]
+                gg[u] = g
+                gc[u] = xc[t] - xd * a
+                u += 1
+    # runs of consecutive components of one state: its G state, first component, first G column, length
+    run_g = np.empty(nxc, dtype=np.int64)
+    run_c = np.empty(nxc, dtype=np.int64)
+    run_u = np.empty(nxc, dtype=np.int64)
+    run_n = np.zeros(nxc, dtype=np.int64)
+    n_runs = 0
+    for u in range(nxc):
+        if u == 0 or gg[u] != gg[u - 1] or gc[u] != gc[u - 1] + 1:
+            run_g[n_runs] = gg[u]
+            run_c[n_runs] = gc[u]
+            run_u[n_runs] = c + u
+            n_runs += 1
+        run_n[n_runs - 1] += 1
     w = np.empty((3, M))
     G = np.empty((M, M))
     T = np.zeros((c, c))
+    pos = np.empty(ns, dtype=np.int64)
     c0 = cols[0] if c else 0
     runs = True  # the calibration columns are one run c0 … c0+c−1
     for v in range(1, c):
@@ -351,46 +382,37 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
                 Jr = Jx[f, row0 + k]
                 for u in range(c):
                     w[k, u] = Jt[f, row0 + k, u]
-                for a in range(ns):
-                    src = xd * a
-                    dst = c + xd * (a if sign > 0 else ns - 1 - a)
-                    for u in range(xd):
-                        w[k, dst + u] = Jr[src + u]
+                for u in range(nxc):
+                    w[k, c + u] = Jr[gx[u]]
             w0, w1, w2 = w[0], w[1], w[2]
             for u in range(M):
                 a0, a1, a2 = w0[u], w1[u], w2[u]
                 if a0 != 0.0 or a1 != 0.0 or a2 != 0.0:
                     for v in range(u + 1):
                         G[u, v] += a0 * w0[v] + a1 * w1[v] + a2 * w2[v]
-        for g in range(ns):  # state g of G (sweep order): position i
+        for g in range(ns):
             a = g if sign > 0 else ns - 1 - g
-            i = origin + sign * (first[f] + stride * a)
-            o = c + xd * g
-            blk = band[0, i]
-            for u in range(xd):
-                Gu = G[o + u]
-                bu = blk[u]
-                for v in range(u + 1):
-                    bu[v] += Gu[o + v]
-            for h in range(g):  # an earlier state of G, h: its position is i − stride·(g − h)
-                d = stride * (g - h)
-                blk = band[d, i - d]
-                oh = c + xd * h
-                for u in range(xd):
-                    Gu = G[o + u]
-                    bu = blk[u]
-                    for v in range(xd):
-                        bu[v] += Gu[oh + v]
-            if runs:
-                for u in range(xd):
-                    Gu = G[o + u]
-                    Hu = Hxt[i, u]
+            pos[g] = origin + sign * (first[f] + stride * a)
+        for A in range(n_runs):
+            gA, cA, uA, nA = run_g[A], run_c[A], run_u[A], run_n[A]
+            iA = pos[gA]
+            for B in range(A + 1):  # a run of the same state or an earlier one (position iA − d)
+                gB, cB, uB, nB = run_g[B], run_c[B], run_u[B], run_n[B]
+                d = stride * (gA - gB)
+                blk = band[d, iA - d]
+                for uu in range(nA):
+                    Gu = G[uA + uu]
+                    bu = blk[cA + uu]
+                    top = uu + 1 if B == A else nB
+                    for vv in range(top):
+                        bu[cB + vv] += Gu[uB + vv]
+            for uu in range(nA):
+                Gu = G[uA + uu]
+                Hu = Hxt[iA, cA + uu]
+                if runs:
                     for v in range(c):
                         Hu[c0 + v] += Gu[v]
-            else:
-                for u in range(xd):
-                    Gu = G[o + u]
-                    Hu = Hxt[i, u]
+                else:
                     for v in range(c):
                         Hu[cols[v]] += Gu[v]
         for u in range(c):
@@ -406,7 +428,7 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
 @nb.njit(cache=True, nogil=True)
 def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
     """The slab loop of :func:`excite.information._eliminated` (documented there), compiled: the
-    factors of ``blocks`` (a tuple of ``(Jx, Jt, cols, first, stride, n_states)``, keyframe
+    factors of ``blocks`` (a tuple of ``(Jx, Jt, cols, first, stride, n_states, xcols)``, keyframe
     indices 0 … m of a chunk: :func:`excite.information._as_tuple`) are accumulated and eliminated ``slab`` keyframes at a time in the
     ring buffer ``band, Hxt`` (``slab + D`` positions, D the widest factor's span; position 0
     holds what is carried in), in the sweep's order; with random-walk biases (``w2``: 1/σ² of a
@@ -432,11 +454,11 @@ def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
         s = i * slab
         hi = min(s + slab, m)
         for bi in range(len(blocks)):
-            Jx, Jt, cols, first, stride, ns = blocks[bi]
+            Jx, Jt, cols, first, stride, ns, xc = blocks[bi]
             f0, f1 = (bounds[bi, i], bounds[bi, i + 1]) if forward else (bounds[bi, i + 1], bounds[bi, i])
             if f1 > f0:
                 accumulate(Jx, Jt, cols, first, stride, ns, band, Hxt, Htt, f0, f1, -s if forward else m - s,
-                           1 if forward else -1)
+                           1 if forward else -1, xc)
         if w2.size:  # the steps whose first keyframe in the sweep's order is in the slab: positions
             # 0 … n−1 of the ring to 1 … n (either direction), less a step into the drive's end
             n_steps = hi - s if forward else m - s - max(0, m - edge[i + 1])
@@ -643,11 +665,14 @@ def to_local(Jx, first, stride, V, P, sd):
     """World-state Jacobians ``Jx`` (N × r × 9·n_states) of factors at keyframes ``first + stride·a``
     re-expressed in local states over every keyframe they span (N × r × sd·(span + 1): sd ≥ 9
     columns per state, the 9 trajectory states first, any further ones zero); the maps
-    ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information._to_local`."""
+    ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information._to_local`.
+    Also returns which of those columns it wrote a non-zero to (every other column is zero for
+    every factor: a factor that sees no velocity, the increments after its last keyframe)."""
     N, r, nx = Jx.shape
     ns = nx // 9
     span = stride * (ns - 1)
     out = np.zeros((N, r, sd * (span + 1)))
+    seen = np.zeros(sd * (span + 1), dtype=np.bool_)
     for f in range(N):
         J = Jx[f]
         O = out[f]
@@ -658,11 +683,14 @@ def to_local(Jx, first, stride, V, P, sd):
             for row in range(r):
                 Jr, Or = J[row], O[row]
                 for c in range(3):
-                    Or[col + c] += Jr[9 * a + c]
+                    if Jr[9 * a + c] != 0.0:
+                        Or[col + c] += Jr[9 * a + c]
+                        seen[col + c] = True
                 j0, j1, j2 = Jr[9 * a + 6], Jr[9 * a + 7], Jr[9 * a + 8]
                 if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:  # (lidar, camera and wheels see no velocity)
                     for c in range(6):  # velocity: δv_world = V_k [δθ_k; δv_k]
                         Or[col + c] += j0 * Vk[0, c] + j1 * Vk[1, c] + j2 * Vk[2, c]
+                        seen[col + c] = True
         for q in range(span):  # increment q moves the position of every later state of the factor
             Pk = P[first[f] + q]
             for row in range(r):
@@ -679,7 +707,8 @@ def to_local(Jx, first, stride, V, P, sd):
                     Or = O[row]
                     for c in range(6):
                         Or[sd * q + (c if c < 3 else c + 3)] += j0 * Pk[0, c] + j1 * Pk[1, c] + j2 * Pk[2, c]
-    return out
+                        seen[sd * q + (c if c < 3 else c + 3)] = True
+    return out, seen
 
 
 # --- 3 × 3 helpers of the factor kernels (write into ``out``; no allocation) --------------------

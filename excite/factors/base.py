@@ -99,7 +99,8 @@ class FactorBlock:
 
     Factor ``f`` touches the keyframes ``first[f] + stride · m`` for ``m < n_states`` through
     ``Jx[f]`` (r × 9·n_states), and the calibration columns ``cols`` through ``Jt[f]``
-    (r × len(cols)).
+    (r × len(cols)). ``xcols``, where known: the columns of ``Jx`` that may be non-zero (every other
+    one is zero for every factor), which :func:`excite.kernels.accumulate` can skip.
     """
 
     name: str
@@ -109,6 +110,11 @@ class FactorBlock:
     Jx: np.ndarray
     Jt: np.ndarray
     cols: np.ndarray
+    xcols: np.ndarray | None = None
+
+    def nonzero_columns(self) -> np.ndarray:
+        """``xcols``, or every column of ``Jx`` where they are not known."""
+        return np.arange(self.Jx.shape[2]) if self.xcols is None else self.xcols
 
     @property
     def n_factors(self) -> int:
@@ -126,11 +132,12 @@ class FactorBlock:
 
     def select(self, mask: np.ndarray) -> "FactorBlock":
         return FactorBlock(self.name, self.first[mask], self.stride, self.n_states, self.Jx[mask],
-                           self.Jt[mask], self.cols)
+                           self.Jt[mask], self.cols, self.xcols)
 
     def shifted(self, by: int) -> "FactorBlock":
         """The same factors with keyframe indices moved by ``by``."""
-        return FactorBlock(self.name, self.first + by, self.stride, self.n_states, self.Jx, self.Jt, self.cols)
+        return FactorBlock(self.name, self.first + by, self.stride, self.n_states, self.Jx, self.Jt, self.cols,
+                           self.xcols)
 
 
 def theta_columns(rig: Rig, names: list[str]) -> np.ndarray:
