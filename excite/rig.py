@@ -10,6 +10,7 @@ Accuracy targets and priors accept plain SI numbers or strings with units (``"0.
 from __future__ import annotations
 
 import fnmatch
+import functools
 import math
 import re
 from dataclasses import dataclass
@@ -286,10 +287,11 @@ class Rig:
         return tuple(c for c in self.coordinates if not c.nuisance)
 
     def index(self, name: str) -> int:
-        for i, c in enumerate(self.coordinates):
-            if c.name == name:
-                return i
-        raise KeyError(name)
+        return self._indices[name]
+
+    @functools.cached_property
+    def _indices(self) -> dict[str, int]:
+        return {c.name: i for i, c in enumerate(self.coordinates)}
 
     def with_config(self, **changes: Any) -> "Rig":
         """A copy of this rig with top-level config fields replaced (validated again)."""
