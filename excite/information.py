@@ -441,7 +441,7 @@ def marginal(problem: Problem) -> np.ndarray:
             idx = order[bounds[k]:bounds[k + 1]]
             sel = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx  # idx increases
             per_chunk[k].append(FactorBlock(blk.name, blk.first[sel] - edges[k], blk.stride, blk.n_states,
-                                            blk.Jx[sel], blk.Jt[sel], blk.cols))
+                                            blk.Jx[sel], blk.Jt[sel], blk.cols, blk.xcols))
     pieces = list(pool().map(lambda c: _piece(per_chunk[c], edges[c], edges[c + 1], problem.n_params,
                                               problem.state_dim), range(C)))
     return _reduce(pieces, problem.n_params)
