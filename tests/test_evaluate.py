@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from excite import information, so3
+from excite import information, kernels, so3
 from excite.errors import EvaluationError
 from excite.evaluate import Options, evaluate
 from excite.factors.base import FactorBlock, Nominal
@@ -484,3 +484,35 @@ def test_nearly_singular_keyframe_is_named():
     prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
     with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
         information._piece([prior], 100, 106, 1, 9)
+
+
+@pytest.mark.parametrize("variant", ["random walk", "constant biases", "5 Hz lidar"])
+def test_accumulate_skips_only_zero_columns(rig, variant):
+    """Each linearised block names the columns of its Jacobian that can be non-zero (``xcols``,
+    reported by the local-state map as it writes them); every other column is zero for every
+    factor, and accumulating over ``xcols`` only gives the band, H_xθ and H_θθ of accumulating
+    over every column, bit for bit, in either storage order."""
+    r = {"random walk": rig, "constant biases": rig.with_constant_biases(), "5 Hz lidar": _five_hz_lidar(rig)}[variant]
+    t = np.linspace(0, 8, 9)
+    nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
+                           r.suspension), r)
+    prob = information.build(nom, r)
+    sd, p, K = prob.state_dim, prob.n_params, prob.n_keyframes
+    skipped = 0
+    for blk in prob.blocks:
+        if blk.xcols is None:  # gauge and placeholder rows: every column is read
+            continue
+        zero = np.setdiff1d(np.arange(blk.Jx.shape[2]), blk.xcols)
+        assert not blk.Jx[:, :, zero].any(), blk.name
+        skipped += zero.size
+        D = blk.stride * (blk.n_states - 1)
+        for sign, origin in ((1, 0), (-1, K - 1)):
+            out = []
+            for xc in (blk.xcols, np.arange(blk.Jx.shape[2])):
+                band, Hxt, Htt = np.zeros((D + 1, K, sd, sd)), np.zeros((K, sd, p)), np.zeros((p, p))
+                kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states,
+                                   band, Hxt, Htt, 0, blk.n_factors, origin, sign, xc)
+                out.append((band, Hxt, Htt))
+            for a, b in zip(*out):
+                assert np.array_equal(a, b), (blk.name, sign)
+    assert skipped > 0  # the lidar, camera and wheels see no velocity
