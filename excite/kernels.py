@@ -672,7 +672,9 @@ def to_local(Jx, first, stride, V, P, sd):
     ns = nx // 9
     span = stride * (ns - 1)
     out = np.zeros((N, r, sd * (span + 1)))
-    seen = np.zeros(sd * (span + 1), dtype=np.bool_)
+    rot_seen = np.zeros(ns, dtype=np.bool_)
+    vel_seen = np.zeros(ns, dtype=np.bool_)
+    inc_seen = np.zeros(max(span, 1), dtype=np.bool_)
     for f in range(N):
         J = Jx[f]
         O = out[f]
@@ -680,17 +682,27 @@ def to_local(Jx, first, stride, V, P, sd):
             k = first[f] + a * stride
             col = sd * a * stride
             Vk = V[k]
+            v00, v01, v02, v03, v04, v05 = Vk[0, 0], Vk[0, 1], Vk[0, 2], Vk[0, 3], Vk[0, 4], Vk[0, 5]
+            v10, v11, v12, v13, v14, v15 = Vk[1, 0], Vk[1, 1], Vk[1, 2], Vk[1, 3], Vk[1, 4], Vk[1, 5]
+            v20, v21, v22, v23, v24, v25 = Vk[2, 0], Vk[2, 1], Vk[2, 2], Vk[2, 3], Vk[2, 4], Vk[2, 5]
             for row in range(r):
                 Jr, Or = J[row], O[row]
-                for c in range(3):
-                    if Jr[9 * a + c] != 0.0:
-                        Or[col + c] += Jr[9 * a + c]
-                        seen[col + c] = True
+                r0, r1, r2 = Jr[9 * a], Jr[9 * a + 1], Jr[9 * a + 2]
+                if r0 != 0.0 or r1 != 0.0 or r2 != 0.0:
+                    rot_seen[a] = True
                 j0, j1, j2 = Jr[9 * a + 6], Jr[9 * a + 7], Jr[9 * a + 8]
                 if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:  # (lidar, camera and wheels see no velocity)
-                    for c in range(6):  # velocity: δv_world = V_k [δθ_k; δv_k]
-                        Or[col + c] += j0 * Vk[0, c] + j1 * Vk[1, c] + j2 * Vk[2, c]
-                        seen[col + c] = True
+                    vel_seen[a] = True  # velocity: δv_world = V_k [δθ_k; δv_k]
+                    Or[col] = r0 + (j0 * v00 + j1 * v10 + j2 * v20)
+                    Or[col + 1] = r1 + (j0 * v01 + j1 * v11 + j2 * v21)
+                    Or[col + 2] = r2 + (j0 * v02 + j1 * v12 + j2 * v22)
+                    Or[col + 3] = j0 * v03 + j1 * v13 + j2 * v23
+                    Or[col + 4] = j0 * v04 + j1 * v14 + j2 * v24
+                    Or[col + 5] = j0 * v05 + j1 * v15 + j2 * v25
+                else:
+                    Or[col] = r0
+                    Or[col + 1] = r1
+                    Or[col + 2] = r2
         for q in range(span):  # increment q moves the position of every later state of the factor
             Pk = P[first[f] + q]
             for row in range(r):
@@ -704,10 +716,20 @@ def to_local(Jx, first, stride, V, P, sd):
                         j1 += Jr[9 * a + 4]
                         j2 += Jr[9 * a + 5]
                 if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:
+                    inc_seen[q] = True
                     Or = O[row]
                     for c in range(6):
                         Or[sd * q + (c if c < 3 else c + 3)] += j0 * Pk[0, c] + j1 * Pk[1, c] + j2 * Pk[2, c]
-                        seen[sd * q + (c if c < 3 else c + 3)] = True
+    seen = np.zeros(sd * (span + 1), dtype=np.bool_)  # the columns written non-zero
+    for a in range(ns):
+        col = sd * a * stride
+        for c in range(3):
+            seen[col + c] = seen[col + c] or rot_seen[a] or vel_seen[a]
+            seen[col + 3 + c] = seen[col + 3 + c] or vel_seen[a]
+    for q in range(span):
+        for c in range(3):
+            seen[sd * q + c] = seen[sd * q + c] or inc_seen[q]
+            seen[sd * q + 6 + c] = seen[sd * q + 6 + c] or inc_seen[q]
     return out, seen
 
 
