@@ -367,10 +367,6 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     G = np.empty((M, M))
     T = np.zeros((c, c))
     pos = np.empty(ns, dtype=np.int64)
-    c0 = cols[0] if c else 0
-    runs = True  # the calibration columns are one run c0 … c0+c−1
-    for v in range(1, c):
-        runs = runs and cols[v] == c0 + v
     for f in range(f0, f1):
         for u in range(M):
             for v in range(u + 1):
@@ -409,12 +405,8 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
             for uu in range(nA):
                 Gu = G[uA + uu]
                 Hu = Hxt[iA, cA + uu]
-                if runs:
-                    for v in range(c):
-                        Hu[c0 + v] += Gu[v]
-                else:
-                    for v in range(c):
-                        Hu[cols[v]] += Gu[v]
+                for v in range(c):
+                    Hu[cols[v]] += Gu[v]
         for u in range(c):
             for v in range(u + 1):
                 T[u, v] += G[u, v]
