@@ -151,7 +151,7 @@ def _drive_column_map(rig: Rig, drive: int, n_drives: int) -> np.ndarray:
 
 def _on_drive_columns(blocks: list, col_map: np.ndarray) -> list:
     return [b if b is None or not b.cols.size else
-            FactorBlock(b.name, b.first, b.stride, b.n_states, b.Jx, b.Jt, col_map[b.cols], b.xcols) for b in blocks]
+            replace(b, cols=col_map[b.cols]) for b in blocks]
 
 
 def build(nom: Nominal | list[Nominal], rig: Rig, gauge_keyframe: int = 0, local: bool = True) -> Problem:
@@ -440,8 +440,7 @@ def marginal(problem: Problem) -> np.ndarray:
         for k in np.flatnonzero(np.diff(bounds)):
             idx = order[bounds[k]:bounds[k + 1]]
             sel = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx  # idx increases
-            per_chunk[k].append(FactorBlock(blk.name, blk.first[sel] - edges[k], blk.stride, blk.n_states,
-                                            blk.Jx[sel], blk.Jt[sel], blk.cols, blk.xcols))
+            per_chunk[k].append(replace(blk, first=blk.first[sel] - edges[k], Jx=blk.Jx[sel], Jt=blk.Jt[sel]))
     pieces = list(pool().map(lambda c: _piece(per_chunk[c], edges[c], edges[c + 1], problem.n_params,
                                               problem.state_dim), range(C)))
     return _reduce(pieces, problem.n_params)

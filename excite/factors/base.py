@@ -9,7 +9,7 @@ Every factor returns *whitened* Jacobians: one row per residual component divide
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -131,13 +131,11 @@ class FactorBlock:
         return out
 
     def select(self, mask: np.ndarray) -> "FactorBlock":
-        return FactorBlock(self.name, self.first[mask], self.stride, self.n_states, self.Jx[mask],
-                           self.Jt[mask], self.cols, self.xcols)
+        return replace(self, first=self.first[mask], Jx=self.Jx[mask], Jt=self.Jt[mask])
 
     def shifted(self, by: int) -> "FactorBlock":
         """The same factors with keyframe indices moved by ``by``."""
-        return FactorBlock(self.name, self.first + by, self.stride, self.n_states, self.Jx, self.Jt, self.cols,
-                           self.xcols)
+        return replace(self, first=self.first + by)
 
 
 def theta_columns(rig: Rig, names: list[str]) -> np.ndarray:
