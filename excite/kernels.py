@@ -29,16 +29,18 @@ def _cross(ux, uy, uz, vx, vy, vz):
 
 
 @nb.njit(cache=True, inline="always")
-def _coeffs(theta):
-    """sin θ/θ, (1−cos θ)/θ², (θ−sin θ)/θ³ and (b′/θ, c′/θ) of the last two."""
-    t2 = theta * theta
-    if theta < _SERIES:
-        a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0
-        b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0
-        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0
-        eb = -1.0 / 12.0 + t2 / 180.0
-        ec = -1.0 / 60.0 + t2 / 1260.0
+def _coeffs(t2):
+    """sin θ/θ, (1−cos θ)/θ², (θ−sin θ)/θ³ and (b′/θ, c′/θ) of the last two, from t2 = θ²: below
+    the series threshold without the square root, with the series' constants as reciprocals
+    (a multiplication, not a division, per term)."""
+    if t2 < _SERIES * _SERIES:
+        a = 1.0 - t2 * (1.0 / 6.0) + t2 * t2 * (1.0 / 120.0)
+        b = 0.5 - t2 * (1.0 / 24.0) + t2 * t2 * (1.0 / 720.0)
+        c = 1.0 / 6.0 - t2 * (1.0 / 120.0) + t2 * t2 * (1.0 / 5040.0)
+        eb = -1.0 / 12.0 + t2 * (1.0 / 180.0)
+        ec = -1.0 / 60.0 + t2 * (1.0 / 1260.0)
     else:
+        theta = np.sqrt(t2)
         s, co = np.sin(theta), np.cos(theta)
         a = s / theta
         b = (1.0 - co) / t2
@@ -49,25 +51,34 @@ def _coeffs(theta):
 
 
 @nb.njit(cache=True, inline="always")
-def _horner(c, k, j, tau):
-    """Component j of the value of PPoly segment k at tau."""
-    out = 0.0
+def _horner(c, k, tau):
+    """The three components of PPoly segment k at tau, in one pass (three independent chains)."""
+    x = y = z = 0.0
     for m in range(c.shape[0]):
-        out = out * tau + c[m, k, j]
-    return out
+        x = x * tau + c[m, k, 0]
+        y = y * tau + c[m, k, 1]
+        z = z * tau + c[m, k, 2]
+    return x, y, z
 
 
 @nb.njit(cache=True, inline="always")
-def _horner2(c, k, j, tau):
-    """Value, first and second derivative of component j of PPoly segment k at tau, in one pass."""
-    p = c[0, k, j]
-    d = 0.0
-    dd = 0.0  # half the second derivative
+def _horner2(c, k, tau):
+    """Value, first and second derivative of the three components of PPoly segment k at tau, in
+    one pass."""
+    px, py, pz = c[0, k, 0], c[0, k, 1], c[0, k, 2]
+    dx = dy = dz = 0.0
+    ddx = ddy = ddz = 0.0  # half the second derivative
     for m in range(1, c.shape[0]):
-        dd = dd * tau + d
-        d = d * tau + p
-        p = p * tau + c[m, k, j]
-    return p, d, 2.0 * dd
+        ddx = ddx * tau + dx
+        ddy = ddy * tau + dy
+        ddz = ddz * tau + dz
+        dx = dx * tau + px
+        dy = dy * tau + py
+        dz = dz * tau + pz
+        px = px * tau + c[m, k, 0]
+        py = py * tau + c[m, k, 1]
+        pz = pz * tau + c[m, k, 2]
+    return px, py, pz, dx, dy, dz, 2.0 * ddx, 2.0 * ddy, 2.0 * ddz
 
 
 @nb.njit(cache=True, nogil=True)
@@ -92,12 +103,10 @@ def _rotation_at(c_rot, k, tau, R_key, R):
     """Write ``R_key[k] · Exp(φ(τ))`` to R (φ: segment k of the cubic PPoly ``c_rot``) and return
     the body rate ``ω = J_r(φ) φ̇`` and angular acceleration ``α = J_r φ̈ + J̇_r φ̇``, in vector
     form (``[φ]× x = φ × x``)."""
-    fx, dx, ddx = _horner2(c_rot, k, 0, tau)
-    fy, dy, ddy = _horner2(c_rot, k, 1, tau)
-    fz, dz, ddz = _horner2(c_rot, k, 2, tau)
-    theta = np.sqrt(fx * fx + fy * fy + fz * fz)
-    a, b, c, eb, ec = _coeffs(theta)
-    cos = 1.0 - b * theta * theta
+    fx, fy, fz, dx, dy, dz, ddx, ddy, ddz = _horner2(c_rot, k, tau)
+    t2 = fx * fx + fy * fy + fz * fz
+    a, b, c, eb, ec = _coeffs(t2)
+    cos = 1.0 - b * t2
     # Exp(φ) = cos θ I + a [φ]× + b φ φᵀ
     e00, e01, e02 = cos + b * fx * fx, b * fx * fy - a * fz, b * fx * fz + a * fy
     e10, e11, e12 = b * fy * fx + a * fz, cos + b * fy * fy, b * fy * fz - a * fx
@@ -154,9 +163,10 @@ def imu_samples(t, seg_rot, x_rot, c_rot, R_key, seg_acc, x_acc, c_acc, gravity,
         wx, wy, wz, alx, aly, alz = _rotation_at(c_rot, k, t[i] - x_rot[k], R_key, R)
         j = seg_acc[i]
         tj = t[i] - x_acc[j]
-        ax = _horner(c_acc, j, 0, tj) - gravity[0]
-        ay = _horner(c_acc, j, 1, tj) - gravity[1]
-        az = _horner(c_acc, j, 2, tj) - gravity[2]
+        ax, ay, az = _horner(c_acc, j, tj)
+        ax -= gravity[0]
+        ay -= gravity[1]
+        az -= gravity[2]
         # specific force at the IMU point, in V: Rᵀ(a − g) + α × p + ω × (ω × p)
         l1x, l1y, l1z = _cross(alx, aly, alz, px, py, pz)
         wpx, wpy, wpz = _cross(wx, wy, wz, px, py, pz)
@@ -177,7 +187,7 @@ def inverse_cholesky(cov):
     """``W = L⁻¹`` with ``L Lᵀ = cov`` for every symmetric positive definite matrix of a stack
     (``WᵀW = cov⁻¹``: W whitens a residual of covariance cov)."""
     N, m, _ = cov.shape
-    W = np.zeros((N, m, m))
+    W = np.empty((N, m, m))  # zeroed per matrix, in cache
     L = np.empty((m, m))
     inv = np.empty(m)  # 1 / diag L
     for i in range(N):
@@ -195,6 +205,7 @@ def inverse_cholesky(cov):
                 else:
                     L[r, c] = acc * inv[c]
         Wi = W[i]
+        Wi[:] = 0.0
         for c in range(m):  # forward substitution, column c of L⁻¹
             Wi[c, c] = inv[c]
             for r in range(c + 1, m):
@@ -212,11 +223,11 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
     :func:`excite.factors.imu.preintegration` for the formulas."""
     N = n_intervals
     dR = np.empty((N, 3, 3))
-    G_R = np.zeros((N, 3, 3))
-    V_g = np.zeros((N, 3, 3))
-    P_g = np.zeros((N, 3, 3))
-    P_a = np.zeros((N, 3, 3))
-    cov = np.zeros((N, 9, 9))
+    G_R = np.empty((N, 3, 3))  # these are zeroed per interval, in cache
+    V_g = np.empty((N, 3, 3))
+    P_g = np.empty((N, 3, 3))
+    P_a = np.empty((N, 3, 3))
+    cov = np.empty((N, 9, 9))
     w = np.empty(n)
     for s in range(n):
         w[s] = (n - 1 - s + 0.5) * dt
@@ -250,6 +261,11 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
         Mcc[:] = 0.0
         Mce[:] = 0.0
         Mee[:] = 0.0
+        G_R[i] = 0.0
+        V_g[i] = 0.0
+        P_g[i] = 0.0
+        P_a[i] = 0.0
+        cov[i] = 0.0
         for s in range(n - 1, -1, -1):
             for q in range(3):
                 d0, d1, d2 = dRs[s, 0, q], dRs[s, 1, q], dRs[s, 2, q]
@@ -663,13 +679,14 @@ def to_local(Jx, first, stride, V, P, sd):
     N, r, nx = Jx.shape
     ns = nx // 9
     span = stride * (ns - 1)
-    out = np.zeros((N, r, sd * (span + 1)))
+    out = np.empty((N, r, sd * (span + 1)))  # zeroed per factor, in cache
     rot_seen = np.zeros(ns, dtype=np.bool_)
     vel_seen = np.zeros(ns, dtype=np.bool_)
     inc_seen = np.zeros(max(span, 1), dtype=np.bool_)
     for f in range(N):
         J = Jx[f]
         O = out[f]
+        O[:] = 0.0
         for a in range(ns):
             k = first[f] + a * stride
             col = sd * a * stride

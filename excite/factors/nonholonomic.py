@@ -47,12 +47,14 @@ def _jacobians(R, v, omega_B, R_BA, v_V, sig_lat, sig_vert, slip):
     and, with ``slip``, the slip angle's column :func:`lateral_slip_regressor` (from the axle
     velocities ``v_V``) in the lateral row; rows divided by their σ."""
     K = R.shape[0]
-    Jx = np.zeros((K, 2, 9))
-    Jt = np.zeros((K, 2, 1 if slip else 0))
+    Jx = np.empty((K, 2, 9))  # zeroed per keyframe, in cache
+    Jt = np.empty((K, 2, 1 if slip else 0))
     sig = (sig_lat, sig_vert)
     vb = np.empty(3)
     X, Y, RA = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     for k in range(K):
+        Jx[k] = 0.0
+        Jt[k] = 0.0
         kernels.tmulv(R[k], v[k], vb)
         kernels.hat(vb, X)
         kernels.tmul(R_BA[k], X, Y)  # R_BAᵀ [v_body]×

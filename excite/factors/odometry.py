@@ -53,8 +53,8 @@ def _jacobians(R, p, v, w, stride, R_BS, p_BS, c_rot, c_trans, c_time, c_scale, 
 
     rows divided by their σ."""
     N = (R.shape[0] - 1) // stride
-    Jx = np.zeros((N, 6, 18))
-    Jt = np.zeros((N, 6, n_cols))
+    Jx = np.empty((N, 6, 18))  # each factor's rows are zeroed where they are written (in cache)
+    Jt = np.empty((N, 6, n_cols))
     R_SB = R_BS.T.copy()
     hp = np.empty((3, 3))
     kernels.hat(p_BS, hp)
@@ -66,6 +66,8 @@ def _jacobians(R, p, v, w, stride, R_BS, p_BS, c_rot, c_trans, c_time, c_scale, 
         j = i + stride
         Ri, Rj = R[i], R[j]
         J, T = Jx[n], Jt[n]
+        J[:] = 0.0
+        T[:] = 0.0
         kernels.tmul(Ri, Rj, Rij)
         for k in range(3):
             a[k] = p[j, k] - p[i, k]

@@ -118,9 +118,9 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, v_V, dT):
     and, with ``slip``, in the slip at 1 g (the angles times ``1 + slip·ā/g`` at slip 0, ā of
     :func:`longitudinal_accel_g` from the axle velocities ``v_V``); everything divided by σ."""
     N = R.shape[0] - 1
-    Jx = np.zeros((N, 2, 18))
+    Jx = np.empty((N, 2, 18))  # every entry written below
     ns = 1 if slip else 0
-    Jt = np.zeros((N, 2, (3 if estimate else 0) + ns))
+    Jt = np.empty((N, 2, (3 if estimate else 0) + ns))  # zeroed per factor, in cache
     RAi, RAj, X, Y, M = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     phi, a, cc, q, qb = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     Jpsi = np.empty(18)
@@ -130,6 +130,7 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, v_V, dT):
     kernels.hat(p_BV, hp)
     for n in range(N):
         i, j = n, n + 1
+        Jt[n] = 0.0
         Ri, Rj = R[i], R[j]
         kernels.mul(Ri, R_BA[i], RAi)
         kernels.mul(Rj, R_BA[j], RAj)
