@@ -583,8 +583,11 @@ def _eliminate(band, Hxe, Hee, lo, hi, D, sd):
     q = Hxe.shape[2]
     L = np.zeros((sd, sd))
     inv = np.empty(sd)  # 1 / diag L
-    CT = np.zeros((D + 1, sd, sd))  # CT[d, k, row] = C_d[row, k]
-    Zj = np.empty((sd, q))
+    # per state, the right-hand sides of its one triangular solve, side by side: the transposed
+    # blocks below it, then its border row (WZ[:, (d−1)·sd …] ← C_dᵀ = L⁻¹ H[x_j, x_{j+d}], WZ[:, D·sd …] ← Z_j)
+    WZ = np.zeros((sd, D * sd + q))
+    Zj = WZ[:, D * sd:]
+    YX = np.zeros((sd, sd + q))  # with D = 1: the next state's [H[x_{j+1}, x_{j+1}] | H[x_{j+1}, e]]
     ZT = np.empty((q, 16 * sd))  # Z_jᵀ of the states eliminated since the last border update
     fill = 0
     for j in range(lo, hi):
@@ -601,8 +604,18 @@ def _eliminate(band, Hxe, Hee, lo, hi, D, sd):
                     inv[col] = 1.0 / L[col, col]
                 else:
                     L[row, col] = s * inv[col]
+        nd = min(D, n - 1 - j)
+        for d in range(1, D + 1):
+            Wd = WZ[:, (d - 1) * sd:d * sd]
+            if d <= nd:
+                B = band[d, j]
+                for row in range(sd):
+                    for k in range(sd):
+                        Wd[k, row] = B[row, k]
+            else:
+                Wd[:] = 0.0
         Zj[:] = Hxe[j]
-        _solve_lower(L, inv, Zj)  # Z_j = L⁻¹ Hxe[j]
+        _solve_lower(L, inv, WZ)  # C_dᵀ and Z_j = L⁻¹ Hxe[j] in one pass
         for k in range(sd):  # H_ee −= Z_jᵀ Z_j, batched over 16 states (lower triangle; mirrored at the end)
             for e in range(q):
                 ZT[e, fill + k] = Zj[k, e]
@@ -610,20 +623,30 @@ def _eliminate(band, Hxe, Hee, lo, hi, D, sd):
         if fill + sd > ZT.shape[1]:
             _border_update(ZT, fill, Hee)
             fill = 0
-        nd = min(D, n - 1 - j)
-        for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ, kept transposed (C_dᵀ = L⁻¹ H[x_j, x_{j+d}]),
-            CT[d] = band[d, j].T  # so that every inner loop below runs along a contiguous row
-            _solve_lower(L, inv, CT[d])
-        for d in range(1, nd + 1):
-            X = Hxe[j + d]  # H[x_{j+d}, e] −= C_d Z_j
-            Cd = CT[d]
+        if D == 1 and nd == 1:  # the next state's diagonal block and border row side by side, so that
+            Y = band[0, j + 1]  # one pass per row updates both: [Y | X] −= C_1 [C_1ᵀ | Z_j]
+            X = Hxe[j + 1]
             for row in range(sd):
-                _subtract_combination(X[row], Cd[:, row], Zj, sd, q)
-            for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ (a diagonal block: lower triangle)
-                Y = band[d2 - d, j + d]
-                C2 = CT[d2]
+                for e in range(sd):
+                    YX[row, e] = Y[row, e]
+                for e in range(q):
+                    YX[row, sd + e] = X[row, e]
+                _subtract_combination(YX[row], WZ[:, row], WZ, sd, sd + q)
+                for e in range(row + 1):  # of Y the lower triangle
+                    Y[row, e] = YX[row, e]
+                for e in range(q):
+                    X[row, e] = YX[row, sd + e]
+        else:
+            for d in range(1, nd + 1):  # C_d = H[x_{j+d}, x_j] L⁻ᵀ, kept transposed, so that every inner
+                X = Hxe[j + d]  # loop below runs along a contiguous row: H[x_{j+d}, e] −= C_d Z_j
+                Cd = WZ[:, (d - 1) * sd:d * sd]
                 for row in range(sd):
-                    _subtract_combination(Y[row], C2[:, row], Cd, sd, row + 1 if d2 == d else sd)
+                    _subtract_combination(X[row], Cd[:, row], Zj, sd, q)
+                for d2 in range(d, nd + 1):  # H[x_{j+d2}, x_{j+d}] −= C_d2 C_dᵀ (a diagonal block: lower triangle)
+                    Y = band[d2 - d, j + d]
+                    C2 = WZ[:, (d2 - 1) * sd:d2 * sd]
+                    for row in range(sd):
+                        _subtract_combination(Y[row], C2[:, row], Cd, sd, row + 1 if d2 == d else sd)
     _border_update(ZT, fill, Hee)
     for e in range(q):
         for e2 in range(e):
