@@ -394,7 +394,7 @@ def _accumulated(blocks: Sequence[FactorBlock], m: int, p: int, sd: int) -> tupl
     Htt = np.zeros((p, p))
     for blk in blocks:
         kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states, band, Hxt, Htt,
-                           0, blk.n_factors, 0, 1, blk.nonzero_columns())
+                           0, blk.n_factors, 0, 1, blk.nonzero_columns(), np.arange(sd))
     return band, Hxt, Htt
 
 
@@ -482,22 +482,40 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
     (:func:`_bias_walk`, whitened by ``w``), added as its information ``w²`` on the bias
     deviations of both keyframes and ``−w²`` between them (the same numbers as the accumulated
     ``JᵀJ``, without forming J); ``anchored``: the last step ends at the drive's end (only its
-    first keyframe, see :func:`_bias_anchored`)."""
+    first keyframe, see :func:`_bias_anchored`).
+
+    The backward sweep stores a state's bias deviations before its trajectory components
+    (:func:`_ring_order`); the carry in and out is in the usual order."""
     sd, p = carry[0].shape[0], carry[2].shape[0]
     D = max([1] + [blk.stride * (blk.n_states - 1) for blk in blocks])
     n = _SLAB + D
+    comp = _ring_order(sd, forward)
     band = np.zeros((D + 1, n, sd, sd))
     Hxt = np.zeros((n, sd, p))
-    band[0, 0] = carry[0]
-    Hxt[0] = carry[1]
+    band[0, 0][np.ix_(comp, comp)] = carry[0]
+    Hxt[0][comp] = carry[1]
     Htt = carry[2].copy()
     w2, anchored = walk if walk is not None else (np.zeros(0), False)
-    bad = kernels.eliminate_slabs(_as_tuple(blocks), m, _SLAB, forward, band, Hxt, Htt, w2, anchored)
+    bad = kernels.eliminate_slabs(_as_tuple(blocks), m, _SLAB, forward, band, Hxt, Htt, w2, anchored, comp)
     if bad >= 0:
         _check_pivot(bad, k0)
     slabs = np.arange(0, m, _SLAB)
     last = m - slabs[-1] if slabs.size else 0
-    return band[0, last].copy(), Hxt[last].copy(), Htt
+    return band[0, last][np.ix_(comp, comp)], Hxt[last][comp], Htt
+
+
+def _ring_order(sd: int, forward: bool) -> np.ndarray:
+    """Where a sweep stores each component of a keyframe's state (``comp[c]``, see
+    :func:`excite.kernels.eliminate_slabs`). With random-walk biases no factor links the
+    trajectory of one keyframe with the bias deviations of the next one, so the block that links
+    consecutive states has a zero block; the elimination skips it only where it leads the
+    columns of the state eliminated (a zero leading block of ``H[x_{j+1}, x_j]`` stays zero in
+    ``H[x_{j+1}, x_j] L_j⁻ᵀ``). Forward, it is the trajectory part of x_j against the next bias:
+    the usual order does. Backward, the state eliminated is the later keyframe and the zero block
+    its biases against the earlier trajectory: its biases go first."""
+    if forward or sd != BIAS_STATE_DIM:
+        return np.arange(sd)
+    return np.concatenate([np.arange(BIAS_STATE_DIM - 9, BIAS_STATE_DIM), np.arange(BIAS_STATE_DIM - 9)])
 
 
 _NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), _NO_COLS, np.zeros(0, dtype=np.int64), 1, 1,
@@ -661,7 +679,7 @@ def at_keyframe(blocks: list, sd: int, p: int) -> np.ndarray:
     Hxt, Htt = np.zeros((1, sd, p)), np.zeros((p, p))
     for b in blocks:
         kernels.accumulate(b.Jx, b.Jt, b.cols, b.first, b.stride, b.n_states, band, Hxt, Htt, 0, b.n_factors, 0, 1,
-                           b.nonzero_columns())
+                           b.nonzero_columns(), np.arange(sd))
     H = np.zeros((sd + p, sd + p))
     H[:sd, :sd] = np.tril(band[0, 0]) + np.tril(band[0, 0], -1).T
     H[:sd, sd:] = Hxt[0]

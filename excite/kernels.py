@@ -329,7 +329,7 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
 
 
 @nb.njit(cache=True, nogil=True)
-def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, origin, sign, xc):
+def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, origin, sign, xc, comp):
     """Add ``JᵀJ`` of the factors ``f0 … f1−1`` of a stack to a block-banded information matrix.
 
     Factor ``f`` touches the ``n_states`` keyframes ``first[f] + stride · a`` (xd = nx/n_states
@@ -339,7 +339,8 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     being zero (``FactorBlock.xcols``). Keyframe k is stored at position ``origin + sign · k``
     (sign ±1: a window of the keyframes, in either order). Storage: ``band[d, j] = H[x_{j+d}, x_j]``
     (sd × sd, positions; of the diagonal blocks d = 0 the lower triangle only, all that
-    :func:`eliminate` reads), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``.
+    :func:`eliminate` reads), ``Hxt[i] = H[x_i, θ]`` (sd × p), ``Htt = H_θθ``; a state's component
+    c is stored as component ``comp[c]`` (a permutation of 0 … sd−1: see :func:`eliminate_slabs`).
 
     Per factor, ``G = [Jt Jxc]ᵀ[Jt Jxc]`` (lower triangle): the calibration columns first, then the
     columns ``xc`` of the factor's states in the order of their positions (state a is state a of G
@@ -350,6 +351,8 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     N, r, nx = Jx.shape
     ns = n_states
     xd = nx // ns
+    if xd > band.shape[2] or comp.size != band.shape[2]:
+        raise ValueError("a factor's states are wider than the information matrix's")
     c = Jt.shape[2]
     nxc = xc.size
     M = nxc + c
@@ -360,11 +363,15 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
     u = 0
     for g in range(ns):
         a = g if sign > 0 else ns - 1 - g
+        u0 = u
         for t in range(nxc):
-            if xc[t] // xd == a:
-                gx[u] = xc[t]
-                gg[u] = g
-                gc[u] = xc[t] - xd * a
+            if xc[t] // xd == a:  # the state's columns, in the order of their stored components
+                x, cc = xc[t], comp[xc[t] - xd * a]
+                i = u
+                while i > u0 and gc[i - 1] > cc:
+                    gx[i], gc[i] = gx[i - 1], gc[i - 1]
+                    i -= 1
+                gx[i], gc[i], gg[u] = x, cc, g
                 u += 1
     # runs of consecutive components of one state: its G state, first component, first G column, length
     run_g = np.empty(nxc, dtype=np.int64)
@@ -434,14 +441,16 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
 
 
 @nb.njit(cache=True, nogil=True)
-def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
+def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored, comp):
     """The slab loop of :func:`excite.information._eliminated` (documented there), compiled: the
     factors of ``blocks`` (a tuple of ``(Jx, Jt, cols, first, stride, n_states, xcols)``, keyframe
     indices 0 … m of a chunk: :func:`excite.information._as_tuple`) are accumulated and eliminated ``slab`` keyframes at a time in the
     ring buffer ``band, Hxt`` (``slab + D`` positions, D the widest factor's span; position 0
     holds what is carried in), in the sweep's order; with random-walk biases (``w2``: 1/σ² of a
     step's six components; empty without) the walk's information is added on the bias deviations'
-    diagonals. Returns −1, or the keyframe (0 … m) whose pivot failed (:func:`eliminate`)."""
+    diagonals. A state's component c is stored as component ``comp[c]`` (the ring's order; the bias
+    deviations, if any, stored contiguously). Returns −1, or the keyframe (0 … m) whose pivot
+    failed (:func:`eliminate`)."""
     D = band.shape[0] - 1
     sd = band.shape[2]
     n_slabs = (m + slab - 1) // slab
@@ -457,7 +466,7 @@ def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
         for i in range(n_slabs + 1):
             bounds[bi, i] = (np.searchsorted(first, edge[i]) if forward else
                              np.searchsorted(first, m - span - edge[i], side="right"))
-    o = 9  # the bias deviations' first component in a state (information.BIAS)
+    o = comp[9] if sd > 9 else 9  # the bias deviations' first stored component (information.BIAS)
     for i in range(n_slabs):
         s = i * slab
         hi = min(s + slab, m)
@@ -466,7 +475,7 @@ def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored):
             f0, f1 = (bounds[bi, i], bounds[bi, i + 1]) if forward else (bounds[bi, i + 1], bounds[bi, i])
             if f1 > f0:
                 accumulate(Jx, Jt, cols, first, stride, ns, band, Hxt, Htt, f0, f1, -s if forward else m - s,
-                           1 if forward else -1, xc)
+                           1 if forward else -1, xc, comp)
         if w2.size:  # the steps whose first keyframe in the sweep's order is in the slab: positions
             # 0 … n−1 of the ring to 1 … n (either direction), less a step into the drive's end
             n_steps = hi - s if forward else m - s - max(0, m - edge[i + 1])

@@ -335,7 +335,7 @@ def test_undetermined_trajectory_is_a_clear_error(rig, monkeypatch):
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), rig.suspension), rig)
     prob = information.build(nom, rig)
     no_imu = information.Problem(prob.n_keyframes, prob.n_params, tuple(b for b in prob.blocks if b.name != "imu"),
-                                 prob.R_W_B, prob.local, prob.chain_starts)
+                                 prob.R_W_B, prob.local, prob.chain_starts, prob.state_dim)
     with pytest.raises(EvaluationError, match="trajectory itself is undetermined"):
         information.marginal(no_imu)
 
@@ -491,7 +491,9 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
     """Each linearised block names the columns of its Jacobian that can be non-zero (``xcols``,
     reported by the local-state map as it writes them); every other column is zero for every
     factor, and accumulating over ``xcols`` only gives the band, H_xθ and H_θθ of accumulating
-    over every column, bit for bit, in either storage order."""
+    over every column, bit for bit, in either storage order. The backward sweep's order of a
+    state's components (bias deviations first, :func:`information._ring_order`) stores the same
+    numbers, permuted."""
     r = {"random walk": rig, "constant biases": rig.with_constant_biases(), "5 Hz lidar": _five_hz_lidar(rig)}[variant]
     t = np.linspace(0, 8, 9)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
@@ -508,11 +510,16 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
         D = blk.stride * (blk.n_states - 1)
         for sign, origin in ((1, 0), (-1, K - 1)):
             out = []
-            for xc in (blk.xcols, np.arange(blk.Jx.shape[2])):
+            for xc, comp in ((blk.xcols, np.arange(sd)), (np.arange(blk.Jx.shape[2]), np.arange(sd)),
+                             (blk.xcols, information._ring_order(sd, sign > 0))):
                 band, Hxt, Htt = np.zeros((D + 1, K, sd, sd)), np.zeros((K, sd, p)), np.zeros((p, p))
                 kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states,
-                                   band, Hxt, Htt, 0, blk.n_factors, origin, sign, xc)
-                out.append((band, Hxt, Htt))
-            for a, b in zip(*out):
+                                   band, Hxt, Htt, 0, blk.n_factors, origin, sign, xc, comp)
+                diag = np.tril(band[0]) + np.swapaxes(np.tril(band[0], -1), -1, -2)  # stored: the lower triangle
+                out.append((np.concatenate([diag[None], band[1:]])[:, :, comp][:, :, :, comp], Hxt[:, comp], Htt))
+            for a, b in zip(out[0], out[1]):
                 assert np.array_equal(a, b), (blk.name, sign)
+            for a, b in zip(out[0], out[2]):
+                assert np.array_equal(a, b), (blk.name, sign, "ring order")
     assert skipped > 0  # the lidar, camera and wheels see no velocity
+    assert not np.array_equal(information._ring_order(sd, False), np.arange(sd)) or sd == 9
