@@ -506,16 +506,19 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
 
 def _ring_order(sd: int, forward: bool) -> np.ndarray:
     """Where a sweep stores each component of a keyframe's state (``comp[c]``, see
-    :func:`excite.kernels.eliminate_slabs`). With random-walk biases no factor links the
-    trajectory of one keyframe with the bias deviations of the next one, so the block that links
-    consecutive states has a zero block; the elimination skips it only where it leads the
-    columns of the state eliminated (a zero leading block of ``H[x_{j+1}, x_j]`` stays zero in
-    ``H[x_{j+1}, x_j] L_j⁻ᵀ``). Forward, it is the trajectory part of x_j against the next bias:
-    the usual order does. Backward, the state eliminated is the later keyframe and the zero block
-    its biases against the earlier trajectory: its biases go first."""
+    :func:`excite.kernels.eliminate_slabs`). Eliminating x_j updates the next state by
+    ``H[x_{j+1}, x_j] L_j⁻ᵀ``, which keeps a leading zero block of ``H[x_{j+1}, x_j]`` (in x_j's
+    columns) zero, and the elimination skips zero coefficients three at a time. With random-walk
+    biases, forward: the next keyframe's biases see the trajectory of x_j through no factor, its
+    increment sees nothing of x_j; the usual order (trajectory first) leads with those zeros.
+    Backward, x_j is the later keyframe: the earlier trajectory sees neither its biases nor its
+    increment (the IMU factor between them ends at x_j), so those go first: biases, increment,
+    rotation, velocity. The bias deviations stay contiguous."""
     if forward or sd != BIAS_STATE_DIM:
         return np.arange(sd)
-    return np.concatenate([np.arange(BIAS_STATE_DIM - 9, BIAS_STATE_DIM), np.arange(BIAS_STATE_DIM - 9)])
+    comp = np.empty(sd, dtype=np.int64)
+    comp[np.r_[9:15, 6:9, 0:6]] = np.arange(sd)  # stored order: biases, increment, rotation, velocity
+    return comp
 
 
 _NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), _NO_COLS, np.zeros(0, dtype=np.int64), 1, 1,
