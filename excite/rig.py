@@ -99,16 +99,22 @@ class Pose(_Model):
 
     @property
     def R(self) -> np.ndarray:
-        if self.matrix is not None:
-            R = np.asarray(self.matrix, dtype=float)
-            u, _, vt = np.linalg.svd(R)
-            return u @ vt
-        r, p, y = np.deg2rad(self.rpy_deg or (0.0, 0.0, 0.0))
-        return so3.rot_z(y) @ so3.rot_y(p) @ so3.rot_x(r)
+        """The rotation matrix (computed once per distinct rotation; a fresh copy each time)."""
+        return _rotation(self.rpy_deg, self.matrix).copy()
 
     @property
     def p(self) -> np.ndarray:
         return np.asarray(self.translation_m, dtype=float)
+
+
+@functools.lru_cache(maxsize=1024)
+def _rotation(rpy_deg: tuple | None, matrix: tuple | None) -> np.ndarray:
+    """:attr:`Pose.R` of a pose's rotation fields (a matrix is re-orthonormalised)."""
+    if matrix is not None:
+        u, _, vt = np.linalg.svd(np.asarray(matrix, dtype=float))
+        return u @ vt
+    r, p, y = np.deg2rad(rpy_deg or (0.0, 0.0, 0.0))
+    return so3.rot_z(y) @ so3.rot_y(p) @ so3.rot_x(r)
 
 
 class ImuConfig(_Model):
