@@ -223,11 +223,11 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
     :func:`excite.factors.imu.preintegration` for the formulas."""
     N = n_intervals
     dR = np.empty((N, 3, 3))
-    G_R = np.empty((N, 3, 3))  # these are zeroed per interval, in cache
-    V_g = np.empty((N, 3, 3))
-    P_g = np.empty((N, 3, 3))
-    P_a = np.empty((N, 3, 3))
-    cov = np.empty((N, 9, 9))
+    G_R = np.zeros((N, 3, 3))
+    V_g = np.zeros((N, 3, 3))
+    P_g = np.zeros((N, 3, 3))
+    P_a = np.zeros((N, 3, 3))
+    cov = np.empty((N, 9, 9))  # zeroed per interval, in cache
     w = np.empty(n)
     for s in range(n):
         w[s] = (n - 1 - s + 0.5) * dt
@@ -261,10 +261,6 @@ def preintegration(imu_R, imu_f, n, n_intervals, dt, sigma_g, sigma_a):
         Mcc[:] = 0.0
         Mce[:] = 0.0
         Mee[:] = 0.0
-        G_R[i] = 0.0
-        V_g[i] = 0.0
-        P_g[i] = 0.0
-        P_a[i] = 0.0
         cov[i] = 0.0
         for s in range(n - 1, -1, -1):
             for q in range(3):

@@ -74,7 +74,7 @@ def _jacobians(R, p, v, dT, g, dR, G_R, V_g, P_g, P_a, W, estimate):
         r_p:  ∂θ_i = [Δp']×    ∂p_i = −R_iᵀ  ∂v_i = −R_iᵀ ΔT   ∂p_j = R_iᵀ   ∂b_g = −P_g   ∂b_a = −P_a
     """
     N = R.shape[0] - 1
-    Jx = np.empty((N, 9, 18))  # each factor's rows are zeroed where they are summed (in cache)
+    Jx = np.empty((N, 9, 18))  # every entry written below
     Jt = np.empty((N, 9, 6 if estimate else 0))
     A = np.zeros((9, 18))
     B = np.zeros((9, 6))
@@ -110,9 +110,13 @@ def _jacobians(R, p, v, dT, g, dR, G_R, V_g, P_g, P_a, W, estimate):
         Wn = W[n]
         for r in range(9):  # W is lower triangular; the inner loops run along rows of A and B
             Jr, Tr = Jx[n, r], Jt[n, r]
-            Jr[:] = 0.0
-            Tr[:] = 0.0
-            for k in range(r + 1):
+            w0 = Wn[r, 0]
+            for c in range(18):
+                Jr[c] = w0 * A[0, c]
+            if estimate:
+                for c in range(6):
+                    Tr[c] = w0 * B[0, c]
+            for k in range(1, r + 1):
                 wk = Wn[r, k]
                 for c in range(18):
                     Jr[c] += wk * A[k, c]
