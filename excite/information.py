@@ -195,7 +195,7 @@ def _check_length(K: int, rig: Rig) -> int:
     return K
 
 
-_CHUNK_KEYFRAMES = 2000  # keyframes per task at most: bounded memory, little interpreter time per keyframe
+_CHUNK_KEYFRAMES = 3000  # keyframes per task at most: bounded memory, little interpreter time per keyframe
 
 
 def _chunk_edges(K: int, rig: Rig) -> list[int]:
