@@ -18,6 +18,7 @@ Needs ``perf`` and ``objdump`` (Debian: linux-perf, binutils) and ``kernel.perf_
 from __future__ import annotations
 
 import argparse
+import atexit
 import collections
 import os
 import re
@@ -32,17 +33,27 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def positive(kind):
+    def parse(text: str):
+        value = kind(text)
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        return value
+    return parse
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seconds", type=float, default=600.0, help="length of the generated drive")
-    parser.add_argument("--runs", type=int, default=40, help="evaluations (both sweeps) recorded")
-    parser.add_argument("--top", type=int, default=25, help="symbols listed")
+    parser.add_argument("--seconds", type=positive(float), default=600.0, help="length of the generated drive")
+    parser.add_argument("--runs", type=positive(int), default=40, help="evaluations (both sweeps) recorded")
+    parser.add_argument("--top", type=positive(int), default=25, help="symbols listed")
     parser.add_argument("--annotate", metavar="NAME", help="also list the hottest instructions of this kernel")
     args = parser.parse_args()
     missing = [tool for tool in ("perf", "objdump", "nm") if shutil.which(tool) is None]
     if missing:
         sys.exit(f"profile_evaluate: needs {', '.join(missing)} on PATH (Debian: linux-perf, binutils)")
     work = Path(tempfile.mkdtemp(prefix="excite-profile-"))
+    atexit.register(shutil.rmtree, work, ignore_errors=True)
     os.environ["NUMBA_CACHE_DIR"] = str(work / "numba")  # compile afresh: the object code stays at hand
 
     import numba
@@ -90,24 +101,28 @@ def main() -> None:
     perf_map = Path(f"/tmp/perf-{os.getpid()}.map")
     perf_map.write_text("".join(f"{a:x} {n:x} {name}\n" for a, n, name, _, _ in entries))
     data = work / "perf.data"
-    recorder = subprocess.Popen(["perf", "record", "-q", "-e", "cpu-clock", "-F", "4000", "-o", str(data),
-                                 "-p", str(os.getpid())], stderr=subprocess.DEVNULL)
-    time.sleep(1.0)
-    t0 = time.perf_counter()
-    for _ in range(args.runs):
-        both()
-    elapsed = time.perf_counter() - t0
-    recorder.send_signal(signal.SIGINT)
-    recorder.wait()
+    try:
+        recorder = subprocess.Popen(["perf", "record", "-q", "-e", "cpu-clock", "-F", "4000", "-o", str(data),
+                                     "-p", str(os.getpid())], stderr=subprocess.DEVNULL)
+        time.sleep(1.0)
+        t0 = time.perf_counter()
+        for _ in range(args.runs):
+            both()
+        elapsed = time.perf_counter() - t0
+        recorder.send_signal(signal.SIGINT)
+        recorder.wait()
+        report = subprocess.run(["perf", "report", "-i", str(data), "--sort", "sym", "--stdio"],
+                                capture_output=True, text=True).stdout  # reads the map: before it goes
+    finally:
+        perf_map.unlink()
+    if recorder.returncode not in (0, -signal.SIGINT) or not data.exists():
+        sys.exit("profile_evaluate: perf record failed (is kernel.perf_event_paranoid ≤ 2?)")
     print(f"{args.runs} evaluations of a {args.seconds:g} s drive (both sweeps, one thread): "
           f"{elapsed / args.runs * 1e3:.1f} ms each")
-    report = subprocess.run(["perf", "report", "-i", str(data), "--sort", "sym", "--stdio"],
-                            capture_output=True, text=True).stdout
     rows = [line for line in report.splitlines() if line.strip() and not line.startswith("#")]
     print("\n".join(line[:110] for line in rows[:args.top]))
     if args.annotate:
         annotate(data, [e for e in entries if e[2].endswith("." + args.annotate)])
-    perf_map.unlink()
 
 
 def annotate(data: Path, entries: list) -> None:
