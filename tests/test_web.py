@@ -167,6 +167,10 @@ def test_score_a_route_through_the_file_input(page, shots):
     assert float(zoomed.split()[2]) == pytest.approx(float(home.split()[2]) / 1.25)
     page.keyboard.press("0")
     assert page.get_attribute("#route-map", "viewBox") == home
+    # leaving the map (pointer away, focus elsewhere) hides the tooltip without a script error
+    page.mouse.move(1, 1)
+    page.focus("#segments")
+    assert not tip.is_visible()
     assert page.console.errors == []
 
 

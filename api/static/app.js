@@ -373,7 +373,7 @@ function drawRoute() {
 }
 
 function showSegment(target, ev) {
-  const k = target && target.dataset && target.dataset.index;
+  const k = target?.dataset?.index;  // undefined off a segment, and for null (pointer left, focus out)
   const tip = $("#tooltip");
   if (k === undefined) { tip.hidden = true; return; }
   const s = state.report.segments[Number(k)];
