@@ -76,8 +76,8 @@ def main() -> None:
     half = len(chunks) // 2
 
     def both() -> None:
-        info._sweep(traj, K, 0, chunks[:half], True, col_map, rig, p, sd)
-        info._sweep(traj, K, 0, chunks[half:][::-1], False, col_map, rig, p, sd)
+        info._sweep(traj, 0, K - 1, 0, chunks[:half], True, col_map, rig, p, sd)
+        info._sweep(traj, 0, K - 1, 0, chunks[half:][::-1], False, col_map, rig, p, sd)
 
     print(f"compiling the kernels in {work} …", file=sys.stderr)
     both()

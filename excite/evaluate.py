@@ -290,19 +290,12 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
 
     segments = []
     if options.segments:
-        noms = [Nominal.of(t, rig) for t in trajs]
-        prob = information.build(noms, rig)
-        t_kf = np.concatenate([n.t for n in noms])
-        edges = np.linspace(0, prob.n_keyframes - 1, options.segments + 1).round().astype(int)
+        t_kf = np.concatenate([Nominal.keyframe_times(t, rig) for t in trajs])
+        spans = information.windows([Nominal.grid(t, rig)[1] for t in trajs], rig, options.segments)
         v_weak = V[:, 0]
-        for span in (prob.trimmed(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])):
-            if span is None:
-                continue
-            k0, k1 = span
-            win = prob.window(k0, k1)
-            Lam_seg, Lseg = _scaled(rig, information.marginal(win))
-            seg = spectrum.analyse(Lam_seg, information.theta_diagonal(win)[_scored_mask(rig, win.n_params)], S,
-                                   options.rank_rtol)
+        for (k0, k1), (Lam_w, diag_w) in zip(spans, information.window_information(trajs, rig, spans)):
+            Lam_seg, Lseg = _scaled(rig, Lam_w)
+            seg = spectrum.analyse(Lam_seg, diag_w[scored], S, options.rank_rtol)
             segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]), seg.score,
                                     float(v_weak @ Lseg @ v_weak),
                                     {c.name: float(Lseg[i, i]) for i, c in enumerate(coords)}))

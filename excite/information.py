@@ -73,22 +73,10 @@ class Problem:
     def bandwidth_blocks(self) -> int:
         return max(b.stride * (b.n_states - 1) for b in self.blocks)
 
-    def trimmed(self, k0: int, k1: int) -> tuple[int, int] | None:
-        """Keyframes ``k0..k1`` less a piece of fewer than 3 keyframes that a boundary between two
-        drives cuts off at either end (it carries no determinable trajectory of its own); None if
-        less than 3 keyframes remain. Drives themselves have at least 3 (:func:`build`)."""
-        starts = [s for s in self.chain_starts if k0 < s <= k1]
-        if starts and starts[0] - k0 < 3:
-            k0 = starts[0]
-        if starts and k1 - starts[-1] + 1 < 3:
-            k1 = starts[-1] - 1
-        return (k0, k1) if k1 - k0 >= 2 else None
-
     def window(self, k0: int, k1: int) -> "Problem":
         """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with new gauges
         (every piece of a drive in it needs 3 keyframes: see :meth:`trimmed`)."""
-        if self.trimmed(k0, k1) != (k0, k1):
-            raise EvaluationError(f"keyframes {k0}..{k1} cut a piece of fewer than 3 keyframes off a drive")
+        _check_trimmed(self.chain_starts, k0, k1)
         out = []
         starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
         ends = [s - 1 for s in starts[1:]] + [k1 - k0]
@@ -110,6 +98,24 @@ class Problem:
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
                        self.R_W_B, self.local, self.chain_starts, self.state_dim)
+
+
+def trimmed(starts: Sequence[int], k0: int, k1: int) -> tuple[int, int] | None:
+    """Keyframes ``k0..k1`` (numbered on from one drive to the next; drives start at ``starts``)
+    less a piece of fewer than 3 keyframes that a boundary between two drives cuts off at either
+    end (it carries no determinable trajectory of its own); None if less than 3 keyframes remain.
+    Drives themselves have at least 3 (:func:`build`)."""
+    inner = [s for s in starts if k0 < s <= k1]
+    if inner and inner[0] - k0 < 3:
+        k0 = inner[0]
+    if inner and k1 - inner[-1] + 1 < 3:
+        k1 = inner[-1] - 1
+    return (k0, k1) if k1 - k0 >= 2 else None
+
+
+def _check_trimmed(starts: Sequence[int], k0: int, k1: int) -> None:
+    if trimmed(starts, k0, k1) != (k0, k1):
+        raise EvaluationError(f"keyframes {k0}..{k1} cut a piece of fewer than 3 keyframes off a drive")
 
 
 def gauge_block(R_W_B: np.ndarray, keyframe: int) -> FactorBlock:
@@ -202,12 +208,19 @@ def _chunk_edges(K: int, rig: Rig) -> list[int]:
     """Keyframes that cut a drive into chunks of at most about ``_CHUNK_KEYFRAMES``, as many as a
     multiple of the thread count (every thread gets an equal share), at multiples of every
     sensor's frame stride (so each factor falls in exactly one chunk: see :func:`_linearise`)."""
-    strides = [int(round(rig.keyframe_rate_hz / s.rate_hz)) for s in rig.config.sensors] or [1]
-    step = int(np.lcm.reduce(strides))
+    step = frame_step(rig)
     n = -(-(K - 1) // _CHUNK_KEYFRAMES)
     n = -(-n // n_threads()) * n_threads()
     size = max(step, -(-(K - 1) // (n * step)) * step)
     return list(range(0, K - 1, size)) + [K - 1]
+
+
+def frame_step(rig: Rig) -> int:
+    """The fewest keyframes that hold a whole number of frames of every sensor (the least common
+    multiple of their strides): a chunk or window that starts and ends at multiples of it, counted
+    from its drive's start, cuts no sensor's frame pair."""
+    strides = [int(round(rig.keyframe_rate_hz / s.rate_hz)) for s in rig.config.sensors] or [1]
+    return int(np.lcm.reduce(strides))
 
 
 def state_dim(rig: Rig) -> int:
@@ -579,21 +592,13 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
     offset = 0
     for d, traj in enumerate(trajs):
         K = _check_length(Nominal.grid(traj, rig)[1], rig)
-        edges = _chunk_edges(K, rig)
-        chunks = list(zip(edges[:-1], edges[1:]))
-        h = len(chunks) // 2
-        col_map = _drive_column_map(rig, d, len(trajs))
-        tasks += [(traj, K, offset, chunks[:h], True, col_map), (traj, K, offset, chunks[h:][::-1], False, col_map)]
-        meets.append(offset + edges[h])
+        pair, meet = _sweeps(traj, 0, K - 1, offset, _drive_column_map(rig, d, len(trajs)), rig)
+        tasks += pair
+        meets.append(meet)
         offset += K
 
     results = list(pool().map(lambda task: _sweep(*task, rig, p, sd), tasks))
-    Lam = np.zeros((p, p))
-    for i, meet in enumerate(meets):  # the middle keyframe of each drive, where its sweeps meet
-        (fxx, fxt, ftt), (bxx, bxt, btt) = results[2 * i][0], results[2 * i + 1][0]
-        Htt = ftt + btt
-        _check_pivot(kernels.eliminate((fxx + bxx)[None, None], (fxt + bxt)[None], Htt, 0, 1), meet)
-        Lam += Htt
+    Lam = sum(_met(results[2 * i][0], results[2 * i + 1][0], meet) for i, meet in enumerate(meets))
     spent = np.sum([r[3] for r in results], axis=0) * 1e3
     return DriveInformation(
         information=0.5 * (Lam + Lam.T), diag_tt=np.sum([r[1] for r in results], axis=0), nuisance=nuisance,
@@ -603,25 +608,106 @@ def drive_information(trajs: Sequence[Trajectory], rig: Rig) -> DriveInformation
         thread_ms={"sample": float(spent[0]), "linearise": float(spent[1]), "eliminate": float(spent[2])})
 
 
-def _sweep(traj: Trajectory, K: int, offset: int, chunks: Sequence[tuple[int, int]], forward: bool,
-           col_map: np.ndarray, rig: Rig, p: int, sd: int):
-    """Eliminate the keyframes of ``chunks`` of one drive (keyframes ``k0 … k1`` each, in the order
-    given: consecutive, running forward or backward) but the last one reached, carrying what is
-    eliminated into it and θ: returns that information ``(H_xx, H_xθ, H_θθ)``, diag H_θθ of the
-    chunks before elimination, their path length and the thread's CPU time [s] per stage."""
+def window_information(trajs: Sequence[Trajectory], rig: Rig,
+                       windows: Sequence[tuple[int, int]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Λ_θ (over :func:`columns`) and diag H_θθ of each window ``(k0, k1)`` of the keyframes of
+    ``trajs`` (numbered on from one drive to the next, as in :func:`build`) on its own: the
+    factors that lie within it, each piece of a drive in it closed as a drive of its own. The
+    same as :func:`marginal` of :meth:`Problem.window` of the whole :func:`build`, streamed as
+    :func:`drive_information` (no whole-drive array, every window's two sweeps on the thread pool).
+
+    A window's ends are keyframes at multiples of :func:`frame_step` from their drive's start, or
+    a drive's last keyframe (:func:`windows`), and it cuts no piece of fewer than 3 keyframes off
+    a drive (:func:`trimmed`)."""
+    _, nuisance = columns(rig, len(trajs))
+    p = nuisance.size
+    sd = state_dim(rig)
+    Ks = [_check_length(Nominal.grid(t, rig)[1], rig) for t in trajs]
+    starts = np.cumsum([0] + Ks[:-1]).tolist()
+    step = frame_step(rig)
+    tasks, meets, owner = [], [], []
+    for w, (k0, k1) in enumerate(windows):
+        _check_trimmed(starts, k0, k1)
+        for d, (s, K) in enumerate(zip(starts, Ks)):
+            a, b = max(k0, s) - s, min(k1, s + K - 1) - s
+            if a >= b:
+                continue
+            if a % step or (b % step and b != K - 1):
+                raise EvaluationError(f"window {k0}..{k1} cuts a sensor's frame pair: its ends must be "
+                                      f"multiples of {step} keyframes from its drive's start")
+            pair, meet = _sweeps(trajs[d], a, b, s, _drive_column_map(rig, d, len(trajs)), rig)
+            tasks += pair
+            meets.append(meet)
+            owner.append(w)
+    results = list(pool().map(lambda task: _sweep(*task, rig, p, sd), tasks))
+    out = [(np.zeros((p, p)), np.zeros(p)) for _ in windows]
+    for i, (meet, w) in enumerate(zip(meets, owner)):
+        out[w][0][...] += _met(results[2 * i][0], results[2 * i + 1][0], meet)
+        out[w][1][...] += results[2 * i][1] + results[2 * i + 1][1]
+    return [(0.5 * (Lam + Lam.T), diag) for Lam, diag in out]
+
+
+def windows(Ks: Sequence[int], rig: Rig, n: int) -> list[tuple[int, int]]:
+    """``n`` windows of about equal length over drives of ``Ks`` keyframes (numbered on, as in
+    :func:`build`), for :func:`window_information`: consecutive windows share their edge keyframe,
+    edges fall on multiples of :func:`frame_step` from their drive's start (a drive's end stays
+    an edge), a piece of fewer than 3 keyframes at a drive boundary is left out (:func:`trimmed`),
+    and windows left with fewer than 3 keyframes are dropped."""
+    starts = np.cumsum([0] + list(Ks[:-1]))
+    step = frame_step(rig)
+    edges = []
+    for e in np.linspace(0, sum(Ks) - 1, n + 1):
+        d = int(np.searchsorted(starts, round(e), side="right")) - 1
+        s, K = int(starts[d]), int(Ks[d])
+        edges.append(s + min(max(round((e - s) / step), 0) * step, K - 1))
+    out = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        span = trimmed(starts.tolist(), a, b)
+        if span is not None:
+            out.append(span)
+    return out
+
+
+def _sweeps(traj: Trajectory, first: int, last: int, offset: int, col_map: np.ndarray, rig: Rig) -> tuple[list, int]:
+    """The two sweeps (:func:`_sweep`'s arguments) over keyframes ``first … last`` of a drive,
+    closed as a drive of its own, from both ends towards a chunk edge in the middle; and that
+    keyframe (``offset`` on), where they meet (:func:`_met`)."""
+    edges = [first + e for e in _chunk_edges(last - first + 1, rig)]
+    chunks = list(zip(edges[:-1], edges[1:]))
+    h = len(chunks) // 2
+    return ([(traj, first, last, offset, chunks[:h], True, col_map),
+             (traj, first, last, offset, chunks[h:][::-1], False, col_map)], offset + edges[h])
+
+
+def _met(forward: tuple, backward: tuple, meet: int) -> np.ndarray:
+    """Λ_θ from what two sweeps carried into the keyframe ``meet`` where they met: that keyframe
+    eliminated last."""
+    (fxx, fxt, ftt), (bxx, bxt, btt) = forward, backward
+    Htt = ftt + btt
+    _check_pivot(kernels.eliminate((fxx + bxx)[None, None], (fxt + bxt)[None], Htt, 0, 1), meet)
+    return Htt
+
+
+def _sweep(traj: Trajectory, first: int, last: int, offset: int, chunks: Sequence[tuple[int, int]],
+           forward: bool, col_map: np.ndarray, rig: Rig, p: int, sd: int):
+    """Eliminate the keyframes of ``chunks`` of the drive ``first … last`` of ``traj`` (keyframes
+    ``k0 … k1`` each, in the order given: consecutive, running forward or backward) but the last
+    one reached, carrying what is eliminated into it and θ: returns that information
+    ``(H_xx, H_xθ, H_θθ)``, diag H_θθ of the chunks before elimination, their path length and
+    the thread's CPU time [s] per stage."""
     carry = (np.zeros((sd, sd)), np.zeros((sd, p)), np.zeros((p, p)))
     diag, length, spent = np.zeros(p), 0.0, np.zeros(3)
     for k0, k1 in chunks:
         c0 = time.thread_time()
         sub = Nominal.of(traj, rig, keyframes=(k0, k1))
         c1 = time.thread_time()
-        blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == K - 1, walk=False), col_map)
+        blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, k1 == last, walk=False), col_map)
                   if b is not None and b.n_factors]
-        if k0 == 0:
+        if k0 == first:
             blocks += _gauge(sub.R[0], 0, True)
-        if k1 == K - 1:
+        if k1 == last:
             blocks += _chain_end(k1 - k0, True, sd)
-        walk = (_walk_weights(rig, float(sub.t[1] - sub.t[0])) ** 2, k1 == K - 1) if rig.bias_random_walk else None
+        walk = (_walk_weights(rig, float(sub.t[1] - sub.t[0])) ** 2, k1 == last) if rig.bias_random_walk else None
         c2 = time.thread_time()
         carry = _eliminated(blocks, k1 - k0, carry, forward, offset + k0, walk)
         diag += _theta_diagonal(blocks, p)

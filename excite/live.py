@@ -70,7 +70,7 @@ class Incremental:
         names, self.nuisance = information.columns(rig, 1)
         self.p = len(names)
         self.sd = information.state_dim(rig)
-        self.step = _frame_step(rig)
+        self.step = information.frame_step(rig)
         self.n_keyframes = 0  # keyframes so far (0 before the first chunk)
         self.length_m = 0.0
         self.t_end = None  # time of the last keyframe
@@ -165,15 +165,10 @@ def _solve(A: np.ndarray, B: np.ndarray, keyframe: int) -> np.ndarray:
                               f"information of keyframe {keyframe} is singular beyond the gauge)") from None
 
 
-def _frame_step(rig: Rig) -> int:
-    strides = [int(round(rig.keyframe_rate_hz / s.rate_hz)) for s in rig.config.sensors] or [1]
-    return int(np.lcm.reduce(strides))
-
-
 def chunk_keyframes(rig: Rig, chunk_s: float = CHUNK_S) -> int:
     """Keyframe intervals per chunk: about ``chunk_s`` of drive, a multiple of every sensor's
     frame stride."""
-    step = _frame_step(rig)
+    step = information.frame_step(rig)
     return max(step, int(round(chunk_s * rig.keyframe_rate_hz / step)) * step)
 
 
@@ -181,7 +176,7 @@ def chunks(traj: Trajectory, rig: Rig, chunk_s: float = CHUNK_S) -> Iterator[Nom
     """A trajectory's keyframes as the chunks a live drive would append (the batch evaluator's
     samples, bit for bit: :meth:`Nominal.of`); a last chunk shorter than the others ends it."""
     _, K = Nominal.grid(traj, rig)
-    m, step = chunk_keyframes(rig, chunk_s), _frame_step(rig)
+    m, step = chunk_keyframes(rig, chunk_s), information.frame_step(rig)
     k0 = 0
     while k0 + step <= K - 1:
         k1 = min(k0 + m, k0 + (K - 1 - k0) // step * step)

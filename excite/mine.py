@@ -80,8 +80,7 @@ class Summaries:
 def _chunk_edges(K: int, rig: Rig, chunk_s: float) -> np.ndarray:
     """Chunk boundaries of a drive of ``K`` keyframes: every ``chunk_s`` rounded to a multiple of
     every sensor's frame stride (no factor reaches across a boundary), the last chunk shorter."""
-    strides = [int(round(rig.keyframe_rate_hz / s.rate_hz)) for s in rig.config.sensors] or [1]
-    step = int(np.lcm.reduce(strides))
+    step = info.frame_step(rig)
     size = max(step, int(round(chunk_s * rig.keyframe_rate_hz / step)) * step)
     edges = list(range(0, K - 1, size)) + [K - 1]
     if len(edges) > 2 and edges[-1] - edges[-2] < step:  # no sliver of a chunk at the end

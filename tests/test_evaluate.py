@@ -195,10 +195,10 @@ def test_segment_edges_next_to_a_drive_boundary(rig, segments):
 
 def test_window_trims_drive_fragments():
     prob = information.Problem(10, 1, (), np.broadcast_to(np.eye(3), (10, 3, 3)), True, (0, 5))
-    assert prob.trimmed(0, 9) == (0, 9)
-    assert prob.trimmed(3, 9) == (5, 9)  # keyframes 3, 4: the last two of the first drive
-    assert prob.trimmed(0, 6) == (0, 4)  # keyframes 5, 6: the first two of the second drive
-    assert prob.trimmed(3, 6) is None
+    assert information.trimmed(prob.chain_starts, 0, 9) == (0, 9)
+    assert information.trimmed(prob.chain_starts, 3, 9) == (5, 9)  # keyframes 3, 4: the last two of the first drive
+    assert information.trimmed(prob.chain_starts, 0, 6) == (0, 4)  # keyframes 5, 6: the first two of the second drive
+    assert information.trimmed(prob.chain_starts, 3, 6) is None
     with pytest.raises(EvaluationError, match="fewer than 3 keyframes"):
         prob.window(4, 9)
 
@@ -523,3 +523,46 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
                 assert np.array_equal(a, b), (blk.name, sign, "ring order")
     assert skipped > 0  # the lidar, camera and wheels see no velocity
     assert not np.array_equal(information._ring_order(sd, False), np.arange(sd)) or sd == 9
+
+
+@pytest.mark.parametrize("case", ["random walk", "constant biases", "5 Hz lidar", "two drives"])
+def test_streamed_windows_equal_the_windows_of_the_whole_problem(rig, monkeypatch, case):
+    """The segments' information (each window of keyframes swept from both ends, chunk by chunk,
+    as a drive of its own) equals the marginal and diag H_θθ of the same window cut out of the
+    whole linearised problem (:meth:`Problem.window`): windows inside a drive, at its ends, of
+    several chunks, and across the boundary of two drives (each with its own monocular scale and
+    biases); with a 5 Hz lidar at even keyframes."""
+    r = {"constant biases": rig.with_constant_biases(), "5 Hz lidar": _five_hz_lidar(rig)}.get(case, rig)
+    t = np.linspace(0, 8, 9)
+    drives = [drive(ControlProfile(t, 5 + 2 * np.sin(t + s), 0.1 * np.sin(t / 2 + s), grade_rad=0.02 * np.cos(t)),
+                    r.suspension) for s in ((0, 1) if case == "two drives" else (0,))]
+    prob = information.build([Nominal.of(d, r) for d in drives], r)
+    K = prob.n_keyframes
+    across = (60, 100) if case == "two drives" else (20, 62)  # two drives of 81 keyframes: 81 starts the second
+    wins = [(0, 40), (40, K - 1), across, (0, K - 1)]
+    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)  # several chunks per window and sweep
+    got = information.window_information(drives, r, wins)
+    for (k0, k1), (Lam, diag) in zip(wins, got):
+        win = prob.window(k0, k1)
+        ref = information.marginal(win)
+        assert np.abs(Lam - ref).max() < 1e-9 * np.abs(ref).max(), (k0, k1)
+        np.testing.assert_allclose(diag, information.theta_diagonal(win), rtol=1e-12)
+    if case == "two drives":  # a window across the boundary: each piece closed as a drive of its own
+        assert prob.chain_starts[1] in range(63, 99)
+    if case == "5 Hz lidar":
+        with pytest.raises(EvaluationError, match="multiples of 2 keyframes"):
+            information.window_information(drives, r, [(3, 40)])
+
+
+def test_segment_windows_fall_on_frame_pairs_and_skip_drive_fragments(rig):
+    slow = _five_hz_lidar(rig)  # frames every second keyframe
+    assert information.windows([81], slow, 4) == [(0, 20), (20, 40), (40, 60), (60, 80)]
+    assert information.windows([81], slow, 3) == [(0, 26), (26, 54), (54, 80)]  # 26.7, 53.3 to even keyframes
+    assert information.windows([80], slow, 2) == [(0, 40), (40, 79)]  # a drive's end stays an edge
+    # two drives of 61 keyframes: an edge at keyframe 60 (the first drive's end) or 62 (the
+    # second's 2nd keyframe) cuts a fragment off a drive, which is left out
+    assert information.windows([61, 61], rig, 2) == [(0, 60), (61, 121)]
+    assert information.windows([61, 61], rig, 3) == [(0, 40), (40, 81), (81, 121)]  # one across the boundary
+    # 41 windows: edges at 59 and 62 leave 2 + 2 keyframes either side of the boundary: none
+    wins = information.windows([61, 61], rig, 41)
+    assert len(wins) == 40 and all(b - a >= 2 for a, b in wins) and (59, 62) not in wins

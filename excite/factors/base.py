@@ -70,6 +70,14 @@ class Nominal:
         t1 = traj.t_end if t_end is None else min(t_end, traj.t_end)
         return t0, int(np.floor((t1 - t0) * rig.keyframe_rate_hz + 1e-9)) + 1
 
+    @staticmethod
+    def keyframe_times(traj: Trajectory, rig: Rig) -> np.ndarray:
+        """The times of the keyframes of ``traj`` (those of :meth:`of`, bit for bit)."""
+        t0, K = Nominal.grid(traj, rig)
+        imu_rate = rig.config.imu.update_rate
+        n = int(round(imu_rate / rig.keyframe_rate_hz))
+        return np.clip(t0 + np.arange(K) * n / imu_rate, traj.t_start, traj.t_end)
+
     @classmethod
     def of(cls, traj: Trajectory, rig: Rig, t_start: float | None = None, t_end: float | None = None,
            keyframes: tuple[int, int] | None = None) -> "Nominal":
