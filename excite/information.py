@@ -613,8 +613,11 @@ def window_information(trajs: Sequence[Trajectory], rig: Rig,
     """Λ_θ (over :func:`columns`) and diag H_θθ of each window ``(k0, k1)`` of the keyframes of
     ``trajs`` (numbered on from one drive to the next, as in :func:`build`) on its own: the
     factors that lie within it, each piece of a drive in it closed as a drive of its own. The
-    same as :func:`marginal` of :meth:`Problem.window` of the whole :func:`build`, streamed as
-    :func:`drive_information` (no whole-drive array, every window's two sweeps on the thread pool).
+    same as :func:`marginal` of :meth:`Problem.window` of the whole :func:`build`, streamed
+    (no whole-drive array; the work on the thread pool): a piece longer than a chunk is swept
+    from both ends as :func:`drive_information` sweeps a drive; shorter ones are sampled and
+    linearised together, about a chunk at a time, and each is eliminated on its own
+    (:func:`_short_pieces`).
 
     A window's ends are keyframes at multiples of :func:`frame_step` from their drive's start, or
     a drive's last keyframe (:func:`windows`), and it cuts no piece of fewer than 3 keyframes off
@@ -625,7 +628,7 @@ def window_information(trajs: Sequence[Trajectory], rig: Rig,
     Ks = [_check_length(Nominal.grid(t, rig)[1], rig) for t in trajs]
     starts = np.cumsum([0] + Ks[:-1]).tolist()
     step = frame_step(rig)
-    tasks, meets, owner = [], [], []
+    long, short = [], [[] for _ in trajs]  # (window, drive, a, b) with a, b within the drive
     for w, (k0, k1) in enumerate(windows):
         _check_trimmed(starts, k0, k1)
         for d, (s, K) in enumerate(zip(starts, Ks)):
@@ -635,16 +638,55 @@ def window_information(trajs: Sequence[Trajectory], rig: Rig,
             if a % step or (b % step and b != K - 1):
                 raise EvaluationError(f"window {k0}..{k1} cuts a sensor's frame pair: its ends must be "
                                       f"multiples of {step} keyframes from its drive's start")
-            pair, meet = _sweeps(trajs[d], a, b, s, _drive_column_map(rig, d, len(trajs)), rig)
-            tasks += pair
-            meets.append(meet)
-            owner.append(w)
-    results = list(pool().map(lambda task: _sweep(*task, rig, p, sd), tasks))
+            (long if b - a > _CHUNK_KEYFRAMES else short[d]).append((w, d, a, b))
+    tasks, meets = [], []
+    for w, d, a, b in long:
+        pair, meet = _sweeps(trajs[d], a, b, starts[d], _drive_column_map(rig, d, len(trajs)), rig)
+        tasks += [lambda task=task: _sweep(*task, rig, p, sd) for task in pair]
+        meets.append((w, meet))
+    groups = []
+    for d, pieces in enumerate(short):  # consecutive pieces of a drive, spanning a chunk at most
+        for pc in sorted(pieces, key=lambda pc: pc[2]):
+            if groups and groups[-1][0][1] == d and pc[3] - groups[-1][0][2] <= _CHUNK_KEYFRAMES:
+                groups[-1].append(pc)
+            else:
+                groups.append([pc])
+    tasks += [lambda g=g: _short_pieces(trajs[g[0][1]], [pc[2:] for pc in g], starts[g[0][1]],
+                                        _drive_column_map(rig, g[0][1], len(trajs)), rig, p, sd) for g in groups]
+    results = list(pool().map(lambda task: task(), tasks))
     out = [(np.zeros((p, p)), np.zeros(p)) for _ in windows]
-    for i, (meet, w) in enumerate(zip(meets, owner)):
-        out[w][0][...] += _met(results[2 * i][0], results[2 * i + 1][0], meet)
-        out[w][1][...] += results[2 * i][1] + results[2 * i + 1][1]
+    for i, (w, meet) in enumerate(meets):
+        (fwd, fdiag, *_), (bwd, bdiag, *_) = results[2 * i], results[2 * i + 1]
+        out[w][0][...] += _met(fwd, bwd, meet)
+        out[w][1][...] += fdiag + bdiag
+    for g, res in zip(groups, results[2 * len(meets):]):
+        for (w, *_), (Lam, diag) in zip(g, res):
+            out[w][0][...] += Lam
+            out[w][1][...] += diag
     return [(0.5 * (Lam + Lam.T), diag) for Lam, diag in out]
+
+
+def _short_pieces(traj: Trajectory, pieces: Sequence[tuple[int, int]], offset: int, col_map: np.ndarray,
+                  rig: Rig, p: int, sd: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Λ_θ and diag H_θθ of each piece ``(a, b)`` of a drive (keyframes of it, numbered from
+    ``offset`` in messages), each closed as a drive of its own: their span sampled and linearised
+    once, then each piece's factors (those within it) swept backward and its first keyframe
+    eliminated last."""
+    a0, b1 = min(a for a, _ in pieces), max(b for _, b in pieces)
+    sub = Nominal.of(traj, rig, keyframes=(a0, b1))
+    blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, True, walk=False), col_map)
+              if b is not None and b.n_factors]
+    ends = [blk.first + blk.stride * (blk.n_states - 1) for blk in blocks]
+    walk = (_walk_weights(rig, float(sub.t[1] - sub.t[0])) ** 2, True) if rig.bias_random_walk else None
+    zero = (np.zeros((sd, sd)), np.zeros((sd, p)), np.zeros((p, p)))
+    out = []
+    for a, b in pieces:
+        own = [blk.select(inside).shifted(a0 - a) for blk, end in zip(blocks, ends)
+               if (inside := (blk.first >= a - a0) & (end <= b - a0)).any()]
+        own += _gauge(sub.R[a - a0], 0, True) + _chain_end(b - a, True, sd)
+        carry = _eliminated(own, b - a, zero, False, offset + a, walk)
+        out.append((_met(zero, carry, offset + a), _theta_diagonal(own, p)))
+    return out
 
 
 def windows(Ks: Sequence[int], rig: Rig, n: int) -> list[tuple[int, int]]:

@@ -525,13 +525,15 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
     assert not np.array_equal(information._ring_order(sd, False), np.arange(sd)) or sd == 9
 
 
+@pytest.mark.parametrize("chunk", [7, 500])
 @pytest.mark.parametrize("case", ["random walk", "constant biases", "5 Hz lidar", "two drives"])
-def test_streamed_windows_equal_the_windows_of_the_whole_problem(rig, monkeypatch, case):
-    """The segments' information (each window of keyframes swept from both ends, chunk by chunk,
-    as a drive of its own) equals the marginal and diag H_θθ of the same window cut out of the
-    whole linearised problem (:meth:`Problem.window`): windows inside a drive, at its ends, of
-    several chunks, and across the boundary of two drives (each with its own monocular scale and
-    biases); with a 5 Hz lidar at even keyframes."""
+def test_streamed_windows_equal_the_windows_of_the_whole_problem(rig, monkeypatch, case, chunk):
+    """The segments' information equals the marginal and diag H_θθ of the same window cut out of
+    the whole linearised problem (:meth:`Problem.window`): windows inside a drive, at its ends,
+    overlapping, and across the boundary of two drives (each with its own monocular scale and
+    biases); with a 5 Hz lidar at even keyframes. Chunks of 7 keyframes: every window is longer
+    and swept from both ends, chunk by chunk; of 500: the windows are linearised together and
+    each eliminated on its own."""
     r = {"constant biases": rig.with_constant_biases(), "5 Hz lidar": _five_hz_lidar(rig)}.get(case, rig)
     t = np.linspace(0, 8, 9)
     drives = [drive(ControlProfile(t, 5 + 2 * np.sin(t + s), 0.1 * np.sin(t / 2 + s), grade_rad=0.02 * np.cos(t)),
@@ -540,7 +542,7 @@ def test_streamed_windows_equal_the_windows_of_the_whole_problem(rig, monkeypatc
     K = prob.n_keyframes
     across = (60, 100) if case == "two drives" else (20, 62)  # two drives of 81 keyframes: 81 starts the second
     wins = [(0, 40), (40, K - 1), across, (0, K - 1)]
-    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)  # several chunks per window and sweep
+    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", chunk)
     got = information.window_information(drives, r, wins)
     for (k0, k1), (Lam, diag) in zip(wins, got):
         win = prob.window(k0, k1)
