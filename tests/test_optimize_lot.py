@@ -114,6 +114,13 @@ def test_cli_names_a_bad_lot_in_one_line(tmp_path, capsys):
     assert err.startswith("excite: error:") and "not closed" in err and len(err.splitlines()) == 1
     assert main(["optimize", "--lot", "80y50", "-o", str(tmp_path / "out")]) == 1
     assert "lot: expected XxY in metres" in capsys.readouterr().err
+    for lot, message in (("1.2.3x50", "expected XxY in metres"), (".x50", "expected XxY in metres"),
+                         ("0x50", "extent along x: 0.0 is outside the sane range [15, 2000] m"),
+                         ("80x5", "extent along y: 5.0 is outside"),
+                         (str(tmp_path / "missing.geojson"), "no such file")):
+        assert main(["optimize", "--lot", lot, "-o", str(tmp_path / "out")]) == 1
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("excite: error: lot:") and message in err and len(err.splitlines()) == 1, err
 
 
 def test_the_check_holds_a_drive_to_the_entry_pose_and_the_terrain(rig):

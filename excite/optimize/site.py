@@ -22,6 +22,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from .. import bounds
 from ..maneuvers import EDGE_MARGIN_M, Lot
 from ..vehicle import ControlProfile
 from .settings import OptimizeError
@@ -265,10 +266,16 @@ def parse_lot(text: str, margin_m: float = EDGE_MARGIN_M) -> Site:
     file path."""
     import re
 
-    m = re.fullmatch(r"\s*([0-9.]+)\s*[xX×]\s*([0-9.]+)\s*", text)
+    number = r"\s*(\d+(?:\.\d*)?|\.\d+)\s*"
+    m = re.fullmatch(number + "[xX×]" + number, text)
     if m:
+        for name, value in zip(("lot_x_m", "lot_y_m"), m.groups()):
+            bounds.check_range(bounds.OPTIMIZE, name, float(value), OptimizeError,
+                               f"lot: the extent along {name[4]}")
         return Site.rectangle(float(m.group(1)), float(m.group(2)), margin_m=margin_m)
     if not Path(text).exists():
+        if re.search(r"[/\\]|\.(geo)?json$", text, re.IGNORECASE):
+            raise OptimizeError(f"lot: no such file: {text}")
         raise OptimizeError(f"lot: expected XxY in metres such as 80x50 or a GeoJSON file, got {text!r}")
     return read_site(text, margin_m)
 
