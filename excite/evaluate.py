@@ -221,6 +221,23 @@ def check_work(trajs: Sequence[Trajectory], rig: Rig) -> None:
             raise EvaluationError(f"{t.name}: {too_much}")
 
 
+def max_segments(trajs: Sequence[Trajectory], rig: Rig) -> int:
+    """The most route segments ``trajs`` hold (:func:`information.windows`): each at least 3
+    keyframes and a whole number of every sensor's frames."""
+    K = sum(Nominal.grid(t, rig)[1] for t in trajs)
+    return max(1, (K - 1) // max(2, information.frame_step(rig)))
+
+
+def segments_problem(trajs: Sequence[Trajectory], rig: Rig, n: int) -> str | None:
+    """Why ``n`` route segments do not fit ``trajs`` (None when they do)."""
+    most = max_segments(trajs, rig)
+    if n <= most:
+        return None
+    K = sum(Nominal.grid(t, rig)[1] for t in trajs)
+    return (f"{n} segments of {K} keyframes (at {rig.keyframe_rate_hz:g} Hz) would leave some with fewer "
+            f"than 3 keyframes or less than a frame of every sensor: at most {most}")
+
+
 def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
     """The report of ``traj`` driven with ``rig`` (see the module docstring).
 
@@ -243,6 +260,8 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
     trajs = list(trajs)
     if options.segments and not trajs:
         raise EvaluationError("segments need the drives themselves")
+    if options.segments and (problem := segments_problem(trajs, rig, options.segments)):
+        raise EvaluationError(f"segments: {problem}")
     t0 = time.perf_counter() if t0 is None else t0
     Lam_all = drives.information
     if not np.all(np.isfinite(Lam_all)):

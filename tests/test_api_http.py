@@ -98,6 +98,11 @@ def test_errors_are_problems_naming_the_field(client, data_dir):
     r = client.post("/v1/score", content=b'{"route": {"waypoints": [[0, 0], [1, 1]]}, "segments": Infinity}',
                     headers={"content-type": "application/json"})
     _problem(r, 422, "segments")
+    # more segments than a short route holds (6 s at 10 Hz: 61 keyframes, at most 30)
+    short = {"control": {"t_s": [0, 3, 6], "speed_mps": [0, 4, 0], "curvature_1pm": [0, 0.05, 0]}}
+    body = _problem(client.post("/v1/score", json={"route": short, "segments": 31}), 422, "segments")
+    assert "at most 30" in body["detail"], body
+    assert client.post("/v1/score", json={"route": short, "segments": 30}).json()["segments"][29]["t_end_s"] > 5.9
     # a malformed line of an uploaded file: the field and the line
     lines = (data_dir / "kitti_00_poses.txt").read_text().splitlines()[:50]
     lines[9] = lines[9].replace(" ", " x", 1)

@@ -568,3 +568,13 @@ def test_segment_windows_fall_on_frame_pairs_and_skip_drive_fragments(rig):
     # 41 windows: edges at 59 and 62 leave 2 + 2 keyframes either side of the boundary: none
     wins = information.windows([61, 61], rig, 41)
     assert len(wins) == 40 and all(b - a >= 2 for a, b in wins) and (59, 62) not in wins
+
+
+def test_more_segments_than_the_drive_holds_is_an_error_naming_the_most(rig, general_drive):
+    K = Nominal.grid(general_drive, rig)[1]
+    most = (K - 1) // 2
+    assert len(evaluate(general_drive, rig, Options(segments=most)).segments) == most
+    with pytest.raises(EvaluationError, match=f"segments: {most + 1} segments of {K} keyframes .* at most {most}"):
+        evaluate(general_drive, rig, Options(segments=most + 1))
+    slow = _five_hz_lidar(rig)  # a frame every second keyframe: still 2 keyframe intervals a segment
+    assert len(evaluate(general_drive, slow, Options(segments=most)).segments) == most

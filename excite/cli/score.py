@@ -94,7 +94,7 @@ def score(
              "y down, z forward).")] = "vehicle",
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
-    from ..evaluate import Options, evaluate
+    from ..evaluate import Options, evaluate, max_segments
     from ..rig import load_rig
     from ..routes import read_route
 
@@ -121,7 +121,8 @@ def score(
         from .. import plots
 
         # the route panel needs segments; they are printed only when asked for
-        with_segments = rep if segments else evaluate(traj, r, Options(segments=plots.segment_count(traj.duration)))
+        with_segments = rep if segments else evaluate(traj, r, Options(
+            segments=min(plots.segment_count(traj.duration), max_segments([traj], r))))
         plot.write_bytes(plots.report_figure(with_segments, traj, plot_parameter))
     if export is not None:
         rep.export_npz(export)
