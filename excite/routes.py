@@ -198,14 +198,29 @@ def _check_range(values: np.ndarray, kind: str, what: str, source: str | None,
                          source=source, line=None if lines is None else lines[k])
 
 
+def _cutoff(cutoff_hz: float, h: float) -> float:
+    """The smoothing's bandwidth for poses ``h`` seconds apart: ``cutoff_hz``, at most a quarter
+    of their rate."""
+    return min(cutoff_hz, 0.25 / h)
+
+
 def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: str | None = None,
-                 lines: list[int] | None = None) -> None:
-    """Timed poses a drive can be made of: times and positions in range, and a resampling grid
-    within the work bounds (checked before the grid is allocated)."""
+                 lines: list[int] | None = None, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> None:
+    """Timed poses a drive can be made of: times and positions in range, no gap the smoothing
+    would fill with motion of its own (``MAX_GAP_PERIODS`` periods of its cutoff), and a
+    resampling grid within the work bounds (checked before the grid is allocated)."""
     _check_range(t, "t_s", "time", source, lines)
     _check_range(p, "position_m", "position", source, lines)
     if len(t) < 2:
         return
+    dt = np.diff(t)
+    widest = int(np.argmax(dt))
+    longest = MAX_GAP_PERIODS / _cutoff(cutoff_hz, float(np.median(dt)))
+    if dt[widest] > longest:
+        raise RouteError(f"a gap of {dt[widest]:.3g} s before this pose (at {t[widest + 1] - t[0]:.6g} s "
+                         f"from the first): the smoothing would invent the motion over more than "
+                         f"{longest:g} s; split the log at the gap (each part a drive of its own) or crop it",
+                         source=source, line=None if lines is None else lines[widest + 1])
     rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
     if not (math.isfinite(rate) and rate > 0):
         raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
@@ -235,6 +250,9 @@ def _check_count(n: int, minimum: int, what: str, source: str, lines: list[int])
 # Timed poses
 
 
+MAX_GAP_PERIODS = 5.0  # the widest gap between poses, in periods of the smoothing's cutoff (5 s at 1 Hz)
+
+
 def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
                           cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float | None = None,
                           name: str = "route") -> Trajectory:
@@ -246,9 +264,9 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
     velocity is the derivative of the position spline.
     """
-    _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz)
     if not (math.isfinite(cutoff_hz) and cutoff_hz > 0):
         raise RouteError(f"the smoothing cutoff must be positive and finite, got {cutoff_hz!r}")
+    _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz, cutoff_hz=cutoff_hz)
     t = np.asarray(t_s, dtype=float) - float(t_s[0])
     p = np.asarray(p_m, dtype=float) - np.asarray(p_m, dtype=float)[0]
     q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
@@ -256,7 +274,7 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     flips[flips == 0] = 1.0
     q *= np.cumprod(flips)[:, None]
     h = float(np.median(np.diff(t)))
-    f_c = min(cutoff_hz, 0.25 / h)
+    f_c = _cutoff(cutoff_hz, h)
     lam = 1.0 / (h * (2.0 * np.pi * f_c) ** 4)
     pos = smoothing_spline(t, p, lam)
     quat = smoothing_spline(t, q, lam)
@@ -318,7 +336,7 @@ def read_tum(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     d = _numbers(table, (8,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(d[:, 0], table.source, table.lines)
-    _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines)
+    _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
                                  cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=path.stem)
@@ -342,7 +360,7 @@ def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         ns = np.round(d[:, 0]).astype(np.int64)
     t = (ns - ns[0]).astype(float) * 1e-9
     _check_times(t, table.source, table.lines)
-    _check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines)
+    _check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     R = Rotation.from_quat(q, scalar_first=True).as_matrix()
     return trajectory_from_poses(t, d[:, 1:4], R, cutoff_hz=cutoff_hz, rate_hz=rate_hz,
@@ -366,7 +384,7 @@ def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAUL
                          line=ttable.lines[min(len(t), len(d)) - 1])
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(t, ttable.source, ttable.lines)
-    _check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines)
+    _check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines, cutoff_hz)
     T = d.reshape(-1, 3, 4)
     R_W_C, p_W_C = T[:, :, :3], T[:, :, 3]
     err = np.abs(np.swapaxes(R_W_C, 1, 2) @ R_W_C - np.eye(3)).max(axis=(1, 2))

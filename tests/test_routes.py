@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ from excite.cli import main
 from excite.errors import RouteError
 from excite.vehicle import Limits, check_limits, drive
 from helpers import weave_drive, weave_profile
+
+ROOT = Path(__file__).resolve().parents[1]
 
 TUM_OK = "\n".join(f"{0.1 * i:.1f} {i:.1f} 0 0 0 0 0 1" for i in range(10)) + "\n"
 KITTI_ROW = "1 0 0 {x} 0 1 0 0 0 0 1 {z}"
@@ -237,3 +240,23 @@ def test_smoothing_spline_is_scipys_without_the_per_point_loop(lam):
     scale = np.abs(y).max()
     assert np.abs(ours(g) - ref(g)).max() < 1e-9 * scale
     assert np.abs(ours(g, 1) - ref.derivative()(g)).max() < 1e-8 * scale / np.diff(x).min()
+
+
+def test_a_gap_in_the_poses_is_refused_where_the_smoothing_would_invent_motion(tmp_path, capsys):
+    """30 s cut out of the 90 s figure-eight: the spline would bridge it with motion of its own
+    (it scored *better* than the whole drive); the error names the file, the pose after the gap
+    and what to do. A gap under 5 periods of the cutoff is smoothed over; a lower cutoff allows
+    a longer gap."""
+    rows = [r for r in (ROOT / "trajectories" / "figure_eight.tum").read_text().splitlines() if not r.startswith("#")]
+    times = [float(r.split()[0]) for r in rows]
+    gap = tmp_path / "gap.tum"
+    gap.write_text("\n".join(r for r, t in zip(rows, times) if not 30 <= t < 60) + "\n")
+    with pytest.raises(RouteError, match=r"line 301: a gap of 30.1 s before this pose .* split the log at the gap"):
+        routes.read_tum(gap)
+    assert main(["score", str(gap)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"excite: error: {gap}, line 301: a gap of 30.1 s") and len(err.splitlines()) == 1
+    assert routes.read_tum(gap, cutoff_hz=0.1).duration == pytest.approx(89.9, abs=0.2)  # 50 s allowed
+    short = tmp_path / "short_gap.tum"
+    short.write_text("\n".join(r for r, t in zip(rows, times) if not 30 <= t < 34.5) + "\n")
+    assert routes.read_tum(short).duration == pytest.approx(89.9, abs=0.2)
