@@ -355,7 +355,7 @@ def mine(traj: Trajectory, rig: Rig, window_s: float, goal: Goal | None = None, 
     log = log or traj.name
     s = summarise(traj, rig, chunk_s)
     C = s.n_chunks
-    L = min(C, max(1, int(round(window_s / (chunk_s)))))
+    L = min(C, max(1, math.floor(window_s / chunk_s + 0.5)))  # half up: 25 s of 10 s chunks are 3
     sc, _ = scores(rig, s, L)
     res = LogResult(log, "", duration_s=s.time(int(s.edges[-1])) - s.t0, windows_evaluated=sc.size)
     res.best = [_window(rig, log, s, i, i + L - 1, "best") for i in best_windows(sc, L, per_log)]

@@ -136,7 +136,7 @@ def test_cli_outputs_and_crops(logs, tmp_path, capsys):
                  "--csv", str(out_csv), "--json", str(out_json), "--crop", str(crops), "--jobs", "1"])
     text = capsys.readouterr().out
     assert code == 0, text
-    assert "best 60 s windows" in text and "2 logs mined" in text
+    assert "best windows of 60 s (whole 10 s chunks)" in text and "2 logs mined" in text
     rows = list(csv.DictReader(out_csv.open()))
     assert [r["log"] for r in rows][0].endswith("drive_bag") or "drive_bag" in rows[0]["path"]
     assert {"log", "start_s", "end_s", "score", "confirmed_score", "misses"} <= set(rows[0])

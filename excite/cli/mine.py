@@ -65,7 +65,7 @@ def _table(title: str, windows: list[miner.Window], n_params: dict[str, int]):
 @app.command()
 def mine(
     logs: Annotated[list[str], typer.Argument(help="Logs: route files, bags, folders, globs, routes manifests and URLs.")],
-    window: Annotated[float, typer.Option(help="Length of the windows ranked [s] (rounded to whole chunks).")] = 120.0,
+    window: Annotated[float, typer.Option(help="Length of the windows ranked [s] (rounded half up to whole chunks; at most the log).")] = 120.0,
     min_score: Annotated[Optional[float], typer.Option(
         help="Also find each log's shortest window whose score reaches this.")] = None,
     targets: Annotated[bool, typer.Option(
@@ -109,7 +109,7 @@ def mine(
     best, shortest = miner.ranked(results)
     n_params = {s.name: len(gate._rig(s.rig).scored) for s in specs if s.error is None}
     out = console()
-    out.print(_table(f"best {window:g} s windows", best, n_params))
+    out.print(_table(f"best windows of {window:g} s (whole {chunk:g} s chunks)", best, n_params))
     if goal is not None:
         out.print(_table(f"shortest windows reaching {goal.describe()}", shortest, n_params))
         for r in results:
