@@ -93,7 +93,9 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
         msg = str(exc)
         key = msg.split(":", 1)[0] if ":" in msg else ""
         named = key and " " not in key and key != "rig"
-        raise Rejected(422, f"{field}.{key}" if named else field, msg) from None
+        if named:
+            raise Rejected(422, f"{field}.{key}", msg.split(":", 1)[1].strip()) from None
+        raise Rejected(422, field, msg) from None
 
 
 # --------------------------------------------------------------------------------------------

@@ -366,7 +366,8 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     except ValidationError as exc:
         err = exc.errors()[0]
         key = ".".join(str(p) for p in err["loc"]) or "rig"
-        raise RigError(f"{key}: {err['msg']}") from None
+        msg = "not a key of a rig file here" if err["type"] == "extra_forbidden" else err["msg"]
+        raise RigError(f"{key}: {msg.removeprefix('Value error, ')}") from None
     for key, x in bounds.rig_numbers(cfg.model_dump()):
         sane = bounds.rig_range(key)
         if sane is not None and not sane.contains(x):

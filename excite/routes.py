@@ -206,13 +206,19 @@ def _cutoff(cutoff_hz: float, h: float) -> float:
 
 def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: str | None = None,
                  lines: list[int] | None = None, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> None:
-    """Timed poses a drive can be made of: times and positions in range, no gap the smoothing
-    would fill with motion of its own (``MAX_GAP_PERIODS`` periods of its cutoff), and a
-    resampling grid within the work bounds (checked before the grid is allocated)."""
+    """Timed poses a drive can be made of: times and positions in range, a resampling grid
+    within the work bounds (checked before the grid is allocated), and no gap the smoothing
+    would fill with motion of its own (``MAX_GAP_PERIODS`` periods of its cutoff)."""
     _check_range(t, "t_s", "time", source, lines)
     _check_range(p, "position_m", "position", source, lines)
     if len(t) < 2:
         return
+    rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
+    if not (math.isfinite(rate) and rate > 0):
+        raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
+    too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
+    if too_much:
+        raise RouteError(too_much, source=source)
     dt = np.diff(t)
     widest = int(np.argmax(dt))
     longest = MAX_GAP_PERIODS / _cutoff(cutoff_hz, float(np.median(dt)))
@@ -221,12 +227,6 @@ def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: st
                          f"from the first): the smoothing would invent the motion over more than "
                          f"{longest:g} s; split the log at the gap (each part a drive of its own) or crop it",
                          source=source, line=None if lines is None else lines[widest + 1])
-    rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
-    if not (math.isfinite(rate) and rate > 0):
-        raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
-    too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
-    if too_much:
-        raise RouteError(too_much, source=source)
 
 
 @contextmanager

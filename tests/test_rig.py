@@ -77,6 +77,18 @@ def test_errors_name_the_key(mutate, key):
     assert key in str(e.value)
 
 
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.__setitem__("keyframe_rat_hz", 10), "keyframe_rat_hz: not a key of a rig file here"),
+    (lambda d: d["sensors"][1].__setitem__("name", "lidar"), "sensors: sensor names must be unique, repeated: lidar"),
+])
+def test_errors_read_as_sentences_not_validator_jargon(mutate, message):
+    data = base()
+    mutate(data)
+    with pytest.raises(RigError) as e:
+        build_rig(data)
+    assert str(e.value) == message
+
+
 def test_unknown_bundled_rig_lists_the_bundled_ones():
     with pytest.raises(RigError, match="bundled: robotaxi"):
         load_rig("nosuch")

@@ -494,11 +494,13 @@ def test_parse_rig_yaml(server):
 
     for bad, field, says in [("name: [1,\n", "yaml", "line 2"), ("- a\n- b\n", "yaml", "mapping"),
                              ("a: &x [1]\nb: *x\n", "yaml", "aliases"),
-                             ("name: r\nimu: imu.yaml\n", "rig.imu", "inline")]:
+                             ("name: r\nimu: imu.yaml\n", "rig.imu", "inline"),
+                             (text + "keyframe_rat_hz: 10\n", "rig.keyframe_rat_hz", "not a key")]:
         r = httpx.post(f"{server.url}/v1/rigs/parse", json={"yaml": bad})
         assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json")
         (err,) = r.json()["errors"]
         assert err["field"] == field and says in err["message"], (bad, err)
+        assert not err["message"].startswith(field.split(".")[-1] + ":"), err  # the key once, in the field
 
 
 def test_page_and_its_files_are_served(server):
