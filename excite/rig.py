@@ -375,15 +375,16 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
 
     rates = [s.rate_hz for s in cfg.sensors]
     kf = cfg.keyframe_rate_hz or (max(rates) if rates else 10.0)
+    which = "keyframe rate" if cfg.keyframe_rate_hz else "keyframe rate (not given: the fastest sensor's)"
     for i, s in enumerate(cfg.sensors):
         ratio = kf / s.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise RigError(f"sensors.{i}.rate_hz: {s.rate_hz} Hz must divide the keyframe rate "
+            raise RigError(f"sensors.{i}.rate_hz: {s.rate_hz} Hz must divide the {which} "
                            f"{kf} Hz by a whole number")
     ratio = cfg.imu.update_rate / kf
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         raise RigError(f"imu.update_rate: {cfg.imu.update_rate} Hz must be a whole multiple of the "
-                       f"keyframe rate {kf} Hz")
+                       f"{which} {kf} Hz")
 
     coords = []
     names = []

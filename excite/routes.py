@@ -464,7 +464,8 @@ def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
         unknown = [h for h in table.header if h not in _WAYPOINT_COLS]
         names = [_WAYPOINT_COLS.get(h) for h in table.header]
         if unknown or names[:2] != ["x", "y"] or len(set(names)) != len(names):
-            raise RouteError(f"waypoint header must be x,y[,z][,speed], got {','.join(table.header)}",
+            raise RouteError(f"a header must be x,y[,z][,speed] (waypoints) or t_s,speed_mps,curvature_1pm"
+                             f"[,grade_rad][,bank_rad] (controls), got {','.join(table.header)}",
                              source=table.source, line=table.header_line)
         d = _numbers(table)
     else:
@@ -671,8 +672,11 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
 
         return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
     if bag is not None:
-        raise RouteError("--topic and the other bag options apply to bags only (.bag, .mcap, a "
-                         "ROS 2 bag folder)", source=str(path))
+        flags = {"topic": "--topic", "imu_topic": "--imu-topic", "start_s": "--start", "end_s": "--end",
+                 "vehicle_frame": "--vehicle-frame", "axes": "--axes"}
+        given = [flag for key, flag in flags.items() if getattr(bag, key) not in (None, "vehicle")]
+        raise RouteError(f"bag options ({', '.join(given) or 'none given'}) apply to bags only (.bag, .mcap, "
+                         "a ROS 2 bag folder)", source=str(path))
     if times is not None:
         return read_kitti(path, times, **timed)
     if ext in (".geojson", ".json"):

@@ -80,6 +80,9 @@ def test_errors_name_the_key(mutate, key):
 @pytest.mark.parametrize("mutate, message", [
     (lambda d: d.__setitem__("keyframe_rat_hz", 10), "keyframe_rat_hz: not a key of a rig file here"),
     (lambda d: d["sensors"][1].__setitem__("name", "lidar"), "sensors: sensor names must be unique, repeated: lidar"),
+    (lambda d: (d.__setitem__("keyframe_rate_hz", None), d["sensors"][1].__setitem__("rate_hz", 15.0)),
+     "sensors.0.rate_hz: 10.0 Hz must divide the keyframe rate (not given: the fastest sensor's) 15.0 Hz "
+     "by a whole number"),
 ])
 def test_errors_read_as_sentences_not_validator_jargon(mutate, message):
     data = base()

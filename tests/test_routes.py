@@ -260,3 +260,15 @@ def test_a_gap_in_the_poses_is_refused_where_the_smoothing_would_invent_motion(t
     short = tmp_path / "short_gap.tum"
     short.write_text("\n".join(r for r, t in zip(rows, times) if not 30 <= t < 34.5) + "\n")
     assert routes.read_tum(short).duration == pytest.approx(89.9, abs=0.2)
+
+
+def test_wrong_options_and_headers_are_named_as_given(tmp_path, capsys):
+    """The bag option actually given (not --topic when only --start was), and a control CSV's
+    misspelt header told the two headers a CSV may have."""
+    assert main(["score", str(ROOT / "trajectories" / "figure_eight.tum"), "--start", "10"]) == 1
+    assert "bag options (--start) apply to bags only" in capsys.readouterr().err
+    bad = tmp_path / "controls.csv"
+    bad.write_text("t_s,speed_mps,curvatur_1pm\n0,0,0\n5,5,0\n10,0,0\n")
+    with pytest.raises(RouteError, match=r"line 1: a header must be x,y\[,z\]\[,speed\] \(waypoints\) or "
+                                         r"t_s,speed_mps,curvature_1pm.* got t_s,speed_mps,curvatur_1pm"):
+        routes.read_route(bad)
