@@ -47,7 +47,7 @@ REJECTIONS = [
     ("quat.tum", _tum_with(8, "0.7 7 0 0 0 0 0 1.01"), 8, "norm"),
     ("few.tum", "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n", 2, "too few poses"),
     ("cols.csv", "x,y\n0,0\n1,1,1\n", 3, "expected 2 columns, got 3"),
-    ("header.csv", "x,q\n0,0\n1,1\n", 1, "waypoint header"),
+    ("header.csv", "x,q\n0,0\n1,1\n", 1, "a header must be x,y"),
     ("one.csv", "x,y\n0,0\n", 2, "too few waypoints"),
     ("repeat.csv", "0,0\n5,0\n5,0\n", 3, "repeats"),
     ("stall.csv", "x,y,speed\n0,0,0\n5,0,0\n9,0,1\n", 3, "speed is 0"),
