@@ -154,9 +154,13 @@ def test_cli_outputs_and_crops(logs, tmp_path, capsys):
     tum_crop = next(crops.glob("*.tum"))
     cropped = read_tum(tum_crop)  # (the reader counts time from the first pose, like the log's)
     assert cropped.duration == pytest.approx(b - a)
+    # read back, the crop scores what the window scored: its poses are not smoothed a second time
+    # (which attenuated the motion: a crop once scored 14 % under its window)
+    assert evaluate(cropped, RIG).score == pytest.approx(float(win["score"]), rel=0.01)
     bag_crop = next(p for p in crops.iterdir() if p.suffix != ".tum")
     from_bag = read_bag_route(bag_crop, "/odom")
     assert from_bag.duration == pytest.approx(b - a, abs=0.03)  # poses at 50 Hz
+    assert evaluate(from_bag, RIG).score == pytest.approx(float(win["score"]), rel=0.02)  # smoothed once, cut
     whole = read_bag_route(bag, "/odom")
     # the same motion on both clocks: the displacement over the middle of the window (positions
     # are counted from each log's first pose)
