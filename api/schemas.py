@@ -291,6 +291,8 @@ class Report(Out):
     parameters: list[ParameterOut]
     weak_modes: list[WeakModeOut]
     segments: list[SegmentOut]
+    warnings: list[str] = Field(description="What about the drive the model does not describe: motion no road "
+                                            "vehicle makes (a pose jump, the wrong axes, not a car).")
     score_with_priors: float | None
     timings_ms: dict[str, float]
 

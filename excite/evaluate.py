@@ -28,6 +28,7 @@ from .errors import EvaluationError
 from .factors.base import Nominal
 from .rig import Rig
 from .trajectory import Trajectory
+from .vehicle import implausible
 
 REPORT_VERSION = 2
 
@@ -109,6 +110,7 @@ class Report:
     parameters: list[ParameterResult]
     weak_modes: list[WeakMode]
     segments: list[Segment]
+    warnings: list[str]  # what about the drives the model does not describe (excite.vehicle.implausible)
     score_with_priors: float | None
     timings_ms: dict[str, float]
     information: np.ndarray = field(repr=False)  # Λ_θ over the scored coordinates (SI units)
@@ -151,6 +153,7 @@ class Report:
                 for m in self.weak_modes
             ],
             "segments": [s.__dict__ for s in self.segments],
+            "warnings": self.warnings,
             "score_with_priors": self.score_with_priors,
             "timings_ms": self.timings_ms,
         }
@@ -339,6 +342,7 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],
         spectrum_normalised=[float(x) for x in spec.normalised],
         column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
+        warnings=[(f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t)],
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
         information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig) if trajs else None, _all_columns=all_columns,
         _information_all=Lam_all,

@@ -161,6 +161,32 @@ def curvature(s: MotionSamples, min_speed_mps: float = 0.5) -> np.ndarray:
         return np.where(np.abs(u) >= min_speed_mps, s.yaw_rate / u, np.nan)
 
 
+# What no road vehicle does: beyond these, a logged drive is a pose jump, a mapping error (the
+# wrong axes) or not a car, and the information model (a car on wheels) does not describe it.
+PLAUSIBLE_SPEED_MPS = 70.0  # 252 km/h, forward or backward
+PLAUSIBLE_ACCEL_MPS2 = 15.0  # 1.5 g in the road plane (tyres give ~1 g)
+PLAUSIBLE_TILT_DEG = 35.0  # pitch or roll (the steepest roads are ~20°)
+
+
+def implausible(traj: Trajectory, rate_hz: float = 10.0) -> list[str]:
+    """What in ``traj`` no road vehicle does (speed, acceleration in the road plane, pitch or
+    roll beyond the ``PLAUSIBLE_*`` bounds): one sentence per quantity, at its worst moment."""
+    s = traj.sample(traj.times(rate_hz))
+    ypr = so3.yaw_pitch_roll(s.R_W_V)
+    checks = [("speed", s.speed, PLAUSIBLE_SPEED_MPS, " m/s", "a pose jump?"),
+              ("acceleration", np.hypot(s.accel_long, s.accel_lat), PLAUSIBLE_ACCEL_MPS2, " m/s²",
+               "a pose jump?"),
+              ("pitch", np.degrees(ypr[:, 1]), PLAUSIBLE_TILT_DEG, "°", "not a car, or the wrong axes (--axes)?"),
+              ("roll", np.degrees(ypr[:, 2]), PLAUSIBLE_TILT_DEG, "°", "not a car, or the wrong axes (--axes)?")]
+    out = []
+    for name, x, bound, unit, why in checks:
+        k = int(np.argmax(np.abs(x)))
+        if abs(x[k]) > bound:
+            out.append(f"{name} {x[k]:.3g}{unit} at t = {s.t[k] - traj.t_start:.1f} s is beyond what a road "
+                       f"vehicle does (±{bound:g}{unit}): {why} The numbers assume a car.")
+    return out
+
+
 def check_limits(traj: Trajectory, limits: Limits, rate_hz: float = 20.0) -> list[Violation]:
     """Every limit the drive exceeds, each with its worst value, where, and for how long."""
     t = traj.times(rate_hz)

@@ -384,8 +384,9 @@ def test_json_report_contract(rig, general_drive):
     rep = evaluate(general_drive, rig, Options(segments=4))
     d = json.loads(json.dumps(rep.to_dict(), allow_nan=False))
     for key in ("score", "passed", "duration_s", "rank", "nullity", "condition_number", "spectrum_scaled",
-                "column_map", "parameters", "weak_modes", "timings_ms"):
+                "column_map", "parameters", "weak_modes", "timings_ms", "warnings"):
         assert key in d
+    assert d["warnings"] == []  # a car's drive
     assert d["spectrum_scaled"] == sorted(d["spectrum_scaled"])
     assert [c["name"] for c in d["column_map"]] == [p["name"] for p in d["parameters"]]
     assert set(d["parameters"][0]) >= {"name", "unit", "sigma", "target", "ok"}

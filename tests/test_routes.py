@@ -289,3 +289,31 @@ def test_a_tum_file_excite_wrote_reads_back_without_a_second_smoothing(tmp_path)
     text = path.read_text()
     path.write_text("# edited by hand\n" + text.split("\n", 1)[1])
     assert evaluate(routes.read_tum(path), rig).score < 0.98 * want
+
+
+def test_motion_no_car_makes_is_warned_about(tmp_path, data_dir, capsys):
+    """A pose moved 500 m (a jump), the EuRoC micro aerial vehicle (pitch −88°): the report says
+    the numbers assume a car, and `excite score` prints it on stderr. No reference maneuver, nor
+    KITTI 00, draws a warning."""
+    from excite.evaluate import evaluate
+    from excite.rig import load_rig
+    from excite.vehicle import implausible
+
+    rows = [r for r in (ROOT / "trajectories" / "figure_eight.tum").read_text().splitlines() if not r.startswith("#")]
+    f = rows[400].split()
+    f[1] = str(float(f[1]) + 500.0)
+    rows[400] = " ".join(f)
+    jump = tmp_path / "jump.tum"
+    jump.write_text("\n".join(rows) + "\n")
+    rep = evaluate(routes.read_tum(jump), load_rig("robotaxi"))
+    assert any(w.startswith("speed ") and "a pose jump?" in w for w in rep.warnings), rep.warnings
+    assert rep.to_dict()["warnings"] == rep.warnings
+    assert main(["score", str(jump), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["warnings"] == rep.warnings
+    assert err.count("warning: ") == len(rep.warnings) and "The numbers assume a car." in err
+    euroc = implausible(routes.read_euroc(data_dir / "euroc_v102_groundtruth.csv"))
+    assert any(w.startswith("pitch -87") for w in euroc), euroc
+    for route in sorted((ROOT / "trajectories").glob("*_control.csv")) + sorted((ROOT / "trajectories").glob("*.tum")):
+        assert implausible(routes.read_route(route)) == [], route.name
+    assert implausible(routes.read_kitti(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt")) == []

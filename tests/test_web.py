@@ -191,6 +191,22 @@ def test_drop_a_route_file_on_the_score_form(page):
     page.click("#score-button")
     page.wait_for_selector("#score-value")
     assert float(page.inner_text("#score-value")) == pytest.approx(_library_report().score, rel=1e-3)
+    assert page.locator("#summary .warning").count() == 0  # a car's drive
+    assert page.console.errors == []
+
+
+def test_motion_no_car_makes_is_warned_about_on_the_page(page, tmp_path):
+    rows = [r for r in FIGURE_EIGHT.read_text().splitlines() if not r.startswith("#")]
+    f = rows[400].split()
+    f[1] = str(float(f[1]) + 500.0)  # one pose 500 m off: a jump
+    rows[400] = " ".join(f)
+    jump = tmp_path / "jump.tum"
+    jump.write_text("\n".join(rows) + "\n")
+    page.set_input_files("#route-file", str(jump))
+    page.click("#score-button")
+    page.wait_for_selector("#summary .warning")
+    assert page.inner_text("#summary .warning").startswith("warning: speed ")
+    assert "The numbers assume a car." in page.inner_text("#summary")
     assert page.console.errors == []
 
 

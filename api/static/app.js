@@ -213,7 +213,8 @@ function showReport(rep) {
     el("div", { class: "big" }, el("span", { class: "label", text: "score " }), el("output", { id: "score-value", text: fmt(rep.score, 4) }), " ", badge),
     el("div", { class: "facts", text: `${rep.route} · rig ${rep.rig} · ${rep.duration_s.toFixed(1)} s · ${rep.length_m.toFixed(0)} m · ` +
       `rank ${rep.rank} of ${rep.column_map.length}` + (rep.nullity ? ` (${rep.nullity} unobservable)` : "") +
-      ` · score ≥ 1 means every σ within its target` }));
+      ` · score ≥ 1 means every σ within its target` }),
+    ...(rep.warnings || []).map((w) => el("div", { class: "warning", role: "alert", text: `warning: ${w}` })));
   const names = rep.column_map.map((c) => c.name);
   $("#colour-by").replaceChildren(el("option", { value: "@weak", text: "information on the weakest mode" }),
     el("option", { value: "@score", text: "segment score (its own λ_min)" }),

@@ -117,6 +117,8 @@ def score(
             typer.echo(f"IMU {imu_topic} (frame {traj.imu_frame}) gives the angular rate and specific "
                        f"force; {imu_agreement(traj, pose.R, pose.p).text()}", err=True)
     rep = evaluate(traj, r, Options(segments=segments))
+    for w in rep.warnings:  # on stderr: the report (or its JSON) stays what stdout carries
+        typer.secho(f"warning: {w}", err=True, fg="yellow")
     if plot is not None:
         from .. import plots
 
