@@ -121,3 +121,6 @@ def test_score_plot_option_writes_the_png(tmp_path: Path, capsys):
     assert main(["score", str(TRAJ / "figure_eight_control.csv"), "--plot", str(out),
                  "--plot-parameter", "wheel.trak"]) == 2
     assert "--plot-parameter" in capsys.readouterr().err
+    jpg = tmp_path / "f8.jpg"  # PNG bytes under another name: refused before any work
+    assert main(["score", str(TRAJ / "figure_eight_control.csv"), "--plot", str(jpg)]) == 2
+    assert "name the file .png" in capsys.readouterr().err and not jpg.exists()

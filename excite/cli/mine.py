@@ -111,7 +111,8 @@ def mine(
     out = console()
     out.print(_table(f"best windows of {window:g} s (whole {chunk:g} s chunks)", best, n_params))
     if goal is not None:
-        out.print(_table(f"shortest windows reaching {goal.describe()}", shortest, n_params))
+        if shortest:
+            out.print(_table(f"shortest windows reaching {goal.describe()}", shortest, n_params))
         for r in results:
             if r.error is None and r.shortest is None:
                 out.print(f"[yellow]{r.log}[/]: never reaches {goal.describe()}; the whole log scores "

@@ -98,6 +98,8 @@ def score(
     from ..rig import load_rig
     from ..routes import read_route
 
+    if plot is not None and plot.suffix.lower() != ".png":
+        raise typer.BadParameter(f"writes a PNG: name the file .png, got {plot.name!r}", param_hint="--plot")
     r = load_rig(rig)
     if plot_parameter is not None and plot_parameter not in [c.name for c in r.scored]:
         raise typer.BadParameter(f"no parameter {plot_parameter!r} in rig {r.name} "
