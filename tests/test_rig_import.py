@@ -103,8 +103,9 @@ def test_autoware_sensor_kit_loads_as_a_rig(tmp_path, capsys):
 def test_autoware_missing_frame_and_key(tmp_path):
     kit = tmp_path / "sensor_kit_calibration.yaml"
     kit.write_text(yaml.safe_dump(SENSOR_KIT))
-    with pytest.raises(RigError, match="'base_link'.*sensor_kit_base_link"):
+    with pytest.raises(RigError, match="'base_link'.*sensor_kit_base_link") as e:
         rig_from_autoware(kit, imu="tamagawa/imu_link", base="base_link")
+    assert str(e.value).startswith(f"{kit}: frame 'base_link' appears in no transform in the calibration files")
     broken = {"sensor_kit_base_link": {"gnss_link": {"x": 0, "y": 0, "z": 0, "roll": 0, "pitch": 0}}}
     kit.write_text(yaml.safe_dump(broken))
     with pytest.raises(RigError, match="sensor_kit_base_link.gnss_link.yaw: missing"):
