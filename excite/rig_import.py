@@ -203,7 +203,7 @@ def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: lis
                                    list(camera), name or "autoware")
     except bags.BagError as exc:
         problem = exc.problem.removeprefix(f"topic {exc.topic}: ") if exc.topic else exc.problem
-        raise RigError(f"{sensor_kit}: {problem.replace('/tf or /tf_static', 'the calibration files')}") from None
+        raise RigError(f"{sensor_kit}: {problem.replace('on /tf or /tf_static', 'in the calibration files')}") from None
     notes = [f"from Autoware {', '.join(f.name for f in files)}: B = {imu}, V = {base}"]
     notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], list(lidar) + list(camera))]
     return _finish(cfg, defaults, notes)
