@@ -223,8 +223,8 @@ def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: st
     widest = int(np.argmax(dt))
     longest = MAX_GAP_PERIODS / _cutoff(cutoff_hz, float(np.median(dt)))
     if dt[widest] > longest:
-        raise RouteError(f"a gap of {dt[widest]:.3g} s before this pose (at {t[widest + 1] - t[0]:.6g} s "
-                         f"from the first): the smoothing would invent the motion over more than "
+        raise RouteError(f"a gap of {dt[widest]:.3g} s before the pose at t = {t[widest + 1]:.3f} s: the "
+                         f"smoothing would invent the motion over more than "
                          f"{longest:g} s; split the log at the gap (each part a drive of its own) or crop it",
                          source=source, line=None if lines is None else lines[widest + 1])
 

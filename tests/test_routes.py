@@ -251,7 +251,8 @@ def test_a_gap_in_the_poses_is_refused_where_the_smoothing_would_invent_motion(t
     times = [float(r.split()[0]) for r in rows]
     gap = tmp_path / "gap.tum"
     gap.write_text("\n".join(r for r, t in zip(rows, times) if not 30 <= t < 60) + "\n")
-    with pytest.raises(RouteError, match=r"line 301: a gap of 30.1 s before this pose .* split the log at the gap"):
+    with pytest.raises(RouteError, match=r"line 301: a gap of 30.1 s before the pose at t = 60.000 s: .* split "
+                                         r"the log at the gap"):
         routes.read_tum(gap)
     assert main(["score", str(gap)]) == 1
     err = capsys.readouterr().err.strip()
