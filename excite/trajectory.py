@@ -203,6 +203,10 @@ class Trajectory:
         return MotionSamples(t=t, R_W_V=R, p_W_V=p, v_W=v, a_W=self._acc(t), omega_V=omega, alpha_V=alpha,
                              R_V_A=R_V_A)
 
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """World velocity of V at ``t`` (clipped to the drive)."""
+        return self._vel(np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end))
+
     def translation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position ``p_W_V`` and world velocity of V and the suspension tilt ``R_V_A`` at ``t``
         (clipped to the drive): :meth:`sample` without the rotation and the acceleration."""

@@ -17,7 +17,7 @@ from scipy.interpolate import PchipInterpolator
 
 from . import bounds, so3
 from .errors import LimitError, RouteError
-from .trajectory import MotionSamples, Trajectory
+from .trajectory import GRAVITY, MotionSamples, Trajectory
 
 _GRID_HZ = 100.0  # internal integration grid of generated drives
 
@@ -171,18 +171,20 @@ PLAUSIBLE_TILT_DEG = 35.0  # pitch or roll (the steepest roads are ~20°)
 def implausible(traj: Trajectory, rate_hz: float = 10.0) -> list[str]:
     """What in ``traj`` no road vehicle does (speed, acceleration in the road plane, pitch or
     roll beyond the ``PLAUSIBLE_*`` bounds): one sentence per quantity, at its worst moment."""
-    s = traj.sample(traj.times(rate_hz))
-    ypr = so3.yaw_pitch_roll(s.R_W_V)
-    checks = [("speed", s.speed, PLAUSIBLE_SPEED_MPS, " m/s", "a pose jump?"),
-              ("acceleration", np.hypot(s.accel_long, s.accel_lat), PLAUSIBLE_ACCEL_MPS2, " m/s²",
-               "a pose jump?"),
+    t = traj.times(rate_hz)
+    R, _, f = traj.imu(t, np.eye(3), np.zeros(3))  # V's orientation and specific force (compiled: cheap)
+    ypr = so3.yaw_pitch_roll(R)
+    speed = np.einsum("nji,nj->ni", R, traj.velocity(t))[:, 0]  # along V's x axis
+    a_V = f + np.einsum("nji,j->ni", R, GRAVITY)  # Rᵀ a: the acceleration in V's axes
+    checks = [("speed", speed, PLAUSIBLE_SPEED_MPS, " m/s", "a pose jump?"),
+              ("acceleration", np.hypot(a_V[:, 0], a_V[:, 1]), PLAUSIBLE_ACCEL_MPS2, " m/s²", "a pose jump?"),
               ("pitch", np.degrees(ypr[:, 1]), PLAUSIBLE_TILT_DEG, "°", "not a car, or the wrong axes (--axes)?"),
               ("roll", np.degrees(ypr[:, 2]), PLAUSIBLE_TILT_DEG, "°", "not a car, or the wrong axes (--axes)?")]
     out = []
     for name, x, bound, unit, why in checks:
         k = int(np.argmax(np.abs(x)))
         if abs(x[k]) > bound:
-            out.append(f"{name} {x[k]:.3g}{unit} at t = {s.t[k] - traj.t_start:.1f} s is beyond what a road "
+            out.append(f"{name} {x[k]:.3g}{unit} at t = {t[k] - traj.t_start:.1f} s is beyond what a road "
                        f"vehicle does (±{bound:g}{unit}): {why} The numbers assume a car.")
     return out
 
