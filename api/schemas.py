@@ -291,8 +291,9 @@ class Report(Out):
     parameters: list[ParameterOut]
     weak_modes: list[WeakModeOut]
     segments: list[SegmentOut]
-    warnings: list[str] = Field(description="What about the drive the model does not describe: motion no road "
-                                            "vehicle makes (a pose jump, the wrong axes, not a car).")
+    warnings: list[str] = Field(default_factory=list, description=(
+        "What about the drive the model does not describe (motion no road vehicle makes: a pose jump, the "
+        "wrong axes, not a car), and fewer segments than asked (the drive holds fewer)."))
     score_with_priors: float | None
     timings_ms: dict[str, float]
 

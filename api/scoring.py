@@ -23,7 +23,7 @@ import numpy as np
 from excite import routes
 from excite.bounds import tightened
 from excite.errors import ExciteError, RigError, RouteError
-from excite.evaluate import Options, evaluate, segments_problem
+from excite.evaluate import Options, evaluate
 from excite.rig import Rig, build_rig, bundled_rigs, load_rig
 from excite.trajectory import Trajectory
 from excite.vehicle import Limits
@@ -272,8 +272,6 @@ def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
         if traj.duration > bounds.max_route_duration_s:
             raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
                                        f"{bounds.max_route_duration_s:g} s")
-        if segments and (problem := segments_problem([traj], r, segments)):
-            raise Rejected(422, "segments", problem)
         return r, traj, evaluate(traj, r, Options(segments=segments))
 
 

@@ -231,16 +231,6 @@ def max_segments(trajs: Sequence[Trajectory], rig: Rig) -> int:
     return max(1, (K - 1) // max(2, information.frame_step(rig)))
 
 
-def segments_problem(trajs: Sequence[Trajectory], rig: Rig, n: int) -> str | None:
-    """Why ``n`` route segments do not fit ``trajs`` (None when they do)."""
-    most = max_segments(trajs, rig)
-    if n <= most:
-        return None
-    K = sum(Nominal.grid(t, rig)[1] for t in trajs)
-    return (f"{n} segments of {K} keyframes (at {rig.keyframe_rate_hz:g} Hz) would leave some with fewer "
-            f"than 3 keyframes or less than a frame of every sensor: at most {most}")
-
-
 def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
     """The report of ``traj`` driven with ``rig`` (see the module docstring).
 
@@ -263,8 +253,6 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
     trajs = list(trajs)
     if options.segments and not trajs:
         raise EvaluationError("segments need the drives themselves")
-    if options.segments and (problem := segments_problem(trajs, rig, options.segments)):
-        raise EvaluationError(f"segments: {problem}")
     t0 = time.perf_counter() if t0 is None else t0
     Lam_all = drives.information
     if not np.all(np.isfinite(Lam_all)):
@@ -310,10 +298,17 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
                               advice.describe(rig, [coords[i] for i in keep], v[keep])))
     t4 = time.perf_counter()
 
-    segments = []
+    segments, notes = [], []
     if options.segments:
         t_kf = np.concatenate([Nominal.keyframe_times(t, rig) for t in trajs])
-        spans = information.windows([Nominal.grid(t, rig)[1] for t in trajs], rig, options.segments)
+        Ks = [Nominal.grid(t, rig)[1] for t in trajs]
+        most = max_segments(trajs, rig)
+        spans = information.windows(Ks, rig, min(options.segments, most))
+        if len(spans) < options.segments:  # said, never silently fewer
+            why = (f"the drive holds at most {most} of 3 keyframes or more and a whole number of every sensor's "
+                   f"frames ({sum(Ks)} keyframes at {rig.keyframe_rate_hz:g} Hz)" if options.segments > most else
+                   "pieces of fewer than 3 keyframes at a boundary between drives are left out")
+            notes.append(f"segments: {options.segments} asked, {len(spans)} reported: {why}")
         v_weak = V[:, 0]
         for (k0, k1), (Lam_w, diag_w) in zip(spans, information.window_information(trajs, rig, spans)):
             Lam_seg, Lseg = _scaled(rig, Lam_w)
@@ -342,7 +337,7 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],
         spectrum_normalised=[float(x) for x in spec.normalised],
         column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
-        warnings=[(f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t)],
+        warnings=[(f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t)] + notes,
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
         information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig) if trajs else None, _all_columns=all_columns,
         _information_all=Lam_all,

@@ -75,7 +75,7 @@ class Problem:
 
     def window(self, k0: int, k1: int) -> "Problem":
         """The factors that lie entirely within keyframes ``k0..k1``, re-indexed, with new gauges
-        (every piece of a drive in it needs 3 keyframes: see :meth:`trimmed`)."""
+        (every piece of a drive in it needs 3 keyframes: see :func:`trimmed`)."""
         _check_trimmed(self.chain_starts, k0, k1)
         out = []
         starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
@@ -630,6 +630,8 @@ def window_information(trajs: Sequence[Trajectory], rig: Rig,
     step = frame_step(rig)
     long, short = [], [[] for _ in trajs]  # (window, drive, a, b) with a, b within the drive
     for w, (k0, k1) in enumerate(windows):
+        if not 0 <= k0 < k1 <= sum(Ks) - 1:
+            raise EvaluationError(f"window {k0}..{k1} is not within the drives' keyframes 0..{sum(Ks) - 1}")
         _check_trimmed(starts, k0, k1)
         for d, (s, K) in enumerate(zip(starts, Ks)):
             a, b = max(k0, s) - s, min(k1, s + K - 1) - s
@@ -701,7 +703,10 @@ def windows(Ks: Sequence[int], rig: Rig, n: int) -> list[tuple[int, int]]:
     for e in np.linspace(0, sum(Ks) - 1, n + 1):
         d = int(np.searchsorted(starts, round(e), side="right")) - 1
         s, K = int(starts[d]), int(Ks[d])
-        edges.append(s + min(max(round((e - s) / step), 0) * step, K - 1))
+        local = min(max(round((e - s) / step), 0) * step, K - 1)
+        if (local > 0 and K - 1 - local < step) or e >= s + K - 1:  # no sliver left before the drive's end
+            local = K - 1
+        edges.append(s + local)
     out = []
     for a, b in zip(edges[:-1], edges[1:]):
         span = trimmed(starts.tolist(), a, b)

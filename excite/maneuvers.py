@@ -418,7 +418,9 @@ def random_candidates(n: int, duration_s: float = 90.0, lot: Lot | None = None,
 def write_reference_files(out_dir: str | Path, duration_s: float = 90.0,
                           rate_hz: float = 10.0) -> list[Path]:
     """Write every reference maneuver (default limits, 80 × 50 m lot, default suspension) as
-    ``<name>.tum`` (poses at ``rate_hz``) and ``<name>_control.csv``. Deterministic."""
+    ``<name>.tum`` (poses at ``rate_hz``) and ``<name>_control.csv``. Deterministic. The TUM files
+    stand for logged drives: they are not marked already smooth, and are smoothed when read, as a
+    log is."""
     from .routes import write_control_csv, write_tum
 
     out_dir = Path(out_dir)
@@ -426,7 +428,7 @@ def write_reference_files(out_dir: str | Path, duration_s: float = 90.0,
     written = []
     for name, prof in reference_maneuvers(duration_s).items():
         written.append(write_control_csv(prof, out_dir / f"{name}_control.csv"))
-        written.append(write_tum(drive(prof, Suspension()), out_dir / f"{name}.tum", rate_hz))
+        written.append(write_tum(drive(prof, Suspension()), out_dir / f"{name}.tum", rate_hz, as_log=True))
     return written
 
 

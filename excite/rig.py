@@ -375,7 +375,8 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
 
     rates = [s.rate_hz for s in cfg.sensors]
     kf = cfg.keyframe_rate_hz or (max(rates) if rates else 10.0)
-    which = "keyframe rate" if cfg.keyframe_rate_hz else "keyframe rate (not given: the fastest sensor's)"
+    which = ("keyframe rate" if cfg.keyframe_rate_hz else
+             "keyframe rate (not given: the fastest sensor's)" if rates else "keyframe rate (not given: the default)")
     for i, s in enumerate(cfg.sensors):
         ratio = kf / s.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:

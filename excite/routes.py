@@ -209,6 +209,8 @@ def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: st
     """Timed poses a drive can be made of: times and positions in range, a resampling grid
     within the work bounds (checked before the grid is allocated), and no gap the smoothing
     would fill with motion of its own (``MAX_GAP_PERIODS`` periods of its cutoff)."""
+    if not cutoff_hz > 0:  # ∞: the widest band the poses' rate allows (poses already smooth)
+        raise RouteError(f"the smoothing cutoff must be positive, got {cutoff_hz!r}", source=source)
     _check_range(t, "t_s", "time", source, lines)
     _check_range(p, "position_m", "position", source, lines)
     if len(t) < 2:
@@ -264,8 +266,6 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
     velocity is the derivative of the position spline.
     """
-    if not (math.isfinite(cutoff_hz) and cutoff_hz > 0):
-        raise RouteError(f"the smoothing cutoff must be positive and finite, got {cutoff_hz!r}")
     _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz, cutoff_hz=cutoff_hz)
     t = np.asarray(t_s, dtype=float) - float(t_s[0])
     p = np.asarray(p_m, dtype=float) - np.asarray(p_m, dtype=float)[0]
@@ -336,8 +336,8 @@ def read_tum(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     d = _numbers(table, (8,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(d[:, 0], table.source, table.lines)
-    if _already_smooth(path):  # what write_tum wrote: smoothing it again would attenuate the motion
-        cutoff_hz = _cutoff(math.inf, float(np.median(np.diff(d[:, 0]))))
+    if already_smooth(path):  # what write_tum wrote: smoothing it again would attenuate the motion
+        cutoff_hz = math.inf
     _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
@@ -713,24 +713,26 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
 SMOOTH_MARK = "already smooth: read back without smoothing"  # in the first line of what write_tum writes
 
 
-def _already_smooth(path: Path) -> bool:
+def already_smooth(path: Path) -> bool:
     """Whether the TUM file's first line is the one :func:`write_tum` writes."""
     with open(path, encoding="utf-8", errors="replace") as f:
         first = f.readline(1000)
     return first.startswith("# excite ") and SMOOTH_MARK in first
 
 
-def write_tum(traj: Trajectory, path: str | Path, rate_hz: float = 10.0) -> Path:
+def write_tum(traj: Trajectory, path: str | Path, rate_hz: float = 10.0, as_log: bool = False) -> Path:
     """Write V's poses sampled at ``rate_hz`` as TUM ``t tx ty tz qx qy qz qw``. The first line
     says the poses are already smooth, and :func:`read_tum` then fits them with the widest band
     their rate allows instead of smoothing them again (a second smoothing attenuates the motion:
-    a mined window's crop scored 14 % under the window)."""
+    a mined window's crop scored 14 % under the window). ``as_log``: without that mark, to stand
+    for a logged drive (smoothed when read, as a log is)."""
     path = Path(path)
     s = traj.sample(traj.times(rate_hz))
     q = Rotation.from_matrix(s.R_W_V).as_quat()
     q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)  # canonical sign: w ≥ 0
     data = np.column_stack([s.t, s.p_W_V, q])
-    header = f"excite {traj.name}: pose of the vehicle frame V in W, {SMOOTH_MARK}\nt tx ty tz qx qy qz qw"
+    mark = "" if as_log else f", {SMOOTH_MARK}"
+    header = f"excite {traj.name}: pose of the vehicle frame V in W{mark}\nt tx ty tz qx qy qz qw"
     np.savetxt(path, data, fmt=["%.6f"] + ["%.6f"] * 3 + ["%.9f"] * 4, header=header)
     return path
 

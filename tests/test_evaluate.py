@@ -562,6 +562,8 @@ def test_segment_windows_fall_on_frame_pairs_and_skip_drive_fragments(rig):
     assert information.windows([81], slow, 4) == [(0, 20), (20, 40), (40, 60), (60, 80)]
     assert information.windows([81], slow, 3) == [(0, 26), (26, 54), (54, 80)]  # 26.7, 53.3 to even keyframes
     assert information.windows([80], slow, 2) == [(0, 40), (40, 79)]  # a drive's end stays an edge
+    assert information.windows([82], slow, 2) == [(0, 40), (40, 81)]  # 81 rounds to 80: the end all the same
+    assert information.windows([82, 40], slow, 3) == [(0, 40), (40, 81), (82, 121)]
     # two drives of 61 keyframes: an edge at keyframe 60 (the first drive's end) or 62 (the
     # second's 2nd keyframe) cuts a fragment off a drive, which is left out
     assert information.windows([61, 61], rig, 2) == [(0, 60), (61, 121)]
@@ -571,11 +573,22 @@ def test_segment_windows_fall_on_frame_pairs_and_skip_drive_fragments(rig):
     assert len(wins) == 40 and all(b - a >= 2 for a, b in wins) and (59, 62) not in wins
 
 
-def test_more_segments_than_the_drive_holds_is_an_error_naming_the_most(rig, general_drive):
+def test_more_segments_than_the_drive_holds_are_capped_with_a_warning(rig, general_drive):
+    """Never silently fewer: asked for more segments than the drive holds, the report has the
+    most it holds and says so; so does a drive boundary that leaves a fragment out."""
     K = Nominal.grid(general_drive, rig)[1]
     most = (K - 1) // 2
-    assert len(evaluate(general_drive, rig, Options(segments=most)).segments) == most
-    with pytest.raises(EvaluationError, match=f"segments: {most + 1} segments of {K} keyframes .* at most {most}"):
-        evaluate(general_drive, rig, Options(segments=most + 1))
+    rep = evaluate(general_drive, rig, Options(segments=most))
+    assert len(rep.segments) == most and not any(w.startswith("segments") for w in rep.warnings)
+    rep = evaluate(general_drive, rig, Options(segments=most + 1))
+    assert len(rep.segments) == most
+    assert [w for w in rep.warnings if w.startswith("segments")] == [
+        f"segments: {most + 1} asked, {most} reported: the drive holds at most {most} of 3 keyframes or more "
+        f"and a whole number of every sensor's frames ({K} keyframes at 10 Hz)"]
     slow = _five_hz_lidar(rig)  # a frame every second keyframe: still 2 keyframe intervals a segment
     assert len(evaluate(general_drive, slow, Options(segments=most)).segments) == most
+    t = np.linspace(0, 6, 7)  # two drives of 61 keyframes: the edge at 60.5 leaves the 2nd drive's first 2 out
+    a, b = (drive(ControlProfile(t, 5 + 2 * np.sin(t + s), 0.1 * np.sin(t / 2 + s)), rig.suspension) for s in (0, 1))
+    rep = evaluate([a, b], rig, Options(segments=59))
+    assert len(rep.segments) == 58 and rep.warnings[-1] == (
+        "segments: 59 asked, 58 reported: pieces of fewer than 3 keyframes at a boundary between drives are left out")

@@ -648,3 +648,18 @@ def test_websocket_over_a_real_connection():
     finally:
         server.should_exit = True
         th.join(10)
+
+
+def test_cli_final_is_the_score_of_a_file_excite_wrote(tmp_path):
+    """A crop written by write_tum (its poses already smooth) replayed: the final update is
+    `excite score` of the same file, which does not smooth it a second time (that attenuated the
+    motion: the final read 3.4 % under the score)."""
+    from excite.evaluate import evaluate
+    from excite.rig import load_rig
+    from excite.routes import read_route, read_tum, write_tum
+
+    window = read_route(Path(__file__).resolve().parents[1] / "trajectories" / "slalom_control.csv").cropped(30.0, 60.0)
+    tum = write_tum(window, tmp_path / "crop.tum", rate_hz=100.0)
+    r = CliRunner().invoke(app, ["live", str(tum), "--replay", "1000x", "--json"])
+    final = next(e for e in _json_lines(r.stdout) if e["type"] == "final")
+    assert final["report"]["score"] == pytest.approx(evaluate(read_tum(tum), load_rig("robotaxi")).score, rel=1e-9)

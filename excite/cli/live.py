@@ -264,7 +264,11 @@ def live(
     speed = _speed(replay)
     r = load_rig(rig)
     batches, name = _source(route, times, speed, topic, idle)
-    stream = PoseStream(r, name=name)
+    from ..routes import DEFAULT_CUTOFF_HZ, already_smooth
+
+    # a TUM file excite wrote is read as read_tum reads it: not smoothed a second time
+    smooth = str(route) != "-" and route.is_file() and already_smooth(route)
+    stream = PoseStream(r, name=name, cutoff_hz=math.inf if smooth else DEFAULT_CUTOFF_HZ)
     out = console()
 
     def emit(update: dict[str, Any], display: Any) -> None:
