@@ -163,6 +163,7 @@ class RouteResult:
     error_detail: str | None = None
     seconds: float = 0.0
     report: dict[str, Any] | None = None
+    warnings: list[str] = field(default_factory=list)  # the report's: motion no car makes, fewer segments
 
     @property
     def status(self) -> str:
@@ -498,6 +499,7 @@ def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
     else:
         res.rig = rig.name
         res.score = rep.score
+        res.warnings = list(rep.warnings)
         res.failures = check(rep, spec)
         res.passed = not res.failures
         if res.failures:

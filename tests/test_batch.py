@@ -149,6 +149,21 @@ def test_min_score_replaces_the_default_gate(routes: Path, tmp_path: Path):
     assert r["failures"][0]["parameter"] == "score" and r["failures"][0]["bound"] == 1e-3
 
 
+def test_warnings_are_shown_and_kept_but_do_not_gate(tmp_path: Path, capsys):
+    """A pose 500 m off: the table and the JSON carry the report's warning; the verdict is the
+    score's alone (--min-score 0 passes it)."""
+    rows = [r for r in (TRAJ / "figure_eight.tum").read_text().splitlines() if not r.startswith("#")]
+    f = rows[400].split()
+    f[1] = str(float(f[1]) + 500.0)
+    rows[400] = " ".join(f)
+    jump = write(tmp_path / "jump.tum", "\n".join(rows) + "\n")
+    out = tmp_path / "r.json"
+    assert main(["batch", str(jump), "--min-score", "0", "--json", str(out), "--jobs", "1"]) == 0
+    assert "warning: speed" in capsys.readouterr().out
+    [r] = json.loads(out.read_text())["routes"]
+    assert r["warnings"] and r["warnings"][0].startswith("speed ") and r["warnings"] == r["report"]["warnings"]
+
+
 # --- errors: per route, never a traceback -----------------------------------------------------------
 
 

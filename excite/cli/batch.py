@@ -19,6 +19,7 @@ _MAX_SHOWN = 4  # failing parameters listed per route in the table
 
 
 def _table(results: list[gate.RouteResult]):
+    from rich.markup import escape
     from rich.table import Table
 
     rigs = sorted({r.rig for r in results})
@@ -35,7 +36,7 @@ def _table(results: list[gate.RouteResult]):
         shown = [f.short() for f in r.failures[:_MAX_SHOWN]]
         if len(r.failures) > _MAX_SHOWN:
             shown.append(f"… {len(r.failures) - _MAX_SHOWN} more (JUnit/--json list all)")
-        detail = r.error if r.error is not None else "\n".join(shown)
+        detail = r.error if r.error is not None else "\n".join(shown + [f"[yellow]warning: {escape(w)}[/]" for w in r.warnings])
         rig = [] if one_rig else [r.rig]
         t.add_row(r.name, *rig, "—" if r.score is None else f"{r.score:.3g}", verdict, detail or "")
     return t
