@@ -83,10 +83,8 @@ class Problem:
         for b in self.blocks:
             if b.name in ("gauge", "placeholder"):
                 continue
-            last = b.first + b.stride * (b.n_states - 1)
-            mask = (b.first >= k0) & (last <= k1)
-            if mask.any():
-                sel = b.select(mask).shifted(-k0)
+            sel = b.within(k0, k1)
+            if sel is not None:
                 if b.name == "bias_walk":  # the bias columns of θ are the bias at each piece's end
                     sel = _bias_anchored(sel, np.asarray(ends))
                 out.append(sel)
@@ -678,13 +676,11 @@ def _short_pieces(traj: Trajectory, pieces: Sequence[tuple[int, int]], offset: i
     sub = Nominal.of(traj, rig, keyframes=(a0, b1))
     blocks = [b for b in _on_drive_columns(_linearise(sub, rig, True, True, walk=False), col_map)
               if b is not None and b.n_factors]
-    ends = [blk.first + blk.stride * (blk.n_states - 1) for blk in blocks]
     walk = (_walk_weights(rig, float(sub.t[1] - sub.t[0])) ** 2, True) if rig.bias_random_walk else None
     zero = (np.zeros((sd, sd)), np.zeros((sd, p)), np.zeros((p, p)))
     out = []
     for a, b in pieces:
-        own = [blk.select(inside).shifted(a0 - a) for blk, end in zip(blocks, ends)
-               if (inside := (blk.first >= a - a0) & (end <= b - a0)).any()]
+        own = [sel for blk in blocks if (sel := blk.within(a - a0, b - a0)) is not None]
         own += _gauge(sub.R[a - a0], 0, True) + _chain_end(b - a, True, sd)
         carry = _eliminated(own, b - a, zero, False, offset + a, walk)
         out.append((_met(zero, carry, offset + a), _theta_diagonal(own, p)))

@@ -145,6 +145,12 @@ class FactorBlock:
         """The same factors with keyframe indices moved by ``by``."""
         return replace(self, first=self.first + by)
 
+    def within(self, k0: int, k1: int) -> "FactorBlock | None":
+        """The factors that lie entirely within keyframes ``k0 … k1``, indexed from ``k0``; None
+        if there are none (a window's factors: :meth:`excite.information.Problem.window`)."""
+        inside = (self.first >= k0) & (self.first + self.stride * (self.n_states - 1) <= k1)
+        return self.select(inside).shifted(-k0) if inside.any() else None
+
 
 def theta_columns(rig: Rig, names: list[str]) -> np.ndarray:
     """Column indices of the named calibration coordinates."""
