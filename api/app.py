@@ -87,7 +87,7 @@ def create_app(settings: Settings | None = None, *,
 
 def _openapi_with_settings(app: FastAPI, settings: Settings):
     """The OpenAPI document with the bounds this server's settings tighten: what the schema
-    allows, the server accepts (the static ranges come from :mod:`excite.bounds`)."""
+    allows, the server accepts (the static ranges come from :mod:`excite.core.bounds`)."""
     generate = app.openapi
 
     def openapi() -> dict:

@@ -3,7 +3,7 @@
 - Batch routes (``POST /v1/batch``): each route is sent to the cluster as the request's own data
   (small inputs travel as bytes), scored by :func:`api.scoring.score_task` on a Dask worker;
   :class:`ClusterScoring` gives back standard futures that fail with
-  :class:`~api.pool.WorkTimeout` at the request's deadline (the cluster task is cancelled then),
+  :class:`~api.errors.WorkTimeout` at the request's deadline (the cluster task is cancelled then),
   like the local scoring pool's.
 - Optimization jobs: the job's worker process (:mod:`api.worker`, started per job by the server)
   stays the job's owner and the durable job record its truth; it submits the job function to
@@ -16,14 +16,15 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
+import importlib
 import threading
 import time
 import uuid
 from typing import Any, Callable
 
-from excite import engine
+from excite.fleet import engine
 
-from .pool import WorkerDied, WorkTimeout
+from .errors import WorkerDied, WorkTimeout
 
 POLL_S = 0.2
 
@@ -77,12 +78,16 @@ class ClusterScoring:
                 self._client = None
 
 
+def load_function(spec: str) -> Any:
+    """The job function named ``module:name`` (the local worker and the Dask worker run it)."""
+    module, name = spec.split(":", 1)
+    return getattr(importlib.import_module(module), name)
+
+
 def remote_job(function: str, request: dict[str, Any], channel: str) -> dict[str, Any]:
     """Run on a Dask worker: the job function, its progress put on the queue ``channel``, its
     ``should_stop`` read from the variable ``channel`` (both at most every :data:`POLL_S`)."""
     from distributed import Queue, Variable
-
-    from .worker import load_function
 
     queue, stop = Queue(channel), Variable(channel)
     last = {"put": 0.0, "check": 0.0, "stopped": False}

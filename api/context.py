@@ -13,8 +13,8 @@ from prometheus_client import CollectorRegistry, Gauge
 
 from .cluster import ClusterScoring
 from .jobs import JobRunner
-from .problems import ProblemError
-from .pool import Overloaded, Unsendable, WorkerDied, WorkerPool, WorkTimeout
+from .errors import Overloaded, ProblemError, Unsendable, WorkerDied, WorkTimeout
+from .pool import WorkerPool
 from .scoring import Bounds, plot_task, score_task
 from .settings import Settings
 from .store import JobStore

@@ -1,8 +1,8 @@
 """A planned maneuver as a file: TUM poses, waypoints CSV, control CSV or GeoJSON.
 
 The job stores the control profile; the drive is rebuilt with the rig's suspension and written
-by :mod:`excite.routes`. GeoJSON (WGS84 lon/lat) needs the lot's origin: the inverse of the
-projection :func:`excite.routes.read_geojson` uses, so the file reads back to the same drive.
+by :mod:`excite.io.routes`. GeoJSON (WGS84 lon/lat) needs the lot's origin: the inverse of the
+projection :func:`excite.io.routes.read_geojson` uses, so the file reads back to the same drive.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from excite import routes
-from excite.rig import Rig
-from excite.vehicle import ControlProfile, drive
+from excite.io import routes
+from excite.rig.config import Rig
+from excite.motion.vehicle import ControlProfile, drive
 
 MEDIA = {"tum": "text/plain", "csv": "text/csv", "control": "text/csv",
          "geojson": "application/geo+json"}
@@ -54,6 +54,6 @@ def maneuver_file(profile: dict[str, Any], rig: Rig, fmt: str, name: str,
 
 
 def _geojson(xyzv: np.ndarray, origin: tuple[float, float], name: str) -> str:
-    from excite.optimize.site import maneuver_geojson
+    from excite.plan.site import maneuver_geojson
 
     return maneuver_geojson(xyzv[:, :3], xyzv[:, 3], origin, name)

@@ -6,7 +6,7 @@ them, kills a cancelled job that outstays ``cancel_grace_s``, and on shutdown st
 workers and puts their jobs back in the queue. Progress and results travel through the store
 only, so a job is visible from any request thread and survives the server.
 
-:func:`run_optimization` is the default job: :func:`excite.optimize.optimize` on the request,
+:func:`run_optimization` is the default job: :func:`excite.plan.optimize` on the request,
 returning plain JSON data (the report, the comparison and the control profile for downloads).
 """
 
@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from excite.engine import SCHEDULER_ENV
+from excite.fleet.engine import SCHEDULER_ENV
 
 from .store import JobStore
 
@@ -59,11 +59,12 @@ def profile_data(profile: Any) -> dict[str, Any]:
 def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]], None],
                      should_stop: Callable[[], bool]) -> dict[str, Any]:
     """The default job: plan a maneuver for a :class:`~api.schemas.ManeuverRequest` (as data)."""
-    from excite.optimize import OptimizeSettings, optimize
-    from excite.optimize.site import read_site
-    from excite.vehicle import Limits
+    from excite.plan import OptimizeSettings, optimize
+    from excite.plan.site import read_site
+    from excite.motion.vehicle import Limits
 
-    from .scoring import Rejected, resolve_rig
+    from .errors import Rejected
+    from .scoring import resolve_rig
 
     try:
         rig = resolve_rig(request["rig"])

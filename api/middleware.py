@@ -97,7 +97,7 @@ class BodyLimit:
             message = await receive()
             seen += len(message.get("body", b""))
             if seen > self.max_bytes:
-                from .problems import ProblemError
+                from .errors import ProblemError
 
                 raise ProblemError(413, detail, headers={"Connection": "close"})
             return message

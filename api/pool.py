@@ -35,6 +35,7 @@ import threading
 import time
 from multiprocessing.connection import Connection
 from typing import Any, Callable
+from .errors import Overloaded, Unsendable, WorkTimeout, WorkerDied
 
 log = logging.getLogger("excite.api")
 
@@ -42,27 +43,6 @@ _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 # A task is admitted when its expected finish is within this share of its time left: costs are
 # recent averages, and a task that would finish just in time on average times out half the time.
 ADMIT_SHARE = 0.7
-
-
-class WorkTimeout(Exception):
-    """The task did not finish by its deadline (its worker, if it had one, was killed)."""
-
-
-class WorkerDied(Exception):
-    """The worker ended while running the task (e.g. killed by the system)."""
-
-
-class Unsendable(Exception):
-    """The task's arguments cannot be sent to a worker (e.g. nested too deeply to pickle)."""
-
-
-class Overloaded(Exception):
-    """Every worker is busy and the task would wait past its deadline or over the queue bound:
-    refused now (the client retries after ``retry_after_s``) instead of timing out later."""
-
-    def __init__(self, detail: str, retry_after_s: int):
-        super().__init__(detail)
-        self.detail, self.retry_after_s = detail, retry_after_s
 
 
 # --------------------------------------------------------------------------------------------
@@ -159,7 +139,7 @@ class WorkerPool:
     def __init__(self, workers: int, memory_mb: int, recycle_mb: int,
                  warm: Callable[[], Any] | None = None, start_timeout_s: float = 300.0,
                  max_queued: int = 16,
-                 preload: tuple[str, ...] = ("excite.evaluate", "excite.routes", "excite.plots", "api.scoring")):
+                 preload: tuple[str, ...] = ("excite.score.evaluate", "excite.io.routes", "excite.score.plots", "api.scoring")):
         self.workers, self.memory_mb, self.recycle_mb = workers, memory_mb, recycle_mb
         self.max_queued, self.preload = max_queued, list(preload)
         # admission: tasks waiting for a worker, and the seconds of work queued and running

@@ -16,44 +16,19 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from excite.errors import EvaluationError, ExciteError, LimitError, RigError, RouteError
+from .errors import TITLES, ProblemError, default_type
 
 log = logging.getLogger("excite.api")
 
 PROBLEM_JSON = "application/problem+json"
 TYPE_BASE = "https://excite.dev/problems/"
 
-_TITLES = {400: "Bad request", 404: "Not found", 405: "Method not allowed",
-           406: "Not acceptable", 408: "Request timeout", 409: "Conflict", 413: "Content too large",
-           415: "Unsupported media type", 422: "Unprocessable content", 429: "Too many requests",
-           500: "Internal server error", 503: "Service unavailable"}
-
-
-class ProblemError(Exception):
-    """An error the service answers with a problem document (raised by routers)."""
-
-    def __init__(self, status: int, detail: str, *, type_: str | None = None,
-                 title: str | None = None, errors: list[dict[str, Any]] | None = None,
-                 headers: dict[str, str] | None = None):
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-        self.type_ = type_ or _default_type(status)
-        self.title = title or _TITLES.get(status, "Error")
-        self.errors = errors
-        self.headers = headers
-
-
-def _default_type(status: int) -> str:
-    return {404: "not-found", 409: "conflict", 413: "too-large", 422: "validation",
-            500: "internal", 503: "unavailable"}.get(status, "http-error")
-
-
 def problem(status: int, detail: str, *, instance: str = "", type_: str | None = None,
             title: str | None = None, errors: list[dict[str, Any]] | None = None,
             headers: dict[str, str] | None = None) -> JSONResponse:
     """A problem+json response."""
-    body: dict[str, Any] = {"type": TYPE_BASE + (type_ or _default_type(status)),
-                            "title": title or _TITLES.get(status, "Error"), "status": status,
+    body: dict[str, Any] = {"type": TYPE_BASE + (type_ or default_type(status)),
+                            "title": title or TITLES.get(status, "Error"), "status": status,
                             "detail": detail, "instance": instance}
     if errors is not None:
         body["errors"] = errors
@@ -125,7 +100,7 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        detail = exc.detail if isinstance(exc.detail, str) else _TITLES.get(exc.status_code, "Error")
+        detail = exc.detail if isinstance(exc.detail, str) else TITLES.get(exc.status_code, "Error")
         headers = getattr(exc, "headers", None)
         if exc.status_code == 405:  # every method of the path, not only the first route's
             headers = {**(headers or {}), "Allow": ", ".join(_methods(request))}

@@ -11,8 +11,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
 
-from excite import bounds
-from excite.bounds import Range
+from excite.core import bounds
+from excite.core.bounds import Range
 
 ROUTE_FORMATS = ("tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv")
 RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv"]
@@ -22,13 +22,13 @@ RouteName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")]
 
 
 def ranged(r: Range, description: str = "", **kw: Any) -> Any:
-    """A field in the sane range ``r`` of :mod:`excite.bounds`: the schema states the range the
+    """A field in the sane range ``r`` of :mod:`excite.core.bounds`: the schema states the range the
     library enforces (the service may tighten it, never widen it)."""
     text = f"{description} Range {r}.".strip()
     return Field(ge=r.lo, le=r.hi, description=text, **kw)
 
 
-# Static sanity bounds (excite.bounds.ROUTE): beyond them the numbers are not a drive on Earth.
+# Static sanity bounds (excite.core.bounds.ROUTE): beyond them the numbers are not a drive on Earth.
 Coord = Annotated[float, ranged(bounds.ROUTE["position_m"])]
 Time = Annotated[float, ranged(bounds.ROUTE["t_s"])]
 Speed = Annotated[float, ranged(bounds.ROUTE["speed_mps"])]
@@ -211,7 +211,7 @@ class ManeuverRequest(In):
     lot: dict[str, Any] | None = Field(None, description=(
         "The lot as GeoJSON (replaces lot_x_m/lot_y_m): one Polygon (lon/lat, or local metres with "
         "properties.crs = \"local\"; further rings are keep-out zones), optionally an entry Point "
-        "(role \"entry\", heading_deg) and ramp/bank/bump Polygons (see excite.optimize.site)."))
+        "(role \"entry\", heading_deg) and ramp/bank/bump Polygons (see excite.plan.site)."))
     criterion: Literal["E", "D", "A"] = Field("E", description=(
         "What to maximise: E (λ_min, the score), D (log det), A (−trace of the inverse)."))
 
@@ -269,7 +269,7 @@ class SegmentOut(Out):
 
 
 class Report(Out):
-    """The evaluator's report (excite.evaluate.Report.to_dict)."""
+    """The evaluator's report (excite.score.evaluate.Report.to_dict)."""
 
     version: int
     route: str
@@ -353,7 +353,7 @@ class JobProgress(Out):
 
 
 class JobResult(Out):
-    """The optimizer's result (excite.optimize.OptimizeResult.to_dict); the maneuver itself is
+    """The optimizer's result (excite.plan.OptimizeResult.to_dict); the maneuver itself is
     in the job's download links."""
 
     report: Report

@@ -2,7 +2,7 @@
 
 Everything here runs inside a :class:`ScorePool` process and returns plain data (a report or a
 problem), never raises to the caller: the parent turns problems into responses. Route text is
-written to a temporary file and read by :mod:`excite.routes`; JSON routes are written in the
+written to a temporary file and read by :mod:`excite.io.routes`; JSON routes are written in the
 matching file format first, so every route passes the same readers and the same checks.
 Reader errors name the request field (``route.waypoints[3]``, ``route.text`` line N), never a
 server path.
@@ -20,13 +20,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from excite import routes
-from excite.bounds import tightened
+from excite.io import routes
+from excite.core.bounds import tightened
 from excite.errors import ExciteError, RigError, RouteError
-from excite.evaluate import Options, evaluate
-from excite.rig import Rig, build_rig, bundled_rigs, load_rig
-from excite.trajectory import Trajectory
-from excite.vehicle import Limits
+from excite.score.evaluate import Options, evaluate
+from excite.rig.config import Rig, build_rig, bundled_rigs, load_rig
+from excite.motion.trajectory import Trajectory
+from excite.motion.vehicle import Limits
+from .errors import Rejected
 
 log = logging.getLogger("excite.api")
 
@@ -41,14 +42,6 @@ class Bounds:
     max_samples: int
     max_route_duration_s: float
     max_route_length_m: float
-
-
-class Rejected(Exception):
-    """Input the service refuses: (status, field, message)."""
-
-    def __init__(self, status: int, field: str, message: str):
-        super().__init__(message)
-        self.status, self.field, self.message = status, field, message
 
 
 def problem_data(status: int, field: str, message: str) -> dict[str, Any]:
@@ -319,8 +312,8 @@ def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
 def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | dict[str, Any],
                    segments: int, bounds: Bounds) -> dict[str, Any]:
     """The report of an uploaded bag (saved at ``path``) read with ``source``
-    (:class:`excite.bags.BagSource` fields); problems name the form field, never the path."""
-    from excite.bags import BagSource, read_bag_route
+    (:class:`excite.io.bags.BagSource` fields); problems name the form field, never the path."""
+    from excite.io.bags import BagSource, read_bag_route
 
     def run() -> dict[str, Any]:
         r = resolve_rig(rig, "rig")
@@ -337,7 +330,7 @@ def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | 
 def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
               limits: dict[str, float] | None, bounds: Bounds, parameter: str | None) -> dict[str, Any]:
     """``{"ok": True, "png": bytes}``: the figure of ``excite score --plot`` for this route."""
-    from excite import plots
+    from excite.score import plots
 
     def run() -> dict[str, Any]:
         r, traj, report = _evaluated(route, rig, segments, limits, bounds, "route", "rig")

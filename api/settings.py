@@ -11,7 +11,7 @@ from pathlib import Path
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from excite import bounds
+from excite.core import bounds
 
 
 def default_db_path() -> Path:
@@ -74,7 +74,8 @@ class Settings(BaseSettings):
     @field_validator("dask_scheduler")
     @classmethod
     def _scheduler(cls, v: str | None) -> str | None:
-        from excite.engine import EngineError, scheduler_address
+        from excite.errors import EngineError
+        from excite.fleet.engine import scheduler_address
 
         if not v:
             return None

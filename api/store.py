@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from excite.errors import ExciteError
+from .errors import StoreError
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
@@ -40,10 +40,6 @@ CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status, created_at);
 """
 
 FINAL = ("succeeded", "failed", "cancelled")
-
-
-class StoreError(ExciteError):
-    """The job database cannot be opened or is not one (the message names the file)."""
 
 
 class JobStore:

@@ -12,7 +12,6 @@ cancellation (:func:`api.cluster.run_remote`).
 from __future__ import annotations
 
 import ctypes
-import importlib
 import logging
 import os
 import resource
@@ -21,9 +20,10 @@ import sys
 import time
 from typing import Any
 
-from excite.engine import scheduler_address
+from excite.fleet.engine import scheduler_address
 from excite.errors import ExciteError
 
+from .cluster import load_function, run_remote
 from .store import JobStore
 
 log = logging.getLogger("excite.api.worker")
@@ -43,9 +43,6 @@ def _die_with_parent(parent: int) -> None:
         os._exit(EXIT_ORPHANED)
 
 
-def load_function(spec: str) -> Any:
-    module, name = spec.split(":", 1)
-    return getattr(importlib.import_module(module), name)
 
 
 def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> int:
@@ -81,8 +78,6 @@ def run(db_path: str, job_id: str, attempt: int, function: str, parent: int) -> 
         if address is None:
             result = load_function(function)(job["request"], progress, should_stop)
         else:
-            from .cluster import run_remote
-
             log.info("job %s attempt %d runs on the Dask cluster at %s", job_id, attempt, address)
             result = run_remote(address, function, job["request"], progress, should_stop)
     except ExciteError as exc:

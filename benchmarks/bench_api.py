@@ -32,10 +32,10 @@ from test_api_support import LiveServer  # noqa: E402
 
 
 def route_text(duration_s: float = 600.0) -> str:
-    from excite.maneuvers import figure_eight
-    from excite.rig import load_rig
-    from excite.routes import write_tum
-    from excite.vehicle import drive
+    from excite.motion.maneuvers import figure_eight
+    from excite.rig.config import load_rig
+    from excite.io.routes import write_tum
+    from excite.motion.vehicle import drive
 
     rig = load_rig("robotaxi")
     traj = drive(figure_eight(duration_s=duration_s), rig.suspension)

@@ -28,9 +28,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def make_bag(path: Path, minutes: float) -> None:
-    from excite.bags import write_bag
-    from excite.rig import load_rig
-    from excite.vehicle import ControlProfile, drive
+    from excite.io.bags import write_bag
+    from excite.rig.config import load_rig
+    from excite.motion.vehicle import ControlProfile, drive
 
     duration = minutes * 60.0
     t = np.linspace(0.0, duration, int(duration * 10) + 1)
@@ -44,9 +44,9 @@ def make_bag(path: Path, minutes: float) -> None:
 
 def one_run(path: Path) -> dict:
     t0 = time.perf_counter()
-    from excite import bags
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
+    from excite.io import bags
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
 
     rig = load_rig("robotaxi")
     t1 = time.perf_counter()

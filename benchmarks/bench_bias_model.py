@@ -10,10 +10,10 @@ from __future__ import annotations
 import glob
 from pathlib import Path
 
-from excite.evaluate import evaluate
-from excite.rig import load_rig
-from excite.routes import read_route
-from excite.units import human
+from excite.score.evaluate import evaluate
+from excite.rig.config import load_rig
+from excite.io.routes import read_route
+from excite.core.units import human
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 ROOT = Path(__file__).resolve().parents[1]

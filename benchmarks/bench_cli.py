@@ -23,7 +23,7 @@ figures were first taken on) excite's own modules are compiled from source in ev
 the benchmark says which.
 
 Last, the same ``excite score`` commands answered by a resident process (``excite resident``,
-:mod:`excite.resident`): one is started in a temporary runtime directory, and each command runs
+:mod:`excite.cli.resident_process`): one is started in a temporary runtime directory, and each command runs
 ``--runs`` times through the ``excite`` script's client, alternating with a cold run in the
 calling process (``EXCITE_RESIDENT=0``), so the ratio is measured side by side. The resident
 process's own count of commands served is checked against the runs.
@@ -67,11 +67,11 @@ import scipy.sparse, scipy.interpolate, scipy.spatial.transform
 t.append(time.perf_counter())
 import typer, rich.console, pydantic, yaml
 t.append(time.perf_counter())
-from excite.cli import score
-from excite.evaluate import Options, evaluate
-from excite.rig import load_rig
-from excite.routes import read_route
-from excite import kernels
+from excite.cli import score  # noqa: F401 (registers the command)
+from excite.score.evaluate import Options, evaluate
+from excite.rig.config import load_rig
+from excite.io.routes import read_route
+from excite.core import kernels
 t.append(time.perf_counter())
 rig = load_rig("robotaxi")
 traj = read_route({ROUTES[0]!r}, suspension=rig.suspension)
@@ -95,7 +95,7 @@ FLOOR = ["start python", "import numpy", "import numba", PHASE_NAMES[2], PHASE_N
          "kernel loads (first − second evaluation)", "exit"]
 
 
-CLIENT = [sys.executable, "-c", "from excite.resident import run; run()"]  # what the `excite` script runs
+CLIENT = [sys.executable, "-c", "from excite.cli.resident_process import run; run()"]  # what the `excite` script runs
 
 
 def _env(**extra: str) -> dict[str, str]:

@@ -36,11 +36,11 @@ from pathlib import Path
 import numpy as np
 
 from excite import information
-from excite import vehicle as excite_vehicle
-from excite.evaluate import evaluate
+from excite.motion import vehicle as excite_vehicle
+from excite.score.evaluate import evaluate
 from excite.factors.base import Nominal
-from excite.rig import load_rig
-from excite.routes import read_kitti
+from excite.rig.config import load_rig
+from excite.io.routes import read_kitti
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

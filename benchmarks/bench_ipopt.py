@@ -16,9 +16,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from excite.optimize import OptimizeSettings, candidates as cand, pipeline, solver
-from excite.optimize.kinematics import z_from_profile
-from excite.rig import load_rig
+from excite.plan import OptimizeSettings, candidates as cand, pipeline, solver
+from excite.plan.kinematics import z_from_profile
+from excite.rig.config import load_rig
 
 
 def main() -> None:

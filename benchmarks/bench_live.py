@@ -6,13 +6,13 @@ The default rig (robotaxi: IMU at 200 Hz, keyframes at 10 Hz, lidar and monocula
 10 Hz, wheels, random-walk biases, 24 scored coordinates). A generated drive (varying speed and
 curvature, suspension on: the same generator as bench_evaluate.py) is streamed as the vehicle
 would stream it: its poses at 10 Hz, one second of them per call of
-:meth:`excite.live.PoseStream.add`. Every call commits one chunk (10 keyframes: the fit of the
+:meth:`excite.score.live.PoseStream.add`. Every call commits one chunk (10 keyframes: the fit of the
 poses around it, 200 IMU samples of preintegration, linearisation, elimination into the running
 state) and returns one update (the report of the drive so far, progress, ETAs, advice).
 
 Figures: per-update latency p50 / p99 per 10 minutes of drive (does the cost grow with elapsed
 time?), the resident memory at each 10-minute mark, the same latency for the elimination alone
-(:class:`excite.live.Incremental` fed the batch evaluator's keyframes: no pose fitting, no
+(:class:`excite.score.live.Incremental` fed the batch evaluator's keyframes: no pose fitting, no
 report), and the final batch evaluation that ends the drive (:meth:`PoseStream.finish`).
 """
 
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 from bench_evaluate import cpu_model, generated
 
-from excite import live
-from excite.rig import load_rig
+from excite.score import live
+from excite.rig.config import load_rig
 
 
 def rss_mb() -> float:

@@ -10,7 +10,7 @@ window of each log confirmed by the exact evaluator):
 
 - the local engine (one process per core);
 - a two-worker ``distributed.LocalCluster`` started by this script with excite's worker settings
-  (:data:`excite.engine.WORKER_CONFIG`; ``--dask-default-env``: Dask's) (its start-up not timed; one
+  (:data:`excite.fleet.engine.WORKER_CONFIG`; ``--dask-default-env``: Dask's) (its start-up not timed; one
   untimed warm-up on a short log, so the workers have imported excite and loaded the compiled
   kernels).
 
@@ -38,12 +38,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_evaluate import cpu_model  # noqa: E402
 
-from excite import batch as gate  # noqa: E402
-from excite import mine  # noqa: E402
-from excite.evaluate import evaluate  # noqa: E402
-from excite.rig import load_rig  # noqa: E402
-from excite.routes import read_route, write_control_csv  # noqa: E402
-from excite.vehicle import ControlProfile  # noqa: E402
+from excite.fleet import batch as gate
+from excite.fleet import mine
+from excite.score.evaluate import evaluate  # noqa: E402
+from excite.rig.config import load_rig  # noqa: E402
+from excite.io.routes import read_route, write_control_csv  # noqa: E402
+from excite.motion.vehicle import ControlProfile  # noqa: E402
 
 
 def fleet_log(seed: int, hours: float) -> ControlProfile:
@@ -131,7 +131,7 @@ def main() -> None:
         import dask
         from distributed import Client, LocalCluster
 
-        from excite import engine
+        from excite.fleet import engine
 
         config = {} if args.dask_default_env else engine.WORKER_CONFIG
         with dask.config.set(config):  # the workers' environment is set as they spawn

@@ -26,11 +26,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from excite.evaluate import evaluate  # noqa: E402
-from excite.optimize import OptimizeSettings  # noqa: E402
-from excite.optimize.candidates import check  # noqa: E402
-from excite.rig import load_rig  # noqa: E402
-from excite.routes import read_control_profile  # noqa: E402
+from excite.score.evaluate import evaluate  # noqa: E402
+from excite.plan import OptimizeSettings  # noqa: E402
+from excite.plan.candidates import check  # noqa: E402
+from excite.rig.config import load_rig  # noqa: E402
+from excite.io.routes import read_control_profile  # noqa: E402
 
 
 def plot(traj, settings: OptimizeSettings, score: float, path: Path) -> None:
@@ -68,7 +68,7 @@ def main() -> None:
     lines = []
     for seed in args.seeds:
         out = args.out / f"seed{seed}"
-        cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main())",
+        cmd = [sys.executable, "-c", "import sys; from excite.cli.app import main; sys.exit(main())",
                "optimize", "-o", str(out), "--seed", str(seed), "--time-budget", f"{args.budget:g}"]
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -30,13 +30,13 @@ from pathlib import Path
 
 
 from excite.cli.validate import with_imu_rate
-from excite.evaluate import evaluate
-from excite.optimize import OptimizeSettings, optimize
-from excite.optimize import candidates as cand
-from excite.rig import load_rig
-from excite.routes import read_route, write_control_csv
+from excite.score.evaluate import evaluate
+from excite.plan import OptimizeSettings, optimize
+from excite.plan import candidates as cand
+from excite.rig.config import load_rig
+from excite.io.routes import read_route, write_control_csv
 from excite.validate import MonteCarloSettings, monte_carlo
-from excite.vehicle import drive
+from excite.motion.vehicle import drive
 
 OUT = Path(__file__).parent / "out" / "plan_mc"
 

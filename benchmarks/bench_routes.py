@@ -15,7 +15,7 @@ import statistics
 import time
 from pathlib import Path
 
-from excite.routes import read_kitti
+from excite.io.routes import read_kitti
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -60,9 +60,9 @@ def read_vs_evaluate(runs: int) -> None:
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_api import route_text
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
-    from excite.routes import read_tum
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
+    from excite.io.routes import read_tum
 
     rig = load_rig("robotaxi")
     with tempfile.TemporaryDirectory() as tmp:

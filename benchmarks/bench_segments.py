@@ -22,8 +22,8 @@ from pathlib import Path
 
 from bench_evaluate import baseline_package, generated, load, ratios, row, timed
 
-from excite.evaluate import Options, evaluate
-from excite.rig import build_rig, load_rig
+from excite.score.evaluate import Options, evaluate
+from excite.rig.config import build_rig, load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 

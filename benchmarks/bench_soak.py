@@ -74,7 +74,7 @@ def tree_rss_mb(pid: int) -> float:
 
 
 def inline_rig(**imu: float) -> dict:
-    from excite.rig import load_rig
+    from excite.rig.config import load_rig
 
     data = json.loads(json.dumps(load_rig("robotaxi").config.model_dump()))
     data["imu"].update(imu)

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from excite.cli import main as cli
-from excite.maneuvers import figure_eight
-from excite.rig import RIGS_DIR
-from excite.routes import write_control_csv
-from excite.vehicle import ControlProfile
+from excite.cli.app import main as cli
+from excite.motion.maneuvers import figure_eight
+from excite.rig.config import RIGS_DIR
+from excite.io.routes import write_control_csv
+from excite.motion.vehicle import ControlProfile
 
 OUT = Path(__file__).parent / "out" / "validate"
 

@@ -60,10 +60,10 @@ def main() -> None:
 
     from bench_evaluate import generated
     from excite import information as info
-    from excite import kernels
+    from excite.core import kernels
     from excite.factors import imu, nonholonomic, odometry, wheel
     from excite.factors.base import Nominal
-    from excite.rig import load_rig
+    from excite.rig.config import load_rig
 
     rig = load_rig("robotaxi")
     traj = generated(args.seconds, rig)

@@ -12,9 +12,10 @@ from typing import Any
 from .errors import EvaluationError, ExciteError, LimitError, RigError, RouteError
 
 _LAZY = {
-    "GRAVITY": "trajectory", "BodySamples": "trajectory", "MotionSamples": "trajectory",
-    "Trajectory": "trajectory", "ControlProfile": "vehicle", "Limits": "vehicle",
-    "Suspension": "vehicle", "Violation": "vehicle", "check_limits": "vehicle", "drive": "vehicle",
+    "GRAVITY": "motion.trajectory", "BodySamples": "motion.trajectory", "MotionSamples": "motion.trajectory",
+    "Trajectory": "motion.trajectory", "ControlProfile": "motion.vehicle", "Limits": "motion.vehicle",
+    "Suspension": "motion.vehicle", "Violation": "motion.vehicle", "check_limits": "motion.vehicle",
+    "drive": "motion.vehicle",
 }
 
 __all__ = [

@@ -1,19 +1,28 @@
-"""The exception tree of excite.
+"""The exception tree of excite, every class of it in this one module.
 
-    ExciteError                 base of every error excite raises on purpose
-    ├── RouteError              a route file or route data is malformed (names file, line, problem)
-    │   └── BagError            a bag cannot be read as asked (excite.bags: names file, topic, problem)
-    ├── RigError                a rig config is malformed (names the key)
-    ├── LimitError              a request for a drive cannot be met within the vehicle's limits
-    ├── EvaluationError         the information model cannot be evaluated for this input
-    ├── OptimizeError           an optimization request is invalid (excite.optimize)
-    └── ValidateError           a Monte Carlo validation request is invalid (excite.validate)
+    Exception
+    ├── ExciteError                 base of every error excite raises on purpose
+    │   ├── RouteError              a route file or route data is malformed (names file, line, problem)
+    │   │   └── BagError            a bag cannot be read as asked (names file, topic, problem)
+    │   ├── RigError                a rig config is malformed (names the key)
+    │   ├── LimitError              a request for a drive cannot be met within the vehicle's limits
+    │   ├── EvaluationError         the information model cannot be evaluated for this input
+    │   ├── OptimizeError           an optimization request is invalid (excite.plan)
+    │   ├── ValidateError           a Monte Carlo validation request is invalid (excite.validate)
+    │   ├── PlotError               a figure cannot be drawn as asked (excite.score.plots)
+    │   ├── ManifestError           a routes manifest is malformed (excite.fleet.batch)
+    │   └── EngineError             the Dask cluster cannot be reached or used (excite.fleet.engine)
+    ├── FactorisationError          internal: a pivot of the calibrator's banded Cholesky failed
+    └── OutOfTime                   internal: a baseline optimizer's time budget ran out
 
 The CLI maps every ExciteError to a one-line message and exit code 1; the HTTP service maps them
-to problem+json 4xx responses. Anything else is a bug and keeps its traceback.
+to problem+json 4xx responses. The two internal ones never leave the library (the calibrator and
+the COBYLA baseline catch their own). Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 
 class ExciteError(Exception):
@@ -46,3 +55,44 @@ class LimitError(ExciteError, ValueError):
 
 class EvaluationError(ExciteError, ValueError):
     """The information model cannot be evaluated for this input."""
+
+
+class BagError(RouteError):
+    """A bag cannot be read as asked: names the file, the topic and the problem."""
+
+    def __init__(self, path: str | Path, problem: str, topic: str | None = None):
+        where = f"topic {topic}: " if topic else ""
+        super().__init__(where + problem, source=str(path))
+        self.topic = topic
+
+
+class PlotError(ExciteError, ValueError):
+    """A figure cannot be drawn as asked (unknown parameter, several drives)."""
+
+
+class ManifestError(ExciteError, ValueError):
+    """A routes manifest is malformed; the message names the file and the key."""
+
+
+class EngineError(ExciteError):
+    """The Dask cluster cannot be reached or used; the message names the address."""
+
+
+class ValidateError(ExciteError, ValueError):
+    """A simulation, calibration or Monte Carlo validation cannot be run as asked."""
+
+
+class OptimizeError(ExciteError, ValueError):
+    """The optimization cannot be set up (bad settings, a lot too small for the limits)."""
+
+
+class FactorisationError(Exception):
+    """A pivot of the banded Cholesky was not positive: ``column`` is the unknown it failed at."""
+
+    def __init__(self, column: int):
+        super().__init__(column)
+        self.column = column
+
+
+class OutOfTime(Exception):
+    """A baseline optimizer's time budget ran out (caught by :func:`excite.plan.baselines.cobyla`)."""

@@ -37,13 +37,13 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from . import kernels
+from .core import kernels
 from .errors import EvaluationError
 from .factors import imu, nonholonomic, odometry, wheel
 from .factors.base import BIAS, BIAS_STATE_DIM, POS, ROT, STATE_DIM, FactorBlock, Nominal
-from .parallel import n_threads, pool
-from .rig import Rig
-from .trajectory import Trajectory
+from .core.parallel import n_threads, pool
+from .rig.config import Rig
+from .motion.trajectory import Trajectory
 
 # The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
 # gives the same marginal (the gauge is an exact symmetry); one near the data's scale keeps H_xx
@@ -232,7 +232,7 @@ def _linearise(sub: Nominal, rig: Rig, local: bool, last: bool, walk: bool = Tru
     The chunk owns the intervals ``k0 → k0+1 … k1−1 → k1`` and the sensor frame pairs inside,
     and the non-holonomic constraint at ``k0 … k1−1`` (and at ``k1`` if it ends the drive).
     With random-walk biases only the IMU factor is widened to the bias states (the other blocks
-    stay 9 wide: :func:`excite.kernels.accumulate` places them in the first 9 components); it
+    stay 9 wide: :func:`excite.core.kernels.accumulate` places them in the first 9 components); it
     sees the bias of its interval's start (the θ column plus the state's deviation), and the random
     walk links consecutive deviations; the deviation at the drive's last keyframe is zero (θ is the
     bias there), so the walk's last step does not reach it. ``walk=False`` leaves the walk out
@@ -305,7 +305,7 @@ def _end_held(sd: int, local: bool = True) -> list[int]:
 
 def end_free(sd: int) -> np.ndarray:
     """Columns of a drive's last keyframe (local states) that stay free when a drive is closed
-    there: its rotation and body velocity. :mod:`excite.live` and :mod:`excite.mine` close a
+    there: its rotation and body velocity. :mod:`excite.score.live` and :mod:`excite.fleet.mine` close a
     drive "so far" or a window with them, as :func:`_chain_end` closes a whole drive."""
     return np.setdiff1d(np.arange(sd), _end_held(sd))
 
@@ -327,7 +327,7 @@ def _local_maps(R: np.ndarray, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray
     and position perturbations follow from local ones: ``δv_world = V_k [δθ_k; δv_k]`` with
     ``V_k = [−R_k[v_k]×, R_k]`` (body velocity ``v_k = R_kᵀ v``) and ``δ(p_{k+1} − p_k) = P_k [δθ_k; δd_k]``
     with ``P_k = [−R_k[d_k]×, R_k]`` (increment ``d_k = R_kᵀ(p_{k+1} − p_k)``), each 3 × 6
-    (compiled: :func:`excite.kernels.local_maps`)."""
+    (compiled: :func:`excite.core.kernels.local_maps`)."""
     return kernels.local_maps(R, v, p)
 
 
@@ -381,7 +381,7 @@ class Piece:
 def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int, sd: int) -> Piece:
     """Accumulate ``JᵀJ`` of the blocks of chunk ``a … b`` (keyframe indices relative to a; states
     of dimension ``sd``) and eliminate its inner keyframes (compiled:
-    :func:`excite.kernels.accumulate`, :func:`~excite.kernels.eliminate`)."""
+    :func:`excite.core.kernels.accumulate`, :func:`~excite.core.kernels.eliminate`)."""
     m, p = b - a, n_params
     band, Hxt, Htt = _accumulated(blocks, m, p, sd)
     D = band.shape[0] - 1
@@ -398,7 +398,7 @@ def _piece(blocks: Sequence[FactorBlock], a: int, b: int, n_params: int, sd: int
 
 def _accumulated(blocks: Sequence[FactorBlock], m: int, p: int, sd: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``JᵀJ`` of the blocks of a chunk of ``m + 1`` keyframes in the storage of
-    :func:`excite.kernels.accumulate`: the band of keyframe blocks, H_xθ and H_θθ."""
+    :func:`excite.core.kernels.accumulate`: the band of keyframe blocks, H_xθ and H_θθ."""
     D = max([1] + [blk.stride * (blk.n_states - 1) for blk in blocks])
     band = np.zeros((D + 1, m + 1, sd, sd))
     Hxt = np.zeros((m + 1, sd, p))
@@ -517,7 +517,7 @@ def _eliminated(blocks: Sequence[FactorBlock], m: int, carry: tuple, forward: bo
 
 def _ring_order(sd: int, forward: bool) -> np.ndarray:
     """Where a sweep stores each component of a keyframe's state (``comp[c]``, see
-    :func:`excite.kernels.eliminate_slabs`). Eliminating x_j updates the next state by
+    :func:`excite.core.kernels.eliminate_slabs`). Eliminating x_j updates the next state by
     ``H[x_{j+1}, x_j] L_j⁻ᵀ``, which keeps a leading zero block of ``H[x_{j+1}, x_j]`` (in x_j's
     columns) zero, and the elimination skips zero coefficients three at a time. With random-walk
     biases, forward: the next keyframe's biases see the trajectory of x_j through no factor, its
@@ -537,7 +537,7 @@ _NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), _NO_COLS, np.zero
 
 
 def _as_tuple(blocks: Sequence[FactorBlock]) -> tuple:
-    """``blocks`` for the compiled sweep (:func:`excite.kernels.eliminate_slabs`): a tuple of
+    """``blocks`` for the compiled sweep (:func:`excite.core.kernels.eliminate_slabs`): a tuple of
     ``(Jx, Jt, cols, first, stride, n_states, xcols)``, padded with empty blocks to a multiple of 8, so
     that its type, and with it the compiled code, is the same for every rig (up to 8 blocks)."""
     out = [(np.ascontiguousarray(b.Jx), np.ascontiguousarray(b.Jt), np.ascontiguousarray(b.cols, dtype=np.int64),
@@ -548,7 +548,7 @@ def _as_tuple(blocks: Sequence[FactorBlock]) -> tuple:
 
 def _theta_diagonal(blocks: Sequence[FactorBlock], p: int) -> np.ndarray:
     """diag H_θθ of ``blocks``: each calibration coordinate's information before the trajectory
-    is eliminated (compiled: :func:`excite.kernels.theta_diagonal`, 8 blocks at a time)."""
+    is eliminated (compiled: :func:`excite.core.kernels.theta_diagonal`, 8 blocks at a time)."""
     out = np.zeros(p)
     for i in range(0, len(blocks), 8):
         out += kernels.theta_diagonal(_as_tuple(blocks[i:i + 8]), p)
@@ -762,7 +762,7 @@ def _sweep(traj: Trajectory, first: int, last: int, offset: int, chunks: Sequenc
 
 def theta_diagonal(problem: Problem) -> np.ndarray:
     """diag H_θθ of a linearised problem: each calibration coordinate's information before the
-    trajectory is eliminated (the normalisation of the rank test, :mod:`excite.spectrum`)."""
+    trajectory is eliminated (the normalisation of the rank test, :mod:`excite.score.spectrum`)."""
     return _theta_diagonal(problem.blocks, problem.n_params)
 
 

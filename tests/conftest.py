@@ -22,9 +22,9 @@ def pytest_sessionstart(session) -> None:
     them instead of each compiling them on a fresh clone."""
     import numpy as np
 
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
-    from excite.vehicle import ControlProfile, drive
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
+    from excite.motion.vehicle import ControlProfile, drive
 
     rig = load_rig("robotaxi")
     t = np.linspace(0.0, 20.0, 21)

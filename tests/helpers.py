@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from excite import so3
-from excite.trajectory import GRAVITY, Trajectory
-from excite.vehicle import ControlProfile, Suspension, drive
+from excite.core import so3
+from excite.motion.trajectory import GRAVITY, Trajectory
+from excite.motion.vehicle import ControlProfile, Suspension, drive
 
 
 def weave_profile(duration_s: float = 30.0, name: str = "weave") -> ControlProfile:

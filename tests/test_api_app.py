@@ -76,10 +76,10 @@ def test_response_schemas_declare_exactly_the_library_json():
     import numpy as np
 
     from api import schemas
-    from excite.evaluate import Options, evaluate
-    from excite.optimize.settings import OptimizeResult
-    from excite.rig import load_rig
-    from excite.vehicle import ControlProfile, drive
+    from excite.score.evaluate import Options, evaluate
+    from excite.plan.settings import OptimizeResult
+    from excite.rig.config import load_rig
+    from excite.motion.vehicle import ControlProfile, drive
 
     rig = load_rig("robotaxi")
     t = np.linspace(0, 20, 21)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from excite.bags import BagSource
-from excite.evaluate import evaluate
-from excite.rig import load_rig
-from excite.routes import read_route
+from excite.io.bags import BagSource
+from excite.score.evaluate import evaluate
+from excite.rig.config import load_rig
+from excite.io.routes import read_route
 from test_api_support import LiveServer
 
 NAV2 = "nav2_turtlebot.mcap"

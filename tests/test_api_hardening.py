@@ -225,7 +225,8 @@ def test_a_pool_refuses_work_it_cannot_finish_by_the_deadline():
     """Admission by the recent cost of a task: once a task is known to take ~1.5 s, a second one
     while the only worker is busy cannot finish within 1 s and is refused at once with a retry
     time; one with time enough is admitted (and a queue of one is the count bound)."""
-    from api.pool import Overloaded, WorkerPool
+    from api.errors import Overloaded
+    from api.pool import WorkerPool
 
     pool = WorkerPool(1, 0, 0, max_queued=1, preload=())
     pool.start()
@@ -280,7 +281,7 @@ def test_a_worker_killed_by_two_threads_at_once_closes_its_pipe_once():
 
 
 def _inline_rig(**changes: float) -> dict:
-    from excite.rig import load_rig
+    from excite.rig.config import load_rig
 
     data = json.loads(json.dumps(load_rig("robotaxi").config.model_dump()))
     for k, v in changes.items():
@@ -361,7 +362,7 @@ def test_405_names_the_allowed_methods(client):
 
 
 def test_unusable_job_databases_are_one_line_errors(tmp_path, monkeypatch, capsys):
-    from excite.cli import main
+    from excite.cli.app import main
 
     corrupt = tmp_path / "corrupt.sqlite3"
     corrupt.write_bytes(b"this is not a database" * 100)

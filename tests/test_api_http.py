@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite import routes
+from excite.io import routes
 from test_api_support import LiveServer, wait_job
 
 PROBLEM = "application/problem+json"
@@ -56,8 +56,8 @@ def test_score_kitti_00_uploaded_inline(client, data_dir):
     assert "lidar.trans_z" in names and "wheel.track" in names
     assert len(rep["segments"]) == 4
     # the same numbers as the library on the same files
-    from excite.evaluate import Options, evaluate
-    from excite.rig import load_rig
+    from excite.score.evaluate import Options, evaluate
+    from excite.rig.config import load_rig
 
     rig = load_rig("robotaxi")
     lib = evaluate(routes.read_kitti(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt"),

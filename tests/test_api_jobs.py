@@ -74,7 +74,7 @@ def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
 
 
 def test_real_optimizer_job_survives_kill_9(tmp_path):
-    pytest.importorskip("excite.optimize")
+    pytest.importorskip("excite.plan")
     srv = LiveServer(tmp_path, workers=1).start()
     with srv.client() as c:
         r = c.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 5, "n_random": 4})

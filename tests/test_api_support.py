@@ -54,7 +54,7 @@ class LiveServer:
         job_function = settings.pop("job_function", None)
         env.update({f"EXCITE_{k.upper()}": str(v) for k, v in settings.items()})
         if job_function is None:
-            cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main(sys.argv[1:]))",
+            cmd = [sys.executable, "-c", "import sys; from excite.cli.app import main; sys.exit(main(sys.argv[1:]))",
                    "serve", "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "info"]
         else:  # a stand-in job: built here, it is no setting of the service
             cmd = [sys.executable, "-c", SERVE_WITH_JOB.format(job_function=job_function, port=self.port)]
@@ -125,10 +125,10 @@ def slow_job(request: dict[str, Any], progress: Callable[[dict], None],
     """A stand-in optimizer: ``time_budget_s`` of 0.1 s iterations, then a real report of the
     reference figure eight (so downloads work)."""
     from api.jobs import plain, profile_data
-    from excite.evaluate import evaluate
-    from excite.maneuvers import figure_eight
-    from excite.rig import load_rig
-    from excite.vehicle import drive
+    from excite.score.evaluate import evaluate
+    from excite.motion.maneuvers import figure_eight
+    from excite.rig.config import load_rig
+    from excite.motion.vehicle import drive
 
     n = int(request["time_budget_s"] / 0.1)
     cancelled = False

@@ -16,13 +16,14 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from excite import bags
-from excite.bags import BagError, BagSource, ImuTrajectory, imu_agreement, read_bag_route, write_bag
-from excite.cli import main
-from excite.evaluate import evaluate
-from excite.rig import build_rig, load_rig
-from excite.rig_import import rig_from_tf
-from excite.routes import read_route, trajectory_from_poses
+from excite.io import bags
+from excite.errors import BagError
+from excite.io.bags import BagSource, ImuTrajectory, imu_agreement, read_bag_route, write_bag
+from excite.cli.app import main
+from excite.score.evaluate import evaluate
+from excite.rig.config import build_rig, load_rig
+from excite.rig.importers import rig_from_tf
+from excite.io.routes import read_route, trajectory_from_poses
 from helpers import weave_drive
 
 NAV2 = "nav2_turtlebot.mcap"
@@ -392,7 +393,7 @@ def test_topic_options_on_a_text_route_are_refused(capsys):
 
 
 def test_batch_manifest_takes_bags_with_topics(data_dir, tmp_path):
-    from excite import batch as gate
+    from excite.fleet import batch as gate
 
     manifest = tmp_path / "routes.yaml"
     manifest.write_text(f"""\

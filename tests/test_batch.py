@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from excite import batch as gate
-from excite.cli import main
+from excite.fleet import batch as gate
+from excite.cli.app import main
+from excite.errors import ManifestError
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAJ = ROOT / "trajectories"
@@ -224,7 +225,7 @@ def test_a_bug_while_evaluating_is_reported_with_its_traceback(routes: Path, mon
 ])
 def test_manifest_errors_name_the_key(tmp_path: Path, body: str, message: str):
     path = write(tmp_path / "manifest.yaml", body)
-    with pytest.raises(gate.ManifestError) as err:
+    with pytest.raises(ManifestError) as err:
         gate.load_manifest(path)
     assert message in str(err.value)
     assert "manifest.yaml" in str(err.value)

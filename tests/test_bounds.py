@@ -16,13 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite import bounds, routes
-from excite.errors import EvaluationError, LimitError, RigError, RouteError
-from excite.evaluate import Options, evaluate
-from excite.optimize import OptimizeError, OptimizeSettings
-from excite.rig import RigConfig, build_rig, load_rig
-from excite.trajectory import Trajectory
-from excite.vehicle import ControlProfile, Limits
+from excite.core import bounds
+from excite.io import routes
+from excite.errors import BagError, EvaluationError, LimitError, OptimizeError, RigError, RouteError
+from excite.score.evaluate import Options, evaluate
+from excite.plan import OptimizeSettings
+from excite.rig.config import RigConfig, build_rig, load_rig
+from excite.motion.trajectory import Trajectory
+from excite.motion.vehicle import ControlProfile, Limits
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -54,7 +55,7 @@ def test_every_numeric_rig_key_has_a_sane_range():
     keys = [k for k in _numeric_keys(schema, schema) if not k.startswith(("targets", "priors"))]
     assert len(keys) > 20
     missing = [k for k in keys if bounds.rig_range(k) is None]
-    assert not missing, f"add these rig keys to excite.bounds.RIG: {missing}"
+    assert not missing, f"add these rig keys to excite.core.bounds.RIG: {missing}"
 
 
 def _robotaxi() -> dict:
@@ -257,7 +258,7 @@ DRIVER = """
 import contextlib, io, json, resource, sys
 limit = int(sys.argv[1])
 resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-from excite.cli import main
+from excite.cli.app import main
 out = []
 for path in sys.argv[2:]:
     err = io.StringIO()
@@ -292,7 +293,7 @@ def test_cli_hostile_inputs_end_in_one_line_within_bounded_memory(tmp_path):
 
 
 def test_cli_edges_are_one_line_errors(tmp_path, capsys):
-    from excite.cli import main
+    from excite.cli.app import main
 
     existing = _write(tmp_path, "existing.txt", "x")
     (tmp_path / "folder.csv").mkdir()
@@ -334,7 +335,8 @@ def test_deeply_nested_geojson_is_an_error_not_a_crash(tmp_path):
 
 
 def test_deeply_nested_manifest_is_an_error_not_a_crash(tmp_path):
-    from excite.batch import ManifestError, collect
+    from excite.errors import ManifestError
+    from excite.fleet.batch import collect
 
     path = _write(tmp_path, "routes.yaml", "routes: " + "[" * 5000 + "]" * 5000 + "\n")
     with pytest.raises(ManifestError, match="nested too deeply"):
@@ -377,8 +379,9 @@ BAG_EXPLOSIONS = [
 @pytest.mark.parametrize("name,times,bound", BAG_EXPLOSIONS, ids=[c[0] for c in BAG_EXPLOSIONS])
 def test_bags_whose_stamps_imply_explosive_work_are_refused_quoting_the_bound(tmp_path, capsys, name,
                                                                               times, bound):
-    from excite.bags import BagError, read_bag_route
-    from excite.cli import main
+    from excite.errors import BagError
+    from excite.io.bags import read_bag_route
+    from excite.cli.app import main
 
     path = _pose_bag(tmp_path / name, times)
     with pytest.raises(BagError) as exc:
@@ -392,7 +395,7 @@ def test_bags_whose_stamps_imply_explosive_work_are_refused_quoting_the_bound(tm
 
 def test_a_bag_topic_with_more_messages_than_the_bounds_is_refused_before_reading(tmp_path, monkeypatch):
     """The count comes from the bag's index: no message is decoded (nor memory taken) first."""
-    from excite import bags
+    from excite.io import bags
 
     path = _pose_bag(tmp_path / "many.bag", [0.1 * i for i in range(12)])
     assert bags.read_bag_route(path, "/pose").duration == pytest.approx(1.1)
@@ -403,14 +406,14 @@ def test_a_bag_topic_with_more_messages_than_the_bounds_is_refused_before_readin
 
     monkeypatch.setattr(bags._Series, "add", decoded)
     monkeypatch.setattr(bags._Series, "add_many", decoded)
-    with pytest.raises(bags.BagError, match=r"topic /pose: 12 messages, over the limit of 10 poses"):
+    with pytest.raises(BagError, match=r"topic /pose: 12 messages, over the limit of 10 poses"):
         bags.read_bag_route(path, "/pose")
 
 
 def test_a_compressed_mcap_chunk_cannot_expand_past_what_it_declares():
     """A chunk of zeros compresses ~1000:1; it is decompressed only up to its declared size
     (itself bounded), so a small file cannot claim all of memory."""
-    from excite import bags
+    from excite.io import bags
 
     try:
         from compression import zstd

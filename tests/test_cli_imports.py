@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 PROBE = """
 import contextlib, io, json, sys
-from excite.cli import main
+from excite.cli.app import main
 with contextlib.redirect_stdout(io.StringIO()):
     rc = main(sys.argv[2:])
 print(json.dumps([rc, sorted(m for m in sys.modules if m.split(".")[0] in {names})
@@ -45,13 +45,13 @@ def test_help_imports_neither_scipy_nor_numba():
 def test_score_imports_only_what_scoring_uses(route):
     rc, mods = _loaded(["score", f"trajectories/{route}"],
                        {"matplotlib", "fastapi", "casadi", "uvicorn", "rosbags"},
-                       {"scipy.ndimage", "scipy.integrate", "excite.optimize", "excite.plots",
-                        "excite.rig_import", "excite.bags"})
+                       {"scipy.ndimage", "scipy.integrate", "excite.plan", "excite.score.plots",
+                        "excite.rig.importers", "excite.io.bags"})
     assert rc == 0 and mods == [], mods
 
 
 def test_the_excite_process_exits_with_the_commands_code_and_all_its_output():
-    """``python -m excite.cli`` runs what the ``excite`` script runs (:func:`excite.cli.run`,
+    """``python -m excite.cli`` runs what the ``excite`` script runs (:func:`excite.cli.app.run`,
     which leaves the interpreter with the command's exit code after freezing the collector)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     cmd = [sys.executable, "-m", "excite.cli", "score"]

@@ -14,9 +14,9 @@ import pytest
 distributed = pytest.importorskip("distributed")
 import dask  # noqa: E402
 
-from excite import batch as gate  # noqa: E402
-from excite import engine, mine  # noqa: E402
-from excite.cli import main  # noqa: E402
+from excite.fleet import batch as gate
+from excite.fleet import engine, mine
+from excite.cli.app import main
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -136,9 +136,9 @@ def test_the_service_runs_batches_and_jobs_on_the_cluster(cluster, tmp_path):
     completes from the durable record's process; a job cancelled while on the cluster stops."""
     from test_api_support import LiveServer, wait_job
 
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
-    from excite.routes import read_route
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
+    from excite.io.routes import read_route
 
     address, client = cluster
     files = [ROOT / "trajectories" / "figure_eight.tum", ROOT / "trajectories" / "slalom.tum"]

@@ -8,12 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from excite import information, kernels, so3
+from excite import information
+from excite.core import kernels, so3
 from excite.errors import EvaluationError
-from excite.evaluate import Options, evaluate
+from excite.score.evaluate import Options, evaluate
 from excite.factors.base import FactorBlock, Nominal
-from excite.rig import build_rig, load_rig
-from excite.vehicle import ControlProfile, Suspension, drive
+from excite.rig.config import build_rig, load_rig
+from excite.motion.vehicle import ControlProfile, Suspension, drive
 
 T = 60.0
 KNOTS = np.linspace(0.0, T, 61)
@@ -436,7 +437,7 @@ def test_too_short_drive_is_a_clear_error(rig):
 def test_kitti_00_report_makes_physical_sense(rig, data_dir):
     """KITTI 00 is 470 s of urban driving: many turns and stops, nearly planar. Turns determine the
     wheel track and the time offsets; the vertical lever arms are the weakest directions."""
-    from excite.routes import read_kitti
+    from excite.io.routes import read_kitti
 
     traj = read_kitti(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt")
     rep = evaluate(traj, rig)

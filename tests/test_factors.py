@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from excite import so3
+from excite.core import so3
 from excite.factors import imu, nonholonomic, odometry, wheel
 from excite.factors.base import Nominal
-from excite.rig import RIGS_DIR, build_rig
-from excite.vehicle import ControlProfile, drive
+from excite.rig.config import RIGS_DIR, build_rig
+from excite.motion.vehicle import ControlProfile, drive
 
 EPS = 1e-6
 
@@ -214,7 +214,7 @@ def test_wheel_increments_match_wheel_speeds(rig, nom):
     inc = wheel.increments(nom.R[f], nom.p[f], nom.R[f + 1], nom.p[f + 1], R_BA[f], R_BA[f + 1], p_BV,
                            wc.radius_left_m, wc.radius_right_m, wc.track_m)
     # independent: integrate the wheel speeds of the vehicle-frame motion over the interval
-    from excite.vehicle import ControlProfile as _  # noqa: F401  (same drive as the fixture)
+    from excite.motion.vehicle import ControlProfile as _  # noqa: F401  (same drive as the fixture)
     t = np.linspace(nom.t[f], nom.t[f + 1], 201)
     ts = np.linspace(0.0, 6.0, 13)
     prof = ControlProfile(ts, 5 + 2 * np.sin(ts), 0.1 * np.cos(0.7 * ts), grade_rad=0.05 * np.sin(ts),

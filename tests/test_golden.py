@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite.evaluate import Options, evaluate
-from excite.rig import load_rig
-from excite.routes import read_route
+from excite.score.evaluate import Options, evaluate
+from excite.rig.config import load_rig
+from excite.io.routes import read_route
 
 GOLDEN = Path(__file__).parent / "golden" / "reports.json"
 TRAJ = Path(__file__).resolve().parents[1] / "trajectories"
@@ -33,7 +33,7 @@ RTOL = 1e-9
 
 
 def _routes(data_dir: Path) -> dict[str, object]:
-    from excite.bags import BagSource
+    from excite.io.bags import BagSource
 
     out = {p.name: (lambda p=p: read_route(p)) for p in sorted(TRAJ.glob("*.tum")) + sorted(TRAJ.glob("*.csv"))}
     out["kitti_00"] = lambda: read_route(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt")

@@ -1,4 +1,4 @@
-"""Live guidance (excite.live, `excite live`, /v1/live): the incremental evaluator against the
+"""Live guidance (excite.score.live, `excite live`, /v1/live): the incremental evaluator against the
 batch evaluator, progress and advice while driving, done, and the bounds of the WebSocket."""
 
 from __future__ import annotations
@@ -15,12 +15,14 @@ from typer.testing import CliRunner
 
 import excite.cli.live  # registers `excite live` on the app
 import excite.cli.score  # noqa: F401  (and `excite score`)
-from excite import information, live, maneuvers, vehicle
-from excite.cli import app
-from excite.evaluate import evaluate, report_of
+from excite import information
+from excite.score import live
+from excite.motion import maneuvers, vehicle
+from excite.cli.app import app
+from excite.score.evaluate import evaluate, report_of
 from excite.factors.base import Nominal
-from excite.rig import load_rig
-from excite.routes import read_kitti, read_tum
+from excite.rig.config import load_rig
+from excite.io.routes import read_kitti, read_tum
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURE_EIGHT = ROOT / "trajectories" / "figure_eight.tum"
@@ -298,7 +300,7 @@ def test_the_stall_needs_a_whole_window_without_gain(monkeypatch, test_rig):
 def test_cli_exits_0_when_done(test_rig, tmp_path):
     """The straight-then-figure-eight logged as TUM and replayed: `done` ends the command with 0
     at the first update where every parameter is within target."""
-    from excite.routes import write_tum
+    from excite.io.routes import write_tum
 
     rig_file = tmp_path / "rig.yaml"
     rig_file.write_text(TEST_RIG)
@@ -315,7 +317,7 @@ def test_cli_says_what_a_stalled_drive_needs_and_goes_on(test_rig, tmp_path):
     parameters need which motion), keeps reading, and exits 0 at the passed done. Replayed at
     20x, so that updates come every second or few of drive (at 1000x one batch of poses spans
     most of the straight: too few updates to see a whole window without gain)."""
-    from excite.routes import write_tum
+    from excite.io.routes import write_tum
 
     rig_file = tmp_path / "rig.yaml"
     rig_file.write_text(TEST_RIG)
@@ -432,7 +434,7 @@ def test_cli_errors_are_one_line(tmp_path):
     import contextlib
     import io
 
-    from excite.cli import main
+    from excite.cli.app import main
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -476,7 +478,7 @@ def test_websocket_kitti_00_ends_with_excite_score(ws_client, kitti, kitti_repor
     final update is `excite score` of the same rows, and the drive's σ are KITTI 00's."""
     from scipy.spatial.transform import Rotation
 
-    from excite.routes import R_CAM_VEH
+    from excite.io.routes import R_CAM_VEH
 
     poses, times = kitti
     T = np.loadtxt(poses).reshape(-1, 3, 4)
@@ -654,9 +656,9 @@ def test_cli_final_is_the_score_of_a_file_excite_wrote(tmp_path):
     """A crop written by write_tum (its poses already smooth) replayed: the final update is
     `excite score` of the same file, which does not smooth it a second time (that attenuated the
     motion: the final read 3.4 % under the score)."""
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
-    from excite.routes import read_route, read_tum, write_tum
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
+    from excite.io.routes import read_route, read_tum, write_tum
 
     window = read_route(Path(__file__).resolve().parents[1] / "trajectories" / "slalom_control.csv").cropped(30.0, 60.0)
     tum = write_tum(window, tmp_path / "crop.tum", rate_hz=100.0)

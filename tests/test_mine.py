@@ -10,13 +10,14 @@ import json
 import numpy as np
 import pytest
 
-from excite import information, mine
-from excite.bags import read_bag_route, write_bag
-from excite.cli import main
-from excite.evaluate import evaluate
-from excite.rig import load_rig
-from excite.routes import read_tum, write_tum
-from excite.vehicle import ControlProfile, drive
+from excite import information
+from excite.fleet import mine
+from excite.io.bags import read_bag_route, write_bag
+from excite.cli.app import main
+from excite.score.evaluate import evaluate
+from excite.rig.config import load_rig
+from excite.io.routes import read_tum, write_tum
+from excite.motion.vehicle import ControlProfile, drive
 
 RIG = load_rig("robotaxi")
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from excite.errors import RigError
-from excite.evaluate import evaluate
-from excite.rig import build_rig, load_rig
-from excite.routes import read_route
+from excite.score.evaluate import evaluate
+from excite.rig.config import build_rig, load_rig
+from excite.io.routes import read_route
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +138,7 @@ def test_each_drive_has_its_own_monocular_scale(rig):
     is the sum of each drive's own (its monocular scale marginalised on its own). A scale shared by
     the two drives would claim more: the difference is what sharing it wrongly adds."""
     from excite import information
-    from excite.evaluate import _marginalise_nuisance
+    from excite.score.evaluate import _marginalise_nuisance
 
     rig = rig.with_constant_biases()  # the scale alone (drifting biases are each drive's own too: below)
     a = read_route("trajectories/figure_eight_control.csv", suspension=rig.suspension)
@@ -217,7 +217,7 @@ def test_each_drive_has_its_own_drifting_biases(rig):
     """With random-walk biases every recording has its own bias process; the scored bias is the
     one at the end of the last drive. So two drives scored together = the first drive with its
     biases (and scale) marginalised + the last drive's own information."""
-    from excite.evaluate import _marginalise_nuisance
+    from excite.score.evaluate import _marginalise_nuisance
 
     a = read_route("trajectories/figure_eight_control.csv", suspension=rig.suspension)
     b = read_route("trajectories/stop_and_go_control.csv", suspension=rig.suspension)

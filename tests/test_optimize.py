@@ -9,21 +9,21 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import excite.optimize as opt
+import excite.plan as opt
 from excite import information
 from excite.errors import ExciteError
-from excite.evaluate import evaluate
+from excite.score.evaluate import evaluate
 from excite.factors.base import Nominal
-from excite.maneuvers import Lot, slalom
-from excite.optimize import criteria
-from excite.optimize.candidates import check
-from excite.optimize.kinematics import Grid, Scales, body_samples, layout, profile_from_z, z_from_profile
-from excite.optimize.model import build_model, coarse_rig
-from excite.optimize.solver import Transcription, solve
-from excite.rig import load_rig
-from excite.rig import build_rig
-from excite.routes import read_control_profile
-from excite.vehicle import ControlProfile, Limits, Suspension, check_limits, drive
+from excite.motion.maneuvers import Lot, slalom
+from excite.plan import criteria
+from excite.plan.candidates import check
+from excite.plan.kinematics import Grid, Scales, body_samples, layout, profile_from_z, z_from_profile
+from excite.plan.model import build_model, coarse_rig
+from excite.plan.solver import Transcription, solve
+from excite.rig.config import load_rig
+from excite.rig.config import build_rig
+from excite.io.routes import read_control_profile
+from excite.motion.vehicle import ControlProfile, Limits, Suspension, check_limits, drive
 
 
 @pytest.fixture(scope="module")
@@ -266,7 +266,7 @@ def test_kinematics_over_terrain_match_the_driven_profile(coarse):
     """Over a ramp and a bank: the optimizer's body motion of z (its own integration, grade and
     bank from the slope field, rates by jtimes) equals what drive() makes of the profile written
     from z (grade and bank sampled at 20 Hz, rotations differentiated by a rotation spline)."""
-    from excite.optimize.terrain import Feature, Terrain
+    from excite.plan.terrain import Feature, Terrain
 
     ramp = Feature("ramp", np.array([[5.0, -30.0], [25.0, -30.0], [25.0, 30.0], [5.0, 30.0]]), (1.0, 0.0),
                    slope=np.tan(np.radians(6.0)))

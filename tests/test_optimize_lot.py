@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-import excite.optimize as opt
-from excite.cli import main
-from excite.evaluate import evaluate
-from excite.optimize.site import read_site
-from excite.rig import load_rig
-from excite.vehicle import ControlProfile, drive
+import excite.plan as opt
+from excite.cli.app import main
+from excite.score.evaluate import evaluate
+from excite.plan.site import read_site
+from excite.rig.config import load_rig
+from excite.motion.vehicle import ControlProfile, drive
 
 ORIGIN = (11.58, 48.14)  # lon, lat of the test lot's local origin
 L_OUTER = [(0, 0), (70, 0), (70, 30), (30, 30), (30, 66), (0, 66)]  # an L, metres east/north
@@ -44,7 +44,7 @@ def l_lot(ramp: bool) -> dict:
 
 
 def _inside(poly, p):
-    """Even-odd point-in-polygon (written here, independent of excite.maneuvers.Lot)."""
+    """Even-odd point-in-polygon (written here, independent of excite.motion.maneuvers.Lot)."""
     poly = np.asarray(poly, float)
     inside = np.zeros(len(p), bool)
     for (x1, y1), (x2, y2) in zip(poly, np.roll(poly, -1, axis=0)):
@@ -136,7 +136,7 @@ def test_the_check_holds_a_drive_to_the_entry_pose_and_the_terrain(rig):
     t = np.linspace(0, 10, 101)
     u = 3.0 * np.sin(np.pi * t / 10) ** 2
     north = ControlProfile(t, u, np.zeros_like(t), start=(10.0, 10.0, np.pi / 2))
-    from excite.optimize.candidates import check
+    from excite.plan.candidates import check
 
     _, bad = check(north, rig, settings, site)  # flat profile over the ramp: the grade is wrong
     assert any(v.startswith("terrain:") for v in bad)
@@ -219,12 +219,12 @@ def test_api_job_on_a_georeferenced_lot_downloads_geojson_without_an_origin(rig,
 
     def fake_optimize(rig_, settings, progress, should_stop):
         seen["site"] = settings.lot
-        from excite.optimize.settings import OptimizeResult
+        from excite.plan.settings import OptimizeResult
 
         traj = drive(prof, rig_.suspension)
         return OptimizeResult(prof, traj, evaluate(traj, rig_), [], "converged", 1, 0.1, False)
 
-    monkeypatch.setattr("excite.optimize.optimize", fake_optimize)
+    monkeypatch.setattr("excite.plan.optimize", fake_optimize)
     out = jobs.run_optimization({"rig": "robotaxi", "duration_s": 20, "lot_x_m": 80, "lot_y_m": 50,
                                  "limits": {}, "seed": 0, "time_budget_s": 10, "closed": False, "n_random": 0,
                                  "lot": l_lot(ramp=False), "criterion": "E"}, lambda p: None, lambda: False)

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from excite import plots
-from excite.cli import main
-from excite.evaluate import Options, evaluate
-from excite.rig import load_rig
-from excite.routes import read_route
+from excite.score import plots
+from excite.cli.app import main
+from excite.errors import PlotError
+from excite.score.evaluate import Options, evaluate
+from excite.rig.config import load_rig
+from excite.io.routes import read_route
 
 TRAJ = Path(__file__).resolve().parents[1] / "trajectories"
 
@@ -94,7 +95,7 @@ def test_route_coloured_by_a_parameter(highway):
     assert route.get_title() == "where the route determines wheel.radius_left"
     values = np.concatenate([c.get_array() for c in route.collections if c.get_array() is not None])
     assert values.min() > 0 and cbar.get_yscale() == "log"
-    with pytest.raises(plots.PlotError, match="no parameter 'wheel.radius'"):
+    with pytest.raises(PlotError, match="no parameter 'wheel.radius'"):
         plots.build_figure(rep, traj, "wheel.radius")
 
 
@@ -102,7 +103,7 @@ def test_report_without_segments_draws_the_route_plainly(rig):
     rep, traj = scored("slalom_control.csv", rig, segments=False)
     fig = plots.build_figure(rep, traj)
     assert "no segment information" in fig.axes[0].get_title()
-    with pytest.raises(plots.PlotError, match="one drive"):
+    with pytest.raises(PlotError, match="one drive"):
         plots.build_figure(rep, [traj, traj])
 
 

@@ -1,4 +1,4 @@
-"""Routes and logs by URL (excite.remote): a loopback HTTP server started here serves copies of
+"""Routes and logs by URL (excite.io.remote): a loopback HTTP server started here serves copies of
 real files; what `excite batch` and `excite mine` make of a URL equals what they make of the
 same bytes on disk, and a URL that cannot be read is that route's error, named."""
 
@@ -13,9 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from excite import batch as gate
-from excite import mine, remote
-from excite.cli import main
+from excite.fleet import batch as gate
+from excite.fleet import mine
+from excite.io import remote
+from excite.cli.app import main
 from excite.errors import RouteError
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,4 +1,4 @@
-"""The resident process (excite.resident): a served command is the command the caller would
+"""The resident process (excite.cli.resident_process): a served command is the command the caller would
 have run — same output, files, exit code and messages, in the caller's directory, environment
 and terminal —; only the same installation and user are served; it starts by itself only at a
 terminal; Ctrl-C and a vanished caller reach the command; it leaves when idle or told to."""
@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite import resident
+from excite.cli import resident_process as resident
 
 REPO = Path(__file__).resolve().parents[1]
 ROUTE = REPO / "trajectories" / "figure_eight_control.csv"
 # exactly what the `excite` script runs (its sys.path[0] differs, which the key leaves out)
-CLIENT = [sys.executable, "-c", "from excite.resident import run; run()"]
+CLIENT = [sys.executable, "-c", "from excite.cli.resident_process import run; run()"]
 
 
 def _env(home: Path, **extra: str) -> dict[str, str]:
@@ -44,7 +44,7 @@ def _excite(args: list[str], env: dict, cwd: Path, **kw) -> subprocess.Completed
 
 
 def _key(env: dict) -> str:
-    r = subprocess.run([sys.executable, "-c", "from excite.resident import key; print(key())"], env=env,
+    r = subprocess.run([sys.executable, "-c", "from excite.cli.resident_process import key; print(key())"], env=env,
                        capture_output=True, text=True, timeout=60, check=True)
     return r.stdout.strip()
 
@@ -136,7 +136,7 @@ def _in_pty(args: list[str], env: dict, cwd: Path, cols: int = 120) -> tuple[int
 
 def test_the_excite_script_is_the_resident_client():
     (script,) = importlib.metadata.entry_points(group="console_scripts", name="excite")
-    assert script.value == "excite.resident:run"
+    assert script.value == "excite.cli.resident_process:run"
 
 
 def test_a_served_command_is_the_command_run_here(started, tmp_path):

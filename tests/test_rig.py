@@ -7,9 +7,9 @@ import math
 import pytest
 import yaml
 
-from excite.cli import main
+from excite.cli.app import main
 from excite.errors import RigError
-from excite.rig import RIGS_DIR, build_rig, load_rig, parse_quantity
+from excite.rig.config import RIGS_DIR, build_rig, load_rig, parse_quantity
 
 
 def base():

@@ -8,10 +8,10 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from excite.cli import main
+from excite.cli.app import main
 from excite.errors import RigError
-from excite.rig import load_rig
-from excite.rig_import import rig_from_autoware, rig_from_kalibr, rig_yaml
+from excite.rig.config import load_rig
+from excite.rig.importers import rig_from_autoware, rig_from_kalibr, rig_yaml
 
 T_CAM_IMU = [[0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
              [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],

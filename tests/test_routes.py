@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite import routes
-from excite.cli import main
+from excite.io import routes
+from excite.cli.app import main
 from excite.errors import RouteError
-from excite.vehicle import Limits, check_limits, drive
+from excite.motion.vehicle import Limits, check_limits, drive
 from helpers import weave_drive, weave_profile
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -219,7 +219,7 @@ def test_route_info_error_is_one_line(tmp_path, capsys):
 
 def test_route_info_subprocess(tmp_path):
     path = routes.write_control_csv(weave_profile(), tmp_path / "weave.csv")
-    cmd = [sys.executable, "-c", "import sys; from excite.cli import main; sys.exit(main())"]
+    cmd = [sys.executable, "-c", "import sys; from excite.cli.app import main; sys.exit(main())"]
     done = subprocess.run(cmd + ["route", "info", str(path)],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
@@ -279,8 +279,8 @@ def test_a_tum_file_excite_wrote_reads_back_without_a_second_smoothing(tmp_path)
     """write_tum writes a smooth trajectory; smoothing it again at 1 Hz attenuated the motion, and
     a mined window's crop scored 3.6 % (slalom) to 14 % (a bag) under the window. Read back, the
     crop is the same drive (to 0.2 %); an edited first line restores the smoothing."""
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
 
     rig = load_rig("robotaxi")
     window = routes.read_route(ROOT / "trajectories" / "slalom_control.csv").cropped(30.0, 50.0)
@@ -296,9 +296,9 @@ def test_motion_no_car_makes_is_warned_about(tmp_path, data_dir, capsys):
     """A pose moved 500 m (a jump), the EuRoC micro aerial vehicle (pitch −88°): the report says
     the numbers assume a car, and `excite score` prints it on stderr. No reference maneuver, nor
     KITTI 00, draws a warning."""
-    from excite.evaluate import evaluate
-    from excite.rig import load_rig
-    from excite.vehicle import implausible
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import load_rig
+    from excite.motion.vehicle import implausible
 
     rows = [r for r in (ROOT / "trajectories" / "figure_eight.tum").read_text().splitlines() if not r.startswith("#")]
     f = rows[400].split()

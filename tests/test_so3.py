@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from excite import kernels, so3
-from excite.vehicle import ControlProfile, drive
+from excite.core import kernels, so3
+from excite.motion.vehicle import ControlProfile, drive
 
 
 @pytest.mark.parametrize("scale", [1e-7, 1e-3, 9e-3, 0.3, 2.5])

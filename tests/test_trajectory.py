@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from excite import routes
-from excite.vehicle import ControlProfile, Suspension, drive
+from excite.io import routes
+from excite.motion.vehicle import ControlProfile, Suspension, drive
 from helpers import orientation_error_from_rates, specific_force_error, weave_drive
 
 # Tolerances: orientation reproduced by integrating the body rate at 1 kHz within 1e-3 rad
@@ -38,7 +38,7 @@ def test_generated_heading_is_the_trapezoid_integral_of_the_yaw_rate():
     (excite integrates it with numpy so that scoring does not import scipy.integrate)."""
     from scipy.integrate import cumulative_trapezoid
 
-    from excite import so3
+    from excite.core import so3
 
     t = np.linspace(0.0, 12.0, 25)
     prof = ControlProfile(t_s=t, speed_mps=4.0 + np.sin(t), curvature_1pm=0.08 * np.cos(0.7 * t),
@@ -97,7 +97,7 @@ def test_segment_index_equals_a_binary_search():
     """The compiled segment lookup (a walk along the breaks while the times increase) gives
     numpy's binary search, clipped to the segments, for increasing, decreasing and random times,
     times on the breaks and times outside them."""
-    from excite import kernels
+    from excite.core import kernels
 
     rng = np.random.default_rng(3)
     for trial in range(60):

@@ -18,19 +18,20 @@ import scipy.sparse as sp
 import yaml
 from scipy.stats import chi2
 
-from excite.cli import main as cli
-from excite import so3
-from excite.evaluate import evaluate
+from excite.cli.app import main as cli
+from excite.core import so3
+from excite.score.evaluate import evaluate
 from excite.factors import imu, nonholonomic, odometry, wheel
-from excite.maneuvers import figure_eight
-from excite.rig import RIGS_DIR, build_rig
-from excite.routes import write_control_csv
-from excite.validate.calibrate import (SolverSettings, States, _FactorisationError, _Normal, _Problem, calibrate,
+from excite.motion.maneuvers import figure_eight
+from excite.rig.config import RIGS_DIR, build_rig
+from excite.io.routes import write_control_csv
+from excite.validate.calibrate import (SolverSettings, States, _Normal, _Problem, calibrate,
                                        imu_residuals, initialise, keyframe_rates, nonholonomic_residuals,
                                        odometry_residuals, perturbed_states, preintegrate_all, wheel_increments)
 from excite.validate.monte_carlo import MonteCarloSettings, monte_carlo, run_trial
-from excite.validate.simulate import Calibration, SimulationSettings, ValidateError, offset_sigma, simulate
-from excite.vehicle import ControlProfile, Suspension, drive
+from excite.errors import FactorisationError, ValidateError
+from excite.validate.simulate import Calibration, SimulationSettings, offset_sigma, simulate
+from excite.motion.vehicle import ControlProfile, Suspension, drive
 
 N_SCORED = 23
 
@@ -345,7 +346,7 @@ OPTIMIZED = "optimized_15s_control.csv"  # `excite optimize --duration 15 --seed
 def optimized(rig):
     from pathlib import Path
 
-    from excite.routes import read_route
+    from excite.io.routes import read_route
     return read_route(Path(__file__).parent / "data" / OPTIMIZED, suspension=rig.suspension)
 
 
@@ -409,7 +410,7 @@ def test_a_singular_pivot_names_its_variable(rig):
     J = sp.random(60, n_x + n_t, density=0.5, random_state=1, format="csc").toarray()
     J[:, n_x:] = rng.normal(size=(60, n_t))
     J[:, 13] = 0.0  # keyframe 1, component 4
-    with pytest.raises(_FactorisationError) as err:
+    with pytest.raises(FactorisationError) as err:
         _Normal(sp.csr_matrix(J), rng.normal(size=60), n_x, np.ones(n_t)).factor(0.0)
     assert err.value.column == 13
     from excite.validate.calibrate import _unknown_names

@@ -104,9 +104,9 @@ def page(browser, server):
 
 
 def _library_report(segments: int = 0):
-    from excite import routes
-    from excite.evaluate import Options, evaluate
-    from excite.rig import load_rig
+    from excite.io import routes
+    from excite.score.evaluate import Options, evaluate
+    from excite.rig.config import load_rig
 
     return evaluate(routes.read_tum(FIGURE_EIGHT), load_rig("robotaxi"), Options(segments=segments))
 
@@ -412,9 +412,9 @@ def test_live_view_done_banner_stop_and_errors(page, tmp_path):
     each under the file field."""
     import yaml
 
-    from excite import routes
-    from excite.evaluate import evaluate
-    from excite.rig import RIGS_DIR, load_rig
+    from excite.io import routes
+    from excite.score.evaluate import evaluate
+    from excite.rig.config import RIGS_DIR, load_rig
 
     data = yaml.safe_load((RIGS_DIR / "robotaxi.yaml").read_text())
     data["targets"] = {"*.rot_*": "1 deg", "*.trans_*": "300 cm", "*.time_offset": "20 ms",
@@ -496,7 +496,7 @@ def test_parse_rig_yaml(server):
     import httpx
     import yaml
 
-    from excite.rig import RIGS_DIR
+    from excite.rig.config import RIGS_DIR
 
     text = (RIGS_DIR / "robotaxi.yaml").read_text()
     r = httpx.post(f"{server.url}/v1/rigs/parse", json={"yaml": text})

@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import APIRouter
 
 from ..context import Ctx
-from ..problems import ProblemError
+from ..errors import ProblemError
 from ..schemas import BatchRequest, BatchResponse
 from .common import SCORED
 

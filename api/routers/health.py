@@ -10,7 +10,7 @@ from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from ..context import Ctx
-from ..problems import ProblemError
+from ..errors import ProblemError
 from ..schemas import Health
 from .common import problems
 

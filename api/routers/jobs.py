@@ -8,7 +8,7 @@ from fastapi import APIRouter, Path, Query, Response
 
 from ..context import Ctx
 from ..export import MEDIA, maneuver_file
-from ..problems import ProblemError
+from ..errors import ProblemError
 from ..schemas import Job
 from ..scoring import resolve_rig
 from .common import problems

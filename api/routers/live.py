@@ -1,5 +1,5 @@
 """``/v1/live``: a WebSocket on which a vehicle streams its poses during the calibration drive and
-receives the live guidance of :mod:`excite.live` (the same updates as ``excite live --json``).
+receives the live guidance of :mod:`excite.score.live` (the same updates as ``excite live --json``).
 
 Protocol (text frames, one JSON object each):
 
@@ -33,10 +33,11 @@ import anyio
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from excite.errors import ExciteError
-from excite.live import PoseStream
+from excite.score.live import PoseStream
 
 from ..problems import TYPE_BASE
-from ..scoring import Rejected, resolve_rig
+from ..scoring import resolve_rig
+from ..errors import Refused, Rejected
 
 router = APIRouter(prefix="/v1", tags=["live"])
 
@@ -47,12 +48,6 @@ BURST = 100
 MAX_SESSIONS = 16
 IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot freed)
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
-
-
-class _Refused(Exception):
-    def __init__(self, status: int, field: str, message: str, close_code: int = 1008):
-        super().__init__(message)
-        self.status, self.field, self.message, self.close_code = status, field, message, close_code
 
 
 def problem(status: int, field: str, message: str) -> dict[str, Any]:
@@ -84,13 +79,13 @@ class _Bucket:
 
 def _message(text: str) -> dict[str, Any]:
     if len(text.encode("utf-8")) > MAX_MESSAGE_BYTES:
-        raise _Refused(413, "message", f"over the limit of {MAX_MESSAGE_BYTES} bytes", 1009)
+        raise Refused(413, "message", f"over the limit of {MAX_MESSAGE_BYTES} bytes", 1009)
     try:
         msg = json.loads(text)
     except ValueError as exc:
-        raise _Refused(400, "message", f"not JSON ({exc.msg} at character {exc.pos})") from None
+        raise Refused(400, "message", f"not JSON ({exc.msg} at character {exc.pos})") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        raise _Refused(422, "type", "each message is an object with a string field 'type'")
+        raise Refused(422, "type", "each message is an object with a string field 'type'")
     return msg
 
 
@@ -99,13 +94,13 @@ def _rows(msg: dict[str, Any], field: str, width: int, required: bool) -> list[l
     if rows is None and not required:
         return None
     if not isinstance(rows, list) or not rows:
-        raise _Refused(422, field, f"must be a non-empty array of [{width} numbers] rows")
+        raise Refused(422, field, f"must be a non-empty array of [{width} numbers] rows")
     if len(rows) > MAX_POSES:
-        raise _Refused(413, field, f"{len(rows)} rows, over the limit of {MAX_POSES} per message")
+        raise Refused(413, field, f"{len(rows)} rows, over the limit of {MAX_POSES} per message")
     for i, r in enumerate(rows):
         if not (isinstance(r, list) and len(r) == width
                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in r)):
-            raise _Refused(422, f"{field}[{i}]", f"must be {width} finite numbers")
+            raise Refused(422, f"{field}[{i}]", f"must be {width} finite numbers")
     return rows
 
 
@@ -113,30 +108,30 @@ def _poses(rows: list[list[float]]):
     import numpy as np
     from scipy.spatial.transform import Rotation
 
-    from excite.routes import QUAT_NORM_TOL
+    from excite.io.routes import QUAT_NORM_TOL
 
     d = np.asarray(rows, dtype=float)
     norm = np.linalg.norm(d[:, 4:8], axis=1)
     bad = np.abs(norm - 1.0) > QUAT_NORM_TOL
     if bad.any():
         k = int(np.argmax(bad))
-        raise _Refused(422, f"poses[{k}]", f"the quaternion has norm {norm[k]:.6g}, not 1")
+        raise Refused(422, f"poses[{k}]", f"the quaternion has norm {norm[k]:.6g}, not 1")
     return d[:, 0], d[:, 1:4], Rotation.from_quat(d[:, 4:8] / norm[:, None]).as_matrix()
 
 
 def _start(msg: dict[str, Any]) -> PoseStream:
     if msg["type"] != "start":
-        raise _Refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
+        raise Refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
     rig = msg.get("rig", "robotaxi")
     if not isinstance(rig, (str, dict)):
-        raise _Refused(422, "rig", "must be a bundled rig name or a rig object")
+        raise Refused(422, "rig", "must be a bundled rig name or a rig object")
     name = msg.get("name", "live")
     if not isinstance(name, str) or len(name) > 200:
-        raise _Refused(422, "name", "must be a string of at most 200 characters")
+        raise Refused(422, "name", "must be a string of at most 200 characters")
     try:
         r = resolve_rig(rig)
     except Rejected as exc:
-        raise _Refused(exc.status, exc.field, exc.message) from None
+        raise Refused(exc.status, exc.field, exc.message) from None
     return PoseStream(r, name=name)
 
 
@@ -144,7 +139,7 @@ def _start(msg: dict[str, Any]) -> PoseStream:
 async def live(ws: WebSocket) -> None:
     await ws.accept()
     if _sessions["open"] >= MAX_SESSIONS:
-        await _refuse(ws, _Refused(503, "session", f"{MAX_SESSIONS} sessions are streaming already; "
+        await _refuse(ws, Refused(503, "session", f"{MAX_SESSIONS} sessions are streaming already; "
                                                    "try again later", 1013))
         return
     _sessions["open"] += 1
@@ -163,11 +158,11 @@ async def _session(ws: WebSocket) -> None:
         with anyio.move_on_after(IDLE_S) as idle:
             text = await ws.receive_text()
         if idle.cancelled_caught:
-            await _refuse(ws, _Refused(408, "session", f"no message for {IDLE_S:g} s"))
+            await _refuse(ws, Refused(408, "session", f"no message for {IDLE_S:g} s"))
             return
         try:
             if not bucket.take():
-                raise _Refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second", 1008)
+                raise Refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second", 1008)
             msg = _message(text)
             if stream is None:
                 stream = _start(msg)
@@ -185,15 +180,15 @@ async def _session(ws: WebSocket) -> None:
                 await ws.close(1000)
                 return
             else:
-                raise _Refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
-        except _Refused as exc:
+                raise Refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
+        except Refused as exc:
             await _refuse(ws, exc)
             return
         except ExciteError as exc:
-            await _refuse(ws, _Refused(422, "poses", str(exc)))
+            await _refuse(ws, Refused(422, "poses", str(exc)))
             return
 
 
-async def _refuse(ws: WebSocket, exc: _Refused) -> None:
+async def _refuse(ws: WebSocket, exc: Refused) -> None:
     await ws.send_json(problem(exc.status, exc.field, exc.message))
     await ws.close(exc.close_code)

@@ -7,14 +7,14 @@ from typing import Any
 from fastapi import APIRouter, Response
 
 from excite.errors import ExciteError
-from excite.optimize import OptimizeSettings
-from excite.optimize.site import read_site
-from excite.vehicle import Limits
+from excite.plan import OptimizeSettings
+from excite.plan.site import read_site
+from excite.motion.vehicle import Limits
 
 from ..context import Ctx
-from ..problems import ProblemError
+from ..errors import ProblemError, Rejected
 from ..schemas import Job, ManeuverRequest
-from ..scoring import Rejected, resolve_rig
+from ..scoring import resolve_rig
 from .common import BODY
 from .jobs import job_view
 

@@ -9,11 +9,11 @@ from typing import Any
 import yaml
 from fastapi import APIRouter
 
-from excite.rig import Rig, bundled_rigs
+from excite.rig.config import Rig, bundled_rigs
 
-from ..problems import ProblemError
+from ..errors import ProblemError, Rejected
 from ..schemas import RigParsed, RigsResponse, RigYaml
-from ..scoring import Rejected, resolve_rig
+from ..scoring import resolve_rig
 from .common import BODY
 
 router = APIRouter(prefix="/v1", tags=["rigs"])

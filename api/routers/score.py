@@ -17,7 +17,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
 from ..context import Ctx, raise_problem
-from ..problems import ProblemError
+from ..errors import ProblemError
 from ..scoring import bag_score_task
 from ..schemas import PlotRequest, ScoreRequest, ScoreResponse
 from .common import SCORED

@@ -1,5 +1,5 @@
 """``python -m excite.cli``: the same as the ``excite`` command."""
 
-from . import run
+from .app import run
 
 run()

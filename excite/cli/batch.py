@@ -1,4 +1,4 @@
-"""``excite batch``: the CI gate over many routes (logic in :mod:`excite.batch`)."""
+"""``excite batch``: the CI gate over many routes (logic in :mod:`excite.fleet.batch`)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from . import app, console
+from .app import app, console
 
 if TYPE_CHECKING:
-    from .. import batch as gate
+    from ..fleet import batch as gate
 
 _MAX_SHOWN = 4  # failing parameters listed per route in the table
 
@@ -60,7 +60,7 @@ def batch(
         help="Dask scheduler to run on (tcp://host:8786; default $EXCITE_DASK_SCHEDULER, else local processes).")] = None,
 ) -> None:
     """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
-    from .. import batch as gate
+    from ..fleet import batch as gate
     from .mine import ProgressBar
 
     specs = gate.collect(paths, rig=rig, min_score=min_score, topic=topic, imu_topic=imu_topic)

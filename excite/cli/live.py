@@ -1,4 +1,4 @@
-"""``excite live``: guidance while the calibration drive happens (:mod:`excite.live`)."""
+"""``excite live``: guidance while the calibration drive happens (:mod:`excite.score.live`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Iterator, Optional
 
 import typer
 
-from . import app, console
+from .app import app, console
 
 if TYPE_CHECKING:
     import numpy as np
@@ -36,14 +36,14 @@ def _speed(text: str | None) -> float | None:
 class _Lines:
     """Pose lines → (t, p, R) rows: TUM order ``t x y z qx qy qz qw`` (whitespace or commas), or
     KITTI's 12 numbers with the next time of a times file; ``#`` comments and blank lines skipped.
-    Rows are converted exactly as the batch readers convert a file (:mod:`excite.routes`)."""
+    Rows are converted exactly as the batch readers convert a file (:mod:`excite.io.routes`)."""
 
     def __init__(self, source: str, times: list[float] | None):
         self.source, self.times, self.line = source, times, 0
 
     def parse(self, raw: str) -> tuple[float, list[float]] | None:
         from ..errors import RouteError
-        from ..routes import _is_number
+        from ..io.routes import _is_number
 
         self.line += 1
         text = raw.strip()
@@ -73,7 +73,7 @@ class _Lines:
         from scipy.spatial.transform import Rotation
 
         from ..errors import RouteError
-        from ..routes import QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL
+        from ..io.routes import QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL
 
         t = np.array([r[0] for r in parsed])
         d = np.array([r[1] for r in parsed])
@@ -154,7 +154,7 @@ def _source(route: Path, times: Optional[Path], replay: float | None, topic: Opt
     """(batches of (t, p, R), name) of a source."""
     import numpy as np
 
-    from ..bags import is_bag, read_poses
+    from ..io.bags import is_bag, read_poses
     from ..errors import RouteError
 
     if str(route) == "-":
@@ -182,7 +182,7 @@ def _source(route: Path, times: Optional[Path], replay: float | None, topic: Opt
 def _times(path: Optional[Path]) -> list[float] | None:
     if path is None:
         return None
-    from ..routes import _numbers, _split_rows
+    from ..io.routes import _numbers, _split_rows
 
     return [float(x) for x in _numbers(_split_rows(Path(path), None), (1,))[:, 0]]
 
@@ -193,7 +193,7 @@ def _table(update: dict[str, Any], rig_name: str) -> Any:
     from rich.table import Table
     from rich.text import Text
 
-    from ..units import human
+    from ..core.units import human
 
     kind = "final (the batch evaluator on every pose)" if update["type"] == "final" else "live"
     head = Text.from_markup(
@@ -256,15 +256,15 @@ def live(
     still needs, and done. Exit code 0 when every parameter is within target, 1 when the source
     ends first (after the final update, which is `excite score` on the same poses). When nothing
     more is gained from the motion so far, it says which parameters need which motion, and goes on."""
-    from ..live import PoseStream
-    from ..rig import load_rig
+    from ..score.live import PoseStream
+    from ..rig.config import load_rig
 
     if not (math.isfinite(idle) and idle > 0):
         raise typer.BadParameter(f"must be positive, got {idle}", param_hint="--idle")
     speed = _speed(replay)
     r = load_rig(rig)
     batches, name = _source(route, times, speed, topic, idle)
-    from ..routes import DEFAULT_CUTOFF_HZ, already_smooth
+    from ..io.routes import DEFAULT_CUTOFF_HZ, already_smooth
 
     # a TUM file excite wrote is read as read_tum reads it: not smoothed a second time
     smooth = str(route) != "-" and route.is_file() and already_smooth(route)

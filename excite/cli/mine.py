@@ -1,5 +1,5 @@
 """``excite mine``: the windows of long logs that best determine the calibration (logic in
-:mod:`excite.mine`)."""
+:mod:`excite.fleet.mine`)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
-from . import app, console
+from .app import app, console
 
 if TYPE_CHECKING:
-    from .. import mine as miner
+    from ..fleet import mine as miner
 
 
 class ProgressBar:
@@ -86,8 +86,8 @@ def mine(
 ) -> None:
     """Rank the windows of LOGS that best determine the rig's calibration; exit 1 when a log
     cannot be read or (with --min-score/--targets) no log reaches the goal."""
-    from .. import batch as gate
-    from .. import mine as miner
+    from ..fleet import batch as gate
+    from ..fleet import mine as miner
     from ..errors import ExciteError
 
     for name, value in (("--window", window), ("--chunk", chunk)):

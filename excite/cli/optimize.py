@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from ..bounds import OPTIMIZE as _B
+from ..core.bounds import OPTIMIZE as _B
 from ..errors import ExciteError
-from . import app, console
+from .app import app, console
 
 if TYPE_CHECKING:
-    from ..optimize import OptimizeResult
+    from ..plan import OptimizeResult
 
 
 _WRITE_S = 1.0  # kept from the budget for writing the output files
@@ -62,8 +62,8 @@ def comparison_table(result: OptimizeResult):
 def write_outputs(result: OptimizeResult, out: Path, origin: tuple[float, float] | None = None) -> list[Path]:
     """maneuver.tum, control.csv, waypoints.csv, report.json, comparison.json in ``out`` (and
     maneuver.geojson when the lot is georeferenced: ``origin`` (lon, lat))."""
-    from ..optimize.site import maneuver_geojson
-    from ..routes import write_control_csv, write_tum, write_waypoints_csv
+    from ..plan.site import maneuver_geojson
+    from ..io.routes import write_control_csv, write_tum, write_waypoints_csv
 
     out.mkdir(parents=True, exist_ok=True)
     paths = [write_tum(result.trajectory, out / "maneuver.tum"),
@@ -104,10 +104,10 @@ def optimize(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from ..optimize import OptimizeSettings, optimize as run_optimize
-    from ..optimize import Progress as OptProgress
-    from ..optimize.site import parse_lot
-    from ..rig import load_rig
+    from ..plan import OptimizeSettings, optimize as run_optimize
+    from ..plan import Progress as OptProgress
+    from ..plan.site import parse_lot
+    from ..rig.config import load_rig
 
     if out.exists() and not out.is_dir():
         raise ExciteError(f"-o/--out: {out} exists and is not a folder")

@@ -1,5 +1,5 @@
 """``excite resident start|stop|status``: the resident process that answers the short commands
-(:mod:`excite.resident`)."""
+(:mod:`excite.cli.resident_process`)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from typing import Annotated
 
 import typer
 
-from .. import resident
+from . import resident_process as resident
 from ..errors import ExciteError
-from . import app
+from .app import app
 
 resident_app = typer.Typer(no_args_is_help=True, help=(
     "The resident process: keeps excite loaded so that score, route, rig and batch start at once "

@@ -1,5 +1,5 @@
 """``excite rig from-tf | from-kalibr | from-autoware``: rig YAML from the files users have
-(logic in :mod:`excite.rig_import`)."""
+(logic in :mod:`excite.rig.importers`)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import typer
 from .score import rig_app
 
 if TYPE_CHECKING:  # the importers need scipy and the bag reader: loaded by the commands only
-    from ..rig_import import ImportedRig
+    from ..rig.importers import ImportedRig
 
 
 def _write(rig: "ImportedRig", output: Optional[Path]) -> None:
-    from .. import rig_import
+    from ..rig import importers as rig_import
 
     text = rig_import.rig_yaml(rig)
     if output is None:
@@ -42,7 +42,7 @@ def from_tf(
     output: Output = None,
 ) -> None:
     """A rig YAML from a bag's /tf_static: T_V_B and every sensor's T_B_S composed over the tree."""
-    from .. import rig_import
+    from ..rig import importers as rig_import
 
     _write(rig_import.rig_from_tf(bag, imu=imu, base=base, lidar=lidar, camera=camera, name=name), output)
 
@@ -56,7 +56,7 @@ def from_kalibr(
     output: Output = None,
 ) -> None:
     """A rig YAML from a Kalibr camera-IMU calibration."""
-    from .. import rig_import
+    from ..rig import importers as rig_import
 
     _write(rig_import.rig_from_kalibr(camchain, imu_yaml, name=name, camera_rate_hz=camera_rate), output)
 
@@ -74,7 +74,7 @@ def from_autoware(
     output: Output = None,
 ) -> None:
     """A rig YAML from Autoware sensor-kit calibration files."""
-    from .. import rig_import
+    from ..rig import importers as rig_import
 
     _write(rig_import.rig_from_autoware(sensor_kit, imu=imu, base=base, lidar=lidar, camera=camera,
                                         sensors_calibration=sensors_calibration, name=name), output)

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from . import app, console
+from .app import app, console
 
 route_app = typer.Typer(no_args_is_help=True, help="Inspect route files.")
 app.add_typer(route_app, name="route")
@@ -18,8 +18,8 @@ def route_summary(traj, limits, rate_hz: float = 20.0) -> dict:
     roll of a trajectory, and its limit violations."""
     import numpy as np
 
-    from .. import so3
-    from ..vehicle import check_limits
+    from ..core import so3
+    from ..motion.vehicle import check_limits
 
     s = traj.sample(traj.times(rate_hz))
     ypr = so3.yaw_pitch_roll(s.R_W_V)
@@ -46,7 +46,7 @@ def bag_table(file: Path) -> None:
     from rich.table import Table
     from rich.text import Text
 
-    from ..bags import bag_info
+    from ..io.bags import bag_info
 
     topics = bag_info(file)
     table = Table(title=Text(f"{file.name}: {len(topics)} topics"))
@@ -73,9 +73,9 @@ def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .g
     from rich.table import Table
     from rich.text import Text
 
-    from ..bags import is_bag
-    from ..routes import read_route
-    from ..vehicle import Limits
+    from ..io.bags import is_bag
+    from ..io.routes import read_route
+    from ..motion.vehicle import Limits
 
     if is_bag(file):
         return bag_table(file)

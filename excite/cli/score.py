@@ -8,17 +8,17 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
-from .. import bounds
-from . import app, console
+from ..core import bounds
+from .app import app, console
 
 if TYPE_CHECKING:
-    from ..evaluate import Report
+    from ..score.evaluate import Report
 
 def print_report(rep: Report, console: Any) -> None:
     """The report as tables for a terminal."""
     from rich.table import Table
 
-    from ..units import human
+    from ..core.units import human
 
     verdict = "[green]PASS[/]" if rep.passed else "[red]FAIL[/]"
     console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]: {rep.duration_s:.1f} s, "
@@ -66,7 +66,7 @@ def print_report(rep: Report, console: Any) -> None:
         console.print(s)
 
 
-@app.command(epilog=f"Bounds (excite.bounds): {bounds.describe()}.")
+@app.command(epilog=f"Bounds (excite.core.bounds): {bounds.describe()}.")
 def score(
     route: Annotated[Path, typer.Argument(help="Route file: waypoints/control CSV, GeoJSON, TUM, "
                                                 "KITTI (with --times), EuRoC CSV, or a bag (.bag, "
@@ -94,9 +94,9 @@ def score(
              "y down, z forward).")] = "vehicle",
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
-    from ..evaluate import Options, evaluate, max_segments
-    from ..rig import load_rig
-    from ..routes import read_route
+    from ..score.evaluate import Options, evaluate, max_segments
+    from ..rig.config import load_rig
+    from ..io.routes import read_route
 
     if plot is not None and plot.suffix.lower() != ".png":
         raise typer.BadParameter(f"writes a PNG: name the file .png, got {plot.name!r}", param_hint="--plot")
@@ -107,12 +107,12 @@ def score(
                                  param_hint="--plot-parameter")
     bag = None
     if any(x is not None for x in (topic, imu_topic, start, end, vehicle_frame)) or axes != "vehicle":
-        from ..bags import BagSource  # the bag readers only for bags: not on a file's cold path
+        from ..io.bags import BagSource
 
         bag = BagSource(topic, imu_topic, start, end, vehicle_frame, axes)
     traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
     if bag is not None:  # a bag was read (with --imu-topic: its measured IMU too)
-        from ..bags import ImuTrajectory, imu_agreement
+        from ..io.bags import ImuTrajectory, imu_agreement
 
         if isinstance(traj, ImuTrajectory):
             pose = r.config.vehicle.T_V_B
@@ -122,7 +122,7 @@ def score(
     for w in rep.warnings:  # on stderr: the report (or its JSON) stays what stdout carries
         typer.secho(f"warning: {w}", err=True, fg="yellow")
     if plot is not None:
-        from .. import plots
+        from ..score import plots
 
         # the route panel needs segments; they are printed only when asked for
         with_segments = rep if segments else evaluate(traj, r, Options(
@@ -144,7 +144,7 @@ app.add_typer(rig_app, name="rig")
 @rig_app.command("show")
 def rig_show(name: Annotated[str, typer.Argument(help="Bundled rig name or rig YAML path.")] = "robotaxi") -> None:
     """Print a rig's YAML (validated first)."""
-    from ..rig import load_rig, rig_text
+    from ..rig.config import load_rig, rig_text
 
     load_rig(name)
     typer.echo(rig_text(name), nl=False)
@@ -153,7 +153,7 @@ def rig_show(name: Annotated[str, typer.Argument(help="Bundled rig name or rig Y
 @rig_app.command("list")
 def rig_list() -> None:
     """Names of the bundled rigs."""
-    from ..rig import bundled_rigs
+    from ..rig.config import bundled_rigs
 
     for n in bundled_rigs():
         typer.echo(n)

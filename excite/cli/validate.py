@@ -8,11 +8,11 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
-from . import app, console
+from .app import app, console
 
 if TYPE_CHECKING:
-    from ..rig import Rig
-    from ..trajectory import Trajectory
+    from ..rig.config import Rig
+    from ..motion.trajectory import Trajectory
     from ..validate.monte_carlo import MonteCarloResult
 
 
@@ -20,9 +20,9 @@ def crop(traj: Trajectory, duration_s: float, rate_hz: float = 100.0) -> Traject
     """The first ``duration_s`` of a drive (re-fitted from samples at ``rate_hz``, tilt kept)."""
     import numpy as np
 
-    from .. import so3
-    from ..trajectory import Trajectory
-    from ..validate.simulate import ValidateError
+    from ..core import so3
+    from ..motion.trajectory import Trajectory
+    from ..errors import ValidateError
 
     if duration_s >= traj.duration:
         return traj
@@ -44,7 +44,7 @@ def with_imu_rate(rig: Rig, rate_hz: float) -> Rig:
 
 
 def _fmt(value: float | None, unit: str) -> str:
-    from ..units import display_unit
+    from ..core.units import display_unit
 
     if value is None:
         return "—"
@@ -56,7 +56,7 @@ def print_result(res: MonteCarloResult, console: Any) -> None:
     """The Monte Carlo comparison as tables for a terminal."""
     from rich.table import Table
 
-    from ..units import display_unit
+    from ..core.units import display_unit
 
     rep = res.report
     n = len(res.trials)
@@ -135,11 +135,12 @@ def validate(
     quiet: Annotated[bool, typer.Option(help="No progress line.")] = False,
 ) -> None:
     """Simulate the rig's sensors on the route, calibrate N times, compare with the predicted σ."""
-    from ..rig import load_rig
-    from ..routes import read_route
+    from ..rig.config import load_rig
+    from ..io.routes import read_route
     from ..validate.calibrate import SolverSettings
     from ..validate.monte_carlo import MonteCarloSettings, Trial, monte_carlo
-    from ..validate.simulate import SimulationSettings, ValidateError
+    from ..errors import ValidateError
+    from ..validate.simulate import SimulationSettings
 
     r = load_rig(rig)
     if imu_rate is not None:

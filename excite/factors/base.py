@@ -2,7 +2,7 @@
 
 The nuisance state of keyframe k is ``x_k = [δθ (3), δp (3), δv (3)]``: a right perturbation of
 the body orientation ``R_W_B · Exp(δθ)``, and additive world position and velocity of B. The
-calibration vector θ has one column per :class:`~excite.rig.Coordinate` of the rig, in its order.
+calibration vector θ has one column per :class:`~excite.rig.config.Coordinate` of the rig, in its order.
 Every factor returns *whitened* Jacobians: one row per residual component divided by its σ
 (or multiplied by the inverse Cholesky factor of its covariance).
 """
@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..rig import Rig
-from ..trajectory import Trajectory, rigid_body
+from ..rig.config import Rig
+from ..motion.trajectory import Trajectory, rigid_body
 
 STATE_DIM = 9
 ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -108,7 +108,7 @@ class FactorBlock:
     Factor ``f`` touches the keyframes ``first[f] + stride · m`` for ``m < n_states`` through
     ``Jx[f]`` (r × 9·n_states), and the calibration columns ``cols`` through ``Jt[f]``
     (r × len(cols)). ``xcols``, where known: the columns of ``Jx`` that may be non-zero (every other
-    one is zero for every factor), which :func:`excite.kernels.accumulate` can skip.
+    one is zero for every factor), which :func:`excite.core.kernels.accumulate` can skip.
     """
 
     name: str

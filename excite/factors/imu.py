@@ -21,9 +21,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import kernels, so3
-from ..rig import Rig
-from ..trajectory import GRAVITY
+from ..core import kernels, so3
+from ..rig.config import Rig
+from ..motion.trajectory import GRAVITY
 from .base import FactorBlock, Nominal, theta_columns
 
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import kernels
-from ..rig import Rig
+from ..core import kernels
+from ..rig.config import Rig
 from .base import FactorBlock, Nominal, theta_columns
 from .wheel import G_MPS2, _geometry, axle_velocity
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import kernels, so3
-from ..rig import Rig, SensorConfig
+from ..core import kernels, so3
+from ..rig.config import Rig, SensorConfig
 from .base import FactorBlock, Nominal, theta_columns
 
 

@@ -12,7 +12,7 @@ with ``m = (cos Δψ/2, sin Δψ/2, 0)`` along the mean heading (``mᵀc`` is th
 undetermined — came out weakly determined by an O(Δψ²) artefact that shrank with the keyframe
 rate.) The left and right wheels
 turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with noise
-``noise_density·√Δt`` (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`).
+``noise_density·√Δt`` (:attr:`excite.rig.config.Rig.wheel_increment_sigma_rad`).
 
 Tyres slip: a driven wheel turns faster than it travels, a braking one slower. With
 ``vehicle.slip`` estimated, both angles are multiplied by ``1 + slip·ā/g``, ``ā`` the interval's
@@ -25,9 +25,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import kernels, so3
-from ..rig import Rig
-from ..trajectory import GRAVITY
+from ..core import kernels, so3
+from ..rig.config import Rig
+from ..motion.trajectory import GRAVITY
 from .base import FactorBlock, Nominal, theta_columns
 
 

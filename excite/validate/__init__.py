@@ -10,7 +10,8 @@ a nonlinear batch estimator, and compare the Monte Carlo spread with the evaluat
 
 from .calibrate import CalibrationResult, Initialisation, SolverSettings, States, calibrate, initialise
 from .monte_carlo import MonteCarloResult, MonteCarloSettings, monte_carlo, run_trial, statistics
-from .simulate import Calibration, SensorData, SimulationSettings, ValidateError, simulate
+from ..errors import ValidateError
+from .simulate import Calibration, SensorData, SimulationSettings, simulate
 
 __all__ = [
     "Calibration", "CalibrationResult", "Initialisation", "MonteCarloResult", "MonteCarloSettings", "SensorData",

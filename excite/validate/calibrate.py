@@ -30,13 +30,15 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dpbtrf, dtbtrs
 
-from .. import information, so3
+from .. import information
+from ..core import so3
 from ..factors import imu as imu_factor
 from ..factors import nonholonomic, wheel
 from ..factors.base import Nominal
-from ..rig import Rig
-from ..trajectory import GRAVITY
-from .simulate import Calibration, SensorData, ValidateError
+from ..rig.config import Rig
+from ..motion.trajectory import GRAVITY
+from .simulate import Calibration, SensorData
+from ..errors import FactorisationError, ValidateError
 
 _GAUGE_SIGMA_YAW_RAD = 0.01
 
@@ -318,14 +320,6 @@ class _Problem:
 # The trust-region solver
 
 
-class _FactorisationError(Exception):
-    """A pivot of the banded Cholesky was not positive: ``column`` is the unknown it failed at."""
-
-    def __init__(self, column: int):
-        super().__init__(column)
-        self.column = column
-
-
 class _Normal:
     """The scaled normal equations at one estimate.
 
@@ -361,11 +355,11 @@ class _Normal:
         ab[0] *= 1.0 + lam
         L, info = dpbtrf(ab, lower=1)
         if info != 0:
-            raise _FactorisationError(info - 1)
+            raise FactorisationError(info - 1)
         Z, i1 = dtbtrs(L, self.Hxt, uplo="L")
         zg, i2 = dtbtrs(L, self.g[:self.n_x, None], uplo="L")
         if i1 or i2:
-            raise _FactorisationError(max(i1, i2) - 1)
+            raise FactorisationError(max(i1, i2) - 1)
         A = self.Htt - Z.T @ Z
         A = 0.5 * (A + A.T) + lam * np.diag(np.diag(self.Htt))
         return L, Z, zg[:, 0], A
@@ -373,7 +367,7 @@ class _Normal:
     def rank(self, A0: np.ndarray, rank_rtol: float):
         """The calibration directions the data determines: eigenvectors of the undamped Schur
         complement ``A0`` (in target units) above ``rank_rtol · max diag(H_θθ)``. Not the evaluator's
-        normalised test (:mod:`excite.spectrum`, each coordinate against its own information): at a
+        normalised test (:mod:`excite.score.spectrum`, each coordinate against its own information): at a
         noisy estimate an exactly unobservable coordinate (a vertical lever arm on a flat lot) has
         spurious information of its own from the estimate's noise, and normalised by that it
         survives marginalisation as if it were real (measured: no normalised eigenvalue below 1e-3
@@ -392,7 +386,7 @@ class _Normal:
         yt = -basis @ np.linalg.solve(basis.T @ A @ basis, basis.T @ b) if basis.shape[1] else np.zeros(b.size)
         yx, info = dtbtrs(L, (zg + Z @ yt)[:, None], uplo="L", trans="T")
         if info:
-            raise _FactorisationError(info - 1)
+            raise FactorisationError(info - 1)
         return np.r_[-yx[:, 0], yt]
 
     def hessian_times(self, y: np.ndarray) -> np.ndarray:
@@ -439,7 +433,7 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
         try:
             nrm = _Normal(J, r, prob.n_x, scale)
             fac0 = nrm.factor(0.0)
-        except _FactorisationError as e:
+        except FactorisationError as e:
             status, reason = "failed", f"the normal equations are singular at {names[e.column]}"
             _emit(log, dict(event="step", iteration=it, failure=reason, failed_variable=names[e.column]))
             break
@@ -460,7 +454,7 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
             try:
                 fac = nrm.factor(lam)
                 y = nrm.step(fac, basis)
-            except _FactorisationError as e:
+            except FactorisationError as e:
                 status, reason = "failed", f"the damped system is singular at {names[e.column]}"
                 _emit(log, dict(base, **{"lambda": lam}, failure=reason, failed_variable=names[e.column]))
                 break
@@ -509,7 +503,7 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
     if status != "failed":
         try:
             info = _Normal(J, r, prob.n_x, scale).factor(0.0)[3] / np.outer(scale, scale)
-        except _FactorisationError:
+        except FactorisationError:
             pass
     _emit(log, dict(event="stop", status=status, reason=reason, iterations=it, step_trials=trials,
                     initial_cost=cost0, cost=cost))
@@ -521,8 +515,6 @@ def _emit(log: Callable[[dict], None] | None, record: dict) -> None:
     """One solver log record (non-finite numbers as None, so that every line is valid JSON)."""
     if log is not None:
         log({k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in record.items()})
-
-
 
 
 # ------------------------------------------------------------------------------------------------

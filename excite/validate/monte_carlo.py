@@ -32,11 +32,12 @@ from typing import Callable
 import numpy as np
 from scipy.stats import chi2
 
-from ..evaluate import Report, evaluate
-from ..rig import Rig
-from ..trajectory import Trajectory
+from ..errors import ValidateError
+from ..score.evaluate import Report, evaluate
+from ..rig.config import Rig
+from ..motion.trajectory import Trajectory
 from .calibrate import CalibrationResult, SolverSettings, States, calibrate, initialise
-from .simulate import Calibration, SimulationSettings, ValidateError, offset_sigma, simulate
+from .simulate import Calibration, SimulationSettings, offset_sigma, simulate
 
 
 @dataclass(frozen=True)

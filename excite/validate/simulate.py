@@ -18,7 +18,7 @@ sensors record:
   camera's translations carry its true scale.
 - **Wheel encoders**: cumulative ticks (quantisation ``2π/ticks_per_rev``) of each wheel's angle
   plus white noise, so that the total noise of one increment (white + two quantisation errors)
-  equals the rig's (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`). Physical: the angle integrates the wheel's contact-point speed
+  equals the rig's (:attr:`excite.rig.config.Rig.wheel_increment_sigma_rad`). Physical: the angle integrates the wheel's contact-point speed
   with a slip ratio that grows linearly with longitudinal acceleration (what the rig's
   ``wheel.slip`` nuisance models) and with the square of the lateral one (which nothing models);
   model: the increments of :func:`excite.factors.wheel.increments`.
@@ -37,16 +37,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import so3
-from ..errors import ExciteError
+from ..core import so3
+from ..errors import ValidateError
 from ..factors import wheel
 from ..factors.base import Nominal
-from ..rig import Rig, build_rig
-from ..trajectory import GRAVITY, Trajectory
-
-
-class ValidateError(ExciteError, ValueError):
-    """A simulation, calibration or Monte Carlo validation cannot be run as asked."""
+from ..rig.config import Rig, build_rig
+from ..motion.trajectory import GRAVITY, Trajectory
 
 
 # ------------------------------------------------------------------------------------------------
@@ -188,7 +184,7 @@ class SimulationSettings:
     estimator takes them constant).
     ``wheel_ticks_per_rev``: encoder resolution (0: no quantisation); the white part of the wheel
     noise is reduced so that the total per increment equals the rig's
-    (:attr:`excite.rig.Rig.wheel_increment_sigma_rad`).
+    (:attr:`excite.rig.config.Rig.wheel_increment_sigma_rad`).
     ``wheel_slip_per_g``: longitudinal slip ratio of the rear wheels per g of longitudinal
     acceleration (a braking wheel turns slower than it travels, a driven one faster), plus
     ``wheel_scrub_per_g2`` × (lateral acceleration/g)² (the tyre's shorter rolling radius when it

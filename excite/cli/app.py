@@ -1,0 +1,126 @@
+"""The ``excite`` command line: loads inputs, calls the library, prints and saves.
+
+Known failures (every :class:`~excite.errors.ExciteError`, unreadable or unwritable files) end in
+a one-line message on stderr and exit code 1; anything else is a bug and keeps its traceback.
+
+A command imports only what it uses: ``excite score`` never loads the optimizer, ``excite
+--help`` neither scipy nor numba. Help text is plain (no rich markup: units such as ``[s]``
+are text), and output to a pipe is not wrapped at 80 columns.
+"""
+
+from __future__ import annotations
+
+import gc
+import importlib
+import os
+import sys
+from typing import Annotated, Any, Optional
+
+import typer
+
+from ..errors import ExciteError
+from .commands import COMMANDS, command_of
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  rich_markup_mode=None,
+                  help="Calibration excitation planner: how well does a drive determine every "
+                       "sensor calibration parameter?")
+
+PIPE_WIDTH = 240  # columns of output to a pipe or file: wide enough that rows stay whole
+
+
+def _version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        typer.echo(f"excite {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: Annotated[Optional[bool], typer.Option(
+        "--version", callback=_version, is_eager=True, help="Print the version and exit.")] = None) -> None:
+    pass
+
+
+def console(stderr: bool = False) -> Any:
+    """A rich console for the commands' tables: the terminal's width, or :data:`PIPE_WIDTH`
+    when the output is piped (rich would wrap at 80)."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    piped = not stream.isatty() and "COLUMNS" not in os.environ
+    return Console(stderr=stderr, width=PIPE_WIDTH if piped else None)
+
+
+def register(argv: list[str]) -> None:
+    """Import the module of the command being run (all of them for the overview help)."""
+    command = command_of(argv)
+    wanted = [COMMANDS[command]] if command in COMMANDS else sorted(set(COMMANDS.values()))
+    for module in wanted:
+        importlib.import_module(f".{module}", __package__)
+
+
+def _click_exceptions() -> tuple[type[Exception], ...]:
+    # typer ≥ 0.26 vendors click as typer._click: its usage errors are not click's
+    import click
+
+    types: list[type[Exception]] = [click.ClickException]
+    try:
+        from typer._click.exceptions import ClickException as Vendored
+    except ImportError:
+        pass
+    else:
+        types.append(Vendored)
+    return tuple(types)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit code."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    register(argv)
+    try:
+        # without standalone mode click returns a command's exit code instead of exiting
+        rc = app(args=argv, standalone_mode=False, prog_name="excite")
+        if isinstance(rc, int):
+            return rc
+    except ExciteError as exc:
+        print(f"excite: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a file the user named cannot be read or written
+        where = exc.filename if exc.filename is not None else ""
+        print(f"excite: error: {where}{': ' if where else ''}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except typer.Exit as exc:
+        return exc.exit_code
+    except typer.Abort:
+        print("excite: aborted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # click usage errors carry their own exit code
+        if isinstance(exc, _click_exceptions()):
+            exc.show()
+            return exc.exit_code
+        raise
+    return 0
+
+
+def run() -> None:
+    """``python -m excite.cli``: :func:`main` in this process, then :func:`leave`. (The ``excite``
+    script, :func:`excite.cli.resident_process.run`, first asks a resident process to run the command.)"""
+    leave(main())
+
+
+def leave(rc: int) -> None:
+    """End the process with exit code ``rc``.
+
+    What the command imported (numpy, scipy, numba's registries: ~150 000 objects) lives until
+    the process ends; at exit the interpreter's cyclic garbage collector would walk all of it
+    again while tearing the modules down (~0.3 s of a cold ``excite score``; see
+    ``benchmarks/bench_cli.py``). :func:`gc.freeze` leaves those objects out of that walk; they are
+    still released, atexit handlers run and streams are flushed as usual."""
+    gc.freeze()
+    sys.exit(rc)
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,280 @@
+"""The nominal motion of a drive.
+
+A :class:`Trajectory` is the continuous-time motion of the vehicle frame V (rear-axle centre,
+x forward, y left, z up, attached to the sprung body) in the world W (z up). Everything the
+information model needs is sampled from it at any rate: pose, world velocity and acceleration,
+body angular rate and acceleration, the specific force a perfect IMU would measure, the forward
+speed and yaw rate of the rear axle, and left/right wheel angular speeds.
+
+Besides the body pose, a trajectory carries the *suspension tilt*: the rotation ``R_V_A`` of the
+road-aligned axle frame A relative to the body. Braking pitches the body nose-down and cornering
+rolls it outwards while the axle stays on the road; the non-holonomic constraint and the wheel
+odometry act in A. Logged trajectories have no tilt information and use ``R_V_A = I``.
+
+Position is a quintic spline whose derivatives are exact (``v = ṗ``, ``a = p̈``), orientation a
+cubic :class:`scipy.spatial.transform.RotationSpline` whose body rates integrate back to the
+orientation.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import BSpline, PPoly, make_interp_spline
+from scipy.spatial.transform import Rotation, RotationSpline
+
+from ..core import bounds
+from ..errors import RouteError
+
+GRAVITY = np.array([0.0, 0.0, -9.80665])
+
+
+@dataclass(frozen=True)
+class MotionSamples:
+    """The vehicle frame's nominal motion at times ``t`` (all arrays share the leading axis).
+
+    ``R_W_V, p_W_V``: pose of V in W. ``v_W, a_W``: world velocity and acceleration of V's origin.
+    ``omega_V, alpha_V``: body angular rate and angular acceleration, in V. ``R_V_A``: suspension
+    tilt (road-aligned axle frame A in V).
+    """
+
+    t: np.ndarray
+    R_W_V: np.ndarray
+    p_W_V: np.ndarray
+    v_W: np.ndarray
+    a_W: np.ndarray
+    omega_V: np.ndarray
+    alpha_V: np.ndarray
+    R_V_A: np.ndarray
+
+    @property
+    def R_W_A(self) -> np.ndarray:
+        return self.R_W_V @ self.R_V_A
+
+    @property
+    def speed(self) -> np.ndarray:
+        """Forward speed of the rear axle along the road frame's x axis [m/s]."""
+        return np.einsum("nji,nj->ni", self.R_W_A, self.v_W)[:, 0]
+
+    @property
+    def yaw_rate(self) -> np.ndarray:
+        """Yaw rate about the road normal (A's z axis) [rad/s]."""
+        return np.einsum("nji,nj->ni", self.R_V_A, self.omega_V)[:, 2]
+
+    @property
+    def accel_long(self) -> np.ndarray:
+        """Longitudinal acceleration along A's x axis [m/s²]."""
+        return np.einsum("nji,nj->ni", self.R_W_A, self.a_W)[:, 0]
+
+    @property
+    def accel_lat(self) -> np.ndarray:
+        """Lateral acceleration along A's y axis [m/s²] (positive to the left)."""
+        return np.einsum("nji,nj->ni", self.R_W_A, self.a_W)[:, 1]
+
+    @property
+    def specific_force_V(self) -> np.ndarray:
+        """What a perfect accelerometer at V's origin measures, in V: ``Rᵀ(a − g)``."""
+        return np.einsum("nji,nj->ni", self.R_W_V, self.a_W - GRAVITY)
+
+    def wheel_speeds(self, radius_left: float, radius_right: float, track: float) -> np.ndarray:
+        """Left and right wheel angular speeds ``(n, 2)`` [rad/s]."""
+        u, r = self.speed, self.yaw_rate
+        return np.stack([(u - 0.5 * track * r) / radius_left, (u + 0.5 * track * r) / radius_right], axis=1)
+
+    def body(self, R_V_B: np.ndarray, p_V_B: np.ndarray) -> "BodySamples":
+        """Motion of a frame B rigidly attached to V at pose ``(R_V_B, p_V_B)`` (e.g. the IMU)."""
+        R_W_B, p_W_B, v_W_B, omega_B = rigid_body(self.R_W_V, self.p_W_V, self.v_W, self.omega_V, R_V_B, p_V_B)
+        p_V_B = np.asarray(p_V_B, dtype=float)
+        w = self.omega_V
+        lever_acc_V = np.cross(self.alpha_V, p_V_B) + np.cross(w, np.cross(w, p_V_B))
+        a_W_B = self.a_W + np.einsum("nij,nj->ni", self.R_W_V, lever_acc_V)
+        return BodySamples(t=self.t, R_W_B=R_W_B, p_W_B=p_W_B, v_W=v_W_B, a_W=a_W_B, omega_B=omega_B)
+
+
+def rigid_body(R_W_V: np.ndarray, p_W_V: np.ndarray, v_W: np.ndarray, omega_V: np.ndarray, R_V_B: np.ndarray,
+               p_V_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Orientation, position, world velocity and body rate of a frame B rigidly attached to V at
+    pose ``(R_V_B, p_V_B)``, from V's (stacks): ``R_W_V R_V_B``, ``p + R_W_V p_V_B``,
+    ``v + R_W_V (ω × p_V_B)`` and ``R_V_Bᵀ ω``."""
+    R_V_B = np.asarray(R_V_B, dtype=float)
+    p_V_B = np.asarray(p_V_B, dtype=float)
+    R_W_B = R_W_V @ R_V_B
+    p_W_B = p_W_V + np.einsum("nij,j->ni", R_W_V, p_V_B)
+    v_W_B = v_W + np.einsum("nij,nj->ni", R_W_V, np.cross(omega_V, p_V_B))
+    return R_W_B, p_W_B, v_W_B, omega_V @ R_V_B
+
+
+@dataclass(frozen=True)
+class BodySamples:
+    """Motion of a body-fixed frame B (e.g. the IMU): pose, world velocity/acceleration, body rate."""
+
+    t: np.ndarray
+    R_W_B: np.ndarray
+    p_W_B: np.ndarray
+    v_W: np.ndarray
+    a_W: np.ndarray
+    omega_B: np.ndarray
+
+    @property
+    def specific_force_B(self) -> np.ndarray:
+        """What a perfect accelerometer measures, in B: ``Rᵀ(a − g)`` [m/s²]."""
+        return np.einsum("nji,nj->ni", self.R_W_B, self.a_W - GRAVITY)
+
+
+class Trajectory:
+    """Continuous nominal motion of the vehicle frame V over ``[t_start, t_end]``.
+
+    Built from poses of V at increasing times ``t``. ``tilt_pitch_roll`` (n, 2) are the
+    suspension pitch and roll [rad] of the body relative to the road (none for logged drives);
+    ``velocity`` (n, 3), when known, is integrated instead of differentiating the positions, so
+    that ``ṗ`` equals the given velocity at the samples. :func:`excite.motion.vehicle.drive` builds one
+    from a control profile and the readers in :mod:`excite.io.routes` from files.
+    """
+
+    def __init__(self, t: np.ndarray, R_W_V: np.ndarray, p_W_V: np.ndarray,
+                 tilt_pitch_roll: np.ndarray | None = None, velocity: np.ndarray | None = None,
+                 name: str = "route"):
+        t = np.asarray(t, dtype=float)
+        if t.ndim != 1 or t.size < 6:
+            raise RouteError(f"a trajectory needs at least 6 samples, got {t.size}")
+        if not np.all(np.diff(t) > 0):
+            raise RouteError("sample times must be strictly increasing")
+        if t.size > bounds.MAX_SAMPLES:
+            raise RouteError(f"{t.size} samples, over the limit of {bounds.MAX_SAMPLES:,}")
+        if not t[-1] - t[0] <= bounds.max_duration_s():
+            raise RouteError(f"the drive lasts {t[-1] - t[0]:.6g} s, over the limit of "
+                             f"{bounds.max_duration_s():g} s")
+        for label, x in (("positions", p_W_V), ("velocities", velocity)):
+            if x is not None and not np.all(np.isfinite(x)):
+                raise RouteError(f"the drive's {label} are not all finite")
+        self._t = t
+        self._R = np.asarray(R_W_V, dtype=float)
+        self._p = np.asarray(p_W_V, dtype=float)
+        self._v = None if velocity is None else np.asarray(velocity, dtype=float)
+        self._tilt_samples = None
+        if tilt_pitch_roll is not None and np.any(np.asarray(tilt_pitch_roll) != 0):
+            self._tilt_samples = np.asarray(tilt_pitch_roll, dtype=float)
+        if self._v is None:
+            self._pos = make_interp_spline(t, self._p, k=5)
+        else:
+            pos = make_interp_spline(t, self._v, k=5).antiderivative(1)
+            self._pos = BSpline(pos.t, pos.c + (self._p[0] - pos(t[0])), pos.k)
+        self._vel = self._pos.derivative(1)
+        self._acc = self._pos.derivative(2)
+        self._rot = RotationSpline(t, Rotation.from_matrix(self._R))
+        self._tilt = None if self._tilt_samples is None else make_interp_spline(t, self._tilt_samples, k=3)
+        self._acc_pp = None  # acceleration as PPoly (breakpoints, coefficients), built on first use
+        self.t_start = float(t[0])
+        self.t_end = float(t[-1])
+        self.name = name
+
+    @property
+    def duration(self) -> float:
+        return self.t_end - self.t_start
+
+    @property
+    def has_tilt(self) -> bool:
+        """Whether the drive carries suspension tilt (generated drives do, logged ones do not)."""
+        return self._tilt is not None
+
+    def times(self, rate_hz: float) -> np.ndarray:
+        """A uniform grid at ``rate_hz`` that starts at ``t_start`` and stays within the drive."""
+        n = int(np.floor(self.duration * rate_hz + 1e-9)) + 1
+        return self.t_start + np.arange(n) / rate_hz
+
+    def rotation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Orientation of V at ``t`` (clipped to the drive), its body rate and angular acceleration: the cubic
+        rotation-vector spline of ``RotationSpline`` (R = R_k·Exp(φ(t)) on segment k), evaluated
+        in one compiled loop (:func:`excite.core.kernels.rotation_samples`) rather than through scipy's
+        rotation objects."""
+        from ..core import kernels
+
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
+        rot = self._rot.interpolator
+        return kernels.rotation_samples(t, _segments(rot.x, t), rot.x, rot.c, self._R)
+
+    def sample(self, t: np.ndarray) -> MotionSamples:
+        """The motion at times ``t`` (clipped to the drive)."""
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
+        R, omega, alpha = self.rotation(t)
+        p, v, R_V_A = self.translation(t)
+        return MotionSamples(t=t, R_W_V=R, p_W_V=p, v_W=v, a_W=self._acc(t), omega_V=omega, alpha_V=alpha,
+                             R_V_A=R_V_A)
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """World velocity of V at ``t`` (clipped to the drive)."""
+        return self._vel(np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end))
+
+    def translation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position ``p_W_V`` and world velocity of V and the suspension tilt ``R_V_A`` at ``t``
+        (clipped to the drive): :meth:`sample` without the rotation and the acceleration."""
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
+        if self._tilt is None:
+            R_V_A = np.broadcast_to(np.eye(3), (t.size, 3, 3)).copy()
+        else:
+            pr = self._tilt(t)  # R_V_A = (R_y(pitch) R_x(roll))ᵀ, written out
+            cp, sp, cr, sr = np.cos(pr[:, 0]), np.sin(pr[:, 0]), np.cos(pr[:, 1]), np.sin(pr[:, 1])
+            R_V_A = np.zeros((t.size, 3, 3))
+            R_V_A[:, 0, 0], R_V_A[:, 0, 2] = cp, -sp
+            R_V_A[:, 1, 0], R_V_A[:, 1, 1], R_V_A[:, 1, 2] = sp * sr, cr, cp * sr
+            R_V_A[:, 2, 0], R_V_A[:, 2, 1], R_V_A[:, 2, 2] = sp * cr, -sr, cp * cr
+        return self._pos(t), self._vel(t), R_V_A
+
+    def imu(self, t: np.ndarray, R_V_B: np.ndarray, p_V_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What a perfect IMU at pose ``(R_V_B, p_V_B)`` in V sees at ``t``: its orientation
+        ``R_W_B``, body rate ``ω_B`` and specific force ``f_B = R_W_Bᵀ(a_B − g)`` with the lever-arm
+        acceleration ``α × p + ω × (ω × p)``. The same splines as :meth:`sample`, evaluated in one
+        compiled loop (:func:`excite.core.kernels.imu_samples`): this runs at the IMU rate."""
+        from ..core import kernels
+
+        t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
+        rot = self._rot.interpolator
+        if self._acc_pp is None:
+            parts = [PPoly.from_spline(BSpline(self._acc.t, self._acc.c[:, j], self._acc.k)) for j in range(3)]
+            self._acc_pp = (parts[0].x, np.stack([pp.c for pp in parts], axis=-1))
+        x_acc, c_acc = self._acc_pp
+        return kernels.imu_samples(t, _segments(rot.x, t), rot.x, rot.c, self._R, _segments(x_acc, t), x_acc, c_acc,
+                                   GRAVITY,
+                                   np.ascontiguousarray(R_V_B, dtype=float), np.asarray(p_V_B, dtype=float))
+
+    def transformed(self, R: np.ndarray, p: np.ndarray, name: str | None = None) -> "Trajectory":
+        """The same drive moved rigidly in the world: ``x ↦ R x + p``.
+
+        Only rotations about the vertical keep gravity where it was; the information model is
+        invariant under exactly those and under translations.
+        """
+        R = np.asarray(R, dtype=float)
+        v = None if self._v is None else self._v @ R.T
+        return Trajectory(self._t, R @ self._R, self._p @ R.T + np.asarray(p, dtype=float),
+                          tilt_pitch_roll=self._tilt_samples, velocity=v, name=name or self.name)
+
+    def shifted(self, dt_s: float) -> "Trajectory":
+        """The same drive with every time stamp moved by ``dt_s``."""
+        return Trajectory(self._t + dt_s, self._R, self._p, tilt_pitch_roll=self._tilt_samples,
+                          velocity=self._v, name=self.name)
+
+    def cropped(self, t_start: float, t_end: float, name: str | None = None) -> "Trajectory":
+        """The same motion restricted to ``[t_start, t_end]`` (within the drive): the same splines,
+        so every sample inside the window is the whole drive's, bit for bit."""
+        if not self.t_start <= t_start < t_end <= self.t_end:
+            raise RouteError(f"window {t_start:.6g} … {t_end:.6g} s is not inside the drive "
+                             f"({self.t_start:.6g} … {self.t_end:.6g} s)")
+        out = copy.copy(self)
+        out.t_start, out.t_end = float(t_start), float(t_end)
+        out.name = name or self.name
+        return out
+
+    def length_m(self, rate_hz: float = 20.0) -> float:
+        """Path length of the rear axle [m]."""
+        s = self.sample(self.times(rate_hz))
+        return float(np.trapezoid(np.linalg.norm(s.v_W, axis=1), s.t))
+
+
+def _segments(breaks: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Index of the piecewise-polynomial segment (between ``breaks``) that holds every time
+    (compiled: :func:`excite.core.kernels.segments`)."""
+    from ..core import kernels
+
+    return kernels.segments(np.ascontiguousarray(breaks, dtype=float), np.ascontiguousarray(t, dtype=float))

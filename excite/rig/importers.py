@@ -1,0 +1,243 @@
+"""Rigs from the calibration files users already have.
+
+- **TF tree** of a bag's ``/tf_static`` (:func:`rig_from_tf`): the IMU frame is the body frame B,
+  ``T_V_B`` is the IMU in the base frame (V) and each sensor's ``T_B_S`` is its frame in the IMU
+  frame, both composed over every hop of the tree.
+- **Kalibr** (:func:`rig_from_kalibr`): a camchain (``camN.T_cam_imu``, the 4×4 transform of
+  IMU-frame points into the camera frame, so ``T_B_S = T_cam_imu⁻¹``; ``timeshift_cam_imu`` with
+  ``t_imu = t_cam + shift``) and the ``imu.yaml`` (noise densities, ``update_rate``) loaded as is.
+- **Autoware** (:func:`rig_from_autoware`): ``sensor_kit_calibration.yaml`` (and optionally
+  ``sensors_calibration.yaml``), ``parent: {child: {x, y, z, roll, pitch, yaw}}`` in metres and
+  radians, ``R = Rz(yaw)·Ry(pitch)·Rx(roll)``, composed as a tree like TF.
+
+What the files do not say (IMU noise where no ``imu.yaml`` is given, sensor rates and noise,
+accuracy targets, the base frame of a Kalibr rig) is filled with defaults that
+:func:`rig_yaml` marks ``# DEFAULT: review`` in the written YAML. Every rig is validated by
+:func:`excite.rig.config.build_rig` before it is returned.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from ..io import bags
+from ..errors import BagError, RigError
+from .config import _read_yaml, build_rig
+
+__all__ = ["ImportedRig", "rig_from_tf", "rig_from_kalibr", "rig_from_autoware", "rig_yaml",
+           "DEFAULT_IMU", "DEFAULT_TARGETS"]
+
+# A consumer MEMS IMU (datasheet class of a BMI088 / ICM-42688), Kalibr keys and units.
+DEFAULT_IMU = {"accelerometer_noise_density": 2.0e-3, "accelerometer_random_walk": 3.0e-4,
+               "gyroscope_noise_density": 1.7e-4, "gyroscope_random_walk": 2.0e-5,
+               "update_rate": 200.0}
+DEFAULT_SENSOR = {"lidar": {"rate_hz": 10.0, "noise": {"rotation_sigma_deg": 0.1, "translation_sigma_m": 0.01}},
+                  "camera": {"rate_hz": 10.0, "noise": {"rotation_sigma_deg": 0.1, "translation_sigma_m": 0.01}}}
+DEFAULT_TARGETS = {"*.rot_*": "0.1 deg", "*.trans_*": "1 cm", "*.time_offset": "2 ms",
+                   "imu.gyro_bias_*": "0.01 deg/s", "imu.accel_bias_*": "0.02 m/s^2"}
+_NAME = re.compile(r"[^a-z0-9_]+")
+
+
+@dataclass
+class ImportedRig:
+    """A rig config (plain data, ready for YAML) and the keys filled with defaults."""
+
+    config: dict[str, Any]
+    defaults: set[str] = field(default_factory=set)  # dotted keys, e.g. "imu", "sensors.0.noise"
+    notes: list[str] = field(default_factory=list)  # header comments (sources, what was read)
+
+
+def _pose(R: np.ndarray, p: np.ndarray) -> dict[str, Any]:
+    """A rig Pose: translation and the rotation matrix (exact; rpy would round)."""
+    return {"translation_m": [float(x) for x in np.round(p, 9)],
+            "matrix": [[float(x) for x in row] for row in np.round(R, 12)]}
+
+
+def _sensor_name(kind: str, i: int, n: int) -> str:
+    return kind if n == 1 else f"{kind}_{i + 1}"
+
+
+def _finish(cfg: dict[str, Any], defaults: set[str], notes: list[str]) -> ImportedRig:
+    try:
+        build_rig(cfg)
+    except RigError as exc:
+        raise RigError(f"the imported rig is not valid: {exc}") from None
+    return ImportedRig(cfg, defaults, notes)
+
+
+def _from_tree(edges: dict[str, Any], source: Path, topic: str, imu: str, base: str,
+               lidars: list[str], cameras: list[str], name: str) -> tuple[dict, set[str]]:
+    R_V_B, p_V_B = bags.static_transform(source, edges, base, imu, topic)
+    sensors, defaults = [], {"imu"}
+    for kind, frames in (("lidar", lidars), ("camera", cameras)):
+        for i, frame in enumerate(frames):
+            R, p = bags.static_transform(source, edges, imu, frame, topic)
+            k = len(sensors)
+            sensors.append({"name": _sensor_name(kind, i, len(frames)), "kind": kind,
+                            "rate_hz": DEFAULT_SENSOR[kind]["rate_hz"], "T_B_S": _pose(R, p),
+                            "noise": dict(DEFAULT_SENSOR[kind]["noise"])})
+            defaults |= {f"sensors.{k}.rate_hz", f"sensors.{k}.noise"}
+    cfg = {"name": name, "imu": dict(DEFAULT_IMU),
+           "vehicle": {"T_V_B": _pose(R_V_B, p_V_B)}, "sensors": sensors, "targets": dict(DEFAULT_TARGETS)}
+    defaults.add("targets")
+    return cfg, defaults
+
+
+def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (), camera: list[str] = (),
+                name: str | None = None) -> ImportedRig:
+    """A rig from a bag's ``/tf_static``: B is the ``imu`` frame, V the ``base`` frame."""
+    path = Path(path)
+    static = bags.read_static_tf(path)
+    edges = {c: bags._Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
+    cfg, defaults = _from_tree(edges, path, bags.TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
+                               name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig")
+    notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
+    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], list(lidar) + list(camera))]
+    return _finish(cfg, defaults, notes)
+
+
+def _matrix(value: Any, key: str) -> np.ndarray:
+    try:
+        T = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise RigError(f"{key}: expected a 4x4 matrix of numbers") from None
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise RigError(f"{key}: expected a 4x4 matrix of finite numbers, got shape {T.shape}")
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-4 or np.linalg.det(R) <= 0:
+        raise RigError(f"{key}: the 3x3 block is not a rotation")
+    return T
+
+
+def rig_from_kalibr(camchain: str | Path, imu_yaml: str | Path, *, name: str | None = None,
+                    camera_rate_hz: float | None = None) -> ImportedRig:
+    """A rig from a Kalibr camchain (``camN.T_cam_imu``, ``timeshift_cam_imu``) and ``imu.yaml``."""
+    camchain, imu_yaml = Path(camchain), Path(imu_yaml)
+    chain = _read_yaml(camchain)
+    if not isinstance(chain, dict) or not any(re.fullmatch(r"cam\d+", str(k)) for k in chain):
+        raise RigError(f"{camchain}: expected a Kalibr camchain with cam0, cam1, ... at the top level")
+    imu = _read_yaml(imu_yaml)
+    if not isinstance(imu, dict):
+        raise RigError(f"{imu_yaml}: expected a Kalibr imu.yaml mapping")
+    imu_cfg = {k: imu[k] for k in DEFAULT_IMU if k in imu}
+    missing = [k for k in DEFAULT_IMU if k not in imu]
+    if missing:
+        raise RigError(f"{imu_yaml}: {missing[0]}: missing (a Kalibr imu.yaml has "
+                       f"{', '.join(DEFAULT_IMU)})")
+    sensors, defaults, notes = [], {"targets", "vehicle.T_V_B"}, [f"from Kalibr {camchain.name} + {imu_yaml.name}"]
+    cams = sorted((k for k in chain if re.fullmatch(r"cam\d+", str(k))), key=lambda k: int(k[3:]))
+    rate = camera_rate_hz or DEFAULT_SENSOR["camera"]["rate_hz"]
+    for i, cam in enumerate(cams):
+        entry = chain[cam]
+        if not isinstance(entry, dict) or "T_cam_imu" not in entry:
+            raise RigError(f"{camchain}: {cam}.T_cam_imu: missing (run Kalibr's camera-IMU calibration)")
+        T = _matrix(entry["T_cam_imu"], f"{camchain}: {cam}.T_cam_imu")
+        R_C_B, p_C_B = T[:3, :3], T[:3, 3]
+        R_B_C = R_C_B.T
+        sensors.append({"name": cam, "kind": "camera", "rate_hz": rate,
+                        "T_B_S": _pose(R_B_C, -R_B_C @ p_C_B), "noise": dict(DEFAULT_SENSOR["camera"]["noise"])})
+        if camera_rate_hz is None:
+            defaults.add(f"sensors.{i}.rate_hz")
+        defaults.add(f"sensors.{i}.noise")
+        shift = entry.get("timeshift_cam_imu")
+        if shift is not None:
+            if not isinstance(shift, (int, float)) or not math.isfinite(shift):
+                raise RigError(f"{camchain}: {cam}.timeshift_cam_imu: expected a number of seconds")
+            notes.append(f"{cam}: nominal time offset {float(shift) * 1e3:.3f} ms (timeshift_cam_imu, "
+                         "t_imu = t_cam + shift); the information model linearises about zero offset")
+        topic = entry.get("rostopic")
+        if topic:
+            notes.append(f"{cam}: {topic}")
+    cfg = {"name": name or "kalibr", "imu": imu_cfg, "vehicle": {"T_V_B": _pose(np.eye(3), np.zeros(3))},
+           "sensors": sensors, "targets": dict(DEFAULT_TARGETS)}
+    return _finish(cfg, defaults, notes)
+
+
+_AUTOWARE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
+    data = _read_yaml(path)
+    if not isinstance(data, dict) or not data:
+        raise RigError(f"{path}: expected 'parent: {{child: {{x, y, z, roll, pitch, yaw}}}}'")
+    for parent, children in data.items():
+        if not isinstance(children, dict):
+            raise RigError(f"{path}: {parent}: expected a mapping of child frames")
+        for child, pose in children.items():
+            key = f"{parent}.{child}"
+            if not isinstance(pose, dict):
+                raise RigError(f"{path}: {key}: expected {{x, y, z, roll, pitch, yaw}}")
+            missing = [k for k in _AUTOWARE_KEYS if k not in pose]
+            if missing:
+                raise RigError(f"{path}: {key}.{missing[0]}: missing")
+            vals = []
+            for k in _AUTOWARE_KEYS:
+                v = pose[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise RigError(f"{path}: {key}.{k}: expected a finite number, got {v!r}")
+                vals.append(float(v))
+            q = Rotation.from_euler("ZYX", vals[5:2:-1]).as_quat()  # yaw, pitch, roll
+            edges[child] = bags._Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
+
+
+def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: list[str] = (),
+                      camera: list[str] = (), sensors_calibration: str | Path | None = None,
+                      name: str | None = None) -> ImportedRig:
+    """A rig from Autoware's ``sensor_kit_calibration.yaml`` (plus ``sensors_calibration.yaml``
+    that places the sensor kit on ``base_link``, when the base frame is outside the kit)."""
+    sensor_kit = Path(sensor_kit)
+    edges: dict[str, Any] = {}
+    files = [sensor_kit] + ([Path(sensors_calibration)] if sensors_calibration else [])
+    for f in files:
+        _autoware_edges(f, edges)
+    try:
+        cfg, defaults = _from_tree(edges, sensor_kit, "calibration", imu, base, list(lidar),
+                                   list(camera), name or "autoware")
+    except BagError as exc:
+        problem = exc.problem.removeprefix(f"topic {exc.topic}: ") if exc.topic else exc.problem
+        raise RigError(f"{sensor_kit}: {problem.replace('on /tf or /tf_static', 'in the calibration files')}") from None
+    notes = [f"from Autoware {', '.join(f.name for f in files)}: B = {imu}, V = {base}"]
+    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], list(lidar) + list(camera))]
+    return _finish(cfg, defaults, notes)
+
+
+def _flow(value: Any) -> str:
+    text = yaml.safe_dump(value, default_flow_style=True, width=10_000).strip()
+    return text[:-3].rstrip() if text.endswith("\n...") else text  # a scalar's document end
+
+
+def rig_yaml(rig: ImportedRig) -> str:
+    """The rig as YAML, each defaulted key marked ``# DEFAULT: review``."""
+    cfg, d = rig.config, rig.defaults
+    mark = "   # DEFAULT: review"
+
+    def tag(key: str) -> str:
+        return mark if key in d else ""
+
+    def pose(indent: str, p: dict[str, Any]) -> list[str]:
+        return [f"{indent}translation_m: {_flow(p['translation_m'])}", f"{indent}matrix: {_flow(p['matrix'])}"]
+
+    out = [f"# {n}" for n in rig.notes]
+    out.append("# Keys marked 'DEFAULT: review' are not in the source files: check them before "
+               "trusting a score.")
+    out.append(f"name: {_flow(cfg['name'])}")
+    out.append(f"imu:{tag('imu')}")
+    out += [f"  {k}: {_flow(v)}" for k, v in cfg["imu"].items()]
+    out += ["vehicle:", f"  T_V_B:{tag('vehicle.T_V_B')}", *pose("    ", cfg["vehicle"]["T_V_B"])]
+    out.append("sensors:" if cfg["sensors"] else "sensors: []")
+    for i, s in enumerate(cfg["sensors"]):
+        out += [f"  - name: {s['name']}", f"    kind: {s['kind']}",
+                f"    rate_hz: {_flow(s['rate_hz'])}{tag(f'sensors.{i}.rate_hz')}",
+                "    T_B_S:", *pose("      ", s["T_B_S"]),
+                f"    noise: {_flow(s['noise'])}{tag(f'sensors.{i}.noise')}"]
+    out.append(f"targets:{tag('targets')}")
+    out += [f"  {_flow(k)}: {_flow(v)}" for k, v in cfg["targets"].items()]
+    return "\n".join(out) + "\n"
