@@ -13,7 +13,8 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize
 
-from .solver import FEASIBLE_TOL, Transcription, model_value, violation
+from .solver import FEASIBLE_TOL, model_value
+from .transcription import Transcription, violation
 from ..errors import OutOfTime
 
 

@@ -182,9 +182,10 @@ def cobyla(rig: Rig, settings, site, z0: np.ndarray, budget_s: float) -> dict[st
     """The derivative-free baseline from ``z0`` for ``budget_s`` (its own transcription)."""
     from . import baselines
     from .kinematics import profile_from_z
-    from .solver import transcribe
+    from .problem import Problem
+    from .transcription import transcribe
 
-    tr = transcribe(rig, settings, site)
+    tr = transcribe(Problem.of(rig, settings, site))
     z, value, n = baselines.cobyla(tr, z0, budget_s, settings.criterion)
     if z is None:
         return {"profile": None, "model": None, "evaluations": n}

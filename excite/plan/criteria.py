@@ -70,3 +70,35 @@ def rotation_excitation(omega_B: np.ndarray) -> np.ndarray:
     # [ω]ₓᵀ[ω]ₓ = |ω|² I − ω ωᵀ
     A = np.sum(np.einsum("ni,ni->n", w, w)) * np.eye(3) - w.T @ w
     return np.linalg.eigvalsh(A / max(len(w), 1))
+
+
+def smooth_curvature(w: np.ndarray, criterion: str, mu: float, beta: float) -> tuple[np.ndarray, np.ndarray]:
+    """First and second derivatives of :func:`smooth` with respect to the eigenvalues:
+    ``(∂f/∂λ (p,), ∂²f/∂λ∂λ (p, p))``."""
+    if criterion == "E":
+        x = -beta * w / mu
+        e = np.exp(x - x.max())
+        pi = e / e.sum()
+        return -pi / mu, (beta / mu**2) * (np.diag(pi) - np.outer(pi, pi))
+    if criterion == "D":
+        return -1.0 / w, np.diag(1.0 / w**2)
+    if criterion == "A":
+        return -mu / w**2, np.diag(2.0 * mu / w**3)
+    raise ValueError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+
+
+def spectral_hessian(w: np.ndarray, V: np.ndarray, d1: np.ndarray, d2: np.ndarray,
+                     dM: np.ndarray) -> np.ndarray:
+    """The Hessian ``H[k, l] = d²F[dM_k, dM_l]`` of a spectral function F(M) = φ(λ(M)) along the
+    symmetric directions ``dM`` (n, p, p), from the eigen-decomposition ``M = V diag(w) Vᵀ`` and
+    φ's derivatives ``d1``, ``d2`` (:func:`smooth_curvature`): with ``E = Vᵀ dM V``,
+    ``Σᵢⱼ φᵢⱼ E_ii E_jj + Σ_{i≠j} (φᵢ − φⱼ)/(λᵢ − λⱼ) E_ij²`` (Lewis; the divided difference
+    becomes ``φᵢᵢ − φᵢⱼ`` where the eigenvalues coincide)."""
+    E = np.einsum("ai,kab,bj->kij", V, dM, V)
+    diag = np.einsum("kii->ki", E)
+    dw = w[:, None] - w[None, :]
+    close = np.abs(dw) <= 1e-12 * max(np.abs(w).max(), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        G = np.where(close, np.diag(d2)[:, None] - d2, (d1[:, None] - d1[None, :]) / dw)
+    np.fill_diagonal(G, 0.0)
+    return diag @ d2 @ diag.T + np.einsum("kij,ij,lij->kl", E, G, E)

@@ -1,10 +1,13 @@
 """The optimizer's control parametrisation and the vehicle kinematics it implies, in CasADi.
 
-Decision variables (scaled to order one): the speed at knots every ``knot_step_s`` (zero at both
-ends: the maneuver runs from rest to rest), the curvature at every knot, and the start pose
-``(x0, y0, ψ0)``. Speed and curvature are C2 cubic splines through the knots (speed clamped with
-zero acceleration at both ends, curvature natural), so that the acceleration, jerk, curvature and
-curvature rate at any time are *linear* maps of the knots (:class:`Grid` holds them as matrices).
+Decision variables (scaled to order one): the B-spline coefficients of the speed and the
+curvature, and the start pose ``(x0, y0, ψ0)``. Both are cubic B-splines (C2) on uniform knots
+every ``knot_step_s`` with clamped ends; the speed's first two and last two coefficients are zero
+(the maneuver runs from rest to rest with zero acceleration at both ends). The speed, the
+curvature and every derivative of them at any time are *linear* maps of the coefficients with at
+most four nonzeros per row (:class:`Grid` holds them as sparse matrices), and the B-spline's
+convex-hull property bounds a derivative everywhere by the coefficients of its own spline
+(:meth:`Grid.hull`): the optimizer bounds a handful of coefficients instead of every sample.
 Heading and position are integrated on the sample grid with the end-corrected trapezoid rule
 (Euler–Maclaurin: the derivatives of the integrands are known in closed form), fourth order.
 
@@ -22,20 +25,25 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import BSpline
+from scipy import sparse
 
 from ..motion.trajectory import GRAVITY
 from ..motion.vehicle import ControlProfile, Limits, Suspension
 from .terrain import Terrain
 
+DEGREE = 3
+
 
 @dataclass(frozen=True)
 class Grid:
-    """Knots, samples and the linear maps from knot values to spline values and derivatives.
+    """Knots, samples and the linear maps from B-spline coefficients to values and derivatives.
 
     Samples: ``n_keyframes`` keyframes at ``keyframe_rate_hz`` with ``imu_substeps`` IMU samples
-    per keyframe interval. ``U[d]`` (n_samples × (M−1)) maps the interior speed knots to the d-th
-    derivative of speed at the samples, ``C[d]`` (n_samples × (M+1)) the curvature knots.
+    per keyframe interval. ``U[d]`` (n_samples × n_speed) maps the free speed coefficients to the
+    d-th derivative of speed at the samples, ``C[d]`` (n_samples × n_curv) the curvature
+    coefficients (scipy sparse, CSR). The third derivative jumps at knots: the right-hand value
+    is taken (the left one at the end).
     """
 
     duration_s: float
@@ -44,8 +52,9 @@ class Grid:
     imu_substeps: int
     t_knots: np.ndarray
     t: np.ndarray
-    U: tuple[np.ndarray, ...]
-    C: tuple[np.ndarray, ...]
+    knots: np.ndarray  # the B-spline knot vector (clamped: the ends repeated DEGREE + 1 times)
+    U: tuple[sparse.csr_matrix, ...]
+    C: tuple[sparse.csr_matrix, ...]
 
     @classmethod
     def make(cls, duration_s: float, knot_step_s: float = 1.5, keyframe_rate_hz: float = 2.0,
@@ -54,15 +63,20 @@ class Grid:
         t_knots = np.linspace(0.0, duration_s, M + 1)
         n_int = int(np.floor(duration_s * keyframe_rate_hz + 1e-9))
         t = np.arange(n_int * imu_substeps + 1) / (keyframe_rate_hz * imu_substeps)
-        U = _basis(t_knots, t, ((1, 0.0), (1, 0.0)))
-        U = tuple(B[:, 1:-1] for B in U)  # speed is zero at both ends
-        C = _basis(t_knots, t, "natural")
+        knots = np.r_[[0.0] * DEGREE, t_knots, [float(duration_s)] * DEGREE]
+        C = _basis(knots, t)
+        U = tuple(B @ _speed_embedding(knots.size - DEGREE - 1) for B in C)
         return cls(float(duration_s), float(t_knots[1] - t_knots[0]), float(keyframe_rate_hz),
-                   int(imu_substeps), t_knots, t, U, C)
+                   int(imu_substeps), t_knots, t, knots, tuple(sparse.csr_matrix(B) for B in U), C)
 
     @property
     def n_knots(self) -> int:
         return self.t_knots.size
+
+    @property
+    def n_coefficients(self) -> int:
+        """B-spline coefficients of one control (the curvature's are all free)."""
+        return self.knots.size - DEGREE - 1
 
     @property
     def n_samples(self) -> int:
@@ -76,18 +90,73 @@ class Grid:
     def dt(self) -> float:
         return float(self.t[1] - self.t[0])
 
+    def spline(self, coefficients: np.ndarray) -> BSpline:
+        """The B-spline with these (all) coefficients."""
+        return BSpline(self.knots, np.asarray(coefficients, dtype=float), DEGREE, extrapolate=False)
 
-def _basis(t_knots: np.ndarray, t: np.ndarray, bc) -> tuple[np.ndarray, ...]:
-    """Derivatives 0..3 at ``t`` of the cubic splines through each unit vector of knot values."""
-    n = t_knots.size
-    if not isinstance(bc, str):
-        bc = tuple((order, np.zeros(n)) for order, _ in bc)
-    sp = CubicSpline(t_knots, np.eye(n), bc_type=bc)
-    # the third derivative jumps at knots: take the right-hand value (left at the end)
-    out = [sp(t, d) for d in range(3)]
-    t3 = np.minimum(t + 1e-9, t_knots[-1] - 1e-9)
-    out.append(sp(t3, 3))
-    return tuple(np.asarray(o) for o in out)
+    def hull(self, derivative: int, refine: int = 2) -> np.ndarray:
+        """The coefficients of the ``derivative``-th derivative spline of a control, as a matrix
+        of its (all) coefficients, after inserting ``refine − 1`` knots in every knot interval.
+
+        Every value of the derivative lies within the range of these coefficients (the
+        B-spline convex-hull property); the refinement tightens that bound towards the curve's
+        own extremes. A piecewise-linear derivative (the second, for cubic controls) needs no
+        refinement: its coefficients are its values at the knots, the bound is exact.
+        """
+        n = self.n_coefficients
+        k = DEGREE - derivative
+        D = np.eye(n)
+        t = self.knots
+        for d in range(derivative):  # the derivative of a B-spline is a B-spline of one degree less
+            p = DEGREE - d
+            dt = t[p + 1:p + 1 + D.shape[0] - 1] - t[1:D.shape[0]]
+            D = p * (D[1:] - D[:-1]) / dt[:, None]
+            t = t[1:-1]
+        if k <= 1 or refine <= 1:
+            return D
+        inner = np.unique(t[k:-k])
+        extra = np.concatenate([np.linspace(a, b, refine + 1)[1:-1] for a, b in zip(inner[:-1], inner[1:])])
+        t2 = np.sort(np.r_[t, extra])
+        n2 = t2.size - k - 1
+        # the refined spline represents the same function: its coefficients follow from
+        # collocation at the refined Greville abscissae (Schoenberg–Whitney holds there)
+        g = np.array([t2[i + 1:i + k + 1].mean() for i in range(n2)])
+        B2 = BSpline.design_matrix(g, t2, k).toarray()
+        B1 = BSpline.design_matrix(g, t, k).toarray()
+        T = np.linalg.solve(B2, B1)
+        T[np.abs(T) < 1e-12] = 0.0
+        return T @ D
+
+
+def _speed_embedding(n: int) -> np.ndarray:
+    """The speed's coefficients from its free ones: the first and last two are zero (rest with
+    zero acceleration at both ends)."""
+    E = np.zeros((n, n - 4))
+    E[2:n - 2] = np.eye(n - 4)
+    return E
+
+
+def _basis(knots: np.ndarray, t: np.ndarray) -> tuple[sparse.csr_matrix, ...]:
+    """Derivatives 0..3 at ``t`` of every cubic B-spline basis function (sparse, CSR)."""
+    n = knots.size - DEGREE - 1
+    sp = BSpline(knots, np.eye(n), DEGREE)
+    end = knots[-1]
+    out = []
+    for d in range(DEGREE + 1):
+        # the third derivative jumps at knots: take the right-hand value (left at the end)
+        td = np.minimum(t + 1e-9, end - 1e-9) if d == DEGREE else t
+        B = np.asarray(sp(td, d))
+        B[np.abs(B) < 1e-13] = 0.0
+        out.append(sparse.csr_matrix(B))
+    return tuple(out)
+
+
+def sparse_dm(A) -> ca.DM:
+    """A scipy sparse (or dense) matrix as a sparse CasADi DM."""
+    A = sparse.csc_matrix(A)
+    A.eliminate_zeros()
+    sp = ca.Sparsity(A.shape[0], A.shape[1], A.indptr.tolist(), A.indices.tolist())
+    return ca.DM(sp, A.data.tolist())
 
 
 @dataclass(frozen=True)
@@ -128,7 +197,12 @@ class Layout:
 
 
 def layout(grid: Grid) -> Layout:
-    return Layout(grid.n_knots - 2, grid.n_knots)
+    return Layout(grid.n_coefficients - 4, grid.n_coefficients)
+
+
+def speed_coefficients(grid: Grid, sc: Scales, z):
+    """All the speed's B-spline coefficients [m/s] of ``z`` (numpy)."""
+    return _speed_embedding(grid.n_coefficients) @ (np.asarray(z, dtype=float)[layout(grid).speed] * sc.speed_mps)
 
 
 def controls(grid: Grid, sc: Scales, z):
@@ -137,8 +211,8 @@ def controls(grid: Grid, sc: Scales, z):
     lay = layout(grid)
     zu = z[lay.speed] * sc.speed_mps
     zk = z[lay.curv] * sc.curvature_1pm
-    u = [ca.mtimes(ca.DM(B), zu) for B in grid.U]
-    k = [ca.mtimes(ca.DM(B), zk) for B in grid.C]
+    u = [ca.mtimes(sparse_dm(B), zu) for B in grid.U]
+    k = [ca.mtimes(sparse_dm(B), zk) for B in grid.C]
     pose = z[lay.pose]
     x0, y0, psi0 = pose[0] * sc.position_m, pose[1] * sc.position_m, pose[2]
     return u, k, (x0, y0, psi0)
@@ -283,11 +357,9 @@ def profile_from_z(grid: Grid, sc: Scales, z: np.ndarray, rate_hz: float = 20.0,
     grade and bank under the path (as :func:`terrain_path` integrates it)."""
     lay = layout(grid)
     z = np.asarray(z, dtype=float).ravel()
-    uk = np.concatenate([[0.0], z[lay.speed] * sc.speed_mps, [0.0]])
-    kk = z[lay.curv] * sc.curvature_1pm
     t = np.linspace(0.0, grid.duration_s, int(round(grid.duration_s * rate_hz)) + 1)
-    u = np.maximum(CubicSpline(grid.t_knots, uk, bc_type=((1, 0.0), (1, 0.0)))(t), 0.0)
-    k = CubicSpline(grid.t_knots, kk, bc_type="natural")(t)
+    u = np.maximum(grid.spline(speed_coefficients(grid, sc, z))(t), 0.0)
+    k = grid.spline(z[lay.curv] * sc.curvature_1pm)(t)
     x0, y0, psi0 = z[lay.pose] * np.array([sc.position_m, sc.position_m, 1.0])
     g = b = None
     if terrain:
@@ -302,15 +374,18 @@ def profile_from_z(grid: Grid, sc: Scales, z: np.ndarray, rate_hz: float = 20.0,
                           start=(float(x0), float(y0), float(psi0)), name=name)
 
 
-def z_from_profile(grid: Grid, sc: Scales, profile: ControlProfile) -> np.ndarray:
-    """The decision vector that best reproduces a control profile (knot values sampled from it;
-    the profile is shifted to start at t = 0 and clipped to the grid's duration)."""
+def z_from_profile(grid: Grid, sc: Scales, profile: ControlProfile, rate_hz: float = 20.0) -> np.ndarray:
+    """The decision vector whose splines fit a control profile best (least squares on its
+    values at ``rate_hz``: a profile written by :func:`profile_from_z` comes back exactly). The
+    profile is shifted to start at t = 0 and clipped to the grid's duration."""
     lay = layout(grid)
-    tk = profile.t_s[0] + np.minimum(grid.t_knots, profile.duration_s)
-    c = profile.at(tk)
+    t = np.linspace(0.0, grid.duration_s, int(round(grid.duration_s * rate_hz)) + 1)
+    c = profile.at(profile.t_s[0] + np.minimum(t, profile.duration_s))
+    B = BSpline.design_matrix(np.minimum(t, grid.duration_s), grid.knots, DEGREE).toarray()
+    E = _speed_embedding(grid.n_coefficients)
     z = np.zeros(lay.size)
-    z[lay.speed] = c["speed_mps"][1:-1] / sc.speed_mps
-    z[lay.curv] = c["curvature_1pm"] / sc.curvature_1pm
+    z[lay.speed] = np.linalg.lstsq(B @ E, c["speed_mps"], rcond=None)[0] / sc.speed_mps
+    z[lay.curv] = np.linalg.lstsq(B, c["curvature_1pm"], rcond=None)[0] / sc.curvature_1pm
     x0, y0, psi0 = profile.start
     z[lay.pose] = [x0 / sc.position_m, y0 / sc.position_m, psi0]
     return z

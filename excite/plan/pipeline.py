@@ -39,7 +39,9 @@ from .candidates import Candidate, as_written, check
 from .kinematics import layout, profile_from_z, z_from_profile
 from ..errors import OptimizeError
 from .settings import OptimizeResult, OptimizeSettings, Progress
-from .solver import model_value, restore, solve, transcribe, violation
+from .solver import model_value, restore, solve
+from .problem import Problem
+from .transcription import transcribe, violation
 
 NEAR_FEASIBLE = 1.0  # largest violation of the optimizer's constraints of a start used as it is
 START_RANDOM = 10  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
@@ -149,7 +151,7 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
 
 def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remaining, stop) -> OptimizeResult:
     budget = settings.time_budget_s
-    tr = transcribe(rig, settings, site)
+    tr = transcribe(Problem.of(rig, settings, site))
     lay = layout(tr.grid)
 
     # --- start: the reference maneuvers and the first random candidates, by the model

@@ -1,136 +1,82 @@
-"""The NLP: maximise a criterion of the coarse information model over feasible control splines.
+"""The solver: IPOPT on a :class:`~.transcription.Transcription`.
 
-Statement (:class:`Transcription`): decision vector z (:mod:`.kinematics`), constraints at the
-sample points (speed, acceleration, deceleration, jerk, lateral acceleration, curvature,
-curvature rate, the lot's smooth clearance, bump speed caps, optionally the end pose equal to
-the start pose; the start pose fixed at the lot's entry when it has one) and the objective.
-Solution (:func:`solve`): IPOPT with exact first derivatives (CasADi) and limited-memory Hessian
-approximation, minimising a smooth spectral function of S Λ S (:func:`.criteria.smooth`: for
-the score, the soft minimum ``−(μ/β) log Σ exp(−β λ_i/μ)``, within μ·log(p)/β of λ_min; β = 20,
-μ = the start's λ_min) whose gradient is one reverse sweep of the model seeded with
-``V diag(∂f/∂λ) Vᵀ``. Every iterate that satisfies the constraints is kept (an IPOPT iteration
-callback), so that the pipeline can check them independently, best first.
+IPOPT minimises a smooth spectral function of S Λ S (:func:`.criteria.smooth`: for the score,
+the soft minimum ``−(μ/β) log Σ exp(−β λ_i/μ)``, within μ·log(p)/β of λ_min; μ = the start's
+λ_min) whose gradient is one reverse sweep of the model seeded with ``V diag(∂f/∂λ) Vᵀ``
+(:class:`_Objective`). The Hessian of the Lagrangian is either IPOPT's limited-memory
+approximation (the default) or exact (:class:`SolverOptions` ``hessian="exact"``: the spectral
+function's curvature through ∂M/∂z plus ⟨∂f/∂M, ∂²M/∂z²⟩ by forward-over-reverse AD, and the
+constraints' exact Hessians); ``benchmarks/bench_ipopt.py`` measures both.
+
+Every iterate that keeps within the limits is kept (an IPOPT iteration callback), so that the
+pipeline can check them independently, best first. IPOPT can be warm-started from a previous
+outcome (its multipliers, :attr:`Outcome.lam_x` / :attr:`Outcome.lam_g`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Any, Callable
+from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import casadi as ca
 import numpy as np
 
-from ..rig.config import Rig
-from ..motion.vehicle import Limits
-from .kinematics import Grid, Scales, body_samples, layout, path
 from . import criteria
-from .model import build_model, coarse_rig
+from .transcription import Transcription, violation
 
-LIMIT_MARGIN = 0.95  # fraction of every limit the optimizer may use (sampling, PCHIP playback)
-JERK_MARGIN = 0.8  # drive() plays speed back shape-preservingly (PCHIP), which adds up to ~20 % jerk
-CONSTRAINT_EVERY = 2  # nonlinear constraints (the lot) at every 2nd IMU sample of the model (4 Hz)
-
-
-LOT_BUFFER_M = 0.25  # the optimizer keeps this much more than the margin (path between samples)
-CLOSURE_TOL_M, CLOSURE_TOL_RAD = 0.5, 0.02  # a closed maneuver's end pose, for the check's candidates
+FEASIBLE_TOL = 1e-5
+SOFTMIN_BETA = 20.0  # sharpness of the soft minimum, in units of the start's λ_min
 
 
-@dataclass
-class Transcription:
-    """The optimal-control problem on a grid and its CasADi functions."""
+@dataclass(frozen=True)
+class SolverOptions:
+    """IPOPT's options for the maneuver NLP (``benchmarks/bench_ipopt.py`` measures them).
 
-    grid: Grid
-    scales: Scales
-    limits: Limits
-    site: Any
-    closed: bool
-    M: ca.Function  # z → S Λ S (coarse model)
-    kin: ca.Function  # z → (u, a, j, κ, κ', x, y, ψ) at the samples
-    g_kin: ca.Function
-    lbg_kin: np.ndarray
-    ubg_kin: np.ndarray
-    lbg_ok: np.ndarray  # the limits themselves (the optimizer's bounds are inside them)
-    ubg_ok: np.ndarray
-    lbz: np.ndarray
-    ubz: np.ndarray
-    n_params: int
+    ``hessian``: ``limited-memory`` (L-BFGS, ``history`` pairs) or ``exact``.
+    ``tol``: IPOPT's convergence tolerance on its scaled optimality error; ``acceptable_tol``
+    with ``acceptable_iter`` consecutive iterations also counts as converged.
+    ``mu_init``: a small, monotone barrier — IPOPT's adaptive default starts at μ = 0.1, where the
+    barrier of the constraint rows outweighs the objective and IPOPT first drives to the middle
+    of the feasible set (the weakest excitation).
+    """
 
-    @property
-    def n_z(self) -> int:
-        return self.lbz.size
+    hessian: str = "limited-memory"
+    history: int = 20
+    tol: float = 1e-7
+    acceptable_tol: float = 1e-6
+    acceptable_iter: int = 15
+    mu_init: float = 1e-3
+    softmin_beta: float = SOFTMIN_BETA
+    extra: dict = field(default_factory=dict)  # further IPOPT options, e.g. {"print_level": 5}
+
+    def __post_init__(self) -> None:
+        if self.hessian not in ("limited-memory", "exact"):
+            raise ValueError(f"hessian must be limited-memory or exact, got {self.hessian!r}")
+
+    def ipopt(self) -> dict[str, object]:
+        out: dict[str, object] = {
+            "ipopt.hessian_approximation": self.hessian, "ipopt.print_level": 0, "ipopt.sb": "yes",
+            "ipopt.tol": self.tol, "ipopt.acceptable_tol": self.acceptable_tol,
+            "ipopt.acceptable_iter": self.acceptable_iter,
+            "ipopt.mu_strategy": "monotone", "ipopt.mu_init": self.mu_init,
+        }
+        if self.hessian == "limited-memory":
+            out["ipopt.limited_memory_max_history"] = self.history
+        out.update({f"ipopt.{k}": v for k, v in self.extra.items()})
+        return out
 
 
-def transcribe(rig: Rig, settings, site, knot_step_s: float = 1.5, keyframe_rate_hz: float = 2.0,
-               imu_substeps: int = 4) -> Transcription:
-    """State the problem of ``settings`` on ``site`` for ``rig`` (the model runs on
-    :func:`coarse_rig` of it)."""
-    limits = settings.limits
-    grid = Grid.make(settings.duration_s, knot_step_s, keyframe_rate_hz, imu_substeps)
-    crig = coarse_rig(rig, keyframe_rate_hz, imu_substeps)
-    lo = site.lot.polygon_m.min(axis=0)
-    hi = site.lot.polygon_m.max(axis=0)
-    sc = Scales.of(limits, float(np.abs(np.concatenate([lo, hi])).max()))
-    lay = layout(grid)
-    model = build_model(crig, grid.n_keyframes)
-    z = ca.MX.sym("z", lay.size)
-    pose = crig.config.vehicle.T_V_B
-    M = model.scaled(*body_samples(grid, sc, z, crig.suspension, pose.R, pose.p, site.terrain))
-    M_fun = ca.Function("M", [z], [M])
+DEFAULT = SolverOptions()
 
-    u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
-    e = CONSTRAINT_EVERY
-    m = LIMIT_MARGIN
-    rows, lb, ub, lb_ok, ub_ok = [], [], [], [], []
+# IPOPT's return status → ours. "Stopped" covers the time budget, the iteration cap and
+# cancellation (the iteration callback asked IPOPT to stop).
+CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+INFEASIBLE = ("Infeasible_Problem_Detected",)
+STOPPED = ("User_Requested_Stop", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
+           "Maximum_WallTime_Exceeded", "Stopped_At_Deadline")  # the last: ours, inside an iteration
 
-    def add(expr, lo, hi, lo_ok=None, hi_ok=None):
-        """A constraint row block: the optimizer's bounds [lo, hi] and the wider bounds [lo_ok,
-        hi_ok] within which an iterate is worth the independent check (the limits themselves)."""
-        n = expr.shape[0]
-        rows.append(expr)
-        for out, v in ((lb, lo), (ub, hi), (lb_ok, lo if lo_ok is None else lo_ok), (ub_ok, hi if hi_ok is None else hi_ok)):
-            out.append(np.broadcast_to(v, (n,)))
-
-    def limit(expr, lo, hi, margin=m):
-        add(expr, margin * lo, margin * hi, lo, hi)
-
-    # linear in z (cheap): at every sample, so the spline cannot dip below zero speed between
-    # constraint points (drive() clips negative speed: a jerk spike in the independent check)
-    add(u, 0.0, m * limits.speed_max_mps, 0.0, limits.speed_max_mps)
-    limit(a, -limits.decel_max_mps2, limits.accel_max_mps2)
-    limit(j, -limits.jerk_max_mps3, limits.jerk_max_mps3, JERK_MARGIN)
-    limit(k, -limits.curvature_max_1pm, limits.curvature_max_1pm)
-    limit(kd, -limits.curvature_rate_max_1pms, limits.curvature_rate_max_1pms)
-    # lateral acceleration at every sample: it peaks sharply in fast slaloms
-    limit(u * u * k, -limits.lat_accel_max_mps2, limits.lat_accel_max_mps2)
-    # the lot: smooth signed distance to the nearest edge or keep-out zone
-    clear = site.clearance()
-    add(clear(ca.horzcat(x[::e], y[::e]).T).T, site.margin_m + LOT_BUFFER_M, np.inf, site.margin_m, np.inf)
-    for cap_expr, cap in site.terrain.speed_limits(u, x, y):
-        add(cap_expr, -np.inf, m * cap, -np.inf, cap)
-    lay_pose = z[lay.pose]
-    if closed := settings.closed:
-        add(ca.vertcat(x[-1] - lay_pose[0] * sc.position_m, y[-1] - lay_pose[1] * sc.position_m), 0.0, 0.0,
-            -CLOSURE_TOL_M, CLOSURE_TOL_M)
-        # heading: the winding number is fixed by the start (see solve); compared via sin/cos
-        add(ca.sin(psi[-1] - lay_pose[2]), 0.0, 0.0, -CLOSURE_TOL_RAD, CLOSURE_TOL_RAD)
-        add(ca.cos(psi[-1] - lay_pose[2]), 0.99, 1.0, 0.98, 1.0)
-    g = ca.vertcat(*rows)
-    g_kin = ca.Function("g_kin", [z], [g])
-    kin = ca.Function("kin", [z], [ca.horzcat(u, a, j, k, kd, x, y, psi)])
-
-    lbz = np.full(lay.size, -np.inf)
-    ubz = np.full(lay.size, np.inf)
-    lbz[lay.speed], ubz[lay.speed] = 0.0, m
-    lbz[lay.curv], ubz[lay.curv] = -m, m
-    lbz[lay.pose] = [lo[0] / sc.position_m, lo[1] / sc.position_m, -4 * np.pi]
-    ubz[lay.pose] = [hi[0] / sc.position_m, hi[1] / sc.position_m, 4 * np.pi]
-    if site.entry is not None:
-        ex, ey, eh = site.entry
-        lbz[lay.pose] = ubz[lay.pose] = [ex / sc.position_m, ey / sc.position_m, eh]
-    return Transcription(grid, sc, limits, site, closed, M_fun, kin, g_kin,
-                         np.concatenate(lb), np.concatenate(ub), np.concatenate(lb_ok), np.concatenate(ub_ok),
-                         lbz, ubz, len(crig.scored))
+DEADLINE_GRACE_S = 0.5  # past the deadline, an objective evaluation aborts the IPOPT run
 
 
 class _IterationCallback(ca.Callback):
@@ -169,52 +115,17 @@ class _IterationCallback(ca.Callback):
         return [1 if stop else 0]
 
 
-def violation(tr: Transcription, z: np.ndarray, g: np.ndarray | None = None, within_limits: bool = False) -> float:
-    """Largest violation at z of the optimizer's constraints (or, ``within_limits``, of the
-    limits themselves: the wider bounds) and of the variable bounds."""
-    gv = np.array(tr.g_kin(z)).ravel() if g is None else g
-    lo, hi = (tr.lbg_ok, tr.ubg_ok) if within_limits else (tr.lbg_kin, tr.ubg_kin)
-    v = max(np.maximum(lo - gv, 0.0).max(initial=0.0), np.maximum(gv - hi, 0.0).max(initial=0.0))
-    v = max(v, np.maximum(tr.lbz - z, 0.0).max(initial=0.0), np.maximum(z - tr.ubz, 0.0).max(initial=0.0))
-    return float(v)
-
-
-FEASIBLE_TOL = 1e-5
-SOFTMIN_BETA = 20.0  # sharpness of the soft minimum, in units of the start's λ_min
-
-# IPOPT's options (benchmarks/bench_ipopt.py measures alternatives on the default problem)
-IPOPT_OPTIONS: dict[str, object] = {
-    "ipopt.hessian_approximation": "limited-memory", "ipopt.limited_memory_max_history": 20,
-    "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-7,
-    # a small, monotone barrier: the adaptive default starts at μ = 0.1, where the barrier of the
-    # thousands of constraint rows outweighs the objective and IPOPT first drives to the middle of
-    # the feasible set (the weakest excitation); measured in benchmarks/bench_ipopt.py
-    "ipopt.mu_strategy": "monotone", "ipopt.mu_init": 1e-3,
-}
-
-# IPOPT's return status → ours. "Stopped" covers the time budget, the iteration cap and
-# cancellation (the iteration callback asked IPOPT to stop).
-CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-INFEASIBLE = ("Infeasible_Problem_Detected",)
-STOPPED = ("User_Requested_Stop", "Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
-           "Maximum_WallTime_Exceeded", "Stopped_At_Deadline")  # the last: ours, inside an iteration
-
-
-DEADLINE_GRACE_S = 0.5  # past the deadline, an objective evaluation aborts the IPOPT run
-
-
 class _Objective(ca.Callback):
     """A smooth spectral objective of M(z) (:func:`.criteria.smooth`) and its exact gradient:
-    ``∂f/∂M = V diag(∂f/∂λ) Vᵀ`` pushed through one reverse sweep of the CasADi model. Smooth
-    even where eigenvalues cross (a symmetric function of the spectrum)."""
+    ``∂f/∂M = V diag(∂f/∂λ) Vᵀ`` pushed through one reverse sweep of the model. Smooth even
+    where eigenvalues cross (a symmetric function of the spectrum)."""
 
-    def __init__(self, M: ca.Function, n_z: int, criterion: str, mu: float, deadline: float = np.inf,
+    def __init__(self, info, n_z: int, criterion: str, mu: float, beta: float, deadline: float = np.inf,
                  grad: bool = False, last: dict | None = None):
         ca.Callback.__init__(self)
-        self.Mf, self.n_z, self.criterion, self.mu, self.grad = M, n_z, criterion, mu, grad
+        self.info, self.n_z, self.criterion, self.mu, self.beta, self.grad = info, n_z, criterion, mu, beta, grad
         self.deadline = deadline
         self.last = {} if last is None else last  # the last z and M(z), shared with the gradient
-        self.Mrev = M.reverse(1) if grad else None
         self._revs: list[_Objective] = []  # CasADi holds raw pointers: keep them alive
         self.construct("objective_grad" if grad else "objective", {})
 
@@ -239,25 +150,80 @@ class _Objective(ca.Callback):
         z = np.array(arg[0]).ravel()
         M = self.M(z)
         w, V = np.linalg.eigh(M)
-        f, dw = criteria.smooth(w, self.criterion, self.mu, SOFTMIN_BETA)
+        f, dw = criteria.smooth(w, self.criterion, self.mu, self.beta)
         if not self.grad:
             return [f]
         seed = float(arg[2]) * (V * dw) @ V.T
-        return [self.Mrev(z, M, seed)]
+        return [self.info.vjp(z, M, seed)]
 
     def M(self, z: np.ndarray) -> np.ndarray:
         """M(z), computed once per point (IPOPT asks for f and ∇f at the same z)."""
         if self.last.get("z") is None or not np.array_equal(self.last["z"], z):
-            self.last.update(z=z.copy(), M=np.array(self.Mf(z)))
+            self.last.update(z=z.copy(), M=self.info(z))
         return self.last["M"]
+
+    def hessian(self, z: np.ndarray) -> np.ndarray:
+        """∇²f(z): the spectral function's curvature along ∂M/∂z plus ⟨∂f/∂M, ∂²M/∂z²⟩."""
+        M = self.M(z)
+        w, V = np.linalg.eigh(M)
+        d1, d2 = criteria.smooth_curvature(w, self.criterion, self.mu, self.beta)
+        J, H2 = self.info.second_order(z, (V * d1) @ V.T)
+        return criteria.spectral_hessian(w, V, d1, d2, J) + H2
+
+    def has_jacobian_sparsity(self):
+        return True
+
+    def get_jacobian_sparsity(self):
+        # without it CasADi probes the black box for its sparsity when the NLP is built, which
+        # took 3–7 s on the 90 s problem
+        return ca.Sparsity.dense(self.n_z if self.grad else 1, self.n_z)
 
     def has_reverse(self, nadj):
         return not self.grad and nadj == 1
 
     def get_reverse(self, nadj, name, inames, onames, opts):
-        rev = _Objective(self.Mf, self.n_z, self.criterion, self.mu, self.deadline, grad=True, last=self.last)
+        rev = _Objective(self.info, self.n_z, self.criterion, self.mu, self.beta, self.deadline, grad=True,
+                         last=self.last)
         self._revs.append(rev)
         return rev
+
+
+class _LagrangianHessian(ca.Callback):
+    """The exact Hessian of IPOPT's Lagrangian ``σ f + λᵀ g`` (upper triangle, dense)."""
+
+    def __init__(self, tr: Transcription, obj: _Objective):
+        ca.Callback.__init__(self)
+        self.n, self.m, self.obj = tr.n_z, tr.n_g, obj
+        z = ca.MX.sym("z", tr.n_z)
+        lg = ca.MX.sym("lam_g", tr.n_g)
+        self.hess_g = ca.Function("hess_g", [z, lg], [ca.densify(ca.hessian(ca.dot(lg, tr.g_kin(z)), z)[0])])
+        self.construct("hess_lag", {})
+
+    def get_n_in(self):
+        return 4
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ("x", "p", "lam_f", "lam_g")[i]
+
+    def get_name_out(self, i):
+        return "hess_gamma_x_x"
+
+    def get_sparsity_in(self, i):
+        return (ca.Sparsity.dense(self.n), ca.Sparsity(0, 1), ca.Sparsity.scalar(), ca.Sparsity.dense(self.m))[i]
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.upper(self.n)
+
+    def eval(self, arg):
+        z = np.array(arg[0]).ravel()
+        H = np.array(self.hess_g(z, arg[3]))
+        sigma = float(arg[2])
+        if sigma != 0.0 and time.perf_counter() <= self.obj.deadline:
+            H = H + sigma * self.obj.hessian(z)
+        return [ca.triu(ca.DM(0.5 * (H + H.T)))]
 
 
 @dataclass
@@ -271,6 +237,7 @@ class Outcome:
     ``status``: ``converged``, ``time_budget`` (stopped by the deadline or the iteration cap),
     ``cancelled``, ``infeasible`` (IPOPT found the constraints infeasible) or ``failed``
     (any other IPOPT failure); ``ipopt_status``: IPOPT's own return status.
+    ``z_final``, ``lam_x``, ``lam_g``: IPOPT's last point and multipliers (a warm start).
     """
 
     feasible: list[tuple[float, np.ndarray]]
@@ -279,6 +246,10 @@ class Outcome:
     ipopt_status: str
     history: list[tuple[int, float, float, float]]  # (iteration, model criterion, violation of the
     # optimizer's constraints, elapsed)
+    z_final: np.ndarray | None = None
+    lam_x: np.ndarray | None = None
+    lam_g: np.ndarray | None = None
+    timings_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def z(self) -> np.ndarray | None:
@@ -288,10 +259,17 @@ class Outcome:
     def score(self) -> float:
         return self.feasible[0][0] if self.feasible else -np.inf
 
+    def best(self, n: int) -> "Outcome":
+        """This outcome with only the ``n`` best feasible iterates (and no history): what a
+        multi-start task sends back."""
+        return replace(self, feasible=self.feasible[:n], history=self.history[-1:])
+
 
 RESTORE_OPTIONS: dict[str, object] = {
-    "ipopt.hessian_approximation": "limited-memory", "ipopt.print_level": 0, "ipopt.sb": "yes",
-    "ipopt.tol": 1e-6, "print_time": False, "error_on_fail": False,
+    # the Hessian of ½‖z − z0‖² alone: most rows are linear, and the nonlinear ones' curvature
+    # would cost seconds to build; IPOPT's line search does the rest
+    "ipopt.hessian_constant": "yes", "ipopt.print_level": 0, "ipopt.sb": "yes",
+    "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive", "print_time": False, "error_on_fail": False,
 }
 
 
@@ -299,37 +277,48 @@ def restore(tr: Transcription, z0: np.ndarray, deadline: float) -> tuple[np.ndar
     """The point nearest z0 (in the scaled decision vector) that satisfies the constraints, and
     IPOPT's return status. Cheap next to the optimization (no information model), and it spares
     the optimization from starting infeasible: from an infeasible start IPOPT spends its first
-    iterations on feasibility and loses the excitation on the way (benchmarks/bench_ipopt.py).
-    Returns z0 itself when the deadline passes first."""
+    iterations on feasibility and loses the excitation on the way. Returns z0 itself when the
+    deadline passes first."""
     z = ca.MX.sym("z", tr.n_z)
-    stop = _IterationCallback(tr.n_z, tr.lbg_kin.size, 0, lambda x, f, g: time.perf_counter() > deadline)
+    n, m = tr.n_z, tr.n_g
+    x, p, lf, lg = ca.MX.sym("x", n), ca.MX.sym("p", 0), ca.MX.sym("lam_f"), ca.MX.sym("lam_g", m)
+    hess = ca.Function("hess_lag", [x, p, lf, lg], [ca.triu(ca.DM.eye(n)) * lf],
+                       ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
+    stop = _IterationCallback(n, m, 0, lambda x, f, g: time.perf_counter() > deadline)
     solver = ca.nlpsol("restore", "ipopt", {"x": z, "f": 0.5 * ca.sumsqr(z - z0), "g": tr.g_kin(z)},
-                       {**RESTORE_OPTIONS, "iteration_callback": stop})
+                       {**RESTORE_OPTIONS, "iteration_callback": stop, "hess_lag": hess})
     solver._keep = stop  # noqa: SLF001 — the callback must outlive the solver
-    sol = solver(x0=z0, lbx=tr.lbz, ubx=tr.ubz, lbg=tr.lbg_kin, ubg=tr.ubg_kin)
+    sol = solver(x0=np.clip(z0, tr.lbz, tr.ubz), lbx=tr.lbz, ubx=tr.ubz, lbg=tr.lbg_kin, ubg=tr.ubg_kin)
     z1 = np.array(sol["x"]).ravel()
     status = str(solver.stats().get("return_status", "unknown"))
-    return (z1 if violation(tr, z1) <= FEASIBLE_TOL else z0), status
+    return (z1 if violation(tr, z1) <= FEASIBLE_TOL else np.asarray(z0, dtype=float)), status
 
 
 def model_value(tr: Transcription, z: np.ndarray, criterion: str = "E") -> float:
     """The criterion of the coarse model at z (λ_min for ``E``)."""
-    return criteria.value(np.array(tr.M(z)), criterion)
+    return criteria.value(tr.M(z), criterion)
 
 
 def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "E",
           max_iterations: int | None = None, should_stop: Callable[[], bool] | None = None,
           progress: Callable[[int, float, float, float], None] | None = None,
-          t_start: float | None = None) -> Outcome:
+          t_start: float | None = None, options: SolverOptions = DEFAULT,
+          warm: Outcome | None = None, mu: float | None = None) -> Outcome:
     """Maximise ``criterion`` of the model with one IPOPT run from ``z0`` (until converged,
-    ``deadline``, ``max_iterations`` or ``should_stop()``), keeping every feasible iterate."""
+    ``deadline``, ``max_iterations`` or ``should_stop()``), keeping every feasible iterate.
+
+    ``warm``: a previous outcome whose multipliers start IPOPT (with its barrier small: the
+    warm start keeps the active set). ``mu``: the soft minimum's scale (default: the start's
+    weakest eigenvalue)."""
     t_start = time.perf_counter() if t_start is None else t_start
+    t_solve = time.perf_counter()
     z0 = np.asarray(z0, dtype=float)
-    w0 = np.linalg.eigvalsh(np.array(tr.M(z0)))
-    mu = max(abs(w0[0]), 1e-8 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
-    obj = _Objective(tr.M, tr.n_z, criterion, mu, deadline + DEADLINE_GRACE_S)
+    w0 = np.linalg.eigvalsh(tr.M(z0))
+    if mu is None:
+        mu = max(abs(w0[0]), 1e-8 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
+    obj = _Objective(tr.info, tr.n_z, criterion, mu, options.softmin_beta, deadline + DEADLINE_GRACE_S)
     z = ca.MX.sym("z", tr.n_z)
-    state = {"it": 0, "stop": False}
+    state = {"it": 0, "stop": False, "calls": 0}
     feasible: list[tuple[float, np.ndarray]] = []
     hist: list[tuple[int, float, float, float]] = []
 
@@ -342,8 +331,8 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
 
     def on_iter(x, f, g):
         s, viol = keep(x, g)
-        state["it"] = state.get("calls", 0)  # IPOPT reports its iteration 0 (the start) too
-        state["calls"] = state["it"] + 1
+        state["it"] = state["calls"]  # IPOPT reports its iteration 0 (the start) too
+        state["calls"] += 1
         el = time.perf_counter() - t_start
         hist.append((state["it"], s, viol, el))
         if progress is not None:
@@ -352,15 +341,28 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
             state["stop"] = True
         return state["stop"] or time.perf_counter() > deadline
 
-    cb = _IterationCallback(tr.n_z, tr.lbg_kin.size, 0, on_iter)
-    opts = {**IPOPT_OPTIONS, "ipopt.max_iter": 100000 if max_iterations is None else int(max_iterations),
+    cb = _IterationCallback(tr.n_z, tr.n_g, 0, on_iter)
+    opts = {**options.ipopt(), "ipopt.max_iter": 100000 if max_iterations is None else int(max_iterations),
             "print_time": False, "iteration_callback": cb, "error_on_fail": False, "show_eval_warnings": False}
+    keep_alive: tuple = (obj, cb)
+    if options.hessian == "exact":
+        hl = _LagrangianHessian(tr, obj)
+        opts["hess_lag"] = hl
+        keep_alive += (hl,)
+    args = dict(x0=z0, lbx=tr.lbz, ubx=tr.ubz, lbg=tr.lbg_kin, ubg=tr.ubg_kin)
+    if warm is not None and warm.lam_x is not None:
+        opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
+                     "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": min(options.mu_init, 1e-6)})
+        args.update(lam_x0=warm.lam_x, lam_g0=warm.lam_g)
     solver = ca.nlpsol("optimize", "ipopt", {"x": z, "f": obj(z), "g": tr.g_kin(z)}, opts)
-    solver._keep = (obj, cb)  # noqa: SLF001 — the callbacks must outlive the solver
+    solver._keep = keep_alive  # noqa: SLF001 — the callbacks must outlive the solver
     keep(z0)
+    z_final = lam_x = lam_g = None
     try:
-        sol = solver(x0=z0, lbx=tr.lbz, ubx=tr.ubz, lbg=tr.lbg_kin, ubg=tr.ubg_kin)
-        keep(np.array(sol["x"]).ravel())
+        sol = solver(**args)
+        z_final = np.array(sol["x"]).ravel()
+        lam_x, lam_g = np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel()
+        keep(z_final)
         stats = solver.stats()
         rs = str(stats.get("return_status", "unknown"))
         state["it"] = int(stats.get("iter_count", state["it"]))
@@ -379,5 +381,5 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     else:
         status = "failed"
     feasible.sort(key=lambda r: -r[0])
-    return Outcome(feasible, state["it"], status, rs, hist)
-
+    return Outcome(feasible, state["it"], status, rs, hist, z_final, lam_x, lam_g,
+                   {"solve": time.perf_counter() - t_solve})

@@ -1,0 +1,200 @@
+"""CasADi functions compiled to C with the system compiler, cached per problem shape.
+
+The optimizer's information model (:func:`.model.build_model` of the coarse rig, for one number
+of keyframes) and its reverse sweep dominate an IPOPT iteration in CasADi's virtual machine;
+compiled, they run several times faster with bit-identical results. Code generation
+(``casadi.CodeGenerator``) and the C compiler take tens of seconds for the 90 s problem, so the
+shared library is cached, like numba's cache: under :func:`cache_dir`, one file per *key* — a hash
+of what the functions are built from (the coarse rig, the keyframe count, the CasADi version and
+the source of the modules that build the model). A cached library is checked against the
+virtual machine at one point before it is used (:func:`load`), so a stale entry is never trusted.
+
+On a miss, :func:`load` generates the C source and starts the compiler in the background (a
+detached process, one per key); this run uses the virtual machine and says so in one line, the
+next run of the same shape finds the library. ``wait=True`` (``excite optimize --compile-only``,
+the Docker image's build step) compiles before returning. Where no C compiler exists, or with
+``EXCITE_COMPILE=0``, the virtual machine is used with a one-line note.
+
+Environment: ``EXCITE_CACHE_DIR`` (default ``$XDG_CACHE_HOME/excite``, ``~/.cache/excite``),
+``CC`` (default ``cc``, else ``gcc``), ``EXCITE_COMPILE`` (``0`` disables compiling).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+FLAGS = ("-O2", "-shared", "-fPIC")
+LOCK_STALE_S = 1800.0  # a lock older than this belongs to a compile that died
+VERIFY_RTOL = 1e-9
+
+
+def cache_dir() -> Path:
+    """Where compiled functions (and other per-problem caches) live."""
+    base = os.environ.get("EXCITE_CACHE_DIR")
+    if base:
+        return Path(base)
+    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(xdg) / "excite"
+
+
+def compiler() -> str | None:
+    """The C compiler to use, or None when there is none (or compiling is disabled)."""
+    if os.environ.get("EXCITE_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return None
+    for cc in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if cc and (path := shutil.which(cc)):
+            return path
+    return None
+
+
+def key_of(*parts: object, sources: Sequence[Path] = ()) -> str:
+    """A hash of ``parts`` (their ``repr``), the CasADi version, the compiler flags and the
+    text of ``sources``."""
+    h = hashlib.sha256()
+    h.update(repr((ca.__version__, FLAGS, parts)).encode())
+    for p in sorted(str(s) for s in sources):
+        h.update(p.encode())
+        h.update(Path(p).read_bytes())
+    return h.hexdigest()[:24]
+
+
+@dataclass
+class Loaded:
+    """The functions (by name), how they run (``compiled`` or ``virtual machine``) and, when
+    not compiled, the one-line reason."""
+
+    functions: dict[str, ca.Function]
+    mode: str
+    note: str = ""
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def _library(name: str, key: str) -> Path:
+    return cache_dir() / "casadi" / f"{name}_{key}.so"
+
+
+def load(name: str, functions: Sequence[ca.Function], key: str, check: Sequence | None = None,
+         wait: bool = False) -> Loaded:
+    """``functions`` compiled (from the cache, or compiled now with ``wait``), else as given.
+
+    ``check``: inputs of ``functions[0]`` at which a cached library must reproduce the virtual
+    machine (relative ``VERIFY_RTOL``); a library that does not is deleted and rebuilt.
+    """
+    t0 = time.perf_counter()
+    vm = {f.name(): f for f in functions}
+    lib = _library(name, key)
+    seconds: dict[str, float] = {}
+    if lib.exists():
+        try:
+            loaded = {n: ca.external(n, str(lib)) for n in vm}
+        except RuntimeError as exc:
+            loaded, why = None, f"cannot load {lib.name}: {str(exc).splitlines()[0][:120]}"
+        if loaded is not None:
+            if check is None or _agrees(vm[functions[0].name()], loaded[functions[0].name()], check):
+                seconds["load"] = time.perf_counter() - t0
+                return Loaded(loaded, "compiled", "", seconds)
+            why = f"{lib.name} disagrees with the model it was compiled from"
+        lib.unlink(missing_ok=True)
+        note = f"{why}: rebuilding it"
+    else:
+        note = ""
+    cc = compiler()
+    if cc is None:
+        why = ("compiling is disabled (EXCITE_COMPILE=0)" if os.environ.get("EXCITE_COMPILE") is not None
+               else "no C compiler found (set CC)")
+        return Loaded(vm, "virtual machine", f"{why}: the optimizer's model runs in CasADi's virtual "
+                      "machine (several times slower)", seconds)
+    started = _compile(name, list(functions), key, cc, wait, seconds)
+    if wait and lib.exists():
+        loaded = {n: ca.external(n, str(lib)) for n in vm}
+        return Loaded(loaded, "compiled", note, seconds)
+    what = ("started compiling" if started else "another process is compiling")
+    return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"{what} the optimizer's model for this "
+                  f"problem shape in the background ({lib.name}); this run uses CasADi's virtual machine", seconds)
+
+
+def _agrees(a: ca.Function, b: ca.Function, args: Sequence) -> bool:
+    try:
+        ra, rb = a(*args), b(*args)
+    except RuntimeError:
+        return False
+    ra = ra if isinstance(ra, (list, tuple)) else [ra]
+    rb = rb if isinstance(rb, (list, tuple)) else [rb]
+    for x, y in zip(ra, rb):
+        x, y = np.array(x), np.array(y)
+        if x.shape != y.shape or not np.allclose(x, y, rtol=VERIFY_RTOL, atol=VERIFY_RTOL * max(np.abs(x).max(), 1e-300)):
+            return False
+    return True
+
+
+def _compile(name: str, functions: list[ca.Function], key: str, cc: str, wait: bool,
+             seconds: dict[str, float]) -> bool:
+    """Generate the C source and compile it (in the background unless ``wait``). False when
+    another process holds the lock of this key."""
+    lib = _library(name, key)
+    lib.parent.mkdir(parents=True, exist_ok=True)
+    lock = lib.with_suffix(".lock")
+    try:
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        try:
+            stale = time.time() - lock.stat().st_mtime > LOCK_STALE_S
+        except FileNotFoundError:
+            stale = True
+        if not stale:
+            return False
+        lock.unlink(missing_ok=True)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    os.write(fd, str(os.getpid()).encode())
+    os.close(fd)
+    t0 = time.perf_counter()
+    src = lib.with_suffix(".c")
+    try:
+        cg = ca.CodeGenerator(src.name, {"with_header": False})
+        for f in functions:
+            cg.add(f)
+        cg.generate(str(src.parent) + os.sep)
+    except Exception:
+        lock.unlink(missing_ok=True)
+        raise
+    seconds["generate"] = time.perf_counter() - t0
+    tmp = lib.with_suffix(f".{os.getpid()}.tmp")
+    cmd = [cc, *FLAGS, str(src), "-o", str(tmp), "-lm"]
+    if wait:
+        t1 = time.perf_counter()
+        try:
+            subprocess.run(cmd, check=True, capture_output=True)
+            os.replace(tmp, lib)
+        finally:
+            for p in (src, tmp, lock):
+                p.unlink(missing_ok=True)
+        seconds["compile"] = time.perf_counter() - t1
+        return True
+    # detached: it outlives this process, and a Ctrl-C here does not reach it
+    script = ("import os, subprocess, sys\n"
+              "os.nice(10)\n"
+              "cmd, src, tmp, lib, lock = sys.argv[1:-4], *sys.argv[-4:]\n"
+              "try:\n"
+              "    if subprocess.run(cmd, capture_output=True).returncode == 0:\n"
+              "        os.replace(tmp, lib)\n"
+              "finally:\n"
+              "    for p in (src, tmp, lock):\n"
+              "        try:\n"
+              "            os.unlink(p)\n"
+              "        except OSError:\n"
+              "            pass\n")
+    subprocess.Popen([sys.executable, "-c", script, *cmd, str(src), str(tmp), str(lib), str(lock)],
+                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                     start_new_session=True, close_fds=True)
+    return True

@@ -1,0 +1,309 @@
+"""The transcription of a :class:`~.problem.Problem` into a finite NLP that is cheap for IPOPT.
+
+Decision vector z (:mod:`.kinematics`): the B-spline coefficients of speed and curvature (knots
+every ``knot_step_s``) and the start pose. Each constraint is imposed where it binds and no more
+often:
+
+- **speed**: bounds on its coefficients (the convex-hull property: the spline stays within
+  them everywhere) — simple variable bounds, no constraint rows;
+- **acceleration, curvature, curvature rate**: bounds on the coefficients of the derivative
+  spline after inserting a knot in every knot interval (:meth:`.kinematics.Grid.hull`:
+  sufficient everywhere, and close to the curve's own extremes) — sparse linear rows;
+- **jerk**: exact at the knots (it is piecewise linear) — sparse linear rows;
+- **lateral acceleration** u²κ (and a bump's speed cap): nonlinear, at every
+  ``lat_accel_every``-th sample (4 Hz by default); a sparse row each;
+- **the lot's clearance**: the lot's smooth signed distance at the rate its geometry needs
+  (:func:`clearance_every`): on a convex lot without keep-out zones the distance along a chord is
+  concave, so only the path's bulge between two samples (``a_lat·h²/8``) must fit in the
+  optimizer's buffer; elsewhere 4 Hz;
+- the closure (``closed``) and the entry pose (variable bounds).
+
+On the 90 s default problem that is ~900 rows with ~2.5·10⁴ Jacobian nonzeros, against 4700
+rows and 3.5·10⁵ nonzeros for every limit at every sample of the model: IPOPT's own linear
+algebra was the largest part of an iteration.
+
+The objective's information matrix M(z) = S Λ S is the coarse model (:func:`.model.build_model`)
+of the body samples (:func:`.kinematics.body_samples`); the model and its reverse sweep run
+compiled when :mod:`.compiled` has (or can build) them, in CasADi's virtual machine otherwise
+(:class:`Information`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ..motion.vehicle import Limits
+from . import compiled
+from .kinematics import Grid, Scales, body_samples, layout, path, sparse_dm
+from .model import build_model, coarse_rig
+from .problem import CLOSURE_TOL_M, CLOSURE_TOL_RAD, LOT_BUFFER_M, Problem
+
+
+@dataclass(frozen=True)
+class TranscriptionOptions:
+    """How the problem becomes an NLP. ``knot_step_s``: spacing of the spline knots;
+    ``keyframe_rate_hz`` and ``imu_substeps``: the coarse information model's grid;
+    ``hull_refine``: knot intervals are split this many times for the convex-hull bounds;
+    ``lat_accel_every``: the lateral acceleration (and bump caps) at every n-th model sample;
+    ``compile``: ``"auto"`` (compiled when cached, else compiled in the background while the
+    virtual machine runs), ``"wait"`` (compile now on a miss), ``"never"``."""
+
+    knot_step_s: float = 1.5
+    keyframe_rate_hz: float = 2.0
+    imu_substeps: int = 4
+    hull_refine: int = 4
+    lat_accel_every: int = 1
+    compile: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.compile not in ("auto", "wait", "never"):
+            raise ValueError(f"compile must be auto, wait or never, got {self.compile!r}")
+
+
+class Information:
+    """z → M = S Λ S (numpy) of the coarse model, its vector-Jacobian product and (for an exact
+    Hessian) its second-order derivatives.
+
+    ``body``: z → the body samples (virtual machine: cheap); ``model``: the samples → M (the
+    function :func:`.model.build_model` made, in the virtual machine); ``fast``/``fast_rev``: the
+    same and its reverse sweep compiled, when available. Without ``body`` the model takes z
+    itself (small test problems)."""
+
+    def __init__(self, model: ca.Function, body: ca.Function | None = None, fast: ca.Function | None = None,
+                 fast_rev: ca.Function | None = None, mode: str = "virtual machine", note: str = ""):
+        self.body, self.model_vm = body, model
+        self.model = model if fast is None else fast
+        self.model_rev = model.reverse(1) if fast_rev is None else fast_rev
+        self.body_rev = None if body is None else body.reverse(1)
+        self.mode, self.note = mode, note
+        self._second: tuple[ca.Function, ca.Function] | None = None
+
+    def _samples(self, z):
+        return [z] if self.body is None else list(self.body(z))
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        return np.array(self.model(*self._samples(z)))
+
+    def vjp(self, z: np.ndarray, M: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        """∂⟨seed, M(z)⟩/∂z (``M`` = M(z), given)."""
+        s = self._samples(z)
+        adj = self.model_rev(*s, M, seed)
+        adj = adj if isinstance(adj, (list, tuple)) else [adj]
+        if self.body is None:
+            return np.array(adj[0]).ravel()
+        out = self.body_rev(z, *s, *adj)
+        return np.array(out).ravel()
+
+    def second_order(self, z: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(∂M/∂z as (n, p, p), ∂²⟨G, M(z)⟩/∂z²)`` by CasADi's automatic differentiation in the
+        virtual machine (forward over reverse)."""
+        n = np.asarray(z).size
+        p = self.model_vm.size1_out(0)
+        if self._second is None:
+            zs = ca.MX.sym("z", n)
+            Gs = ca.MX.sym("G", p, p)
+            Ms = self.model_vm(*([zs] if self.body is None else self.body(zs)))
+            self._second = (ca.Function("jac_M", [zs], [ca.jacobian(ca.vec(Ms), zs)]),
+                            ca.Function("hess_GM", [zs, Gs], [ca.hessian(ca.dot(Gs, Ms), zs)[0]]))
+        J = np.array(self._second[0](z)).reshape(p, p, n, order="F").transpose(2, 0, 1)
+        return J, np.array(self._second[1](z, G))
+
+
+@dataclass
+class Transcription:
+    """The NLP: decision vector bounds, constraints ``g(z)`` with the optimizer's bounds and
+    the limits' (wider) bounds, and the information map of the objective."""
+
+    problem: Problem | None
+    grid: Grid | None
+    scales: Scales | None
+    info: Information
+    g_kin: ca.Function
+    lbg_kin: np.ndarray
+    ubg_kin: np.ndarray
+    lbg_ok: np.ndarray  # the limits themselves (the optimizer's bounds are inside them)
+    ubg_ok: np.ndarray
+    lbz: np.ndarray
+    ubz: np.ndarray
+    n_params: int
+    rows: dict[str, slice] = field(default_factory=dict)
+    options: TranscriptionOptions = field(default_factory=TranscriptionOptions)
+
+    @property
+    def n_z(self) -> int:
+        return self.lbz.size
+
+    @property
+    def n_g(self) -> int:
+        return self.lbg_kin.size
+
+    @property
+    def closed(self) -> bool:
+        return bool(self.problem is not None and self.problem.closed)
+
+    @property
+    def limits(self) -> Limits | None:
+        return None if self.problem is None else self.problem.limits
+
+    @property
+    def site(self) -> Any:
+        return None if self.problem is None else self.problem.site
+
+    def M(self, z: np.ndarray) -> np.ndarray:
+        """S Λ S of the coarse model at z."""
+        return self.info(np.asarray(z, dtype=float))
+
+
+def _convex_without_holes(site) -> bool:
+    if len(site.lot.holes):
+        return False
+    p = np.asarray(site.lot.polygon_m, dtype=float)
+    e = np.roll(p, -1, axis=0) - p
+    cross = e[:, 0] * np.roll(e[:, 1], -1) - e[:, 1] * np.roll(e[:, 0], -1)
+    return bool(np.all(cross >= -1e-9) or np.all(cross <= 1e-9))
+
+
+def clearance_every(problem: Problem, grid: Grid) -> int:
+    """Every how many model samples the lot's clearance is imposed (see the module docstring):
+    on a convex lot without keep-out zones, the spacing at which the path's largest bulge
+    between two samples, ``a_lat,max·h²/8``, is half the optimizer's buffer; elsewhere 4 Hz."""
+    if _convex_without_holes(problem.site):
+        h = math.sqrt(4.0 * LOT_BUFFER_M / problem.limits.lat_accel_max_mps2)
+    else:
+        h = 0.25
+    return max(int(h / grid.dt + 1e-9), 1)
+
+
+def _test_point(grid: Grid) -> np.ndarray:
+    """A fixed, moving z at which a compiled model is checked against the virtual machine."""
+    lay = layout(grid)
+    z = np.zeros(lay.size)
+    z[lay.speed] = 0.3 + 0.1 * np.sin(np.arange(lay.n_speed) / 2.0)
+    z[lay.curv] = 0.5 * np.sin(np.arange(lay.n_curv) / 3.0)
+    return z
+
+
+def _model_sources() -> list[Path]:
+    """The source files the information model is built from (part of the compiled cache key)."""
+    pkg = Path(__file__).resolve().parents[1]
+    out = [pkg / "plan" / "model.py", pkg / "information.py"]
+    for d in ("factors", "rig", "core"):
+        out += sorted((pkg / d).glob("*.py"))
+    return [p for p in out if p.exists()]
+
+
+def information(problem: Problem, grid: Grid, sc: Scales, options: TranscriptionOptions,
+                z: ca.MX) -> Information:
+    """The information map of ``problem`` on ``grid`` (compiled model where possible)."""
+    crig = coarse_rig(problem.rig, options.keyframe_rate_hz, options.imu_substeps)
+    pose = crig.config.vehicle.T_V_B
+    body = ca.Function("body", [z], list(body_samples(grid, sc, z, crig.suspension, pose.R, pose.p,
+                                                        problem.site.terrain)))
+    model = build_model(crig, grid.n_keyframes).scaled
+    if options.compile == "never":
+        return Information(model, body)
+    rev = model.reverse(1)
+    key = compiled.key_of("information", crig.config.model_dump_json(), grid.n_keyframes,
+                          options.imu_substeps, sources=_model_sources())
+    args = list(body(_test_point(grid)))
+    loaded = compiled.load("information", [model, rev], key, check=args, wait=options.compile == "wait")
+    return Information(model, body, loaded.functions[model.name()], loaded.functions[rev.name()], loaded.mode,
+                       loaded.note)
+
+
+def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOptions()) -> Transcription:
+    """The NLP of ``problem`` (see the module docstring)."""
+    site, limits = problem.site, problem.limits
+    grid = Grid.make(problem.duration_s, options.knot_step_s, options.keyframe_rate_hz, options.imu_substeps)
+    lo = site.lot.polygon_m.min(axis=0)
+    hi = site.lot.polygon_m.max(axis=0)
+    sc = Scales.of(limits, float(np.abs(np.concatenate([lo, hi])).max()))
+    lay = layout(grid)
+    z = ca.MX.sym("z", lay.size)
+    info = information(problem, grid, sc, options, z)
+    b = problem.bounds()
+
+    rows: list[ca.MX] = []
+    lb, ub, lb_ok, ub_ok = [], [], [], []
+    names: dict[str, slice] = {}
+
+    def add(name: str, expr, bound) -> None:
+        n = expr.shape[0]
+        start = sum(r.shape[0] for r in rows)
+        names[name] = slice(start, start + n)
+        rows.append(expr)
+        for out, v in ((lb, bound.lo), (ub, bound.hi), (lb_ok, bound.lo_ok), (ub_ok, bound.hi_ok)):
+            out.append(np.full(n, v))
+
+    # linear in z: the convex hulls of the derivative splines (sparse rows)
+    E = np.zeros((grid.n_coefficients, lay.n_speed))
+    E[2:-2] = np.eye(lay.n_speed)
+    zu = z[lay.speed] * sc.speed_mps
+    zk = z[lay.curv] * sc.curvature_1pm
+    r = options.hull_refine
+
+    def linear(H: np.ndarray, v):
+        H = H[np.abs(H).max(axis=1) > 0]  # at the ends the speed's hull rows are identically zero
+        return ca.mtimes(sparse_dm(H), v)
+
+    add("speed", linear(grid.hull(0, r) @ E, zu), b["speed"])
+    add("accel", linear(grid.hull(1, r) @ E, zu), b["accel"])
+    add("jerk", linear(grid.hull(2) @ E, zu), b["jerk"])
+    add("curvature", linear(grid.hull(0, r), zk), b["curvature"])
+    add("curvature_rate", linear(grid.hull(1, r), zk), b["curvature_rate"])
+
+    # nonlinear: lateral acceleration and bump caps at a few samples, the lot at its rate
+    e = options.lat_accel_every
+    Ue, Ce = grid.U[0][::e], grid.C[0][::e]
+    ue, ke = ca.mtimes(sparse_dm(Ue), zu), ca.mtimes(sparse_dm(Ce), zk)
+    add("lat_accel", ue * ue * ke, b["lat_accel"])
+    u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
+    c = clearance_every(problem, grid)
+    clear = site.clearance()
+    add("clearance", clear(ca.horzcat(x[::c], y[::c]).T).T, b["clearance"])
+    for i, ((cap_expr, _), bound) in enumerate(zip(site.terrain.speed_limits(u[::e], x[::e], y[::e]),
+                                                   problem.bump_caps())):
+        add(f"bump_{i + 1}", cap_expr, bound)
+    lay_pose = z[lay.pose]
+    if problem.closed:
+        from .problem import Bound
+
+        add("closure_xy", ca.vertcat(x[-1] - lay_pose[0] * sc.position_m, y[-1] - lay_pose[1] * sc.position_m),
+            Bound(0.0, 0.0, -CLOSURE_TOL_M, CLOSURE_TOL_M))
+        # heading: the winding number is fixed by the start (see solver.solve); compared via sin/cos
+        add("closure_sin", ca.sin(psi[-1] - lay_pose[2]), Bound(0.0, 0.0, -CLOSURE_TOL_RAD, CLOSURE_TOL_RAD))
+        add("closure_cos", ca.cos(psi[-1] - lay_pose[2]), Bound(0.99, 1.0, 0.98, 1.0))
+    # expanded to scalar operations: its Jacobian (every iteration) and Hessian (restoration)
+    # evaluate about twice as fast as the matrix graph's
+    g_kin = ca.Function("g_kin", [z], [ca.densify(ca.vertcat(*rows))]).expand()
+
+    lbz = np.full(lay.size, -np.inf)
+    ubz = np.full(lay.size, np.inf)
+    # the coefficients themselves are held by the refined hull rows; these bounds only keep
+    # IPOPT's steps in a sane range
+    lbz[lay.speed], ubz[lay.speed] = -0.5, 1.5
+    lbz[lay.curv], ubz[lay.curv] = -2.0, 2.0
+    lbz[lay.pose] = [lo[0] / sc.position_m, lo[1] / sc.position_m, -4 * np.pi]
+    ubz[lay.pose] = [hi[0] / sc.position_m, hi[1] / sc.position_m, 4 * np.pi]
+    if site.entry is not None:
+        ex, ey, eh = site.entry
+        lbz[lay.pose] = ubz[lay.pose] = [ex / sc.position_m, ey / sc.position_m, eh]
+    crig = coarse_rig(problem.rig, options.keyframe_rate_hz, options.imu_substeps)
+    return Transcription(problem, grid, sc, info, g_kin, np.concatenate(lb), np.concatenate(ub),
+                         np.concatenate(lb_ok), np.concatenate(ub_ok), lbz, ubz, len(crig.scored), names, options)
+
+
+def violation(tr: Transcription, z: np.ndarray, g: np.ndarray | None = None, within_limits: bool = False) -> float:
+    """Largest violation at z of the optimizer's constraints (or, ``within_limits``, of the
+    limits themselves: the wider bounds) and of the variable bounds."""
+    gv = np.array(tr.g_kin(z)).ravel() if g is None else g
+    lo, hi = (tr.lbg_ok, tr.ubg_ok) if within_limits else (tr.lbg_kin, tr.ubg_kin)
+    v = max(np.maximum(lo - gv, 0.0).max(initial=0.0), np.maximum(gv - hi, 0.0).max(initial=0.0))
+    v = max(v, np.maximum(tr.lbz - z, 0.0).max(initial=0.0), np.maximum(z - tr.ubz, 0.0).max(initial=0.0))
+    return float(v)
