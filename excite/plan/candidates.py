@@ -8,13 +8,18 @@ the edge margin). The pipeline returns only a drive that passed it, and writes t
 The functions below the check run in a worker process next to IPOPT (plain, picklable
 arguments; plain results): the reference maneuvers (full evaluator), chunks of random
 candidates (screened by the evaluator on the optimizer's coarse rig; the best few are re-scored
-by the full evaluator at the end), and the COBYLA baseline.
+by the full evaluator at the end), and the COBYLA baseline. The reference maneuvers' rows are
+scored once per problem and cached (:func:`cached_references`, under
+:func:`.compiled.cache_dir`).
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -149,6 +154,55 @@ def references(rig: Rig, settings, site) -> list[Candidate]:
     return out
 
 
+def _references_path(rig: Rig, settings, site) -> Path:
+    """The cache file of the reference maneuvers' rows for this problem: keyed by everything
+    they depend on, the source of the whole package included (an evaluator that changes
+    invalidates them)."""
+    from .compiled import cache_dir, key_of
+
+    pkg = Path(__file__).resolve().parents[1]
+    feats = [(f.role, np.asarray(f.polygon_m).round(6).tolist(), f.direction, f.slope, f.height_m, f.max_speed_mps)
+             for f in site.terrain.features]
+    key = key_of("references", rig.config.model_dump_json(), settings.duration_s, repr(settings.limits),
+                 settings.criterion, json.dumps(site.outline()), repr(feats),
+                 sources=sorted(p for p in pkg.rglob("*.py") if "cli" not in p.parts))
+    return cache_dir() / "references" / f"{key}.json"
+
+
+def cached_references(rig: Rig, settings, site) -> list[Candidate] | None:
+    """:func:`references` from the cache, or None when this problem's are not cached (the
+    profiles are generated again: cheap, and the cache holds only the rows)."""
+    path = _references_path(rig, settings, site)
+    try:
+        rows = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    profiles = {c.name: c.profile for c in reference_profiles(rig, settings, site)}
+    out = []
+    for r in rows:
+        if r.get("name") not in profiles:
+            return None
+        out.append(Candidate(r["name"], "reference", profiles[r["name"]], list(r["violations"]),
+                             rotation=r["rotation"], row=dict(r["row"])))
+    return out
+
+
+def store_references(rig: Rig, settings, site, refs: list[Candidate]) -> None:
+    """Keep the reference maneuvers' rows (:func:`cached_references`); a cache that cannot be
+    written is not an error."""
+    if not refs:
+        return
+    path = _references_path(rig, settings, site)
+    rows = [{"name": c.name, "violations": c.violations, "rotation": c.rotation, "row": c.row} for c in refs]
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(rows))
+        os.replace(tmp, path)
+    except OSError:
+        pass
+
+
 def random_profiles(rig: Rig, settings, site, chunk: int, size: int, first: int) -> list[ControlProfile]:
     """Chunk ``chunk`` (``size`` candidates, numbered from ``first``) of the seed's random
     candidates, over the lot's terrain, not yet checked. Same seed and chunk, same drives."""
@@ -183,9 +237,9 @@ def cobyla(rig: Rig, settings, site, z0: np.ndarray, budget_s: float) -> dict[st
     from . import baselines
     from .kinematics import profile_from_z
     from .problem import Problem
-    from .transcription import transcribe
+    from .transcription import cached
 
-    tr = transcribe(Problem.of(rig, settings, site))
+    tr = cached(Problem.of(rig, settings, site))
     z, value, n = baselines.cobyla(tr, z0, budget_s, settings.criterion)
     if z is None:
         return {"profile": None, "model": None, "evaluations": n}

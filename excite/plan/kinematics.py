@@ -55,10 +55,11 @@ class Grid:
     knots: np.ndarray  # the B-spline knot vector (clamped: the ends repeated DEGREE + 1 times)
     U: tuple[sparse.csr_matrix, ...]
     C: tuple[sparse.csr_matrix, ...]
+    segments: np.ndarray  # first sample of every shooting segment (the first is 0)
 
     @classmethod
     def make(cls, duration_s: float, knot_step_s: float = 1.5, keyframe_rate_hz: float = 2.0,
-             imu_substeps: int = 4) -> "Grid":
+             imu_substeps: int = 4, shooting_s: float | None = None) -> "Grid":
         M = max(int(round(duration_s / knot_step_s)), 3)
         t_knots = np.linspace(0.0, duration_s, M + 1)
         n_int = int(np.floor(duration_s * keyframe_rate_hz + 1e-9))
@@ -66,12 +67,21 @@ class Grid:
         knots = np.r_[[0.0] * DEGREE, t_knots, [float(duration_s)] * DEGREE]
         C = _basis(knots, t)
         U = tuple(B @ _speed_embedding(knots.size - DEGREE - 1) for B in C)
+        n_seg = 1 if not shooting_s else max(int(round(t[-1] / shooting_s)), 1)
+        segments = np.unique(np.round(np.linspace(0, t.size - 1, n_seg + 1)[:-1]).astype(int))
         return cls(float(duration_s), float(t_knots[1] - t_knots[0]), float(keyframe_rate_hz),
-                   int(imu_substeps), t_knots, t, knots, tuple(sparse.csr_matrix(B) for B in U), C)
+                   int(imu_substeps), t_knots, t, knots, tuple(sparse.csr_matrix(B) for B in U), C, segments)
 
     @property
     def n_knots(self) -> int:
         return self.t_knots.size
+
+    @property
+    def n_segments(self) -> int:
+        """Shooting segments: the path's heading and position restart at each segment's first
+        sample from decision variables, held equal to the previous segment's end (multiple
+        shooting: a late position no longer depends on every earlier control)."""
+        return self.segments.size
 
     @property
     def n_coefficients(self) -> int:
@@ -178,6 +188,7 @@ class Layout:
 
     n_speed: int
     n_curv: int
+    n_shoot: int = 0  # shooting nodes after the start (each x, y, ψ)
 
     @property
     def speed(self) -> slice:
@@ -192,12 +203,18 @@ class Layout:
         return slice(self.n_speed + self.n_curv, self.n_speed + self.n_curv + 3)
 
     @property
+    def shoot(self) -> slice:
+        """The shooting nodes' (x, y, ψ), node after node (x and y scaled like the start's)."""
+        a = self.n_speed + self.n_curv + 3
+        return slice(a, a + 3 * self.n_shoot)
+
+    @property
     def size(self) -> int:
-        return self.n_speed + self.n_curv + 3
+        return self.n_speed + self.n_curv + 3 + 3 * self.n_shoot
 
 
 def layout(grid: Grid) -> Layout:
-    return Layout(grid.n_coefficients - 4, grid.n_coefficients)
+    return Layout(grid.n_coefficients - 4, grid.n_coefficients, grid.n_segments - 1)
 
 
 def speed_coefficients(grid: Grid, sc: Scales, z):
@@ -218,23 +235,71 @@ def controls(grid: Grid, sc: Scales, z):
     return u, k, (x0, y0, psi0)
 
 
-def _cumtrap_corrected(f, df, h: float):
-    """∫₀^{t_i} f for every sample: trapezoid rule with the Euler–Maclaurin end correction."""
-    trap = ca.vertcat(0, ca.cumsum(0.5 * h * (f[:-1] + f[1:])))
-    return trap - h * h / 12.0 * (df - df[0])
+def _segment_integral(grid: Grid, f, df, h: float):
+    """``∫ f`` from the start of each sample's shooting segment to the sample (trapezoid rule
+    with the Euler–Maclaurin end correction, fourth order), and over every segment to the first
+    sample of the next: ``(per sample (n, 1), per segment but the last (S − 1, 1))``. Each
+    segment's sums are its own, so that a sample depends on its segment's controls only."""
+    bounds = list(grid.segments) + [grid.n_samples - 1]
+    within, ends = [], []
+    for k in range(len(bounds) - 1):
+        a, b = bounds[k], bounds[k + 1]  # the segment's samples a..b (b: the next one's first)
+        fk = f[a:b + 1]
+        trap = ca.vertcat(0, ca.cumsum(0.5 * h * (fk[:-1] + fk[1:])))
+        seg = trap - h * h / 12.0 * (df[a:b + 1] - df[a])
+        last = k == len(bounds) - 2
+        within.append(seg if last else seg[:-1])
+        if not last:
+            ends.append(seg[-1])
+    return ca.vertcat(*within), (ca.vertcat(*ends) if ends else None)
 
 
-def path(grid: Grid, sc: Scales, z):
-    """(u, a, j, j', κ, κ', κ'', ψ, x, y) at the samples, each (n_samples, 1)."""
-    (u, a, j, jd), (k, kd, kdd, _), (x0, y0, psi0) = controls(grid, sc, z)
+def _member(grid: Grid) -> ca.DM:
+    """(n_samples × segments): which segment each sample belongs to."""
+    n = grid.n_samples
+    member = np.searchsorted(grid.segments, np.arange(n), side="right") - 1
+    return sparse_dm(sparse.csr_matrix((np.ones(n), (np.arange(n), member)), shape=(n, grid.n_segments)))
+
+
+def nodes(grid: Grid, sc: Scales, z):
+    """The shooting nodes' (x, y, ψ) [m, m, rad] as three (segments, 1) expressions: the start
+    pose, then the nodes of ``z``."""
+    lay = layout(grid)
+    pose = z[lay.pose]
+    xs, ys, ps = [pose[0] * sc.position_m], [pose[1] * sc.position_m], [pose[2]]
+    if lay.n_shoot:
+        node = ca.reshape(z[lay.shoot], 3, lay.n_shoot)
+        xs.append(node[0, :].T * sc.position_m)
+        ys.append(node[1, :].T * sc.position_m)
+        ps.append(node[2, :].T)
+    return ca.vertcat(*xs), ca.vertcat(*ys), ca.vertcat(*ps)
+
+
+def path(grid: Grid, sc: Scales, z, with_defects: bool = False):
+    """(u, a, j, j', κ, κ', κ'', ψ, x, y) at the samples, each (n_samples, 1); with
+    ``with_defects`` also the continuity defects of the shooting nodes (each node's (x, y, ψ)
+    minus the previous segment's end), a (3·(S − 1), 1) expression (None with one segment)."""
+    (u, a, j, jd), (k, kd, kdd, _), _ = controls(grid, sc, z)
     h = grid.dt
+    X0, Y0, P0 = nodes(grid, sc, z)
+    W = _member(grid)
     g = u * k
     dg = a * k + u * kd
-    psi = psi0 + _cumtrap_corrected(g, dg, h)
+    ipsi, epsi = _segment_integral(grid, g, dg, h)
+    psi = ca.mtimes(W, P0) + ipsi
     c, s = ca.cos(psi), ca.sin(psi)
-    x = x0 + _cumtrap_corrected(u * c, a * c - u * s * g, h)
-    y = y0 + _cumtrap_corrected(u * s, a * s + u * c * g, h)
-    return u, a, j, jd, k, kd, kdd, psi, x, y
+    ix, ex = _segment_integral(grid, u * c, a * c - u * s * g, h)
+    iy, ey = _segment_integral(grid, u * s, a * s + u * c * g, h)
+    x = ca.mtimes(W, X0) + ix
+    y = ca.mtimes(W, Y0) + iy
+    out = (u, a, j, jd, k, kd, kdd, psi, x, y)
+    if not with_defects:
+        return out
+    if epsi is None:
+        return out, None
+    defects = ca.vertcat(((X0[1:] - X0[:-1] - ex) / sc.position_m).T, ((Y0[1:] - Y0[:-1] - ey) / sc.position_m).T,
+                         (P0[1:] - P0[:-1] - epsi).T)
+    return out, ca.vec(defects)
 
 
 def _rot_x(a):
@@ -321,24 +386,29 @@ def body_function(suspension: Suspension, R_V_B: np.ndarray, p_V_B: np.ndarray, 
                        ["q"], ["R", "p", "v", "w", "f", "R_V_A"])
 
 
-def terrain_path(grid: Grid, sc: Scales, z, terrain: Terrain):
+def terrain_path(grid: Grid, sc: Scales, z, terrain: Terrain, with_defects: bool = False):
     """:func:`path` on the terrain: the horizontal speed is u·cos(grade) (grade taken on the
     flat path, a second-order error), and the height z = ∫ u sin(grade) dt. Returns
-    (u, a, j, j', κ, κ', κ'', ψ, x, y, z)."""
-    u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
+    (u, a, j, j', κ, κ', κ'', ψ, x, y, z) (and the defects, as :func:`path`)."""
+    (u, a, j, jd, k, kd, kdd, psi, x, y), defects = path(grid, sc, z, with_defects=True)
     if not terrain:
-        return u, a, j, jd, k, kd, kdd, psi, x, y, ca.MX.zeros(x.shape)
+        out = (u, a, j, jd, k, kd, kdd, psi, x, y, 0 * x)
+        return (out, defects) if with_defects else out
     h = grid.dt
     g, _ = terrain.grade_bank(x, y, psi)
-
-    def cum(f):
-        return ca.vertcat(0, ca.cumsum(0.5 * h * (f[:-1] + f[1:])))
-
     c, s = ca.cos(psi), ca.sin(psi)
-    x = x - cum(u * (1 - ca.cos(g)) * c)
-    y = y - cum(u * (1 - ca.cos(g)) * s)
+    zero = 0 * x
+    cx, ex = _segment_integral(grid, u * (1 - ca.cos(g)) * c, zero, h)
+    cy, ey = _segment_integral(grid, u * (1 - ca.cos(g)) * s, zero, h)
+    x, y = x - cx, y - cy
+    if defects is not None:  # the node's position against the previous segment's corrected end
+        S1 = grid.n_segments - 1
+        fix = ca.vec(ca.vertcat(ex.T / sc.position_m, ey.T / sc.position_m, ca.DM.zeros(1, S1)))
+        defects = defects + fix
     g, _ = terrain.grade_bank(x, y, psi)
-    return u, a, j, jd, k, kd, kdd, psi, x, y, cum(u * ca.sin(g))
+    height = ca.vertcat(0, ca.cumsum(0.5 * h * (u[:-1] * ca.sin(g[:-1]) + u[1:] * ca.sin(g[1:]))))
+    out = (u, a, j, jd, k, kd, kdd, psi, x, y, height)
+    return (out, defects) if with_defects else out
 
 
 def body_samples(grid: Grid, sc: Scales, z, suspension: Suspension, R_V_B, p_V_B, terrain: Terrain = Terrain()):
@@ -374,10 +444,40 @@ def profile_from_z(grid: Grid, sc: Scales, z: np.ndarray, rate_hz: float = 20.0,
                           start=(float(x0), float(y0), float(psi0)), name=name)
 
 
-def z_from_profile(grid: Grid, sc: Scales, profile: ControlProfile, rate_hz: float = 20.0) -> np.ndarray:
+def _cumtrap_np(f: np.ndarray, df: np.ndarray | None, h: float) -> np.ndarray:
+    out = np.concatenate([[0.0], np.cumsum(0.5 * h * (f[:-1] + f[1:]))])
+    return out if df is None else out - h * h / 12.0 * (df - df[0])
+
+
+def shooting_nodes(grid: Grid, sc: Scales, z: np.ndarray, terrain: Terrain = Terrain()) -> np.ndarray:
+    """The shooting nodes (scaled, as :attr:`Layout.shoot`) that make ``z``'s path continuous:
+    the path integrated from the start pose alone (as :func:`terrain_path` integrates it)."""
+    lay = layout(grid)
+    z = np.asarray(z, dtype=float)
+    zu, zk = z[lay.speed] * sc.speed_mps, z[lay.curv] * sc.curvature_1pm
+    u, a = grid.U[0] @ zu, grid.U[1] @ zu
+    k, kd = grid.C[0] @ zk, grid.C[1] @ zk
+    x0, y0, psi0 = z[lay.pose] * np.array([sc.position_m, sc.position_m, 1.0])
+    h = grid.dt
+    g = u * k
+    psi = psi0 + _cumtrap_np(g, a * k + u * kd, h)
+    c, s = np.cos(psi), np.sin(psi)
+    x = x0 + _cumtrap_np(u * c, a * c - u * s * g, h)
+    y = y0 + _cumtrap_np(u * s, a * s + u * c * g, h)
+    if terrain:
+        gr, _ = terrain.grade_bank_np(np.column_stack([x, y]), psi)
+        x = x - _cumtrap_np(u * (1 - np.cos(gr)) * c, None, h)
+        y = y - _cumtrap_np(u * (1 - np.cos(gr)) * s, None, h)
+    i = grid.segments[1:]
+    return np.column_stack([x[i] / sc.position_m, y[i] / sc.position_m, psi[i]]).ravel()
+
+
+def z_from_profile(grid: Grid, sc: Scales, profile: ControlProfile, rate_hz: float = 20.0,
+                   terrain: Terrain = Terrain()) -> np.ndarray:
     """The decision vector whose splines fit a control profile best (least squares on its
-    values at ``rate_hz``: a profile written by :func:`profile_from_z` comes back exactly). The
-    profile is shifted to start at t = 0 and clipped to the grid's duration."""
+    values at ``rate_hz``: a profile written by :func:`profile_from_z` comes back exactly), its
+    shooting nodes on the splines' own path. The profile is shifted to start at t = 0 and
+    clipped to the grid's duration."""
     lay = layout(grid)
     t = np.linspace(0.0, grid.duration_s, int(round(grid.duration_s * rate_hz)) + 1)
     c = profile.at(profile.t_s[0] + np.minimum(t, profile.duration_s))
@@ -388,4 +488,14 @@ def z_from_profile(grid: Grid, sc: Scales, profile: ControlProfile, rate_hz: flo
     z[lay.curv] = np.linalg.lstsq(B, c["curvature_1pm"], rcond=None)[0] / sc.curvature_1pm
     x0, y0, psi0 = profile.start
     z[lay.pose] = [x0 / sc.position_m, y0 / sc.position_m, psi0]
+    return with_nodes(grid, sc, z, terrain)
+
+
+def with_nodes(grid: Grid, sc: Scales, z: np.ndarray, terrain: Terrain = Terrain()) -> np.ndarray:
+    """``z`` with its shooting nodes on its own path (after a change of the controls or the
+    start pose)."""
+    z = np.array(z, dtype=float)
+    lay = layout(grid)
+    if lay.n_shoot:
+        z[lay.shoot] = shooting_nodes(grid, sc, z, terrain)
     return z

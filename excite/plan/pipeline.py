@@ -2,29 +2,36 @@
 
 Within ``time_budget_s`` of wall time, all of it:
 
-1. **start** (main process): state the NLP; generate the first random candidates and the
-   reference maneuvers; choose IPOPT's start among them by the optimizer's model. A worker
-   process starts at once and, next to IPOPT, scores the reference maneuvers (full evaluator),
-   screens the random candidates chunk by chunk (evaluator on the coarse rig), then runs COBYLA
-   from the same start (:data:`COBYLA_SHARE` of the budget).
-2. **optimize**: IPOPT until it converges, or until the budget less the time kept for the
-   checks (:func:`finish_reserve_s`); every iterate that satisfies its constraints is kept.
-3. **check**: the best kept iterates (by the model) go through the independent check
+1. **start** (this process): the problem statement (:mod:`.problem`) and its transcription
+   (:mod:`.transcription`; the information model compiled, :mod:`.compiled`); the reference
+   maneuvers and the first random candidates, each fitted to the splines and ranked by the
+   optimizer's model; the :data:`~.settings.OptimizeSettings.starts` best of them are IPOPT's
+   starts. How many cores are free is measured over this phase (:class:`_Cores`).
+2. **optimize**: IPOPT from every start on the engine (:mod:`.multistart`: as many local
+   processes as cores are free, or the Dask cluster), until each converges or the budget less
+   the time kept for the checks (:func:`finish_reserve_s`) runs out.
+3. **compare** (a worker process, *next to* IPOPT only when a core is left for it): the
+   reference maneuvers scored by the full evaluator — once per problem, then read from the
+   cache (:mod:`.candidates`) —, the random candidates screened chunk by chunk, and COBYLA from
+   the best start (:data:`COBYLA_SHARE` of the budget). When no core is free the screen and
+   COBYLA are skipped (the message says so) and only the references are scored, after IPOPT.
+4. **check**: the best iterates of every start (by the model) go through the independent check
    (:func:`.candidates.check`, the same one every other candidate passed) until
-   :data:`KEEP_ITERATES` passed; the worker's finished work is collected (unfinished chunks are
-   dropped: the comparison says how many random candidates were scored); the feasible
-   iterates, COBYLA, the start and the best screened random candidates are scored by the full
-   evaluator.
+   :data:`KEEP_ITERATES` passed; they, the start, COBYLA and the best screened random
+   candidates are scored by the full evaluator.
 
-The result is the best candidate by the criterion among *all* that passed the check — an IPOPT
-iterate, or else whatever was better (its ``source`` says which). The returned profile is the
-one that was checked, rounded as the control CSV writes it.
+The run ends when the starts are done and checked: the worker's unfinished work is dropped (the
+comparison says how many random candidates were scored). The result is the best candidate by
+the criterion among *all* that passed the check — an IPOPT iterate, or else whatever was
+better (its ``source`` says which). The returned profile is the one that was checked, rounded as
+the control CSV writes it.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
+import os
 import sys
 import time
 from typing import Any, Callable
@@ -35,33 +42,65 @@ from ..score.evaluate import evaluate
 from ..rig.config import Rig
 from ..motion.vehicle import ControlProfile, drive
 from . import candidates as cand
+from . import multistart
 from .candidates import Candidate, as_written, check
-from .kinematics import layout, profile_from_z, z_from_profile
+from .kinematics import layout, profile_from_z, with_nodes, z_from_profile
 from ..errors import OptimizeError
-from .settings import OptimizeResult, OptimizeSettings, Progress
-from .solver import model_value, restore, solve
 from .problem import Problem
-from .transcription import transcribe, violation
+from .settings import OptimizeResult, OptimizeSettings, Progress
+from .solver import DEFAULT as SOLVER, model_value, restore
+from .transcription import TranscriptionOptions, cached, violation
 
 NEAR_FEASIBLE = 1.0  # largest violation of the optimizer's constraints of a start used as it is
-START_RANDOM = 10  # random candidates (the first chunks) IPOPT's start is chosen among, with the references
+START_RANDOM = 10  # random candidates (the first chunks) IPOPT's starts are chosen among, with the references
 CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
 COBYLA_SHARE = 0.15  # of the budget, for the derivative-free baseline (in the worker)
 CHECK_ITERATES = 15  # IPOPT iterates checked at most, best model value first ...
 KEEP_ITERATES = 2  # ... until this many passed (each is then scored by the full evaluator)
 SCORE_RANDOM = 2  # best screened random candidates scored by the full evaluator
+TRANSCRIPTION = TranscriptionOptions()
 
 
 def finish_reserve_s(budget_s: float) -> float:
     """Wall time kept after IPOPT for the checks, the full evaluations and the worker's results."""
-    return 3.0 + 0.12 * budget_s
+    return 1.5 + 0.05 * budget_s
+
+
+class _Cores:
+    """How many cores are idle, measured from ``/proc/stat`` between :meth:`__init__` and
+    :meth:`free` (the load average lags by a minute: a run right after another would see the
+    first run's load). This process's own core counts as free. Elsewhere: from the load average."""
+
+    def __init__(self) -> None:
+        self.n = os.cpu_count() or 1
+        self.t0, self.idle0 = time.monotonic(), self._idle_s()
+
+    @staticmethod
+    def _idle_s() -> float | None:
+        try:
+            with open("/proc/stat") as f:
+                parts = f.readline().split()
+            return (int(parts[4]) + int(parts[5])) / os.sysconf("SC_CLK_TCK")  # idle + iowait
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def free(self) -> int:
+        idle1, dt = self._idle_s(), time.monotonic() - self.t0
+        if self.idle0 is not None and idle1 is not None and dt >= 0.2:
+            idle = (idle1 - self.idle0) / dt
+        else:
+            try:
+                idle = self.n - os.getloadavg()[0]
+            except OSError:
+                idle = self.n - 1.0
+        return int(min(max(round(idle + 1.0), 1), self.n))
 
 
 class _Worker:
     """One process next to IPOPT for the comparison candidates (spawned: the caller may hold
     threads, and forking it would copy held locks)."""
 
-    def __init__(self, rig: Rig, settings: OptimizeSettings, site: Any):
+    def __init__(self, rig: Rig, settings: OptimizeSettings, site: Any, refs: bool):
         self.args = (rig, settings, site)
         self.pool = cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         # A spawned child re-imports the parent's __main__ script unless it is hidden: a script
@@ -72,7 +111,9 @@ class _Worker:
         main.__dict__.pop("__file__", None)
         main.__spec__ = None
         try:
-            self.refs = self.pool.submit(cand.references, *self.args)  # starts the process
+            self.refs = self.pool.submit(cand.references, *self.args) if refs else None  # starts the process
+            if self.refs is None:
+                self.pool.submit(int)  # starts the process
         finally:
             main.__dict__.pop("__spec__", None)
             main.__dict__.update(hidden)
@@ -123,16 +164,14 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
              should_stop: Callable[[], bool] | None = None) -> OptimizeResult:
     """The best drive within ``settings`` that this run has seen (see the module docstring).
 
-    ``progress`` is called after every IPOPT iteration and at each phase; when ``should_stop()``
+    ``progress`` is called after IPOPT's iterations and at each phase; when ``should_stop()``
     returns True, IPOPT stops, the worker's unfinished work is dropped and the best checked
     drive so far is returned (``cancelled=True``).
     """
     t0 = time.perf_counter()
     budget = settings.time_budget_s
     stop = should_stop or (lambda: False)
-    site = settings.lot
-    crit = settings.criterion
-    timings: dict[str, float] = {}
+    cores = _Cores()
 
     def report(it: int, s: float, v: float, phase: str) -> None:
         if progress is not None:
@@ -142,65 +181,98 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
         return t0 + budget - time.perf_counter()
 
     report(0, float("nan"), float("nan"), "start")
-    worker = _Worker(rig, settings, site)
+    workers: list[_Worker] = []
     try:
-        return _run(rig, settings, site, crit, worker, t0, timings, report, remaining, stop)
+        return _run(rig, settings, t0, report, remaining, stop, cores, workers.append)
     finally:
-        worker.close()
+        for w in workers:  # also when the run raised or was interrupted
+            w.close()
 
 
-def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remaining, stop) -> OptimizeResult:
-    budget = settings.time_budget_s
-    tr = transcribe(Problem.of(rig, settings, site))
+def _starts(tr, settings, site, crit, report) -> tuple[list, list[list[ControlProfile]], list[ControlProfile]]:
+    """The candidates IPOPT may start from, best first: ``(near, score or −violation, z,
+    profile)``, the first chunks of random profiles drawn for it, and the reference profiles."""
     lay = layout(tr.grid)
-
-    # --- start: the reference maneuvers and the first random candidates, by the model
-    starts = [c.profile for c in cand.reference_profiles(rig, settings, site) if c.name != "highway_run"]
-    drawn = [cand.random_profiles(rig, settings, site, c, size, first)
+    refs = [c.profile for c in cand.reference_profiles(tr.problem.rig, settings, site) if c.name != "highway_run"]
+    drawn = [cand.random_profiles(tr.problem.rig, settings, site, c, size, first)
              for c, (first, size) in enumerate(_chunks(settings.n_random)) if first < START_RANDOM]
-    starts += [p for chunk in drawn for p in chunk]
     ranked = []
-    for i, c in enumerate(starts):
-        z = z_from_profile(tr.grid, tr.scales, c)
+    for i, c in enumerate(refs + [p for chunk in drawn for p in chunk]):
+        z = z_from_profile(tr.grid, tr.scales, c, terrain=site.terrain)
         if site.entry is not None:
             z[lay.pose] = [site.entry[0] / tr.scales.position_m, site.entry[1] / tr.scales.position_m,
                            site.entry[2]]
+            z = with_nodes(tr.grid, tr.scales, z, site.terrain)
         v = violation(tr, z)
         s = model_value(tr, z, crit)
         near = v < NEAR_FEASIBLE
         ranked.append((near, s if near else -v, -i, z, c))
         report(0, s, v, "start")
+    # the best by the model among the starts that nearly satisfy the optimizer's constraints
+    # (with the small monotone barrier IPOPT regains feasibility within a few iterations and keeps
+    # the excitation; a better start counts more than a feasible one: benchmarks/bench_ipopt.py)
+    ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
+    return ranked, drawn, refs
+
+
+def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker) -> OptimizeResult:
+    budget = settings.time_budget_s
+    site = settings.lot
+    crit = settings.criterion
+    timings: dict[str, float] = {}
+    problem = Problem.of(rig, settings, site)
+    tr = cached(problem, TRANSCRIPTION)
+    notes = [tr.info.note] if tr.info.note else []
+    cached_refs = cand.cached_references(rig, settings, site)
+    timings["transcription"] = time.perf_counter() - t0
+
+    ranked, drawn, _ = _starts(tr, settings, site, crit, report)
     if not ranked:
         raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits "
                             "to start from")
-    # the best by the model among the starts that nearly satisfy the optimizer's constraints
-    # (with the small monotone barrier IPOPT regains feasibility within a few iterations and keeps
-    # the excitation; a better start counts more than a feasible one: benchmarks/bench_ipopt.py);
-    # when none does, the least violating one, moved to the nearest point that satisfies them
-    ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
-    near, _, _, z_start, start = ranked[0]
-    start_note = ""
-    if not near:  # e.g. every candidate starts elsewhere than the lot's entry: move to the nearest feasible
-        z_start, restored = restore(tr, z_start, time.perf_counter() + 0.25 * remaining())
-        start_note = (f"no candidate satisfied the optimizer's constraints: IPOPT started from {start.name} moved "
-                      f"to the nearest drive that does ({restored})")
-        report(0, model_value(tr, z_start, crit), violation(tr, z_start), "start")
-    timings["start"] = time.perf_counter() - t0
-    worker.start_rest(z_start, COBYLA_SHARE * budget, settings.n_random, drawn)
+    if not ranked[0][0]:  # e.g. every candidate starts elsewhere than the lot's entry: move to the nearest feasible
+        z, restored = restore(tr, ranked[0][3], time.perf_counter() + 0.25 * remaining())
+        ranked[0] = (True, model_value(tr, z, crit), ranked[0][2], z, ranked[0][4])
+        notes.append(f"no candidate satisfied the optimizer's constraints: IPOPT started from {ranked[0][4].name} "
+                     f"moved to the nearest drive that does ({restored})")
+    starts = [r for r in ranked if r[0]][:settings.starts] or ranked[:1]
+    free = cores.free()
+    scheduler = multistart.engine.scheduler_address(settings.scheduler)
+    jobs = min(len(starts), free)
+    spare = free - jobs if scheduler is None else free - 1
+    timings["start"] = time.perf_counter() - t0 - timings["transcription"]
 
-    # --- optimize
-    out = solve(tr, z_start, time.perf_counter() + remaining() - finish_reserve_s(budget), crit,
-                settings.max_iterations, should_stop=stop, t_start=t0,
-                progress=lambda it, s, v, el: report(it, s, v, "optimize"))
-    timings["optimize"] = time.perf_counter() - t0 - timings["start"]
-    cancelled = out.status == "cancelled" or stop()
-    report(out.iterations, out.score, 0.0, "check")
+    # the comparison worker: next to IPOPT when a core is left for it; the references only
+    # (after IPOPT, in this process) when none is and they are not cached
+    worker = None
+    if spare >= 1:
+        worker = _Worker(rig, settings, site, refs=cached_refs is None)
+        keep_worker(worker)
+        worker.start_rest(starts[0][3], COBYLA_SHARE * budget, settings.n_random, drawn)
+    else:
+        notes.append(f"no core was free for the random screen and COBYLA ({free} free for {jobs} IPOPT start"
+                     f"{'s' if jobs != 1 else ''}): they were skipped")
 
-    # --- check the best iterates independently
+    # --- optimize: every start on the engine
+    deadline = time.time() + remaining() - finish_reserve_s(budget)
+    tasks = [multistart.StartTask(problem, r[4].name, r[3], deadline, TRANSCRIPTION, SOLVER, settings.max_iterations)
+             for r in starts]
+    results = multistart.run(tasks, jobs, scheduler, progress=lambda it, s, v: report(it, s, v, "optimize"),
+                             should_stop=stop)
+    timings["optimize"] = time.perf_counter() - t0 - sum(timings.values())
+    outcomes = [r.outcome for r in results if r.outcome is not None]
+    cancelled = stop() or any(o.status == "cancelled" for o in outcomes)
+    n_conv = sum(r.converged for r in results)
+    errors = [f"{r.name}: {r.error}" for r in results if r.error]
+    win = max(outcomes, key=lambda o: o.score, default=None)
+    report(0 if win is None else win.iterations, -np.inf if win is None else win.score, 0.0, "check")
+
+    # --- check the best iterates of every start independently, best first
+    iterates = sorted(((v, z) for o in outcomes for v, z in o.feasible), key=lambda r: -r[0])
     passed: list[Candidate] = []
     first_failure = ""
     n_checked = 0
-    for value, z in out.feasible[:CHECK_ITERATES]:
+    for value, z in iterates[:CHECK_ITERATES]:
         if len(passed) >= KEEP_ITERATES or (passed and remaining() < 1.0):
             break
         n_checked += 1
@@ -210,22 +282,33 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
             first_failure = first_failure or bad[0]
             continue
         passed.append(Candidate("optimized", "optimized", prof, bad, model=value, rotation=cand.rotation_min(traj)))
-    timings["check"] = time.perf_counter() - t0 - timings["start"] - timings["optimize"]
+    timings["check"] = time.perf_counter() - t0 - sum(timings.values())
 
-    # --- collect the worker's work: what it finishes while the budget lasts (less the time the
-    # full evaluations below take), all of it when IPOPT finished early
-    pending = [f for f in [worker.refs, worker.cobyla, *worker.chunks] if f is not None]
-    if not cancelled:
-        cf.wait(pending, timeout=max(remaining() - 0.6 * finish_reserve_s(budget), 0.0))
-    refs: list[Candidate] = _result(worker.refs, 0.0) or []
-    cob = _result(worker.cobyla, 0.0)
-    chunks = [f for f in worker.chunks if f.done() and not f.cancelled()]
-    randoms = [c for f in chunks for c in (_result(f, 0.0) or [])]
-    worker.close()
+    # --- collect the worker's finished work (a short grace: the checks ran meanwhile)
+    refs: list[Candidate] = cached_refs or []
+    cob, randoms = None, []
+    if worker is not None:
+        if worker.refs is not None:
+            refs = _result(worker.refs, max(min(remaining() - 0.5 * finish_reserve_s(budget), 30.0), 0.0)) or []
+            cand.store_references(rig, settings, site, refs)
+        cob = _result(worker.cobyla, 0.0)
+        randoms = [c for f in worker.chunks if f.done() and not f.cancelled() for c in (_result(f, 0.0) or [])]
+        worker.close()
+    elif cached_refs is None and not cancelled:
+        refs = cand.references(rig, settings, site)
+        cand.store_references(rig, settings, site, refs)
+    if not randoms:  # the random starts were screened by the model here: check them for the comparison
+        randoms = [Candidate(p.name, "random", p, [],
+                             model=model_value(tr, z_from_profile(tr.grid, tr.scales, p, terrain=site.terrain), crit))
+                   for chunk in drawn for p in chunk]
+        for c in randoms:
+            traj, c.violations = check(c.profile, rig, settings, site)
+            c.rotation = cand.rotation_min(traj)
 
     # --- score by the full evaluator what can win (most important first, while time lasts)
     pool: list[Candidate] = [cand.full(c, rig, crit) for c in passed]
     pool.extend(c for c in refs if c.feasible)
+    start = starts[0][4]
     start_c = next((c for c in refs + randoms if c.name == start.name), None)
     if start_c is None:
         start_c = Candidate(start.name, "start", start, check(start, rig, settings, site)[1])
@@ -251,8 +334,9 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
     if heur is not None and not heur.row and remaining() > 0:
         pool.append(cand.full(heur, rig, crit))
     if not pool:
+        why = win.ipopt_status if win is not None else "; ".join(errors) or "no start ran"
         raise OptimizeError("no drive passed the limit and lot check (IPOPT: "
-                            f"{out.ipopt_status}, {out.iterations} iterations"
+                            f"{why}, {0 if win is None else win.iterations} iterations"
                             + (f"; its best iterate: {first_failure}" if first_failure else "") + ")")
     best = max(pool, key=lambda c: (c.row["value"], c.kind == "optimized"))
 
@@ -275,8 +359,9 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
     if passed:
         row("optimized", "optimized", max(passed, key=lambda c: c.row["value"]))
     else:
+        why = win.ipopt_status if win is not None else "no start ran"
         rows.append({"name": "optimized", "kind": "optimized", "score": None, "feasible": False, "result": False,
-                     "violations": [first_failure or f"IPOPT kept no feasible iterate ({out.ipopt_status})"]})
+                     "violations": [first_failure or f"IPOPT kept no feasible iterate ({why})"]})
     for c in refs:
         row(c.name, "reference", c)
     if top_random:
@@ -294,7 +379,9 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
         r["ratio"] = (rep.score / s) if s else None
     rows.sort(key=lambda r: -(r.get("score") or 0.0))
 
-    message = [start_note] if start_note else []
+    message = list(notes)
+    message.append(f"{n_conv} of {len(results)} IPOPT start{'s' if len(results) != 1 else ''} converged"
+                   + (f" ({', '.join(errors)})" if errors else ""))
     if best.kind != "optimized":
         message.append(f"the result is {best.name} ({best.kind}): no IPOPT iterate that passed the check "
                        "was better")
@@ -305,11 +392,22 @@ def _run(rig, settings, site, crit, worker: _Worker, t0, timings, report, remain
         message.append(f"{len(randoms)} of {settings.n_random} random candidates were scored within the budget")
     timings["compare"] = time.perf_counter() - t0 - sum(timings.values())
     elapsed = time.perf_counter() - t0
-    report(out.iterations, rep.score, 0.0, "done")  # the last word: the result's score
-    return OptimizeResult(profile, traj, rep, rows, "cancelled" if cancelled else out.status, out.iterations,
-                          elapsed, cancelled, model_score=float(out.score),
+    statuses = [o.status for o in outcomes]
+    if cancelled:
+        status = "cancelled"
+    elif statuses and all(s == "converged" for s in statuses):
+        status = "converged"
+    elif any(s == "time_budget" for s in statuses):
+        status = "time_budget"
+    elif win is not None:
+        status = win.status
+    else:
+        status = "failed"
+    report(0 if win is None else win.iterations, rep.score, 0.0, "done")  # the last word: the result's score
+    return OptimizeResult(profile, traj, rep, rows, status, 0 if win is None else win.iterations,
+                          elapsed, cancelled, model_score=float(-np.inf if win is None else win.score),
                           timings_s={k: round(v, 3) for k, v in timings.items()}, message="; ".join(message),
-                          ipopt_status=out.ipopt_status, source=best.name if best.kind != "optimized" else "optimized",
-                          criterion=crit, lot=site.outline())
-
-
+                          ipopt_status="" if win is None else win.ipopt_status,
+                          source=best.name if best.kind != "optimized" else "optimized",
+                          criterion=crit, lot=site.outline(), starts=len(results), starts_converged=n_conv,
+                          compiled=tr.info.mode == "compiled")

@@ -35,6 +35,10 @@ class OptimizeSettings:
     ``criterion``: what is maximised: ``E`` (λ_min, the score), ``D`` (log det) or ``A``
     (−trace of the inverse) of the target-scaled information (:mod:`.criteria`).
     ``max_iterations``: cap on IPOPT's iterations (None: until converged or out of time).
+    ``starts``: IPOPT runs from this many of the best candidates (by the optimizer's model), at
+    once on as many cores as are free (or on the Dask cluster); the best checked plan wins.
+    ``scheduler``: a Dask scheduler address for the starts (default: ``EXCITE_DASK_SCHEDULER``,
+    else local processes).
     """
 
     duration_s: float = 90.0
@@ -48,6 +52,8 @@ class OptimizeSettings:
     site: Any = None
     criterion: str = "E"
     max_iterations: int | None = None
+    starts: int = 2
+    scheduler: str | None = None
 
     def __post_init__(self) -> None:
         def finite(name: str) -> float:
@@ -73,6 +79,10 @@ class OptimizeSettings:
                                                 or not isinstance(self.max_iterations, int)
                                                 or self.max_iterations < 1):
             raise OptimizeError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
+        if isinstance(self.starts, bool) or not isinstance(self.starts, int) or not 1 <= self.starts <= 64:
+            raise OptimizeError(f"starts must be an integer between 1 and 64, got {self.starts!r}")
+        if self.scheduler is not None and not isinstance(self.scheduler, str):
+            raise OptimizeError(f"scheduler must be a Dask scheduler address, got {self.scheduler!r}")
         from .site import Site
 
         if self.site is not None and not isinstance(self.site, Site):
@@ -115,8 +125,12 @@ class OptimizeResult:
     log_det, trace_inv, rotation_excitation, value, ratio, feasible, violations}`` with ``kind``
     one of ``optimized``, ``reference``, ``random``, ``cobyla``, ``start``, ``heuristic``;
     scores from the full evaluator; ``ratio`` = the result's score / this score.
-    ``status``: IPOPT's outcome — ``converged``, ``time_budget`` (stopped by the budget or the
-    iteration cap), ``infeasible``, ``failed`` or ``cancelled``; ``ipopt_status`` IPOPT's own.
+    ``status``: IPOPT's outcome — ``converged`` (every start converged), ``time_budget`` (a
+    start was stopped by the budget or the iteration cap), ``infeasible``, ``failed`` or
+    ``cancelled``; ``ipopt_status`` and ``iterations`` are those of the start whose model value
+    was best; ``starts`` and ``starts_converged`` say how many starts ran and converged.
+    ``compiled``: whether the optimizer's model ran compiled (else CasADi's virtual machine;
+    ``message`` says why).
     """
 
     profile: ControlProfile
@@ -134,6 +148,9 @@ class OptimizeResult:
     source: str = "optimized"
     criterion: str = "E"
     lot: dict[str, Any] | None = None  # the site planned in, in local metres (Site.outline)
+    starts: int = 1
+    starts_converged: int = 0
+    compiled: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (the report is :meth:`Report.to_dict`)."""
@@ -141,6 +158,7 @@ class OptimizeResult:
             "status": self.status, "iterations": self.iterations, "elapsed_s": self.elapsed_s,
             "cancelled": self.cancelled, "model_score": self.model_score, "score": self.report.score,
             "ipopt_status": self.ipopt_status, "source": self.source, "criterion": self.criterion,
+            "starts": self.starts, "starts_converged": self.starts_converged, "compiled": self.compiled,
             "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison, "lot": self.lot,
             "report": self.report.to_dict(),
         }

@@ -188,6 +188,45 @@ class _Objective(ca.Callback):
         return rev
 
 
+class _ObjectiveAndGradient(ca.Callback):
+    """IPOPT's ``grad_f``: ``(x, p) → (f, ∇f)`` of an :class:`_Objective` in one call (CasADi's
+    own composes the callback's value and reverse sweep, which costs more)."""
+
+    def __init__(self, obj: _Objective):
+        ca.Callback.__init__(self)
+        self.obj = obj
+        self.construct("grad_f", {})
+
+    def get_n_in(self):
+        return 2
+
+    def get_n_out(self):
+        return 2
+
+    def get_name_in(self, i):
+        return ("x", "p")[i]
+
+    def get_name_out(self, i):
+        return ("f", "grad_f_x")[i]
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.obj.n_z) if i == 0 else ca.Sparsity(0, 1)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.scalar() if i == 0 else ca.Sparsity.dense(self.obj.n_z)
+
+    def eval(self, arg):
+        o = self.obj
+        if time.perf_counter() > o.deadline:
+            o.last["past_deadline"] = True
+            return [np.nan, np.full(o.n_z, np.nan)]
+        z = np.array(arg[0]).ravel()
+        M = o.M(z)
+        w, V = np.linalg.eigh(M)
+        f, dw = criteria.smooth(w, o.criterion, o.mu, o.beta)
+        return [f, o.info.vjp(z, M, (V * dw) @ V.T)]
+
+
 class _LagrangianHessian(ca.Callback):
     """The exact Hessian of IPOPT's Lagrangian ``σ f + λᵀ g`` (upper triangle, dense)."""
 
@@ -344,7 +383,11 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     cb = _IterationCallback(tr.n_z, tr.n_g, 0, on_iter)
     opts = {**options.ipopt(), "ipopt.max_iter": 100000 if max_iterations is None else int(max_iterations),
             "print_time": False, "iteration_callback": cb, "error_on_fail": False, "show_eval_warnings": False}
-    keep_alive: tuple = (obj, cb)
+    grad_f = _ObjectiveAndGradient(obj)
+    opts["grad_f"] = grad_f
+    if tr.jac_g is not None:
+        opts["jac_g"] = tr.jac_g
+    keep_alive: tuple = (obj, cb, grad_f)
     if options.hessian == "exact":
         hl = _LagrangianHessian(tr, obj)
         opts["hess_lag"] = hl

@@ -30,6 +30,7 @@ compiled when :mod:`.compiled` has (or can build) them, in CasADi's virtual mach
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,12 +38,15 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from scipy import sparse
 
 from ..motion.vehicle import Limits
 from . import compiled
-from .kinematics import Grid, Scales, body_samples, layout, path, sparse_dm
+from .kinematics import Grid, Scales, body_samples, layout, sparse_dm, terrain_path
 from .model import build_model, coarse_rig
-from .problem import CLOSURE_TOL_M, CLOSURE_TOL_RAD, LOT_BUFFER_M, Problem
+from .problem import CLOSURE_TOL_M, CLOSURE_TOL_RAD, LOT_BUFFER_M, Bound, Problem
+
+SHOOTING_TOL_M, SHOOTING_TOL_RAD = 0.05, 0.002  # continuity of an iterate worth the check
 
 
 @dataclass(frozen=True)
@@ -57,8 +61,10 @@ class TranscriptionOptions:
     knot_step_s: float = 1.5
     keyframe_rate_hz: float = 2.0
     imu_substeps: int = 4
-    hull_refine: int = 4
+    hull_refine: int = 0
+    limits_every: int = 1
     lat_accel_every: int = 1
+    shooting_s: float | None = 3.0
     compile: str = "auto"
 
     def __post_init__(self) -> None:
@@ -134,6 +140,8 @@ class Transcription:
     n_params: int
     rows: dict[str, slice] = field(default_factory=dict)
     options: TranscriptionOptions = field(default_factory=TranscriptionOptions)
+    jac_g: ca.Function | None = None  # (x, p) → (g, ∂g/∂x), built once: CasADi's own is slower
+    n_linear: int = 0  # the first rows are linear in z
 
     @property
     def n_z(self) -> int:
@@ -220,50 +228,67 @@ def information(problem: Problem, grid: Grid, sc: Scales, options: Transcription
 def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOptions()) -> Transcription:
     """The NLP of ``problem`` (see the module docstring)."""
     site, limits = problem.site, problem.limits
-    grid = Grid.make(problem.duration_s, options.knot_step_s, options.keyframe_rate_hz, options.imu_substeps)
+    grid = Grid.make(problem.duration_s, options.knot_step_s, options.keyframe_rate_hz, options.imu_substeps,
+                     options.shooting_s)
     lo = site.lot.polygon_m.min(axis=0)
     hi = site.lot.polygon_m.max(axis=0)
     sc = Scales.of(limits, float(np.abs(np.concatenate([lo, hi])).max()))
     lay = layout(grid)
+    # the objective's body samples in matrix symbols: the graph stays small (sparse products,
+    # sums, a map of the per-sample body function), so its reverse sweep builds in milliseconds;
+    # expanded to scalar operations it evaluates faster but takes seconds and 150 MB to build
     z = ca.MX.sym("z", lay.size)
     info = information(problem, grid, sc, options, z)
+    z = ca.SX.sym("z", lay.size)  # the constraints: scalar operations, each row local to its segment
     b = problem.bounds()
 
-    rows: list[ca.MX] = []
-    lb, ub, lb_ok, ub_ok = [], [], [], []
     names: dict[str, slice] = {}
+    lin: list[sparse.csr_matrix] = []
+    nonlin: list[ca.SX] = []
+    bounds: list[tuple[int, object]] = []
 
-    def add(name: str, expr, bound) -> None:
-        n = expr.shape[0]
-        start = sum(r.shape[0] for r in rows)
-        names[name] = slice(start, start + n)
-        rows.append(expr)
-        for out, v in ((lb, bound.lo), (ub, bound.hi), (lb_ok, bound.lo_ok), (ub_ok, bound.hi_ok)):
-            out.append(np.full(n, v))
+    def add(name: str, part, bound) -> None:
+        """A block of rows: a sparse matrix on z (linear) or SX expressions (nonlinear)."""
+        linear = sparse.issparse(part)
+        if linear:
+            part = part[np.flatnonzero(abs(part).max(axis=1).toarray().ravel() > 0)]  # identically zero rows
+            lin.append(part)
+        else:
+            nonlin.append(part)
+        bounds.append((part.shape[0], bound, name, linear))
 
-    # linear in z: the convex hulls of the derivative splines (sparse rows)
-    E = np.zeros((grid.n_coefficients, lay.n_speed))
-    E[2:-2] = np.eye(lay.n_speed)
-    zu = z[lay.speed] * sc.speed_mps
-    zk = z[lay.curv] * sc.curvature_1pm
+    # linear in z (sparse rows with ≤ 4 nonzeros): the speed's and curvature's values and rates
+    E = sparse.lil_matrix((grid.n_coefficients, lay.size))
+    E[2:-2, lay.speed] = sparse.identity(lay.n_speed) * sc.speed_mps
+    K = sparse.lil_matrix((grid.n_coefficients, lay.size))
+    K[:, lay.curv] = sparse.identity(lay.n_curv) * sc.curvature_1pm
+    E, K = E.tocsr(), K.tocsr()
     r = options.hull_refine
+    if r > 0:  # the convex hulls of the derivative splines (sufficient everywhere)
+        def on(d: int, C):
+            return sparse.csr_matrix(grid.hull(d, r)) @ C
+    else:  # sampled at every ``limits_every``-th model sample
+        def on(d: int, C):
+            return grid.C[d][::options.limits_every] @ C
+    add("speed", on(0, E), b["speed"])
+    add("accel", on(1, E), b["accel"])
+    # the jerk is piecewise linear: its values at the knots bound it exactly
+    add("jerk", sparse.csr_matrix(grid.hull(2)) @ E, b["jerk"])
+    add("curvature", on(0, K), b["curvature"])
+    add("curvature_rate", on(1, K), b["curvature_rate"])
 
-    def linear(H: np.ndarray, v):
-        H = H[np.abs(H).max(axis=1) > 0]  # at the ends the speed's hull rows are identically zero
-        return ca.mtimes(sparse_dm(H), v)
-
-    add("speed", linear(grid.hull(0, r) @ E, zu), b["speed"])
-    add("accel", linear(grid.hull(1, r) @ E, zu), b["accel"])
-    add("jerk", linear(grid.hull(2) @ E, zu), b["jerk"])
-    add("curvature", linear(grid.hull(0, r), zk), b["curvature"])
-    add("curvature_rate", linear(grid.hull(1, r), zk), b["curvature_rate"])
-
-    # nonlinear: lateral acceleration and bump caps at a few samples, the lot at its rate
+    # nonlinear: the lateral acceleration and bump caps at every ``lat_accel_every``-th sample,
+    # the lot at the rate its geometry needs, the closure
     e = options.lat_accel_every
-    Ue, Ce = grid.U[0][::e], grid.C[0][::e]
-    ue, ke = ca.mtimes(sparse_dm(Ue), zu), ca.mtimes(sparse_dm(Ce), zk)
+    ue = ca.mtimes(sparse_dm(grid.C[0][::e] @ E), z)
+    ke = ca.mtimes(sparse_dm(grid.C[0][::e] @ K), z)
     add("lat_accel", ue * ue * ke, b["lat_accel"])
-    u, a, j, jd, k, kd, kdd, psi, x, y = path(grid, sc, z)
+    (u, a, j, jd, k, kd, kdd, psi, x, y, _), defects = terrain_path(grid, sc, z, site.terrain, with_defects=True)
+    if defects is not None:
+        tol = np.tile([SHOOTING_TOL_M / sc.position_m, SHOOTING_TOL_M / sc.position_m, SHOOTING_TOL_RAD],
+                      grid.n_segments - 1)
+        nonlin.append(defects)
+        bounds.append((defects.shape[0], (np.zeros(tol.size), np.zeros(tol.size), -tol, tol), "continuity", False))
     c = clearance_every(problem, grid)
     clear = site.clearance()
     add("clearance", clear(ca.horzcat(x[::c], y[::c]).T).T, b["clearance"])
@@ -272,16 +297,32 @@ def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOp
         add(f"bump_{i + 1}", cap_expr, bound)
     lay_pose = z[lay.pose]
     if problem.closed:
-        from .problem import Bound
-
         add("closure_xy", ca.vertcat(x[-1] - lay_pose[0] * sc.position_m, y[-1] - lay_pose[1] * sc.position_m),
             Bound(0.0, 0.0, -CLOSURE_TOL_M, CLOSURE_TOL_M))
         # heading: the winding number is fixed by the start (see solver.solve); compared via sin/cos
         add("closure_sin", ca.sin(psi[-1] - lay_pose[2]), Bound(0.0, 0.0, -CLOSURE_TOL_RAD, CLOSURE_TOL_RAD))
         add("closure_cos", ca.cos(psi[-1] - lay_pose[2]), Bound(0.99, 1.0, 0.98, 1.0))
-    # expanded to scalar operations: its Jacobian (every iteration) and Hessian (restoration)
-    # evaluate about twice as fast as the matrix graph's
-    g_kin = ca.Function("g_kin", [z], [ca.densify(ca.vertcat(*rows))]).expand()
+
+    # the rows: linear first, then nonlinear; the Jacobian of the linear ones is a constant
+    A = sparse.vstack(lin).tocsr()
+    g_nl = ca.vertcat(*nonlin)
+    A_dm = sparse_dm(A)
+    g_expr = ca.densify(ca.vertcat(ca.mtimes(A_dm, z), g_nl))
+    g_kin = ca.Function("g_kin", [z], [g_expr])
+    p = ca.SX.sym("p", 0)
+    jac_g = ca.Function("jac_g", [z, p], [g_expr, ca.vertcat(A_dm, ca.jacobian(g_nl, z))], ["x", "p"],
+                        ["g", "jac_g_x"])
+    lb, ub, lb_ok, ub_ok = [], [], [], []
+    start = 0
+    for linear in (True, False):
+        for n, bound, name, is_lin in bounds:
+            if is_lin != linear:
+                continue
+            names[name] = slice(start, start + n)
+            start += n
+            vals = bound if isinstance(bound, tuple) else (bound.lo, bound.hi, bound.lo_ok, bound.hi_ok)
+            for out, v in zip((lb, ub, lb_ok, ub_ok), vals):
+                out.append(np.broadcast_to(np.asarray(v, dtype=float), (n,)))
 
     lbz = np.full(lay.size, -np.inf)
     ubz = np.full(lay.size, np.inf)
@@ -291,12 +332,16 @@ def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOp
     lbz[lay.curv], ubz[lay.curv] = -2.0, 2.0
     lbz[lay.pose] = [lo[0] / sc.position_m, lo[1] / sc.position_m, -4 * np.pi]
     ubz[lay.pose] = [hi[0] / sc.position_m, hi[1] / sc.position_m, 4 * np.pi]
+    if lay.n_shoot:  # the nodes' positions inside the lot's bounding box, their headings free
+        lbz[lay.shoot] = np.tile([lo[0] / sc.position_m, lo[1] / sc.position_m, -np.inf], lay.n_shoot)
+        ubz[lay.shoot] = np.tile([hi[0] / sc.position_m, hi[1] / sc.position_m, np.inf], lay.n_shoot)
     if site.entry is not None:
         ex, ey, eh = site.entry
         lbz[lay.pose] = ubz[lay.pose] = [ex / sc.position_m, ey / sc.position_m, eh]
     crig = coarse_rig(problem.rig, options.keyframe_rate_hz, options.imu_substeps)
     return Transcription(problem, grid, sc, info, g_kin, np.concatenate(lb), np.concatenate(ub),
-                         np.concatenate(lb_ok), np.concatenate(ub_ok), lbz, ubz, len(crig.scored), names, options)
+                         np.concatenate(lb_ok), np.concatenate(ub_ok), lbz, ubz, len(crig.scored), names, options,
+                         jac_g=jac_g, n_linear=A.shape[0])
 
 
 def violation(tr: Transcription, z: np.ndarray, g: np.ndarray | None = None, within_limits: bool = False) -> float:
@@ -307,3 +352,29 @@ def violation(tr: Transcription, z: np.ndarray, g: np.ndarray | None = None, wit
     v = max(np.maximum(lo - gv, 0.0).max(initial=0.0), np.maximum(gv - hi, 0.0).max(initial=0.0))
     v = max(v, np.maximum(tr.lbz - z, 0.0).max(initial=0.0), np.maximum(z - tr.ubz, 0.0).max(initial=0.0))
     return float(v)
+
+
+def problem_key(problem: Problem, options: TranscriptionOptions) -> str:
+    """What a transcription is built from, as text (the criterion does not enter it)."""
+    site = problem.site
+    feats = [(f.role, np.asarray(f.polygon_m).round(6).tolist(), f.direction, f.slope, f.height_m, f.max_speed_mps)
+             for f in site.terrain.features]
+    return json.dumps([problem.rig.config.model_dump_json(), problem.duration_s, repr(problem.limits),
+                       site.outline(), repr(feats), problem.closed, repr(options)], default=str)
+
+
+_CACHE: dict[str, Transcription] = {}
+_CACHE_SIZE = 4
+
+
+def cached(problem: Problem, options: TranscriptionOptions = TranscriptionOptions()) -> Transcription:
+    """:func:`transcribe`, kept per process for the last few problems (a process forked from
+    one that transcribed the problem finds it already built)."""
+    key = problem_key(problem, options)
+    tr = _CACHE.pop(key, None)
+    if tr is None:
+        tr = transcribe(problem, options)
+    _CACHE[key] = tr  # most recent last
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.pop(next(iter(_CACHE)))
+    return tr
