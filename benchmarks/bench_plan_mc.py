@@ -115,6 +115,7 @@ def main() -> int:
     ap.add_argument("--no-optimize", action="store_true", help="no optimizer run: the --plan files")
     ap.add_argument("--time-budget", type=float, default=60.0)
     ap.add_argument("--n-random", type=int, default=50)
+    ap.add_argument("--no-baselines", action="store_true", help="only the optimizer's plans and the --plan files")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
     out = args.out
@@ -129,7 +130,8 @@ def main() -> int:
         plans[name] = Path(path)
     if not args.no_optimize:
         plans.update(optimizer_plans(rig, args.duration, args.criterion or ["E"], args.time_budget, out / "plans"))
-    plans.update(baseline_plans(rig, args.duration, args.n_random, args.seed, out / "plans"))
+    if not args.no_baselines:
+        plans.update(baseline_plans(rig, args.duration, args.n_random, args.seed, out / "plans"))
     rows = []
     for name, path in plans.items():
         traj = read_route(path, suspension=rig.suspension)

@@ -96,6 +96,14 @@ def optimize(
     n_random: Annotated[int, typer.Option(help=f"Random candidates in the comparison; range {_B['n_random']}.")] = 200,
     criterion: Annotated[str, typer.Option(help="What to maximise: E (λ_min, the score), D (log det), "
                                                 "A (−trace of the inverse).")] = "E",
+    starts: Annotated[int, typer.Option(help="IPOPT starts (the best candidates by the model), run at once on the "
+                                             "free cores or the Dask cluster; the best checked plan wins; "
+                                             "range [1, 64].")] = 2,
+    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler for the starts (default: "
+                                                       "$EXCITE_DASK_SCHEDULER, else local processes).")] = None,
+    compile_only: Annotated[bool, typer.Option("--compile-only", help="Compile the optimizer's model for this "
+                                               "rig and duration with the C compiler into the cache "
+                                               "($EXCITE_CACHE_DIR) and exit (a Docker image's build step).")] = False,
 ) -> None:
     """Plan the drive that determines the worst-determined calibration direction best.
 
@@ -112,11 +120,21 @@ def optimize(
     if out.exists() and not out.is_dir():
         raise ExciteError(f"-o/--out: {out} exists and is not a folder")
     site = parse_lot(lot)
-    OptimizeSettings(time_budget_s=time_budget)  # validate the budget as given
+    OptimizeSettings(time_budget_s=time_budget, starts=starts)  # validate the budget as given
+    if compile_only:
+        from ..plan.compiled import cache_dir
+        from ..plan.transcription import prepare
+
+        r = load_rig(rig)
+        mode, seconds = prepare(r, OptimizeSettings(duration_s=duration, site=site, closed=closed))
+        console().print(f"the optimizer's model for {r.name}, {duration:g} s: {mode} "
+                        f"({', '.join(f'{k} {v:.1f} s' for k, v in seconds.items()) or 'cached'}) in {cache_dir()}")
+        return
     # the budget bounds the whole command: start-up so far and writing the files come off it
     left = time_budget - _process_age_s() - _WRITE_S
     settings = OptimizeSettings(duration_s=duration, site=site, seed=seed, time_budget_s=max(left, 0.5),
-                                closed=closed, n_random=n_random, criterion=criterion)
+                                closed=closed, n_random=n_random, criterion=criterion, starts=starts,
+                                scheduler=scheduler)
     r = load_rig(rig)
     out_console = console()
     interrupted = {"flag": False}
@@ -144,8 +162,10 @@ def optimize(
     finally:
         signal.signal(signal.SIGINT, old)
     out_console.print(comparison_table(result))
-    out_console.print(f"status [bold]{result.status}[/] (IPOPT: {result.ipopt_status}, {result.iterations} "
-                  f"iterations); result: {result.source}; {result.elapsed_s:.1f} s of the {time_budget:g} s "
-                  f"budget; score {result.report.score:.4g}" + (f"\n{result.message}" if result.message else ""))
+    out_console.print(f"status [bold]{result.status}[/] ({result.starts_converged} of {result.starts} IPOPT "
+                      f"start{'s' if result.starts != 1 else ''} converged; the best: {result.ipopt_status}, "
+                      f"{result.iterations} iterations); result: {result.source}; {result.elapsed_s:.1f} s of the "
+                      f"{time_budget:g} s budget; score {result.report.score:.4g}"
+                      + (f"\n{result.message}" if result.message else ""))
     for p in write_outputs(result, out, site.origin):
         out_console.print(f"wrote {p}")

@@ -29,7 +29,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -84,44 +84,47 @@ def _library(name: str, key: str) -> Path:
     return cache_dir() / "casadi" / f"{name}_{key}.so"
 
 
-def load(name: str, functions: Sequence[ca.Function], key: str, check: Sequence | None = None,
-         wait: bool = False) -> Loaded:
-    """``functions`` compiled (from the cache, or compiled now with ``wait``), else as given.
+def load(name: str, names: Sequence[str], key: str, build: Callable[[], Sequence[ca.Function]],
+         reference: ca.Function | None = None, check: Sequence | None = None, wait: bool = False,
+         what: str = "the optimizer's model") -> Loaded:
+    """The functions ``names`` compiled (from the cache, or compiled now with ``wait``), else as
+    ``build()`` makes them (called only when needed: the virtual machine, or code generation).
 
-    ``check``: inputs of ``functions[0]`` at which a cached library must reproduce the virtual
-    machine (relative ``VERIFY_RTOL``); a library that does not is deleted and rebuilt.
+    ``reference`` and ``check``: a cached library's ``names[0]`` must reproduce ``reference``
+    at the inputs ``check`` (relative ``VERIFY_RTOL``); a library that does not is deleted and
+    rebuilt.
     """
     t0 = time.perf_counter()
-    vm = {f.name(): f for f in functions}
     lib = _library(name, key)
     seconds: dict[str, float] = {}
+    note = ""
     if lib.exists():
         try:
-            loaded = {n: ca.external(n, str(lib)) for n in vm}
+            loaded = {n: ca.external(n, str(lib)) for n in names}
+            why = ""
         except RuntimeError as exc:
             loaded, why = None, f"cannot load {lib.name}: {str(exc).splitlines()[0][:120]}"
         if loaded is not None:
-            if check is None or _agrees(vm[functions[0].name()], loaded[functions[0].name()], check):
+            if reference is None or check is None or _agrees(reference, loaded[names[0]], check):
                 seconds["load"] = time.perf_counter() - t0
                 return Loaded(loaded, "compiled", "", seconds)
             why = f"{lib.name} disagrees with the model it was compiled from"
         lib.unlink(missing_ok=True)
         note = f"{why}: rebuilding it"
-    else:
-        note = ""
+    functions = list(build())
+    vm = {f.name(): f for f in functions}
     cc = compiler()
     if cc is None:
         why = ("compiling is disabled (EXCITE_COMPILE=0)" if os.environ.get("EXCITE_COMPILE") is not None
                else "no C compiler found (set CC)")
-        return Loaded(vm, "virtual machine", f"{why}: the optimizer's model runs in CasADi's virtual "
-                      "machine (several times slower)", seconds)
-    started = _compile(name, list(functions), key, cc, wait, seconds)
+        return Loaded(vm, "virtual machine", f"{why}: {what} runs in CasADi's virtual machine (several "
+                      "times slower)", seconds)
+    started = _compile(name, functions, key, cc, wait, seconds)
     if wait and lib.exists():
-        loaded = {n: ca.external(n, str(lib)) for n in vm}
-        return Loaded(loaded, "compiled", note, seconds)
-    what = ("started compiling" if started else "another process is compiling")
-    return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"{what} the optimizer's model for this "
-                  f"problem shape in the background ({lib.name}); this run uses CasADi's virtual machine", seconds)
+        return Loaded({n: ca.external(n, str(lib)) for n in names}, "compiled", note, seconds)
+    how = "started compiling" if started else "another process is compiling"
+    return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"{how} {what} for this problem shape "
+                  f"in the background ({lib.name}); this run uses CasADi's virtual machine for it", seconds)
 
 
 def _agrees(a: ca.Function, b: ca.Function, args: Sequence) -> bool:

@@ -93,6 +93,13 @@ class Grid:
         return self.t.size
 
     @property
+    def greville(self) -> np.ndarray:
+        """Where each coefficient sits in time (the Greville abscissae): a B-spline whose
+        coefficients are samples of a smooth function there approximates it to second order."""
+        t = self.knots
+        return np.array([t[i + 1:i + DEGREE + 1].mean() for i in range(self.n_coefficients)])
+
+    @property
     def n_keyframes(self) -> int:
         return (self.t.size - 1) // self.imu_substeps + 1
 

@@ -235,21 +235,28 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
         ranked[0] = (True, model_value(tr, z, crit), ranked[0][2], z, ranked[0][4])
         notes.append(f"no candidate satisfied the optimizer's constraints: IPOPT started from {ranked[0][4].name} "
                      f"moved to the nearest drive that does ({restored})")
-    starts = [r for r in ranked if r[0]][:settings.starts] or ranked[:1]
     free = cores.free()
     scheduler = multistart.engine.scheduler_address(settings.scheduler)
-    jobs = min(len(starts), free)
+    # local starts run at once on the free cores (a start queued behind another would get what
+    # is left of the budget); the cluster takes them all
+    n_starts = settings.starts if scheduler is not None else min(settings.starts, free)
+    starts = [r for r in ranked if r[0]][:n_starts] or ranked[:1]
+    if len(starts) < settings.starts:
+        notes.append(f"{len(starts)} of the {settings.starts} IPOPT starts asked for ran ({free} core"
+                     f"{'s' if free != 1 else ''} free)")
+    jobs = len(starts)
     spare = free - jobs if scheduler is None else free - 1
     timings["start"] = time.perf_counter() - t0 - timings["transcription"]
 
     # the comparison worker: next to IPOPT when a core is left for it; the references only
     # (after IPOPT, in this process) when none is and they are not cached
     worker = None
-    if spare >= 1:
+    compare = settings.comparison if settings.comparison is not None else spare >= 1
+    if compare:
         worker = _Worker(rig, settings, site, refs=cached_refs is None)
         keep_worker(worker)
         worker.start_rest(starts[0][3], COBYLA_SHARE * budget, settings.n_random, drawn)
-    else:
+    elif settings.comparison is None:
         notes.append(f"no core was free for the random screen and COBYLA ({free} free for {jobs} IPOPT start"
                      f"{'s' if jobs != 1 else ''}): they were skipped")
 
@@ -288,6 +295,9 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
     refs: list[Candidate] = cached_refs or []
     cob, randoms = None, []
     if worker is not None:
+        if settings.comparison and not cancelled:  # asked for: wait for it within the budget
+            pending = [f for f in [worker.refs, worker.cobyla, *worker.chunks] if f is not None]
+            cf.wait(pending, timeout=max(remaining() - 0.6 * finish_reserve_s(budget), 0.0))
         if worker.refs is not None:
             refs = _result(worker.refs, max(min(remaining() - 0.5 * finish_reserve_s(budget), 30.0), 0.0)) or []
             cand.store_references(rig, settings, site, refs)

@@ -39,6 +39,10 @@ class OptimizeSettings:
     once on as many cores as are free (or on the Dask cluster); the best checked plan wins.
     ``scheduler``: a Dask scheduler address for the starts (default: ``EXCITE_DASK_SCHEDULER``,
     else local processes).
+    ``comparison``: the random screen and COBYLA in a worker next to IPOPT — None: when a core
+    is free for it (measured at the start), and what it finished when IPOPT is done counts;
+    True: always, and the run waits for it within the budget; False: never (the reference
+    maneuvers and the random candidates drawn as starts are compared in every case).
     """
 
     duration_s: float = 90.0
@@ -54,6 +58,7 @@ class OptimizeSettings:
     max_iterations: int | None = None
     starts: int = 2
     scheduler: str | None = None
+    comparison: bool | None = None
 
     def __post_init__(self) -> None:
         def finite(name: str) -> float:
@@ -81,6 +86,8 @@ class OptimizeSettings:
             raise OptimizeError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.starts, bool) or not isinstance(self.starts, int) or not 1 <= self.starts <= 64:
             raise OptimizeError(f"starts must be an integer between 1 and 64, got {self.starts!r}")
+        if self.comparison is not None and not isinstance(self.comparison, bool):
+            raise OptimizeError(f"comparison must be true, false or None, got {self.comparison!r}")
         if self.scheduler is not None and not isinstance(self.scheduler, str):
             raise OptimizeError(f"scheduler must be a Dask scheduler address, got {self.scheduler!r}")
         from .site import Site

@@ -401,6 +401,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     solver._keep = keep_alive  # noqa: SLF001 — the callbacks must outlive the solver
     keep(z0)
     z_final = lam_x = lam_g = None
+    timings: dict[str, float] = {}
     try:
         sol = solver(**args)
         z_final = np.array(sol["x"]).ravel()
@@ -409,6 +410,11 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         stats = solver.stats()
         rs = str(stats.get("return_status", "unknown"))
         state["it"] = int(stats.get("iter_count", state["it"]))
+        evals = {k[len("t_wall_nlp_"):]: float(v) for k, v in stats.items() if k.startswith("t_wall_nlp_")}
+        timings.update({f"nlp_{k}": v for k, v in evals.items() if v})
+        timings["ipopt_own"] = float(stats.get("t_wall_total", 0.0)) - sum(evals.values()) - float(
+            stats.get("t_wall_callback_fun", 0.0))
+        timings["iteration_callback"] = float(stats.get("t_wall_callback_fun", 0.0))
     except RuntimeError as exc:  # IPOPT or a callback raised: what was kept stays valid
         rs = f"error: {exc}".splitlines()[0][:200]
     if obj.last.get("past_deadline"):
@@ -424,5 +430,5 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     else:
         status = "failed"
     feasible.sort(key=lambda r: -r[0])
-    return Outcome(feasible, state["it"], status, rs, hist, z_final, lam_x, lam_g,
-                   {"solve": time.perf_counter() - t_solve})
+    timings["solve"] = time.perf_counter() - t_solve
+    return Outcome(feasible, state["it"], status, rs, hist, z_final, lam_x, lam_g, timings)

@@ -46,7 +46,8 @@ from .kinematics import Grid, Scales, body_samples, layout, sparse_dm, terrain_p
 from .model import build_model, coarse_rig
 from .problem import CLOSURE_TOL_M, CLOSURE_TOL_RAD, LOT_BUFFER_M, Bound, Problem
 
-SHOOTING_TOL_M, SHOOTING_TOL_RAD = 0.05, 0.002  # continuity of an iterate worth the check
+SHOOTING_TOL_M, SHOOTING_TOL_RAD = 0.5, 0.02  # continuity of an iterate worth the check (which drives
+# the profile from the start pose: the check decides)
 
 
 @dataclass(frozen=True)
@@ -76,22 +77,29 @@ class Information:
     """z → M = S Λ S (numpy) of the coarse model, its vector-Jacobian product and (for an exact
     Hessian) its second-order derivatives.
 
-    ``body``: z → the body samples (virtual machine: cheap); ``model``: the samples → M (the
-    function :func:`.model.build_model` made, in the virtual machine); ``fast``/``fast_rev``: the
-    same and its reverse sweep compiled, when available. Without ``body`` the model takes z
-    itself (small test problems)."""
+    ``body``: ``(z, scales) → the body samples``, ``scales`` the constant vector ``consts``
+    (the decision vector's scales: a compiled body serves every lot size and limit);
+    ``model``: the samples → M (the function :func:`.model.build_model` made, in the virtual
+    machine). ``fast``: the compiled ``(body, body_rev, model, model_rev)``, any of them None
+    where the virtual machine runs. Without ``body`` the model takes z itself (small test
+    problems)."""
 
-    def __init__(self, model: ca.Function, body: ca.Function | None = None, fast: ca.Function | None = None,
-                 fast_rev: ca.Function | None = None, mode: str = "virtual machine", note: str = ""):
-        self.body, self.model_vm = body, model
-        self.model = model if fast is None else fast
-        self.model_rev = model.reverse(1) if fast_rev is None else fast_rev
-        self.body_rev = None if body is None else body.reverse(1)
+    def __init__(self, model: ca.Function, body: ca.Function | None = None, consts: np.ndarray | None = None,
+                 fast: dict[str, ca.Function | None] | None = None, mode: str = "virtual machine",
+                 note: str = ""):
+        fast = fast or {}
+        self.body_vm, self.model_vm = body, model
+        self.consts = [] if consts is None else [np.asarray(consts, dtype=float)]
+        self.model = fast.get("model") or model
+        self.model_rev = fast.get("model_rev") or model.reverse(1)
+        self.body = None if body is None else fast.get("body") or body
+        self.body_rev = None if body is None else fast.get("body_rev") or body.reverse(1)
         self.mode, self.note = mode, note
+        self.seconds: dict[str, float] = {}
         self._second: tuple[ca.Function, ca.Function] | None = None
 
     def _samples(self, z):
-        return [z] if self.body is None else list(self.body(z))
+        return [z] if self.body is None else list(self.body(z, *self.consts))
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         return np.array(self.model(*self._samples(z)))
@@ -103,8 +111,8 @@ class Information:
         adj = adj if isinstance(adj, (list, tuple)) else [adj]
         if self.body is None:
             return np.array(adj[0]).ravel()
-        out = self.body_rev(z, *s, *adj)
-        return np.array(out).ravel()
+        out = self.body_rev(z, *self.consts, *s, *adj)
+        return np.array(out[0] if isinstance(out, (list, tuple)) else out).ravel()
 
     def second_order(self, z: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(∂M/∂z as (n, p, p), ∂²⟨G, M(z)⟩/∂z²)`` by CasADi's automatic differentiation in the
@@ -114,7 +122,7 @@ class Information:
         if self._second is None:
             zs = ca.MX.sym("z", n)
             Gs = ca.MX.sym("G", p, p)
-            Ms = self.model_vm(*([zs] if self.body is None else self.body(zs)))
+            Ms = self.model_vm(*([zs] if self.body_vm is None else self.body_vm(zs, *self.consts)))
             self._second = (ca.Function("jac_M", [zs], [ca.jacobian(ca.vec(Ms), zs)]),
                             ca.Function("hess_GM", [zs, Gs], [ca.hessian(ca.dot(Gs, Ms), zs)[0]]))
         J = np.array(self._second[0](z)).reshape(p, p, n, order="F").transpose(2, 0, 1)
@@ -206,23 +214,69 @@ def _model_sources() -> list[Path]:
     return [p for p in out if p.exists()]
 
 
-def information(problem: Problem, grid: Grid, sc: Scales, options: TranscriptionOptions,
-                z: ca.MX) -> Information:
-    """The information map of ``problem`` on ``grid`` (compiled model where possible)."""
+def _scales_vector(sc: Scales) -> np.ndarray:
+    return np.array([sc.speed_mps, sc.curvature_1pm, sc.position_m])
+
+
+def body_function(problem: Problem, grid: Grid, options: TranscriptionOptions) -> ca.Function:
+    """``(z, scales) → the body samples`` of ``problem`` on ``grid`` (:func:`.kinematics.body_samples`)."""
     crig = coarse_rig(problem.rig, options.keyframe_rate_hz, options.imu_substeps)
     pose = crig.config.vehicle.T_V_B
-    body = ca.Function("body", [z], list(body_samples(grid, sc, z, crig.suspension, pose.R, pose.p,
-                                                        problem.site.terrain)))
+    z = ca.MX.sym("z", layout(grid).size)
+    v = ca.MX.sym("scales", 3)
+    sc = Scales(v[0], v[1], v[2])
+    return ca.Function("body", [z, v], list(body_samples(grid, sc, z, crig.suspension, pose.R, pose.p,
+                                                         problem.site.terrain)))
+
+
+def information(problem: Problem, grid: Grid, sc: Scales, options: TranscriptionOptions) -> Information:
+    """The information map of ``problem`` on ``grid``: the body samples and the model, each
+    compiled where possible (:mod:`.compiled`; two libraries: the model depends on the rig and
+    the keyframes only, the body on the grid, the vehicle and the terrain)."""
+    crig = coarse_rig(problem.rig, options.keyframe_rate_hz, options.imu_substeps)
+    body = body_function(problem, grid, options)
+    consts = _scales_vector(sc)
     model = build_model(crig, grid.n_keyframes).scaled
     if options.compile == "never":
-        return Information(model, body)
-    rev = model.reverse(1)
+        return Information(model, body, consts)
+    wait = options.compile == "wait"
+    z_test = _test_point(grid)
+    body_key = compiled.key_of("body", repr(grid.t_knots.tolist()), grid.n_samples, grid.imu_substeps,
+                               repr(grid.segments.tolist()), crig.config.model_dump_json(),
+                               repr([(f.role, np.asarray(f.polygon_m).round(6).tolist(), f.direction, f.slope,
+                                      f.height_m) for f in problem.site.terrain.features]),
+                               sources=[Path(__file__).with_name("kinematics.py"), Path(__file__).with_name("terrain.py"),
+                                        Path(__file__)])
+    b = compiled.load("body", ["body", "adj1_body"], body_key, lambda: [body, body.reverse(1)],
+                      reference=body, check=[z_test, consts], wait=wait, what="the optimizer's kinematics")
     key = compiled.key_of("information", crig.config.model_dump_json(), grid.n_keyframes,
                           options.imu_substeps, sources=_model_sources())
-    args = list(body(_test_point(grid)))
-    loaded = compiled.load("information", [model, rev], key, check=args, wait=options.compile == "wait")
-    return Information(model, body, loaded.functions[model.name()], loaded.functions[rev.name()], loaded.mode,
-                       loaded.note)
+    rev_name = f"adj1_{model.name()}"  # CasADi's name of model.reverse(1)
+    m = compiled.load("information", [model.name(), rev_name], key, lambda: [model, model.reverse(1)],
+                      reference=model, check=list(body(z_test, consts)), wait=wait)
+    fast = {}
+    if b.mode == "compiled":
+        fast.update(body=b.functions["body"], body_rev=b.functions["adj1_body"])
+    if m.mode == "compiled":
+        fast.update(model=m.functions[model.name()], model_rev=m.functions[rev_name])
+    mode = "compiled" if len(fast) == 4 else "virtual machine" if not fast else "partly compiled"
+    info = Information(model, body, consts, fast, mode, "; ".join(n for n in (m.note, b.note) if n))
+    info.seconds = {**{f"model_{k}": v for k, v in m.seconds.items()}, **{f"body_{k}": v for k, v in b.seconds.items()}}
+    return info
+
+
+def prepare(rig, settings, options: TranscriptionOptions = TranscriptionOptions()) -> tuple[str, dict[str, float]]:
+    """Compile the information model of ``settings``' problem shape (the rig and the duration:
+    not the lot) into the cache now, unless it is there: ``(mode, seconds per step)``."""
+    from dataclasses import replace
+
+    problem = Problem.of(rig, settings)
+    grid = Grid.make(problem.duration_s, options.knot_step_s, options.keyframe_rate_hz, options.imu_substeps,
+                     options.shooting_s)
+    lo, hi = problem.site.lot.polygon_m.min(axis=0), problem.site.lot.polygon_m.max(axis=0)
+    sc = Scales.of(problem.limits, float(np.abs(np.concatenate([lo, hi])).max()))
+    info = information(problem, grid, sc, replace(options, compile="wait"))
+    return info.mode, info.seconds
 
 
 def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOptions()) -> Transcription:
@@ -237,8 +291,7 @@ def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOp
     # the objective's body samples in matrix symbols: the graph stays small (sparse products,
     # sums, a map of the per-sample body function), so its reverse sweep builds in milliseconds;
     # expanded to scalar operations it evaluates faster but takes seconds and 150 MB to build
-    z = ca.MX.sym("z", lay.size)
-    info = information(problem, grid, sc, options, z)
+    info = information(problem, grid, sc, options)
     z = ca.SX.sym("z", lay.size)  # the constraints: scalar operations, each row local to its segment
     b = problem.bounds()
 
