@@ -301,3 +301,103 @@ def test_kinematics_over_terrain_match_the_driven_profile(coarse):
     df = np.abs(f.T - b.specific_force_B)[inner]
     assert df.max() < 0.15 * np.abs(b.specific_force_B).max()
     assert np.percentile(df, 95) < 0.02 * np.abs(b.specific_force_B).max()
+
+
+def test_bspline_hull_bounds_every_value_of_a_derivative():
+    """The convex-hull bounds hold everywhere between the samples, and refining the knots
+    tightens them towards the curve's own extremes; the jerk's bound is exact at the knots."""
+    g = Grid.make(40.0, 1.5, 2.0, 4)
+    rng = np.random.default_rng(5)
+    c = rng.standard_normal(g.n_coefficients)
+    s = g.spline(c)
+    t = np.linspace(0.0, 40.0, 40001)
+    for d in range(3):
+        v = s.derivative(d)(t) if d else s(t)
+        gaps = []
+        for r in (1, 2, 4):
+            h = g.hull(d, r) @ c
+            assert h.min() <= v.min() + 1e-9 and h.max() >= v.max() - 1e-9
+            gaps.append(h.max() - v.max() + v.min() - h.min())
+        if d < 2:
+            assert gaps[2] < gaps[0]
+        else:  # piecewise linear: its values at the knots
+            assert gaps[0] == pytest.approx(0.0, abs=1e-3 * np.ptp(v))
+
+
+def test_multiple_shooting_is_the_single_shooting_path_at_continuity(rig, coarse):
+    """With the nodes on the path (z_from_profile), the defects vanish and the path equals that
+    of one segment (single shooting); moving a node breaks continuity at it and at the next node
+    only, and the defects say by how much."""
+    multi = Grid.make(30.0, 1.5, 2.0, 4, shooting_s=3.0)
+    single = Grid.make(30.0, 1.5, 2.0, 4)
+    sc = Scales.of(Limits(), 40.0)
+    prof = profile_from_z(single, sc, np.r_[0.4 + 0.1 * np.sin(single.greville[2:-2]),
+                                            0.5 * np.sin(single.greville / 4), [0.1, -0.2, 0.3]])
+    zm, zs = z_from_profile(multi, sc, prof), z_from_profile(single, sc, prof)
+    assert layout(multi).n_shoot == multi.n_segments - 1 >= 9
+    from excite.plan.kinematics import terrain_path
+    from excite.plan.terrain import Terrain
+
+    def path_of(grid, z):
+        zsym = ca.MX.sym("z", z.size)
+        out, defects = terrain_path(grid, sc, zsym, Terrain(), with_defects=True)
+        outs = list(out) + ([defects] if defects is not None else [])
+        return [np.array(v).ravel() for v in ca.Function("p", [zsym], outs)(z)]
+
+    m, s1 = path_of(multi, zm), path_of(single, zs)
+    for a, b in zip(m[:10], s1[:10]):
+        assert np.abs(a - b).max() < 1e-9
+    assert np.abs(m[-1]).max() < 1e-12
+    moved = zm.copy()
+    moved[layout(multi).shoot.start] += 0.01  # the first node's x, by 0.4 m
+    d = path_of(multi, moved)[-1]  # (x, y, ψ) of node 1, node 2, ...
+    assert d[0] == pytest.approx(0.01) and d[3] == pytest.approx(-0.01)
+    assert np.abs(np.delete(d, [0, 3])).max() < 1e-12
+
+
+def test_exact_hessian_of_a_spectral_objective_matches_finite_differences():
+    """The Hessian the exact-Hessian solver gives IPOPT (spectral curvature along ∂M/∂z plus
+    ⟨∂f/∂M, ∂²M/∂z²⟩) is the objective's, for each criterion, also where eigenvalues coalesce."""
+    from excite.plan.solver import SOFTMIN_BETA, _Objective
+
+    z = ca.MX.sym("z", 3)
+    Mz = ca.vertcat(ca.horzcat(1 + z[0] ** 2, z[1] * z[2], 0), ca.horzcat(z[1] * z[2], 1 + ca.sin(z[1]), z[0]),
+                    ca.horzcat(0, z[0], 2 + z[2] ** 3))
+    info = Information(ca.Function("M", [z], [Mz]))
+    for crit, z0 in (("E", [0.3, 0.2, -0.4]), ("D", [0.3, 0.2, -0.4]), ("A", [0.1, 0.5, 0.2]), ("E", [0.0, 0.0, 0.0])):
+        obj = _Objective(info, 3, crit, 0.5, SOFTMIN_BETA)
+        f = lambda x: float(obj.eval([ca.DM(x)])[0])  # noqa: E731
+        x0 = np.array(z0)
+        H = obj.hessian(x0)
+        h = 1e-4
+        E = np.eye(3) * h
+        fd = np.array([[(f(x0 + E[i] + E[j]) - f(x0 + E[i] - E[j]) - f(x0 - E[i] + E[j]) + f(x0 - E[i] - E[j]))
+                        / (4 * h * h) for j in range(3)] for i in range(3)])
+        assert np.abs(H - fd).max() <= 1e-4 * max(np.abs(fd).max(), 1.0), crit
+
+
+def test_compiled_functions_are_cached_checked_and_replaced_when_stale(tmp_path, monkeypatch):
+    """A compiled library is built once per key into the cache, loaded from it afterwards (its
+    result bit-identical to the virtual machine's), rebuilt when it disagrees with the function it
+    claims to be, and where no compiler may run the virtual machine is used with a one-line note."""
+    from excite.plan import compiled
+
+    monkeypatch.setenv("EXCITE_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("EXCITE_COMPILE", raising=False)
+    if compiled.compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    x = ca.MX.sym("x", 3)
+    f = ca.Function("toy", [x], [ca.sin(x) * ca.sumsqr(x)])
+    arg = [np.array([0.1, -0.7, 2.0])]
+    first = compiled.load("toy", ["toy"], "k1", lambda: [f], reference=f, check=arg, wait=True)
+    assert first.mode == "compiled" and "compile" in first.seconds
+    assert np.array_equal(np.array(first.functions["toy"](*arg)), np.array(f(*arg)))
+    again = compiled.load("toy", ["toy"], "k1", lambda: pytest.fail("built again"), reference=f, check=arg)
+    assert again.mode == "compiled" and "load" in again.seconds
+    g = ca.Function("toy", [x], [2 * ca.sin(x) * ca.sumsqr(x)])  # the same key, another function
+    stale = compiled.load("toy", ["toy"], "k1", lambda: [g], reference=g, check=arg, wait=True)
+    assert stale.mode == "compiled" and "rebuilding" in stale.note
+    assert np.array_equal(np.array(stale.functions["toy"](*arg)), np.array(g(*arg)))
+    monkeypatch.setenv("EXCITE_COMPILE", "0")
+    vm = compiled.load("toy", ["toy"], "k2", lambda: [f], reference=f, check=arg)
+    assert vm.mode == "virtual machine" and "virtual machine" in vm.note and "\n" not in vm.note

@@ -119,9 +119,17 @@ def load(name: str, names: Sequence[str], key: str, build: Callable[[], Sequence
                else "no C compiler found (set CC)")
         return Loaded(vm, "virtual machine", f"{why}: {what} runs in CasADi's virtual machine (several "
                       "times slower)", seconds)
-    started = _compile(name, functions, key, cc, wait, seconds)
-    if wait and lib.exists():
-        return Loaded({n: ca.external(n, str(lib)) for n in names}, "compiled", note, seconds)
+    fresh = lib.with_suffix(f".{os.getpid()}.{time.time_ns()}.tmp")
+    started = _compile(name, functions, key, cc, wait, seconds, fresh)
+    if wait and started:
+        # loaded from the new file (a name never loaded before) before it takes the cache's
+        # name: the dynamic loader hands a path it has seen back as the library it loaded then
+        try:
+            out = Loaded({n: ca.external(n, str(fresh)) for n in names}, "compiled", note, seconds)
+            os.replace(fresh, lib)
+            return out
+        finally:
+            fresh.unlink(missing_ok=True)
     how = "started compiling" if started else "another process is compiling"
     return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"{how} {what} for this problem shape "
                   f"in the background ({lib.name}); this run uses CasADi's virtual machine for it", seconds)
@@ -142,7 +150,7 @@ def _agrees(a: ca.Function, b: ca.Function, args: Sequence) -> bool:
 
 
 def _compile(name: str, functions: list[ca.Function], key: str, cc: str, wait: bool,
-             seconds: dict[str, float]) -> bool:
+             seconds: dict[str, float], tmp: Path) -> bool:
     """Generate the C source and compile it (in the background unless ``wait``). False when
     another process holds the lock of this key."""
     lib = _library(name, key)
@@ -172,15 +180,16 @@ def _compile(name: str, functions: list[ca.Function], key: str, cc: str, wait: b
         lock.unlink(missing_ok=True)
         raise
     seconds["generate"] = time.perf_counter() - t0
-    tmp = lib.with_suffix(f".{os.getpid()}.tmp")
     cmd = [cc, *FLAGS, str(src), "-o", str(tmp), "-lm"]
-    if wait:
+    if wait:  # the caller loads ``tmp`` and moves it into place
         t1 = time.perf_counter()
         try:
             subprocess.run(cmd, check=True, capture_output=True)
-            os.replace(tmp, lib)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
         finally:
-            for p in (src, tmp, lock):
+            for p in (src, lock):
                 p.unlink(missing_ok=True)
         seconds["compile"] = time.perf_counter() - t1
         return True

@@ -165,7 +165,6 @@ class OptimizeResult:
             "status": self.status, "iterations": self.iterations, "elapsed_s": self.elapsed_s,
             "cancelled": self.cancelled, "model_score": self.model_score, "score": self.report.score,
             "ipopt_status": self.ipopt_status, "source": self.source, "criterion": self.criterion,
-            "starts": self.starts, "starts_converged": self.starts_converged, "compiled": self.compiled,
             "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison, "lot": self.lot,
             "report": self.report.to_dict(),
         }

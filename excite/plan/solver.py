@@ -42,7 +42,7 @@ class SolverOptions:
     """
 
     hessian: str = "limited-memory"
-    history: int = 20
+    history: int = 6
     tol: float = 1e-7
     acceptable_tol: float = 1e-6
     acceptable_iter: int = 15
