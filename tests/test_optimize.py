@@ -401,3 +401,33 @@ def test_compiled_functions_are_cached_checked_and_replaced_when_stale(tmp_path,
     monkeypatch.setenv("EXCITE_COMPILE", "0")
     vm = compiled.load("toy", ["toy"], "k2", lambda: [f], reference=f, check=arg)
     assert vm.mode == "virtual machine" and "virtual machine" in vm.note and "\n" not in vm.note
+
+
+def test_starts_run_on_the_engine_and_say_which_converged(rig):
+    """Two starts on two local processes: each comes back with its best iterates within the
+    limits (at most KEEP), the one IPOPT finished says converged and beat its start, the one
+    capped at 2 iterations does not."""
+    import time as _time
+
+    from excite.plan import multistart
+    from excite.plan.problem import Problem
+    from excite.plan.transcription import cached
+
+    s = opt.OptimizeSettings(duration_s=12.0, lot_x_m=40.0, lot_y_m=30.0)
+    problem = Problem.of(rig, s)
+    tr = cached(problem)
+    ref = next(c.profile for c in __import__("excite.plan.candidates", fromlist=["x"]).reference_profiles(rig, s, s.lot)
+               if c.name == "stop_and_go")
+    z0 = z_from_profile(tr.grid, tr.scales, ref)
+    deadline = _time.time() + 600.0
+    tasks = [multistart.StartTask(problem, "free", z0, deadline),
+             multistart.StartTask(problem, "capped", z0, deadline, max_iterations=2)]
+    seen = []
+    results = multistart.run(tasks, jobs=2, progress=lambda *a: seen.append(a))
+    assert [r.name for r in results] == ["free", "capped"]
+    assert [r.converged for r in results] == [True, False], [r.outcome.ipopt_status for r in results]
+    assert results[1].outcome.ipopt_status == "Maximum_Iterations_Exceeded"
+    assert all(len(r.outcome.feasible) <= multistart.KEEP for r in results)
+    free = results[0].outcome
+    assert free.feasible and free.score > 2 * criteria.value(tr.M(z0), "E")
+    assert free.score > results[1].outcome.score

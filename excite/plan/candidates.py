@@ -169,15 +169,16 @@ def _references_path(rig: Rig, settings, site) -> Path:
     return cache_dir() / "references" / f"{key}.json"
 
 
-def cached_references(rig: Rig, settings, site) -> list[Candidate] | None:
-    """:func:`references` from the cache, or None when this problem's are not cached (the
-    profiles are generated again: cheap, and the cache holds only the rows)."""
+def cached_references(rig: Rig, settings, site, generated: list[Candidate] | None = None) -> list[Candidate] | None:
+    """:func:`references` from the cache, or None when this problem's are not cached (the cache
+    holds only the rows; the profiles are ``generated`` — :func:`reference_profiles` — again)."""
     path = _references_path(rig, settings, site)
     try:
         rows = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    profiles = {c.name: c.profile for c in reference_profiles(rig, settings, site)}
+    generated = reference_profiles(rig, settings, site) if generated is None else generated
+    profiles = {c.name: c.profile for c in generated}
     out = []
     for r in rows:
         if r.get("name") not in profiles:

@@ -189,11 +189,11 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
             w.close()
 
 
-def _starts(tr, settings, site, crit, report) -> tuple[list, list[list[ControlProfile]], list[ControlProfile]]:
+def _starts(tr, settings, site, crit, report, generated: list[Candidate]) -> tuple[list, list[list[ControlProfile]]]:
     """The candidates IPOPT may start from, best first: ``(near, score or −violation, z,
-    profile)``, the first chunks of random profiles drawn for it, and the reference profiles."""
+    profile)``, and the first chunks of random profiles drawn for it."""
     lay = layout(tr.grid)
-    refs = [c.profile for c in cand.reference_profiles(tr.problem.rig, settings, site) if c.name != "highway_run"]
+    refs = [c.profile for c in generated if c.name != "highway_run"]
     drawn = [cand.random_profiles(tr.problem.rig, settings, site, c, size, first)
              for c, (first, size) in enumerate(_chunks(settings.n_random)) if first < START_RANDOM]
     ranked = []
@@ -212,7 +212,7 @@ def _starts(tr, settings, site, crit, report) -> tuple[list, list[list[ControlPr
     # (with the small monotone barrier IPOPT regains feasibility within a few iterations and keeps
     # the excitation; a better start counts more than a feasible one: benchmarks/bench_ipopt.py)
     ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
-    return ranked, drawn, refs
+    return ranked, drawn
 
 
 def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker) -> OptimizeResult:
@@ -223,10 +223,10 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
     problem = Problem.of(rig, settings, site)
     tr = cached(problem, TRANSCRIPTION)
     notes = [tr.info.note] if tr.info.note else []
-    cached_refs = cand.cached_references(rig, settings, site)
     timings["transcription"] = time.perf_counter() - t0
-
-    ranked, drawn, _ = _starts(tr, settings, site, crit, report)
+    generated = cand.reference_profiles(rig, settings, site)
+    cached_refs = cand.cached_references(rig, settings, site, generated)
+    ranked, drawn = _starts(tr, settings, site, crit, report, generated)
     if not ranked:
         raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits "
                             "to start from")

@@ -1,31 +1,31 @@
 """The transcription of a :class:`~.problem.Problem` into a finite NLP that is cheap for IPOPT.
 
 Decision vector z (:mod:`.kinematics`): the B-spline coefficients of speed and curvature (knots
-every ``knot_step_s``) and the start pose. Each constraint is imposed where it binds and no more
-often:
+every ``knot_step_s``), the start pose, and the shooting nodes (x, y, ψ every ``shooting_s``:
+multiple shooting). Every row of the constraint Jacobian is local — a B-spline value depends on
+four coefficients, a position on its shooting segment — and each constraint is imposed where
+it binds and no more often:
 
-- **speed**: bounds on its coefficients (the convex-hull property: the spline stays within
-  them everywhere) — simple variable bounds, no constraint rows;
-- **acceleration, curvature, curvature rate**: bounds on the coefficients of the derivative
-  spline after inserting a knot in every knot interval (:meth:`.kinematics.Grid.hull`:
-  sufficient everywhere, and close to the curve's own extremes) — sparse linear rows;
-- **jerk**: exact at the knots (it is piecewise linear) — sparse linear rows;
-- **lateral acceleration** u²κ (and a bump's speed cap): nonlinear, at every
-  ``lat_accel_every``-th sample (4 Hz by default); a sparse row each;
-- **the lot's clearance**: the lot's smooth signed distance at the rate its geometry needs
-  (:func:`clearance_every`): on a convex lot without keep-out zones the distance along a chord is
-  concave, so only the path's bulge between two samples (``a_lat·h²/8``) must fit in the
-  optimizer's buffer; elsewhere 4 Hz;
-- the closure (``closed``) and the entry pose (variable bounds).
+- **speed**: at every model sample (8 Hz; a spline that dipped below zero between samples would be
+  clipped on playback);
+- **acceleration, curvature, curvature rate**: at every ``limits_every``-th sample (4 Hz: with
+  knots every 1.5 s the spline's extremes between two samples exceed them by < 2 %, inside the
+  5 % margin); linear rows with ≤ 4 nonzeros, their Jacobian a constant;
+- **jerk**: at the knots, exactly (the cubic's second derivative is piecewise linear);
+- **lateral acceleration** u²κ (and a bump's speed cap): at every ``lat_accel_every``-th sample
+  (8 Hz: its peaks are sharp);
+- **the lot's clearance**: its smooth signed distance at the rate the lot's geometry needs
+  (:func:`clearance_every`: 2 Hz on a convex lot, 4 Hz with keep-out zones);
+- **continuity** of the shooting nodes; the closure (``closed``); the entry pose (bounds).
 
-On the 90 s default problem that is ~900 rows with ~2.5·10⁴ Jacobian nonzeros, against 4700
-rows and 3.5·10⁵ nonzeros for every limit at every sample of the model: IPOPT's own linear
-algebra was the largest part of an iteration.
+The constraint Jacobian is built once, in scalar operations (:attr:`Transcription.jac_g`):
+3 ms per evaluation on the 90 s problem. ``hull_refine`` > 0 bounds the linear quantities by the
+B-spline convex hull instead (sufficient everywhere; IPOPT converged far more slowly on it:
+``benchmarks/bench_ipopt.py``).
 
 The objective's information matrix M(z) = S Λ S is the coarse model (:func:`.model.build_model`)
-of the body samples (:func:`.kinematics.body_samples`); the model and its reverse sweep run
-compiled when :mod:`.compiled` has (or can build) them, in CasADi's virtual machine otherwise
-(:class:`Information`).
+of the body samples (:func:`.kinematics.body_samples`); both run compiled when :mod:`.compiled`
+has (or can build) them, in CasADi's virtual machine otherwise (:class:`Information`).
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ class TranscriptionOptions:
     keyframe_rate_hz: float = 2.0
     imu_substeps: int = 4
     hull_refine: int = 0
-    limits_every: int = 1
+    limits_every: int = 2
     lat_accel_every: int = 1
     shooting_s: float | None = 3.0
     compile: str = "auto"
@@ -323,7 +323,9 @@ def transcribe(problem: Problem, options: TranscriptionOptions = TranscriptionOp
     else:  # sampled at every ``limits_every``-th model sample
         def on(d: int, C):
             return grid.C[d][::options.limits_every] @ C
-    add("speed", on(0, E), b["speed"])
+    # the speed at every sample: a spline that dips below zero between samples is clipped when
+    # played back, a jerk spike the check rejects
+    add("speed", grid.C[0] @ E if r == 0 else on(0, E), b["speed"])
     add("accel", on(1, E), b["accel"])
     # the jerk is piecewise linear: its values at the knots bound it exactly
     add("jerk", sparse.csr_matrix(grid.hull(2)) @ E, b["jerk"])
