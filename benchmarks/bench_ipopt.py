@@ -119,7 +119,7 @@ def hessian_cost(rig) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--start", default="random_0_0")
-    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--max-iterations", type=int, default=1500)
     ap.add_argument("--exact-duration", type=float, default=15.0, help="0: skip the exact-Hessian comparison")
     ap.add_argument("--hessian-cost", action="store_true", help="time one exact Hessian on the 90 s problem (minutes)")

@@ -58,14 +58,21 @@ def compiler() -> str | None:
     return None
 
 
+_PACKAGE = Path(__file__).resolve().parents[1]
+
+
 def key_of(*parts: object, sources: Sequence[Path] = ()) -> str:
     """A hash of ``parts`` (their ``repr``), the CasADi version, the compiler flags and the
-    text of ``sources``."""
+    text of ``sources`` (named relative to the package: an image built elsewhere matches)."""
     h = hashlib.sha256()
     h.update(repr((ca.__version__, FLAGS, parts)).encode())
-    for p in sorted(str(s) for s in sources):
-        h.update(p.encode())
-        h.update(Path(p).read_bytes())
+    for p in sorted(Path(s).resolve() for s in sources):
+        try:
+            name = str(p.relative_to(_PACKAGE))
+        except ValueError:
+            name = p.name
+        h.update(name.encode())
+        h.update(p.read_bytes())
     return h.hexdigest()[:24]
 
 
@@ -120,7 +127,12 @@ def load(name: str, names: Sequence[str], key: str, build: Callable[[], Sequence
         return Loaded(vm, "virtual machine", f"{why}: {what} runs in CasADi's virtual machine (several "
                       "times slower)", seconds)
     fresh = lib.with_suffix(f".{os.getpid()}.{time.time_ns()}.tmp")
-    started = _compile(name, functions, key, cc, wait, seconds, fresh)
+    try:
+        started = _compile(name, functions, key, cc, wait, seconds, fresh)
+    except (OSError, subprocess.CalledProcessError) as exc:  # a read-only cache, a compiler that failed
+        return Loaded(vm, "virtual machine", f"cannot compile {what} ({type(exc).__name__}: "
+                      f"{str(exc).splitlines()[0][:100] if str(exc) else ''}): it runs in CasADi's virtual machine",
+                      seconds)
     if wait and started:
         # loaded from the new file (a name never loaded before) before it takes the cache's
         # name: the dynamic loader hands a path it has seen back as the library it loaded then

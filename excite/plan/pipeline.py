@@ -405,7 +405,7 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
     statuses = [o.status for o in outcomes]
     if cancelled:
         status = "cancelled"
-    elif statuses and all(s == "converged" for s in statuses):
+    elif results and n_conv == len(results):
         status = "converged"
     elif any(s == "time_budget" for s in statuses):
         status = "time_budget"

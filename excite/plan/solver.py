@@ -3,7 +3,7 @@
 IPOPT minimises a smooth spectral function of S Λ S (:func:`.criteria.smooth`: for the score,
 the soft minimum ``−(μ/β) log Σ exp(−β λ_i/μ)``, within μ·log(p)/β of λ_min; μ = the start's
 λ_min) whose gradient is one reverse sweep of the model seeded with ``V diag(∂f/∂λ) Vᵀ``
-(:class:`_Objective`). The Hessian of the Lagrangian is either IPOPT's limited-memory
+(:class:`Objective`). The Hessian of the Lagrangian is either IPOPT's limited-memory
 approximation (the default) or exact (:class:`SolverOptions` ``hessian="exact"``: the spectral
 function's curvature through ∂M/∂z plus ⟨∂f/∂M, ∂²M/∂z²⟩ by forward-over-reverse AD, and the
 constraints' exact Hessians); ``benchmarks/bench_ipopt.py`` measures both.
@@ -115,7 +115,7 @@ class _IterationCallback(ca.Callback):
         return [1 if stop else 0]
 
 
-class _Objective(ca.Callback):
+class Objective(ca.Callback):
     """A smooth spectral objective of M(z) (:func:`.criteria.smooth`) and its exact gradient:
     ``∂f/∂M = V diag(∂f/∂λ) Vᵀ`` pushed through one reverse sweep of the model. Smooth even
     where eigenvalues cross (a symmetric function of the spectrum)."""
@@ -126,7 +126,7 @@ class _Objective(ca.Callback):
         self.info, self.n_z, self.criterion, self.mu, self.beta, self.grad = info, n_z, criterion, mu, beta, grad
         self.deadline = deadline
         self.last = {} if last is None else last  # the last z and M(z), shared with the gradient
-        self._revs: list[_Objective] = []  # CasADi holds raw pointers: keep them alive
+        self._revs: list[Objective] = []  # CasADi holds raw pointers: keep them alive
         self.construct("objective_grad" if grad else "objective", {})
 
     def get_n_in(self):
@@ -182,17 +182,17 @@ class _Objective(ca.Callback):
         return not self.grad and nadj == 1
 
     def get_reverse(self, nadj, name, inames, onames, opts):
-        rev = _Objective(self.info, self.n_z, self.criterion, self.mu, self.beta, self.deadline, grad=True,
+        rev = Objective(self.info, self.n_z, self.criterion, self.mu, self.beta, self.deadline, grad=True,
                          last=self.last)
         self._revs.append(rev)
         return rev
 
 
 class _ObjectiveAndGradient(ca.Callback):
-    """IPOPT's ``grad_f``: ``(x, p) → (f, ∇f)`` of an :class:`_Objective` in one call (CasADi's
+    """IPOPT's ``grad_f``: ``(x, p) → (f, ∇f)`` of an :class:`Objective` in one call (CasADi's
     own composes the callback's value and reverse sweep, which costs more)."""
 
-    def __init__(self, obj: _Objective):
+    def __init__(self, obj: Objective):
         ca.Callback.__init__(self)
         self.obj = obj
         self.construct("grad_f", {})
@@ -230,7 +230,7 @@ class _ObjectiveAndGradient(ca.Callback):
 class _LagrangianHessian(ca.Callback):
     """The exact Hessian of IPOPT's Lagrangian ``σ f + λᵀ g`` (upper triangle, dense)."""
 
-    def __init__(self, tr: Transcription, obj: _Objective):
+    def __init__(self, tr: Transcription, obj: Objective):
         ca.Callback.__init__(self)
         self.n, self.m, self.obj = tr.n_z, tr.n_g, obj
         z = ca.MX.sym("z", tr.n_z)
@@ -346,16 +346,16 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
     """Maximise ``criterion`` of the model with one IPOPT run from ``z0`` (until converged,
     ``deadline``, ``max_iterations`` or ``should_stop()``), keeping every feasible iterate.
 
-    ``warm``: a previous outcome whose multipliers start IPOPT (with its barrier small: the
-    warm start keeps the active set). ``mu``: the soft minimum's scale (default: the start's
-    weakest eigenvalue)."""
+    ``warm``: a previous outcome on the same transcription whose multipliers start IPOPT (its
+    barrier small: the warm start keeps the active set; e.g. to continue a run the budget cut
+    short). ``mu``: the soft minimum's scale (default: the start's weakest eigenvalue)."""
     t_start = time.perf_counter() if t_start is None else t_start
     t_solve = time.perf_counter()
     z0 = np.asarray(z0, dtype=float)
     w0 = np.linalg.eigvalsh(tr.M(z0))
     if mu is None:
         mu = max(abs(w0[0]), 1e-8 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
-    obj = _Objective(tr.info, tr.n_z, criterion, mu, options.softmin_beta, deadline + DEADLINE_GRACE_S)
+    obj = Objective(tr.info, tr.n_z, criterion, mu, options.softmin_beta, deadline + DEADLINE_GRACE_S)
     z = ca.MX.sym("z", tr.n_z)
     state = {"it": 0, "stop": False, "calls": 0}
     feasible: list[tuple[float, np.ndarray]] = []
