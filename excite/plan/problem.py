@@ -32,8 +32,8 @@ from ..rig.config import Rig
 
 LIMIT_MARGIN = 0.95  # fraction of a limit the optimizer may use where the drive's playback (PCHIP
 # through the profile's 20 Hz samples) or sampling can exceed the spline's own extremes
-VALUE_MARGIN = 0.99  # the speed: held at every sample of the model, and PCHIP through samples stays
-# within their range
+VALUE_MARGIN = 0.99  # speed and curvature: held at every sample of the model (8 Hz), and PCHIP
+# through the profile's samples stays within their range
 JERK_MARGIN = 0.8  # drive() plays speed back shape-preservingly (PCHIP), which adds up to ~20 % jerk
 LOT_BUFFER_M = 0.25  # the optimizer keeps this much more than the lot's margin
 CLOSURE_TOL_M, CLOSURE_TOL_RAD = 0.5, 0.02  # a closed maneuver's end pose, for the check's candidates
@@ -80,7 +80,7 @@ class Problem:
             "speed": Bound(0.0, VALUE_MARGIN * lim.speed_max_mps, 0.0, lim.speed_max_mps),
             "accel": Bound.limit(-lim.decel_max_mps2, lim.accel_max_mps2),
             "jerk": Bound.limit(-lim.jerk_max_mps3, lim.jerk_max_mps3, JERK_MARGIN),
-            "curvature": Bound.limit(-lim.curvature_max_1pm, lim.curvature_max_1pm),
+            "curvature": Bound.limit(-lim.curvature_max_1pm, lim.curvature_max_1pm, VALUE_MARGIN),
             "curvature_rate": Bound.limit(-lim.curvature_rate_max_1pms, lim.curvature_rate_max_1pms),
             "lat_accel": Bound.limit(-lim.lat_accel_max_mps2, lim.lat_accel_max_mps2),
             "clearance": Bound(self.site.margin_m + LOT_BUFFER_M, inf, self.site.margin_m, inf),
