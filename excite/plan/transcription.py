@@ -80,24 +80,42 @@ class Information:
 
     ``body``: ``(z, scales) → the body samples``, ``scales`` the constant vector ``consts``
     (the decision vector's scales: a compiled body serves every lot size and limit);
-    ``model``: the samples → M (the function :func:`.model.build_model` made, in the virtual
-    machine). ``fast``: the compiled ``(body, body_rev, model, model_rev)``, any of them None
-    where the virtual machine runs. Without ``body`` the model takes z itself (small test
-    problems)."""
+    ``model``: the samples → M (the function :func:`.model.build_model` makes). Either may be
+    given as a function that builds it: it is then built only when the virtual machine needs it
+    (nothing compiled for it, or the exact Hessian). ``fast``: the compiled ``body``,
+    ``body_rev``, ``model``, ``model_rev``, where there are. Without ``body`` the model takes z
+    itself (small test problems)."""
 
-    def __init__(self, model: ca.Function, body: ca.Function | None = None, consts: np.ndarray | None = None,
-                 fast: dict[str, ca.Function | None] | None = None, mode: str = "virtual machine",
-                 note: str = ""):
+    def __init__(self, model, body=None, consts: np.ndarray | None = None,
+                 fast: dict[str, ca.Function] | None = None, mode: str = "virtual machine", note: str = ""):
+        self._build = {"model": model, "body": body}
+        self._vm: dict[str, ca.Function] = {}
         fast = fast or {}
-        self.body_vm, self.model_vm = body, model
         self.consts = [] if consts is None else [np.asarray(consts, dtype=float)]
-        self.model = fast.get("model") or model
-        self.model_rev = fast.get("model_rev") or model.reverse(1)
-        self.body = None if body is None else fast.get("body") or body
-        self.body_rev = None if body is None else fast.get("body_rev") or body.reverse(1)
+        self.has_body = body is not None
+        self.model = fast["model"] if "model" in fast else self.model_vm
+        self.model_rev = fast["model_rev"] if "model_rev" in fast else self.model_vm.reverse(1)
+        self.body = self.body_rev = None
+        if self.has_body:
+            self.body = fast["body"] if "body" in fast else self.body_vm
+            self.body_rev = fast["body_rev"] if "body_rev" in fast else self.body_vm.reverse(1)
         self.mode, self.note = mode, note
         self.seconds: dict[str, float] = {}
         self._second: tuple[ca.Function, ca.Function] | None = None
+
+    def _get(self, name: str) -> ca.Function | None:
+        if name not in self._vm:
+            f = self._build[name]
+            self._vm[name] = f if f is None or isinstance(f, ca.Function) else f()
+        return self._vm[name]
+
+    @property
+    def model_vm(self) -> ca.Function:
+        return self._get("model")
+
+    @property
+    def body_vm(self) -> ca.Function | None:
+        return self._get("body")
 
     def _samples(self, z):
         return [z] if self.body is None else list(self.body(z, *self.consts))
@@ -197,22 +215,13 @@ def clearance_every(problem: Problem, grid: Grid) -> int:
     return max(int(h / grid.dt + 1e-9), 1)
 
 
-def _test_point(grid: Grid) -> np.ndarray:
-    """A fixed, moving z at which a compiled model is checked against the virtual machine."""
-    lay = layout(grid)
-    z = np.zeros(lay.size)
-    z[lay.speed] = 0.3 + 0.1 * np.sin(np.arange(lay.n_speed) / 2.0)
-    z[lay.curv] = 0.5 * np.sin(np.arange(lay.n_curv) / 3.0)
-    return z
-
-
 def _model_sources() -> list[Path]:
     """The source files the information model is built from (part of the compiled cache key)."""
     pkg = Path(__file__).resolve().parents[1]
-    out = [pkg / "plan" / "model.py", pkg / "information.py"]
-    for d in ("factors", "rig", "core"):
-        out += sorted((pkg / d).glob("*.py"))
-    return [p for p in out if p.exists()]
+    out = [pkg / "plan" / "model.py", pkg / "information.py", pkg / "errors.py"]
+    for d in ("factors", "information", "rig", "core"):
+        out += sorted((pkg / d).rglob("*.py"))
+    return [p for p in out if p.is_file()]
 
 
 def _scales_vector(sc: Scales) -> np.ndarray:
@@ -233,32 +242,41 @@ def body_function(problem: Problem, grid: Grid, options: TranscriptionOptions) -
 def information(problem: Problem, grid: Grid, sc: Scales, options: TranscriptionOptions) -> Information:
     """The information map of ``problem`` on ``grid``: the body samples and the model, each
     compiled where possible (:mod:`.compiled`; two libraries: the model depends on the rig and
-    the keyframes only, the body on the grid, the vehicle and the terrain)."""
+    the keyframes only, the body on the grid, the vehicle and the terrain). A cached library is
+    found by its key alone: the functions it was compiled from are not even built."""
     crig = coarse_rig(problem.rig, options.keyframe_rate_hz, options.imu_substeps)
-    body = body_function(problem, grid, options)
     consts = _scales_vector(sc)
-    model = build_model(crig, grid.n_keyframes).scaled
+    built: dict[str, ca.Function] = {}
+
+    def body() -> ca.Function:
+        if "body" not in built:
+            built["body"] = body_function(problem, grid, options)
+        return built["body"]
+
+    def model() -> ca.Function:
+        if "model" not in built:
+            built["model"] = build_model(crig, grid.n_keyframes).scaled
+        return built["model"]
+
     if options.compile == "never":
         return Information(model, body, consts)
     wait = options.compile == "wait"
-    z_test = _test_point(grid)
     body_key = compiled.key_of("body", repr(grid.t_knots.tolist()), grid.n_samples, grid.imu_substeps,
                                repr(grid.segments.tolist()), crig.config.model_dump_json(),
                                repr([(f.role, np.asarray(f.polygon_m).round(6).tolist(), f.direction, f.slope,
                                       f.height_m) for f in problem.site.terrain.features]),
                                sources=[Path(__file__).with_name("kinematics.py"), Path(__file__).with_name("terrain.py")])
-    b = compiled.load("body", ["body", "adj1_body"], body_key, lambda: [body, body.reverse(1)],
-                      reference=body, check=[z_test, consts], wait=wait, what="the optimizer's kinematics")
+    b = compiled.load("body", ["body", "adj1_body"], body_key, lambda: [body(), body().reverse(1)], wait=wait,
+                      what="the optimizer's kinematics")
     key = compiled.key_of("information", crig.config.model_dump_json(), grid.n_keyframes,
                           options.imu_substeps, sources=_model_sources())
-    rev_name = f"adj1_{model.name()}"  # CasADi's name of model.reverse(1)
-    m = compiled.load("information", [model.name(), rev_name], key, lambda: [model, model.reverse(1)],
-                      reference=model, check=list(body(z_test, consts)), wait=wait)
+    m = compiled.load("information", ["scaled", "adj1_scaled"], key, lambda: [model(), model().reverse(1)],
+                      wait=wait)  # CasADi's names of build_model's `scaled` and its reverse sweep
     fast = {}
     if b.mode == "compiled":
         fast.update(body=b.functions["body"], body_rev=b.functions["adj1_body"])
     if m.mode == "compiled":
-        fast.update(model=m.functions[model.name()], model_rev=m.functions[rev_name])
+        fast.update(model=m.functions["scaled"], model_rev=m.functions["adj1_scaled"])
     mode = "compiled" if len(fast) == 4 else "virtual machine" if not fast else "partly compiled"
     info = Information(model, body, consts, fast, mode, "; ".join(n for n in (m.note, b.note) if n))
     info.seconds = {**{f"model_{k}": v for k, v in m.seconds.items()}, **{f"body_{k}": v for k, v in b.seconds.items()}}
