@@ -326,12 +326,24 @@ class Kind:
 
         return blocks(self, nom, rig, entry)
 
+    def at_rate(self, entry: dict, rate_hz: float) -> dict:
+        """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second
+        (the optimizer's coarse rig, :func:`excite.plan.model.coarse_rig`); by default only its
+        rate changes (noise given as a density)."""
+        return dict(entry, rate_hz=rate_hz)
+
     def factor_keyframes(self, rig: RigView, entry: Any, n_keyframes: int) -> np.ndarray:
         """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes`` (relative to
         its start): every ``stride``-th keyframe; pairs need their second keyframe."""
         s = self.stride(rig, entry)
         last = n_keyframes - 1 - (s if self.arity == 2 else 0)
         return np.arange(0, last + 1, s) if last >= 0 else np.zeros(0, dtype=int)
+
+    def measured(self, rig: RigView, entry: Any, recorded: Any, values: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        """What :meth:`residual` compares with the model, from what ``entry`` recorded (its
+        :meth:`simulate` output), at the estimate ``values`` of its quantities; and the values the
+        residual is to be evaluated at. By default the recorded measurements as they are."""
+        return recorded, values
 
     # --- simulation ---
 

@@ -125,6 +125,15 @@ class Imu(Kind):
                                       imu.accelerometer_noise_density)
         return ("cholesky", pre["cov"])
 
+    def measured(self, rig: RigView, imu: ImuConfig, recorded: "ImuData", values: dict) -> tuple[np.ndarray, dict]:
+        """The preintegrated measurement of every interval, preintegrated at the estimated biases
+        (so that the residual's first-order bias correction is zero there)."""
+        n = int(round(imu.update_rate / rig.keyframe_rate_hz))
+        dR, dv, dp, _ = preintegrate_all(recorded.gyro, recorded.accel, n, 1.0 / imu.update_rate,
+                                         values["gyro_bias"], values["accel_bias"])
+        zero = {"gyro_bias": np.zeros(3), "accel_bias": np.zeros(3)}
+        return np.hstack([dR.reshape(-1, 9), dv, dp]), {**values, **zero}
+
     # --- the compiled kernel ---
 
     def blocks(self, nom: Nominal, rig: RigView, imu: ImuConfig) -> FactorBlock:

@@ -86,6 +86,14 @@ class Odometry(Kind):
                 Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset),
                 Quantity(s.name, "scale", 1, "1", 1.0, s.monocular, nuisance=True)]
 
+    def at_rate(self, entry: dict, rate_hz: float) -> dict:
+        """Per-pair σ grow with √(old rate / new rate): chaining the fine measurements over one
+        coarse interval has about that noise."""
+        f = float(np.sqrt(entry["rate_hz"] / rate_hz))
+        noise = entry["noise"]
+        return dict(entry, rate_hz=rate_hz, noise={"rotation_sigma_deg": noise["rotation_sigma_deg"] * f,
+                                                   "translation_sigma_m": noise["translation_sigma_m"] * f})
+
     # --- the math ---
 
     @staticmethod

@@ -327,16 +327,17 @@ def coordinate_names(lay: Layout) -> list[str]:
     return [n for q in lay.estimated for n in q.coordinate_names()]
 
 
-def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
+def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str, Any] | None = None) -> FactorBlock | None:
     """The whitened Jacobians of every factor of ``entry`` on ``nom``, from the derivative of its
-    kind's residual (see the module docstring)."""
+    kind's residual at the noise-free measurement (see the module docstring), at the quantity
+    ``values`` (by name; the nominal ones otherwise)."""
     first = kind.factor_keyframes(rig, entry, nom.n_keyframes)
     if first.size == 0:
         return None
     lay = layout(kind, rig, entry)
     F = linearisation(kind, rig, entry).map(first.size, "serial")
     Jx, Jt = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
-               np.repeat(quantity_inputs(lay)[:, None], first.size, axis=1))
+               np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1))
     N, r = first.size, kind.rows
     Jx = np.asarray(Jx).reshape(r, N, 9 * lay.arity).transpose(1, 0, 2)
     Jt = np.asarray(Jt).reshape(r, N, lay.n_theta).transpose(1, 0, 2)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from ..errors import EvaluationError
@@ -111,6 +112,19 @@ class Closure:
         Jx = np.array(rows)[None]
         return [FactorBlock("gauge", np.array([keyframe]), 1, 1, Jx, np.zeros((1, len(rows), 0)), _NO_COLS)]
 
+    def fix_information(self, R_W_B) -> "ca.SX | ca.MX":
+        """The information (9 × 9, trajectory states) of :meth:`fix` at a keyframe of CasADi
+        orientation ``R_W_B`` (3 × 3): the optimizer's model closes its drives with it."""
+        rows = []
+        if "position" in self.gauge:
+            rows += [ca.DM(np.r_[np.zeros(3), e, np.zeros(3)] / GAUGE_SIGMA_POS_M).T for e in np.eye(3)]
+        if "yaw" in self.gauge:
+            rows.append(ca.horzcat(R_W_B[2, :], ca.DM.zeros(1, 6)) / GAUGE_SIGMA_YAW_RAD)
+        if not rows:
+            return ca.DM.zeros(STATE_DIM, STATE_DIM)
+        J = ca.vertcat(*rows)
+        return ca.mtimes(J.T, J)
+
     # --- the last keyframe ---
 
     def held(self) -> list[int]:
@@ -184,6 +198,22 @@ class Closure:
     def sees_drift(self, b: FactorBlock) -> bool:
         """Whether ``b`` sees a drifting coordinate of θ (and so needs the deviation states)."""
         return bool(self.walk_columns.size and np.isin(b.cols, self.walk_columns).any())
+
+
+def marginalise_nuisance_symbolic(Lam, scored: np.ndarray):
+    """:func:`marginalise_nuisance` of a CasADi Λ, smooth for IPOPT: the nuisance block is
+    scaled to unit diagonal and regularised by 1e-12 (instead of pseudo-inverted), so that an
+    undetermined nuisance removes nothing, as there."""
+    iS, iN = np.flatnonzero(scored), np.flatnonzero(~scored)
+    A = Lam[iS.tolist(), iS.tolist()]
+    if not iN.size:
+        return A
+    B = Lam[iS.tolist(), iN.tolist()]
+    C = Lam[iN.tolist(), iN.tolist()]
+    d = ca.sqrt(ca.fmax(ca.diag(C), 1e-300))
+    Bd = B / ca.repmat(d.T, iS.size, 1)
+    Cn = C / ca.mtimes(d, d.T) + 1e-12 * ca.DM.eye(iN.size)
+    return A - ca.mtimes(Bd, ca.solve(Cn, Bd.T))
 
 
 def marginalise_nuisance(Lam: np.ndarray, scored: np.ndarray) -> np.ndarray:

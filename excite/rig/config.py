@@ -309,6 +309,18 @@ def _with_kinds(cfg: RigConfig) -> RigConfig:
     return cfg.model_copy(update={"sensors": sensors, **absent, **sections})
 
 
+def all_ranges() -> dict[str, bounds.Range]:
+    """The sane range of every numeric rig key, by dotted glob: the rig's own
+    (:data:`excite.core.bounds.RIG`) and every registered kind's (``sensors.*.…`` for a sensor's,
+    ``<section>.…`` for a section's)."""
+    out = dict(bounds.RIG)
+    for kind in registry.kinds():
+        prefix = "sensors.*." if kind.sensor_kinds else f"{kind.section}." if kind.section else None
+        if prefix is not None:
+            out.update({prefix + k: r for k, r in kind.ranges.items()})
+    return out
+
+
 def rig_range(cfg: RigConfig, key: str) -> bounds.Range | None:
     """The sane range of a dotted rig key: its kind's (``sensors.0.noise.rotation_sigma_deg``,
     ``wheels.track_m``, ``imu.update_rate``), or the rig's own (:data:`excite.core.bounds.RIG`)."""
