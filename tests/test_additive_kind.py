@@ -121,7 +121,7 @@ def test_its_jacobian_is_the_derivative_of_an_independent_speed_model(rig, traj)
 
     nom = Nominal.of(traj, rig)
     entry = rig.config.sensors[-1]
-    blk = Speedometer().blocks(nom, rig, entry)
+    blk = symbolic.jacobians(Speedometer(), nom, rig, entry)
     k = 37
     R_BV = nom.R_V_B.T
     p_BV = -R_BV @ nom.p_V_B

@@ -102,33 +102,75 @@ class _Table:
     header_line: int | None = None
 
 
-def _read_text(path: Path) -> str:
+@dataclass(frozen=True)
+class Text:
+    """A route file held in memory: its ``content`` and the ``name`` it would have as a file
+    (its extension chooses the format, as a path's does; its stem names the route). Every reader
+    takes one wherever it takes a path, so a service parses what it holds without a temporary file."""
+
+    content: str | bytes
+    name: str = "route"
+
+
+@dataclass(frozen=True)
+class _Doc:
+    """A route file's text and how errors name it (the path, or the in-memory text's name)."""
+
+    text: str
+    label: str
+    name: str
+
+    @property
+    def stem(self) -> str:
+        return Path(self.name).stem
+
+    @property
+    def suffix(self) -> str:
+        return Path(self.name).suffix.lower()
+
+
+Source = str | Path | Text
+
+
+def document(source: "Source | _Doc") -> _Doc:
+    """The text of a path or of a :class:`Text`, decoded as UTF-8 (a clear error otherwise)."""
+    if isinstance(source, _Doc):
+        return source
+    if isinstance(source, Text):
+        content, label = source.content, source.name
+        if isinstance(content, bytes):
+            try:
+                content = content.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise RouteError(f"not a text file ({exc.reason})", source=label) from None
+        return _Doc(content, label, Path(label).name)
+    path = Path(source)
     try:
-        return path.read_text(encoding="utf-8")
+        return _Doc(path.read_text(encoding="utf-8"), str(path), path.name)
     except UnicodeDecodeError as exc:
         raise RouteError(f"not a text file ({exc.reason})", source=str(path)) from None
 
 
-def _split_rows(path: Path, sep: str | None, header: bool = False) -> _Table:
+def split_rows(doc: _Doc, sep: str | None, header: bool = False) -> _Table:
     """Non-blank, non-comment lines split into fields; with ``header``, a first line holding a
     non-number is returned as the header."""
-    table = _Table(str(path), [], [])
-    for i, raw in enumerate(_read_text(path).splitlines(), start=1):
+    table = _Table(doc.label, [], [])
+    for i, raw in enumerate(doc.text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
         fields = [f.strip() for f in line.split(sep)] if sep else line.split()
-        if header and table.header is None and not table.rows and not _is_number(fields[0]):
+        if header and table.header is None and not table.rows and not is_number(fields[0]):
             table.header, table.header_line = [f.lower() for f in fields], i
             continue
         table.rows.append(fields)
         table.lines.append(i)
     if not table.rows:
-        raise RouteError("the file has no data rows (empty file)", source=str(path))
+        raise RouteError("the file has no data rows (empty file)", source=doc.label)
     return table
 
 
-def _is_number(text: str) -> bool:
+def is_number(text: str) -> bool:
     try:
         float(text)
     except ValueError:
@@ -136,7 +178,7 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarray:
+def numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarray:
     """The rows as a float array; rejects wrong column counts, unparseable numbers, NaN/inf.
 
     Every row must have as many fields as the header (or, without one, as the first row), and
@@ -172,7 +214,7 @@ def _rows_one_by_one(table: _Table, want: int) -> np.ndarray:
         try:
             out[k] = [float(f) for f in fields]
         except ValueError:
-            j = next(j for j, f in enumerate(fields) if not _is_number(f))
+            j = next(j for j, f in enumerate(fields) if not is_number(f))
             raise RouteError(f"column {j + 1}: cannot parse {fields[j]!r} as a number",
                              source=table.source, line=line) from None
     return out
@@ -328,32 +370,32 @@ def _quaternions(q: np.ndarray, source: str, lines: list[int], first_col: int) -
     return q / norm[:, None]
 
 
-def read_tum(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+def read_tum(source: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
              rate_hz: float | None = None) -> Trajectory:
     """A TUM file ``t tx ty tz qx qy qz qw`` as a trajectory of V (see the module notes)."""
-    path = Path(path)
-    table = _split_rows(path, None)
-    d = _numbers(table, (8,))
+    doc = document(source)
+    table = split_rows(doc, None)
+    d = numbers(table, (8,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(d[:, 0], table.source, table.lines)
-    if already_smooth(path):  # what write_tum wrote: smoothing it again would attenuate the motion
+    if already_smooth(doc):  # what write_tum wrote: smoothing it again would attenuate the motion
         cutoff_hz = math.inf
     _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
-                                 cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=path.stem)
+                                 cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=doc.stem)
 
 
-def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+def read_euroc(source: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None) -> Trajectory:
     """An EuRoC ground-truth CSV (ns timestamps, position, w-first quaternion) as V's trajectory."""
-    path = Path(path)
-    table = _split_rows(path, ",")
+    doc = document(source)
+    table = split_rows(doc, ",")
     n_cols = len(table.rows[0])
     if n_cols < 8:
         raise RouteError(f"expected at least 8 columns (timestamp, p_xyz, q_wxyz), got {n_cols}",
                          source=table.source, line=table.lines[0])
-    d = _numbers(table, (n_cols,))
+    d = numbers(table, (n_cols,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     # Integer nanoseconds: subtract the first stamp exactly before converting to seconds.
     try:
@@ -366,23 +408,23 @@ def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     R = Rotation.from_quat(q, scalar_first=True).as_matrix()
     return trajectory_from_poses(t, d[:, 1:4], R, cutoff_hz=cutoff_hz, rate_hz=rate_hz,
-                                 name=path.stem)
+                                 name=doc.stem)
 
 
-def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+def read_kitti(source: Source, times: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None) -> Trajectory:
     """KITTI camera poses (12 numbers per line) with their times file, as V's trajectory.
 
     The camera frame is mapped to vehicle axes (x forward, y left, z up) and the world is the
     first *vehicle* frame, so it is z-up as far as the first camera was level.
     """
-    path, times = Path(path), Path(times)
-    table = _split_rows(path, None)
-    d = _numbers(table, (12,))
-    ttable = _split_rows(times, None)
-    t = _numbers(ttable, (1,))[:, 0]
+    doc, tdoc = document(source), document(times)
+    table = split_rows(doc, None)
+    d = numbers(table, (12,))
+    ttable = split_rows(tdoc, None)
+    t = numbers(ttable, (1,))[:, 0]
     if len(t) != len(d):
-        raise RouteError(f"{len(t)} times for {len(d)} poses in {path.name}", source=str(times),
+        raise RouteError(f"{len(t)} times for {len(d)} poses in {doc.name}", source=tdoc.label,
                          line=ttable.lines[min(len(t), len(d)) - 1])
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(t, ttable.source, ttable.lines)
@@ -400,7 +442,7 @@ def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAUL
     R = R_CAM_VEH.T @ R_W_C @ R_CAM_VEH
     p = p_W_C @ R_CAM_VEH  # R_CAM_VEHᵀ p, row-wise
     return trajectory_from_poses(t, p, Rotation.from_matrix(R).as_matrix(), cutoff_hz=cutoff_hz,
-                                 rate_hz=rate_hz, name=path.stem)
+                                 rate_hz=rate_hz, name=doc.stem)
 
 
 # --------------------------------------------------------------------------------------------
@@ -457,11 +499,11 @@ def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
                              "never get there", source=source, line=lines[k])
 
 
-def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
+def read_waypoints_csv(source: Source, *, limits: Limits = Limits(),
                        suspension: Suspension = Suspension()) -> Trajectory:
     """A waypoints CSV ``x,y[,z][,speed]`` as a drive (see the module notes)."""
-    path = Path(path)
-    table = _split_rows(path, ",", header=True)
+    doc = document(source)
+    table = split_rows(doc, ",", header=True)
     if table.header is not None:
         unknown = [h for h in table.header if h not in _WAYPOINT_COLS]
         names = [_WAYPOINT_COLS.get(h) for h in table.header]
@@ -469,16 +511,16 @@ def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
             raise RouteError(f"a header must be x,y[,z][,speed] (waypoints) or t_s,speed_mps,curvature_1pm"
                              f"[,grade_rad][,bank_rad] (controls), got {','.join(table.header)}",
                              source=table.source, line=table.header_line)
-        d = _numbers(table)
+        d = numbers(table)
     else:
-        d = _numbers(table, (2, 3, 4))
+        d = numbers(table, (2, 3, 4))
         names = ["x", "y", "z", "speed"][: d.shape[1]]
     cols = {n: d[:, i] for i, n in enumerate(names)}
     xyz = np.column_stack([cols["x"], cols["y"], cols.get("z", np.zeros(len(d)))])
     speed = cols.get("speed")
     _check_waypoints(xyz, speed, table.source, table.lines)
-    with _located(str(path)):
-        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(doc.label):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=doc.stem)
 
 
 def _json_line(text: str, pattern: str) -> int | None:
@@ -486,14 +528,13 @@ def _json_line(text: str, pattern: str) -> int | None:
     return None if m is None else text.count("\n", 0, m.start()) + 1
 
 
-def read_geojson(path: str | Path, *, limits: Limits = Limits(),
+def read_geojson(source: Source, *, limits: Limits = Limits(),
                  suspension: Suspension = Suspension()) -> Trajectory:
     """A GeoJSON LineString (lon/lat[/alt]) projected about its first point, as a drive."""
     from pyproj import Transformer
 
-    path = Path(path)
-    src = str(path)
-    text = _read_text(path)
+    source_doc = document(source)
+    src, text = source_doc.label, source_doc.text
     if not text.strip():
         raise RouteError("the file is empty", source=src)
     try:
@@ -551,8 +592,8 @@ def read_geojson(path: str | Path, *, limits: Limits = Limits(),
             raise RouteError("properties.speed_mps contains NaN or inf", source=src, line=sline)
     # Per-point problems are located at the coordinates key: JSON keeps no positions.
     _check_waypoints(xyz, speed, src, [cline] * len(xyz))
-    with _located(str(path)):
-        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(doc.label):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=source_doc.stem)
 
 
 _CONTROL_COLS = {"t": "t_s", "t_s": "t_s", "speed": "speed_mps", "speed_mps": "speed_mps",
@@ -562,10 +603,10 @@ _CONTROL_COLS = {"t": "t_s", "t_s": "t_s", "speed": "speed_mps", "speed_mps": "s
 _START_RE = re.compile(r"#\s*start:\s*x_m=(\S+)\s+y_m=(\S+)\s+heading_rad=(\S+)")
 
 
-def read_control_profile(path: str | Path) -> ControlProfile:
+def read_control_profile(source: Source) -> ControlProfile:
     """A control CSV ``t_s,speed_mps,curvature_1pm[,grade_rad][,bank_rad]`` (header required)."""
-    path = Path(path)
-    table = _split_rows(path, ",", header=True)
+    doc = document(source)
+    table = split_rows(doc, ",", header=True)
     if table.header is None:
         raise RouteError("a control CSV needs a header naming its columns "
                          "t_s,speed_mps,curvature_1pm[,grade_rad][,bank_rad]",
@@ -576,7 +617,7 @@ def read_control_profile(path: str | Path) -> ControlProfile:
         raise RouteError("control CSV header must be t_s,speed_mps,curvature_1pm[,grade_rad]"
                          f"[,bank_rad], got {','.join(table.header)}", source=table.source,
                          line=table.header_line)
-    d = _numbers(table)
+    d = numbers(table)
     _check_count(len(d), 2, "knots", table.source, table.lines)
     cols = {n: d[:, i] for i, n in enumerate(names)}
     _check_times(cols["t_s"], table.source, table.lines)
@@ -591,7 +632,7 @@ def read_control_profile(path: str | Path) -> ControlProfile:
     for name in names:
         _check_range(cols[name], name, name, table.source, table.lines)
     start = (0.0, 0.0, 0.0)
-    for i, raw in enumerate(_read_text(path).splitlines(), start=1):
+    for i, raw in enumerate(doc.text.splitlines(), start=1):
         m = _START_RE.match(raw.strip())
         if m:
             try:
@@ -606,13 +647,14 @@ def read_control_profile(path: str | Path) -> ControlProfile:
             break
     return ControlProfile(t_s=cols["t_s"], speed_mps=cols["speed_mps"],
                           curvature_1pm=cols["curvature_1pm"], grade_rad=cols.get("grade_rad"),
-                          bank_rad=cols.get("bank_rad"), start=start, name=path.stem)
+                          bank_rad=cols.get("bank_rad"), start=start, name=doc.stem)
 
 
-def read_control_csv(path: str | Path, *, suspension: Suspension = Suspension()) -> Trajectory:
+def read_control_csv(source: Source, *, suspension: Suspension = Suspension()) -> Trajectory:
     """A control CSV driven through :func:`~excite.motion.vehicle.drive`."""
-    profile = read_control_profile(path)
-    with _located(str(path)):
+    doc = document(source)
+    profile = read_control_profile(doc)
+    with _located(doc.label):
         return drive(profile, suspension)
 
 
@@ -620,8 +662,8 @@ def read_control_csv(path: str | Path, *, suspension: Suspension = Suspension())
 # Dispatch
 
 
-def _sniff_csv(path: Path) -> str:
-    for raw in _read_text(path).splitlines():
+def _sniff_csv(doc: _Doc) -> str:
+    for raw in doc.text.splitlines():
         line = raw.strip()
         if not line:
             continue
@@ -630,18 +672,18 @@ def _sniff_csv(path: Path) -> str:
                 return "euroc"
             continue
         fields = [f.strip().lower() for f in line.split(",")]
-        if not _is_number(fields[0]):
+        if not is_number(fields[0]):
             return "control" if any("curvature" in f for f in fields) else "waypoints"
         return "euroc" if len(fields) >= 8 else "waypoints"
-    raise RouteError("the file has no data rows (empty file)", source=str(path))
+    raise RouteError("the file has no data rows (empty file)", source=doc.label)
 
 
-def _sniff_txt(path: Path) -> int:
-    for raw in _read_text(path).splitlines():
+def _sniff_txt(doc: _Doc) -> int:
+    for raw in doc.text.splitlines():
         line = raw.strip()
         if line and not line.startswith("#"):
             return len(line.split())
-    raise RouteError("the file has no data rows (empty file)", source=str(path))
+    raise RouteError("the file has no data rows (empty file)", source=doc.label)
 
 
 def is_bag(path: str | Path) -> bool:
@@ -652,7 +694,7 @@ def is_bag(path: str | Path) -> bool:
     return p.suffix.lower() in (".bag", ".mcap")
 
 
-def read_route(path: str | Path, times: str | Path | None = None, limits: Limits = Limits(), *,
+def read_route(source: Source, times: Source | None = None, limits: Limits = Limits(), *,
                suspension: Suspension = Suspension(), cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None, bag: "BagSource | None" = None) -> Trajectory:
     """Any supported route file as a trajectory of V, the format chosen by extension and content.
@@ -664,46 +706,49 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
     ``limits`` and ``suspension`` shape waypoint, GeoJSON and control routes;
     ``cutoff_hz``/``rate_hz`` the timed-pose fit (bags included).
     """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(2, "No such file or directory", str(path))
-    ext = path.suffix.lower()
     timed = {"cutoff_hz": cutoff_hz, "rate_hz": rate_hz}
-    if is_bag(path):
-        from .bags import BagSource, read_bag_route
+    label = source.name if isinstance(source, Text) else str(source)
+    if not isinstance(source, Text):
+        path = Path(source)
+        if not path.exists():
+            raise FileNotFoundError(2, "No such file or directory", str(path))
+        if is_bag(path):
+            from .bags import BagSource, read_bag_route
 
-        return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
+            return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
     if bag is not None:
         flags = {"topic": "--topic", "imu_topic": "--imu-topic", "start_s": "--start", "end_s": "--end",
                  "vehicle_frame": "--vehicle-frame", "axes": "--axes"}
         given = [flag for key, flag in flags.items() if getattr(bag, key) not in (None, "vehicle")]
         raise RouteError(f"bag options ({', '.join(given) or 'none given'}) apply to bags only (.bag, .mcap, "
-                         "a ROS 2 bag folder)", source=str(path))
+                         "a ROS 2 bag folder)", source=label)
+    doc = document(source)
+    ext = doc.suffix
     if times is not None:
-        return read_kitti(path, times, **timed)
+        return read_kitti(doc, times, **timed)
     if ext in (".geojson", ".json"):
-        return read_geojson(path, limits=limits, suspension=suspension)
+        return read_geojson(doc, limits=limits, suspension=suspension)
     if ext == ".tum":
-        return read_tum(path, **timed)
+        return read_tum(doc, **timed)
     if ext == ".txt":
-        n = _sniff_txt(path)
+        n = _sniff_txt(doc)
         if n == 12:
             raise RouteError("looks like KITTI poses (12 columns): pass the times file (--times)",
-                             source=str(path))
+                             source=doc.label)
         if n == 8:
-            return read_tum(path, **timed)
+            return read_tum(doc, **timed)
         raise RouteError(f"cannot tell the format of a .txt with {n} columns (TUM has 8, KITTI 12)",
-                         source=str(path))
+                         source=doc.label)
     if ext == ".csv":
-        kind = _sniff_csv(path)
+        kind = _sniff_csv(doc)
         if kind == "euroc":
-            return read_euroc(path, **timed)
+            return read_euroc(doc, **timed)
         if kind == "control":
-            return read_control_csv(path, suspension=suspension)
-        return read_waypoints_csv(path, limits=limits, suspension=suspension)
+            return read_control_csv(doc, suspension=suspension)
+        return read_waypoints_csv(doc, limits=limits, suspension=suspension)
     raise RouteError(f"unknown route format {ext or '(no extension)'!r}: use .csv, .tum, .txt "
                      "(KITTI with --times, or TUM), .geojson, or a bag (.bag, .mcap, ROS 2 folder)",
-                     source=str(path))
+                     source=doc.label)
 
 
 # --------------------------------------------------------------------------------------------
@@ -713,10 +758,13 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
 SMOOTH_MARK = "already smooth: read back without smoothing"  # in the first line of what write_tum writes
 
 
-def already_smooth(path: Path) -> bool:
+def already_smooth(source: "Source | _Doc") -> bool:
     """Whether the TUM file's first line is the one :func:`write_tum` writes."""
-    with open(path, encoding="utf-8", errors="replace") as f:
-        first = f.readline(1000)
+    if isinstance(source, (_Doc, Text)):
+        first = document(source).text[:1000].split("\n", 1)[0]
+    else:
+        with open(source, encoding="utf-8", errors="replace") as f:
+            first = f.readline(1000)
     return first.startswith("# excite ") and SMOOTH_MARK in first
 
 
