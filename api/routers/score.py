@@ -16,6 +16,7 @@ from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
+from ..auth import Scorer
 from ..context import Ctx, raise_problem
 from ..errors import ProblemError
 from ..scoring import bag_score_task
@@ -27,7 +28,7 @@ router = APIRouter(prefix="/v1", tags=["score"])
 
 @router.post("/score", response_model=ScoreResponse, responses=SCORED,
              summary="Score a route: how well does it determine every calibration parameter?")
-def score(body: ScoreRequest, ctx: Ctx) -> Any:
+def score(body: ScoreRequest, ctx: Ctx, who: Scorer) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
     control profile); the rig by bundled name or inline. CPU-bound: runs in a worker process.
 
@@ -48,7 +49,7 @@ def score(body: ScoreRequest, ctx: Ctx) -> Any:
 @router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
              responses={**SCORED, 200: {"content": {"image/png": {}},
                                       "description": "route coloured by information, scaled spectrum, σ/target"}})
-def score_plot(body: PlotRequest, ctx: Ctx) -> Response:
+def score_plot(body: PlotRequest, ctx: Ctx, who: Scorer) -> Response:
     """The same figure as ``excite score ROUTE --plot FILE.png``: the route coloured by the
     information it carries on ``parameter`` (or the weakest mode), the scaled spectrum with the
     pass line, and σ against target per parameter."""
@@ -100,7 +101,7 @@ def _invalid(key: str, message: str) -> ProblemError:
 
 
 @bag_router.post("/score", include_in_schema=False)
-async def score_bag(request: Request, ctx: Ctx) -> Any:
+async def score_bag(request: Request, ctx: Ctx, who: Scorer) -> Any:
     """A bag upload (multipart/form-data): ``bag`` (a ``.bag`` or ``.mcap`` file), ``topic``
     (pose topic or ``/tf:PARENT.CHILD``), optional ``imu_topic``, ``rig`` (bundled name or inline
     JSON), ``start_s``/``end_s``, ``segments``, ``vehicle_frame``, ``axes``. The file is spooled
