@@ -277,7 +277,7 @@ class Guard:
         if site in ("cross-site", "same-site"):
             return f"a {site} {scope['method']} from a browser is refused"
         ctype = (_header(scope, b"content-type") or "").lower().encode("latin-1")
-        simple = not ctype or ctype.startswith(SIMPLE_TYPES)
+        simple = ctype.startswith(SIMPLE_TYPES)  # a form always has one
         names = {k for k, _ in scope.get("headers", [])}
         if scope["method"] == "POST" and simple and not names & {CLIENT_HEADER, b"x-api-key", b"authorization"}:
             return ("a POST a cross-site HTML form could send is refused: send the header "
