@@ -69,10 +69,8 @@ def open_bag(path: Path):
         # rosbags indexes an MCAP without a summary by reading every chunk: verify them first
         try:
             verify_chunks(files, allowance)
-        except EOFError as exc:
+        except (EOFError, struct.error, ValueError, KeyError, OSError) as exc:
             raise BagError(path, f"cannot read the bag, truncated or corrupt ({exc})") from None
-        except (struct.error, ValueError, KeyError, OSError) as exc:
-            raise BagError(path, f"cannot read the bag: {exc}") from None
     try:
         reader = AnyReader([path])
         reader.open()
