@@ -275,9 +275,6 @@ def check_lot_shape(outer: np.ndarray, holes: tuple[np.ndarray, ...], where: str
         if np.any(step < 1e-6):
             raise OptimizeError(f"{where}: {_ring_name(k)} repeats vertex {int(np.argmax(step < 1e-6)) + 1} "
                                 "(an edge of zero length)")
-        if abs(_area(r)) < (MIN_LOT_AREA_M2 if k == 0 else 1e-6):
-            what = f"an area of {abs(_area(r)):.3g} m², under {MIN_LOT_AREA_M2:g} m²" if k == 0 else "no area"
-            raise OptimizeError(f"{where}: {_ring_name(k)} has {what}")
     hit = first_crossing([outer, *holes])
     if hit is not None:
         r1, e1, r2, e2 = hit
@@ -285,6 +282,10 @@ def check_lot_shape(outer: np.ndarray, holes: tuple[np.ndarray, ...], where: str
             raise OptimizeError(f"{where}: {_ring_name(r1)} crosses itself (edges {e1 + 1} and {e2 + 1})")
         raise OptimizeError(f"{where}: {_ring_name(r1)} and {_ring_name(r2)} cross or touch "
                             f"(edges {e1 + 1} and {e2 + 1})")
+    for k, r in enumerate((outer, *holes)):
+        if abs(_area(r)) < (MIN_LOT_AREA_M2 if k == 0 else 1e-6):
+            what = f"an area of {abs(_area(r)):.3g} m², under {MIN_LOT_AREA_M2:g} m²" if k == 0 else "no area"
+            raise OptimizeError(f"{where}: {_ring_name(k)} has {what}")
     for k, h in enumerate(holes):
         if not _inside(outer, h[:1])[0]:
             raise OptimizeError(f"{where}: keep-out zone {k + 1} is not inside the lot")
