@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from excite import information
+from excite.information import dense, elimination, problem
 from excite.motion import vehicle as excite_vehicle
 from excite.score.evaluate import evaluate
 from excite.factors.base import Nominal
@@ -188,10 +188,10 @@ def main() -> None:
         traj = generated(120.0, rig)
         nom = Nominal.of(traj, rig)
         t0 = time.perf_counter()
-        dense = information.marginal_dense(information.build(nom, rig))
+        dense = dense.marginal_dense(problem.build(nom, rig))
         t_dense = time.perf_counter() - t0
-        t_fast = statistics.median(timed(lambda: information.drive_information([traj], rig))[0] for _ in range(5))
-        fast = information.drive_information([traj], rig).information
+        t_fast = statistics.median(timed(lambda: elimination.drive_information([traj], rig))[0] for _ in range(5))
+        fast = elimination.drive_information([traj], rig).information
         S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
         rel = np.abs((fast - dense) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
         print(f"2-minute drive: dense reference {t_dense * 1e3:.0f} ms, fast path {t_fast:.1f} ms "

@@ -187,9 +187,9 @@ class Trajectory:
     def rotation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Orientation of V at ``t`` (clipped to the drive), its body rate and angular acceleration: the cubic
         rotation-vector spline of ``RotationSpline`` (R = R_k·Exp(φ(t)) on segment k), evaluated
-        in one compiled loop (:func:`excite.core.kernels.rotation_samples`) rather than through scipy's
+        in one compiled loop (:func:`excite.motion.kernels.rotation_samples`) rather than through scipy's
         rotation objects."""
-        from ..core import kernels
+        from . import kernels
 
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
         rot = self._rot.interpolator
@@ -226,8 +226,8 @@ class Trajectory:
         """What a perfect IMU at pose ``(R_V_B, p_V_B)`` in V sees at ``t``: its orientation
         ``R_W_B``, body rate ``ω_B`` and specific force ``f_B = R_W_Bᵀ(a_B − g)`` with the lever-arm
         acceleration ``α × p + ω × (ω × p)``. The same splines as :meth:`sample`, evaluated in one
-        compiled loop (:func:`excite.core.kernels.imu_samples`): this runs at the IMU rate."""
-        from ..core import kernels
+        compiled loop (:func:`excite.motion.kernels.imu_samples`): this runs at the IMU rate."""
+        from . import kernels
 
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
         rot = self._rot.interpolator
@@ -274,7 +274,7 @@ class Trajectory:
 
 def _segments(breaks: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Index of the piecewise-polynomial segment (between ``breaks``) that holds every time
-    (compiled: :func:`excite.core.kernels.segments`)."""
-    from ..core import kernels
+    (compiled: :func:`excite.motion.kernels.segments`)."""
+    from . import kernels
 
     return kernels.segments(np.ascontiguousarray(breaks, dtype=float), np.ascontiguousarray(t, dtype=float))
