@@ -113,7 +113,7 @@ class Settings(BaseSettings):
     max_live_pose_rate_hz: float = Field(400.0, gt=0, le=100_000, allow_inf_nan=False,
                                          description="Densest pose stream a /v1/live session may send, "
                                                      "over each message [Hz].")
-    live_memory_mb: int = Field(1536, ge=0, le=1_048_576,
+    live_memory_mb: int = Field(3072, ge=0, le=1_048_576,
                                 description="Address-space limit of each /v1/live session's process [MiB] (0: none).")
     max_live_sessions: int = Field(16, ge=0, le=1000,
                                    description="/v1/live sessions streaming at once (each its own process).")

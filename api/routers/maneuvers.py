@@ -8,14 +8,13 @@ from fastapi import APIRouter, Response
 
 from excite.errors import ExciteError
 from excite.plan import OptimizeSettings
-from excite.plan.site import read_site
 from excite.motion.vehicle import Limits
 
 from ..auth import Planner
 from ..context import Ctx
 from ..errors import ProblemError, Rejected
 from ..schemas import Job, ManeuverRequest
-from ..scoring import resolve_rig
+from ..scoring import lot_task, resolve_rig
 from .common import BODY
 from .jobs import job_view
 
@@ -35,11 +34,11 @@ def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response, who: Pl
     if body.time_budget_s > s.max_job_time_budget_s:
         errors.append({"field": "time_budget_s", "message": f"{body.time_budget_s:g} s is over the limit of "
                                                             f"{s.max_job_time_budget_s:g} s"})
-    if body.lot is not None:
-        try:
-            read_site(body.lot, max_vertices=s.max_lot_vertices)
-        except ExciteError as exc:
-            errors.append({"field": "lot", "message": str(exc)})
+    if body.lot is not None:  # checked in a scoring worker: its memory limit applies
+        (fut,) = ctx.submit(lot_task, [(body.lot, s.max_lot_vertices)], ctx.deadline())
+        (why,) = ctx.wait([fut])
+        if why is not None:
+            errors.append({"field": "lot", "message": why})
     try:
         OptimizeSettings(duration_s=body.duration_s, lot_x_m=body.lot_x_m,
                          lot_y_m=body.lot_y_m, limits=Limits(**body.limits.model_dump()),
