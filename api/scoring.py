@@ -342,6 +342,20 @@ def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
     return _as_problem(run, "route")
 
 
+def lot_task(lot: dict[str, Any], max_vertices: int) -> str | None:
+    """Why a GeoJSON lot cannot be planned in (the message), or None: in a worker, where the
+    memory limit applies to the shape tests (bounded by ``max_vertices`` before they start)."""
+    from excite.plan.site import read_site
+
+    try:
+        read_site(lot, max_vertices=max_vertices)
+    except ExciteError as exc:
+        return str(exc)
+    except MemoryError:
+        return "lot: the lot needs more memory to check than a worker may use"
+    return None
+
+
 def warm() -> bool:
     """Load the bundled rigs and score a short drive (the pool's first task: imports, caches and
     any compiled kernels are ready before /readyz says so, not in the first request)."""

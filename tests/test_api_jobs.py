@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from api.store import JobStore
+from api.store import SqliteStore
 from test_api_support import LiveServer, processes_with, wait_job
 
 SLOW = {"job_function": "test_api_support:slow_job", "workers": 1, "cancel_grace_s": 5}
@@ -55,7 +55,7 @@ def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
     while pool() and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not pool(), "orphaned scoring processes outlived the server"
-    stored = JobStore(tmp_path / "jobs.sqlite3")
+    stored = SqliteStore(tmp_path / "jobs.sqlite3")
     assert stored.get(job_id)["status"] == "running"
     assert stored.get(queued.json()["id"])["status"] == "queued"
 
