@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite.io import routes
+from excite.io import poses, routes
 from excite.cli.app import main
 from excite.errors import RouteError
 from excite.motion.vehicle import Limits, check_limits, drive
@@ -235,7 +235,7 @@ def test_smoothing_spline_is_scipys_without_the_per_point_loop(lam):
     rng = np.random.default_rng(7)
     x = np.cumsum(rng.uniform(0.02, 0.2, 400))
     y = np.c_[np.sin(x), np.cos(3 * x), 0.1 * x] + 0.01 * rng.normal(size=(400, 3))
-    ref, ours = make_smoothing_spline(x, y, lam=lam), routes.smoothing_spline(x, y, lam)
+    ref, ours = make_smoothing_spline(x, y, lam=lam), poses.smoothing_spline(x, y, lam)
     g = np.linspace(x[0], x[-1], 5000)
     scale = np.abs(y).max()
     assert np.abs(ours(g) - ref(g)).max() < 1e-9 * scale

@@ -73,7 +73,7 @@ class _Lines:
         from scipy.spatial.transform import Rotation
 
         from ..errors import RouteError
-        from ..io.routes import QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL
+        from ..io.poses import QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL
 
         t = np.array([r[0] for r in parsed])
         d = np.array([r[1] for r in parsed])
@@ -264,7 +264,8 @@ def live(
     speed = _speed(replay)
     r = load_rig(rig)
     batches, name = _source(route, times, speed, topic, idle)
-    from ..io.routes import DEFAULT_CUTOFF_HZ, already_smooth
+    from ..io.poses import DEFAULT_CUTOFF_HZ
+    from ..io.routes import already_smooth
 
     # a TUM file excite wrote is read as read_tum reads it: not smoothed a second time
     smooth = str(route) != "-" and route.is_file() and already_smooth(route)

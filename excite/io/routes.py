@@ -58,8 +58,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.linalg import solveh_banded
 from scipy.spatial.transform import Rotation
 
 from ..core import bounds, so3
@@ -67,24 +65,19 @@ from ..errors import RouteError
 from ..motion.paths import plan_given_speed, plan_speed, profile_from_plan, smooth_path
 from ..motion.trajectory import Trajectory
 from ..motion.vehicle import ControlProfile, Limits, Suspension, drive
+from .poses import (DEFAULT_CUTOFF_HZ, MIN_POSES, QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL, check_range, check_timed,
+                    trajectory_from_poses)
+from .sniff import is_bag
 
 if TYPE_CHECKING:
     from .bags import BagSource
 
 __all__ = [
     "read_route", "read_tum", "read_kitti", "read_euroc", "read_waypoints_csv", "read_geojson",
-    "read_control_csv", "read_control_profile", "trajectory_from_poses", "route_from_waypoints",
+    "read_control_csv", "read_control_profile", "route_from_waypoints", "Text",
     "control_profile_of", "write_tum", "write_waypoints_csv", "write_control_csv",
 ]
 
-QUAT_NORM_TOL = 1e-3
-ROTATION_TOL = 1e-3
-MIN_POSES = 6
-DEFAULT_CUTOFF_HZ = 1.0  # vehicle motion lives below ~1 Hz; logged poses jitter above
-
-# KITTI camera (x right, y down, z forward) → vehicle (x forward, y left, z up): columns are V's
-# axes expressed in camera coordinates.
-R_CAM_VEH = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -229,50 +222,6 @@ def _check_times(t: np.ndarray, source: str, lines: list[int]) -> None:
                          "increasing)", source=source, line=lines[k])
 
 
-def _check_range(values: np.ndarray, kind: str, what: str, source: str | None,
-                 lines: list[int] | None) -> None:
-    """Every value within the sane range ``bounds.ROUTE[kind]``, else the first one outside."""
-    sane = bounds.ROUTE[kind]
-    bad = ~((values >= sane.lo) & (values <= sane.hi))
-    if bad.any():
-        k = int(np.argwhere(bad)[0][0])
-        raise RouteError(f"{what} {np.asarray(values)[bad][0]:.6g} is outside the sane range {sane}",
-                         source=source, line=None if lines is None else lines[k])
-
-
-def _cutoff(cutoff_hz: float, h: float) -> float:
-    """The smoothing's bandwidth for poses ``h`` seconds apart: ``cutoff_hz``, at most a quarter
-    of their rate."""
-    return min(cutoff_hz, 0.25 / h)
-
-
-def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: str | None = None,
-                 lines: list[int] | None = None, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> None:
-    """Timed poses a drive can be made of: times and positions in range, a resampling grid
-    within the work bounds (checked before the grid is allocated), and no gap the smoothing
-    would fill with motion of its own (``MAX_GAP_PERIODS`` periods of its cutoff)."""
-    if not cutoff_hz > 0:  # ∞: the widest band the poses' rate allows (poses already smooth)
-        raise RouteError(f"the smoothing cutoff must be positive, got {cutoff_hz!r}", source=source)
-    _check_range(t, "t_s", "time", source, lines)
-    _check_range(p, "position_m", "position", source, lines)
-    if len(t) < 2:
-        return
-    rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
-    if not (math.isfinite(rate) and rate > 0):
-        raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
-    too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
-    if too_much:
-        raise RouteError(too_much, source=source)
-    dt = np.diff(t)
-    widest = int(np.argmax(dt))
-    longest = MAX_GAP_PERIODS / _cutoff(cutoff_hz, float(np.median(dt)))
-    if dt[widest] > longest:
-        raise RouteError(f"a gap of {dt[widest]:.3g} s before the pose at t = {t[widest + 1]:.3f} s: the "
-                         f"smoothing would invent the motion over more than "
-                         f"{longest:g} s; split the log at the gap (each part a drive of its own) or crop it",
-                         source=source, line=None if lines is None else lines[widest + 1])
-
-
 @contextmanager
 def _located(source: str) -> Iterator[None]:
     """Route errors raised while building a drive from a file name the file."""
@@ -292,72 +241,6 @@ def _check_count(n: int, minimum: int, what: str, source: str, lines: list[int])
 
 # --------------------------------------------------------------------------------------------
 # Timed poses
-
-
-MAX_GAP_PERIODS = 5.0  # the widest gap between poses, in periods of the smoothing's cutoff (5 s at 1 Hz)
-
-
-def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
-                          cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float | None = None,
-                          name: str = "route") -> Trajectory:
-    """A smooth trajectory of V through noisy timed poses ``(t_s, p_m, R)``.
-
-    Times and positions are re-based on the first sample before any math. Positions and
-    (sign-unwrapped) quaternions are fitted with cubic smoothing splines whose penalty makes them
-    a low-pass of bandwidth ``cutoff_hz`` (``λ = 1 / (h (2π f_c)⁴)`` for sample spacing ``h``); the
-    fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
-    velocity is the derivative of the position spline.
-    """
-    _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz, cutoff_hz=cutoff_hz)
-    t = np.asarray(t_s, dtype=float) - float(t_s[0])
-    p = np.asarray(p_m, dtype=float) - np.asarray(p_m, dtype=float)[0]
-    q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
-    flips = np.concatenate([[1.0], np.sign(np.sum(q[1:] * q[:-1], axis=1))])
-    flips[flips == 0] = 1.0
-    q *= np.cumprod(flips)[:, None]
-    h = float(np.median(np.diff(t)))
-    f_c = _cutoff(cutoff_hz, h)
-    lam = 1.0 / (h * (2.0 * np.pi * f_c) ** 4)
-    pos = smoothing_spline(t, p, lam)
-    quat = smoothing_spline(t, q, lam)
-    rate = 1.0 / h if rate_hz is None else rate_hz
-    grid = np.linspace(0.0, t[-1], max(int(round(t[-1] * rate)) + 1, MIN_POSES))
-    qg = quat(grid)
-    qg /= np.linalg.norm(qg, axis=1, keepdims=True)
-    return Trajectory(grid, Rotation.from_quat(qg).as_matrix(), pos(grid),
-                      velocity=pos.derivative(1)(grid), name=name)
-
-
-def smoothing_spline(x: np.ndarray, y: np.ndarray, lam: float) -> CubicSpline:
-    """The cubic smoothing spline: of all twice-differentiable ``g``, the minimiser of
-    ``Σ |y_i − g(x_i)|² + λ ∫ |g''|²`` (the function of ``scipy.interpolate.make_smoothing_spline``).
-
-    Reinsch's algorithm: with ``Q`` the second-difference operator and ``R`` the tridiagonal
-    Gram matrix of the hat functions, ``(R + λ QᵀQ) γ = Qᵀ y`` for the second derivatives γ at
-    the interior knots, and ``g(x_i) = y_i − λ Q γ``; ``g`` is then the natural cubic spline
-    through those values. One banded (pentadiagonal) solve, no per-point Python loop.
-    """
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = x.size
-    h = np.diff(x)
-    inv = 1.0 / h
-    # Q (n × n-2): column j holds 1/h_j, −1/h_j − 1/h_{j+1}, 1/h_{j+1} at rows j, j+1, j+2
-    q0, q1, q2 = inv[:-1], -inv[:-1] - inv[1:], inv[1:]
-    m = n - 2
-    ab = np.zeros((3, m))  # upper form of the symmetric pentadiagonal R + λ QᵀQ
-    ab[2] = (h[:-1] + h[1:]) / 3.0 + lam * (q0**2 + q1**2 + q2**2)
-    ab[1, 1:] = h[1:-1] / 6.0 + lam * (q1[:-1] * q0[1:] + q2[:-1] * q1[1:])
-    ab[0, 2:] = lam * q2[:-2] * q0[2:]
-    Y = y.reshape(n, -1)
-    rhs = q0[:, None] * Y[:-2] + q1[:, None] * Y[1:-1] + q2[:, None] * Y[2:]
-    gamma = solveh_banded(ab, rhs)
-    Qg = np.zeros_like(Y)
-    Qg[:-2] += q0[:, None] * gamma
-    Qg[1:-1] += q1[:, None] * gamma
-    Qg[2:] += q2[:, None] * gamma
-    fit = (Y - lam * Qg).reshape(y.shape)
-    return CubicSpline(x, fit, bc_type="natural")
 
 
 def _quaternions(q: np.ndarray, source: str, lines: list[int], first_col: int) -> np.ndarray:
@@ -380,7 +263,7 @@ def read_tum(source: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     _check_times(d[:, 0], table.source, table.lines)
     if already_smooth(doc):  # what write_tum wrote: smoothing it again would attenuate the motion
         cutoff_hz = math.inf
-    _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
+    check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
                                  cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=doc.stem)
@@ -404,7 +287,7 @@ def read_euroc(source: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         ns = np.round(d[:, 0]).astype(np.int64)
     t = (ns - ns[0]).astype(float) * 1e-9
     _check_times(t, table.source, table.lines)
-    _check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
+    check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     R = Rotation.from_quat(q, scalar_first=True).as_matrix()
     return trajectory_from_poses(t, d[:, 1:4], R, cutoff_hz=cutoff_hz, rate_hz=rate_hz,
@@ -428,7 +311,7 @@ def read_kitti(source: Source, times: Source, *, cutoff_hz: float = DEFAULT_CUTO
                          line=ttable.lines[min(len(t), len(d)) - 1])
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(t, ttable.source, ttable.lines)
-    _check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines, cutoff_hz)
+    check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines, cutoff_hz)
     T = d.reshape(-1, 3, 4)
     R_W_C, p_W_C = T[:, :, :3], T[:, :, 3]
     err = np.abs(np.swapaxes(R_W_C, 1, 2) @ R_W_C - np.eye(3)).max(axis=(1, 2))
@@ -480,8 +363,8 @@ _WAYPOINT_COLS = {"x": "x", "x_m": "x", "y": "y", "y_m": "y", "z": "z", "z_m": "
 def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
                      lines: list[int]) -> None:
     _check_count(len(xyz), 2, "waypoints", source, lines)
-    _check_range(xyz[:, :2], "position_m", "coordinate", source, lines)
-    _check_range(xyz[:, 2], "altitude_m", "altitude", source, lines)
+    check_range(xyz[:, :2], "position_m", "coordinate", source, lines)
+    check_range(xyz[:, 2], "altitude_m", "altitude", source, lines)
     step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     if np.any(step < 1e-3):
         k = int(np.argmax(step < 1e-3)) + 1
@@ -491,7 +374,7 @@ def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
         if np.any(speed < 0):
             k = int(np.argmax(speed < 0))
             raise RouteError(f"negative speed {speed[k]:g} m/s", source=source, line=lines[k])
-        _check_range(speed, "speed_mps", "speed", source, lines)
+        check_range(speed, "speed_mps", "speed", source, lines)
         both = (speed[1:] == 0) & (speed[:-1] == 0)
         if both.any():
             k = int(np.argmax(both)) + 1
@@ -630,7 +513,7 @@ def read_control_profile(source: Source) -> ControlProfile:
         raise RouteError(f"negative speed {cols['speed_mps'][k]:g} m/s (reversing is not "
                          "modelled)", source=table.source, line=table.lines[k])
     for name in names:
-        _check_range(cols[name], name, name, table.source, table.lines)
+        check_range(cols[name], name, name, table.source, table.lines)
     start = (0.0, 0.0, 0.0)
     for i, raw in enumerate(doc.text.splitlines(), start=1):
         m = _START_RE.match(raw.strip())
@@ -643,7 +526,7 @@ def read_control_profile(source: Source) -> ControlProfile:
                 raise RouteError("the start pose is NaN or infinite", source=table.source, line=i)
             for x, kind, what in zip(start, ("position_m", "position_m", "heading_rad"),
                                      ("start x_m", "start y_m", "start heading_rad")):
-                _check_range(np.array([x]), kind, what, table.source, [i])
+                check_range(np.array([x]), kind, what, table.source, [i])
             break
     return ControlProfile(t_s=cols["t_s"], speed_mps=cols["speed_mps"],
                           curvature_1pm=cols["curvature_1pm"], grade_rad=cols.get("grade_rad"),
@@ -684,14 +567,6 @@ def _sniff_txt(doc: _Doc) -> int:
         if line and not line.startswith("#"):
             return len(line.split())
     raise RouteError("the file has no data rows (empty file)", source=doc.label)
-
-
-def is_bag(path: str | Path) -> bool:
-    """Whether ``path`` is a bag excite reads: ``.bag``, ``.mcap`` or a ROS 2 bag folder."""
-    p = Path(path)
-    if p.is_dir():
-        return (p / "metadata.yaml").is_file()
-    return p.suffix.lower() in (".bag", ".mcap")
 
 
 def read_route(source: Source, times: Source | None = None, limits: Limits = Limits(), *,

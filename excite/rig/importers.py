@@ -96,7 +96,7 @@ def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (),
     """A rig from a bag's ``/tf_static``: B is the ``imu`` frame, V the ``base`` frame."""
     path = Path(path)
     static = bags.read_static_tf(path)
-    edges = {c: bags._Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
+    edges = {c: bags.Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
     cfg, defaults = _from_tree(edges, path, bags.TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
                                name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig")
     notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
@@ -185,7 +185,7 @@ def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
                     raise RigError(f"{path}: {key}.{k}: expected a finite number, got {v!r}")
                 vals.append(float(v))
             q = Rotation.from_euler("ZYX", vals[5:2:-1]).as_quat()  # yaw, pitch, roll
-            edges[child] = bags._Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
+            edges[child] = bags.Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
 
 
 def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: list[str] = (),
