@@ -318,3 +318,19 @@ def test_motion_no_car_makes_is_warned_about(tmp_path, data_dir, capsys):
     for route in sorted((ROOT / "trajectories").glob("*_control.csv")) + sorted((ROOT / "trajectories").glob("*.tum")):
         assert implausible(routes.read_route(route)) == [], route.name
     assert implausible(routes.read_kitti(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt")) == []
+
+
+@pytest.mark.parametrize("name", ["figure_eight.tum", "figure_eight_control.csv", "slalom.tum"])
+def test_a_route_held_in_memory_reads_as_its_file(name):
+    """Readers take the text itself (a service parses what it holds, no temporary file): the same
+    trajectory as from the file, bit for bit, and errors name the text's name."""
+    path = Path(__file__).resolve().parents[1] / "trajectories" / name
+    a = routes.read_route(path)
+    for content in (path.read_text(), path.read_bytes()):
+        b = routes.read_route(routes.Text(content, name))
+        t = a.times(20.0)
+        assert np.array_equal(a.sample(t).p_W_V, b.sample(t).p_W_V)
+    with pytest.raises(RouteError, match=r"^mine\.tum, line 2: expected 8 columns"):
+        routes.read_route(routes.Text("0 0 0 0 0 0 0 1\n1 2 3\n", "mine.tum"))
+    with pytest.raises(RouteError, match=r"^x\.tum: not a text file"):
+        routes.read_route(routes.Text(b"\xff\xfe\x00", "x.tum"))

@@ -475,7 +475,7 @@ def read_geojson(source: Source, *, limits: Limits = Limits(),
             raise RouteError("properties.speed_mps contains NaN or inf", source=src, line=sline)
     # Per-point problems are located at the coordinates key: JSON keeps no positions.
     _check_waypoints(xyz, speed, src, [cline] * len(xyz))
-    with _located(doc.label):
+    with _located(source_doc.label):
         return route_from_waypoints(xyz, speed, limits, suspension, name=source_doc.stem)
 
 
