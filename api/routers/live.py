@@ -294,6 +294,12 @@ class SessionProcess:
         self.proc.join(5)
 
 
+def session_processes() -> list[SessionProcess]:
+    """The sessions' processes running now (in this server)."""
+    with _lock:
+        return list(_processes)
+
+
 def close_all() -> None:
     """End every session's process (the server is shutting down)."""
     with _lock:
