@@ -118,8 +118,10 @@ def baseline_package(rev: str, into: Path):
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
     (into / "excite").rename(into / "excite_baseline")
     sys.path.insert(0, str(into))
-    return (importlib.import_module("excite_baseline.evaluate"), importlib.import_module("excite_baseline.rig"),
-            importlib.import_module("excite_baseline.vehicle"))
+    # the packages by concern (from the factor registry on), or the flat layout before them
+    layout = ("score.evaluate", "rig.config", "motion.vehicle") if (into / "excite_baseline" / "score").is_dir() \
+        else ("evaluate", "rig", "vehicle")
+    return tuple(importlib.import_module(f"excite_baseline.{m}") for m in layout)
 
 
 def main() -> None:

@@ -24,7 +24,8 @@ from excite.cli.app import main
 from excite.score.evaluate import evaluate
 from excite.rig.config import build_rig, load_rig
 from excite.rig.importers import rig_from_tf
-from excite.io.routes import read_route, trajectory_from_poses
+from excite.io.poses import trajectory_from_poses
+from excite.io.routes import read_route
 from helpers import weave_drive
 
 NAV2 = "nav2_turtlebot.mcap"

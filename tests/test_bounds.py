@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from excite.core import bounds
-from excite.io import routes
+from excite.io import poses, routes
 from excite.errors import BagError, EvaluationError, LimitError, OptimizeError, RigError, RouteError
 from excite.score.evaluate import Options, evaluate
 from excite.plan import OptimizeSettings
@@ -245,7 +245,7 @@ def test_library_entry_points_bound_the_work():
     with pytest.raises(RouteError, match="14400 s"):
         ControlProfile(t_s=[0.0, 1e6], speed_mps=[0.0, 0.0], curvature_1pm=[0.0, 0.0])
     with pytest.raises(RouteError, match="14400 s"):
-        routes.trajectory_from_poses(np.linspace(0, 9e7, 10), np.zeros((10, 3)),
+        poses.trajectory_from_poses(np.linspace(0, 9e7, 10), np.zeros((10, 3)),
                                      np.broadcast_to(np.eye(3), (10, 3, 3)))
     with pytest.raises(RouteError, match="200000 m"):
         routes.route_from_waypoints(np.array([[0.0, 0.0], [1e7, 0.0]]))
@@ -413,8 +413,8 @@ def test_a_bag_topic_with_more_messages_than_the_bounds_is_refused_before_readin
     def decoded(*_a, **_k):
         raise AssertionError("a message was decoded before the count was checked")
 
-    monkeypatch.setattr(bags._Series, "add", decoded)
-    monkeypatch.setattr(bags._Series, "add_many", decoded)
+    monkeypatch.setattr(bags.Series, "add", decoded)
+    monkeypatch.setattr(bags.Series, "add_many", decoded)
     with pytest.raises(BagError, match=r"topic /pose: 12 messages, over the limit of 10 poses"):
         bags.read_bag_route(path, "/pose")
 
@@ -433,8 +433,8 @@ def test_a_compressed_mcap_chunk_cannot_expand_past_what_it_declares():
     zeros = bytes(50_000_000)
     for kind, blob in (("zstd", zstd.compress(zeros)), ("lz4", lz4(zeros))):
         assert len(blob) < 1_000_000
-        assert bags._decompress(kind, blob, len(zeros)) == zeros
+        assert bags.decompress(kind, blob, len(zeros)) == zeros
         with pytest.raises(ValueError, match="declares 1,000 bytes but holds 1,001 or more"):
-            bags._decompress(kind, blob, 1000)
+            bags.decompress(kind, blob, 1000)
     with pytest.raises(ValueError, match="over the limit"):
-        bags._decompress("zstd", zstd.compress(b"x"), bags.MAX_CHUNK_BYTES + 1)
+        bags.decompress("zstd", zstd.compress(b"x"), bags.MAX_CHUNK_BYTES + 1)

@@ -478,7 +478,7 @@ def test_websocket_kitti_00_ends_with_excite_score(ws_client, kitti, kitti_repor
     final update is `excite score` of the same rows, and the drive's σ are KITTI 00's."""
     from scipy.spatial.transform import Rotation
 
-    from excite.io.routes import R_CAM_VEH
+    from excite.io.poses import R_CAM_VEH
 
     poses, times = kitti
     T = np.loadtxt(poses).reshape(-1, 3, 4)

@@ -17,8 +17,8 @@ A **kind** (:class:`Kind`) is one module of :mod:`excite.factors` and declares, 
   (:meth:`Kind.measurement`), the residual (:meth:`Kind.residual`) and its whitening
   (:meth:`Kind.sqrt_information`), in CasADi symbols for one factor
   (:mod:`excite.factors.symbolic`). The optimizer's information model differentiates it with
-  CasADi, the calibrator evaluates it, and :meth:`Kind.blocks` — the evaluator's whitened
-  Jacobians — defaults to evaluating its derivative;
+  CasADi, the calibrator evaluates it, and the evaluator's whitened Jacobians are its derivative
+  (:func:`excite.factors.symbolic.jacobians`);
 - optionally a **compiled kernel** (numba) that overrides :meth:`Kind.blocks` for speed; the
   contract test holds every kernel equal to the derivative of the residual;
 - its **simulated measurement** (:meth:`Kind.simulate`: physical, or exactly as the model
@@ -319,12 +319,15 @@ class Kind:
     # --- the evaluator's Jacobians ---
 
     def blocks(self, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
-        """Whitened Jacobians (world states) of every factor of ``entry`` on ``nom``; None if it
-        has none. This default evaluates the derivative of :meth:`residual`
-        (:func:`excite.factors.symbolic.blocks`); a kind may override it with a compiled kernel."""
-        from .symbolic import blocks  # the symbolic layer sits beside, and builds on, this protocol
+        """A compiled kernel: whitened Jacobians (world states) of every factor of ``entry`` on
+        ``nom``, None if it has none. A kind without one does not define it, and the evaluator
+        differentiates :meth:`residual` instead (:func:`excite.factors.symbolic.jacobians`)."""
+        raise NotImplementedError
 
-        return blocks(self, nom, rig, entry)
+    @property
+    def compiled(self) -> bool:
+        """Whether the kind has a compiled kernel (:meth:`blocks`)."""
+        return type(self).blocks is not Kind.blocks
 
     def at_rate(self, entry: dict, rate_hz: float) -> dict:
         """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second

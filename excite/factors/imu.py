@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-import casadi as ca
 import numba as nb
 import numpy as np
 from pydantic import ConfigDict
@@ -34,6 +33,7 @@ from pydantic import ConfigDict
 from ..core import kernels, so3
 from ..core.bounds import Range
 from ..core.kernels import cross_scalars
+from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
 from ..motion.trajectory import GRAVITY, Trajectory
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns

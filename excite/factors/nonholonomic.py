@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import math
 
-import casadi as ca
 import numba as nb
 import numpy as np
 
 from ..core import kernels
+from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
 from .wheel import G_MPS2, axle_geometry

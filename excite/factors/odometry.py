@@ -16,13 +16,13 @@ from __future__ import annotations
 
 from typing import Literal
 
-import casadi as ca
 import numba as nb
 import numpy as np
 from pydantic import model_validator
 
 from ..core import kernels, so3
 from ..core.bounds import Range
+from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
 from .symbolic import exp, log

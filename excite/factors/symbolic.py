@@ -28,9 +28,9 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
+from ..core.lazy import ca
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
 
 KEYFRAME_INPUTS = 27  # vec R (9), p (3), v (3), ω (3), vec R_V_A (9)
@@ -344,6 +344,13 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
     cols = theta_columns(rig, coordinate_names(lay))
     return FactorBlock(kind.block_name(entry), first, kind.stride(rig, entry), lay.arity,
                        np.ascontiguousarray(Jx), np.ascontiguousarray(Jt), cols)
+
+
+def jacobians(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
+    """The evaluator's whitened Jacobians of ``entry`` on ``nom``: its kind's compiled kernel
+    (:meth:`~excite.factors.base.Kind.blocks`, held equal to the derivative by the contract
+    tests), or the derivative of its residual (:func:`blocks`)."""
+    return kind.blocks(nom, rig, entry) if kind.compiled else blocks(kind, nom, rig, entry)
 
 
 def residuals(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndarray, meas: np.ndarray,

@@ -23,17 +23,16 @@ slip ratio at 1 g) a nuisance of the drive, linearised at zero.
 
 from __future__ import annotations
 
-import casadi as ca
 import numba as nb
 import numpy as np
 
 from ..core import kernels
 from ..core.bounds import Range
+from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
 from ..motion.trajectory import GRAVITY, Trajectory
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
 from .symbolic import log
-
 
 G_MPS2 = float(-GRAVITY[2])  # [m/s²]: slip is stated per g
 

@@ -35,9 +35,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
+from ..core.lazy import ca
 from ..errors import EvaluationError
 from ..factors import base as registry
 from ..factors.base import STATE_DIM, FactorBlock, RigView

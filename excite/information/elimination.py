@@ -30,8 +30,19 @@ from ..factors.base import STATE_DIM, FactorBlock, Nominal, RigView
 from ..motion.trajectory import Trajectory
 from . import kernels
 from .closure import Closure
-from .problem import (CHUNK_KEYFRAMES, Problem, check_length, check_trimmed, chunk_edges, columns, drive_column_map,
-                      frame_step, linearise, on_drive_columns, trimmed)
+from .problem import (
+    CHUNK_KEYFRAMES,
+    Problem,
+    check_length,
+    check_trimmed,
+    chunk_edges,
+    columns,
+    drive_column_map,
+    frame_step,
+    linearise,
+    on_drive_columns,
+    trimmed,
+)
 
 # The keyframes are eliminated chunk by chunk (a nested dissection of the chain): a chunk
 # ``a … b`` of the drive holds every factor that touches its inner keyframes, so those can be

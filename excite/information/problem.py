@@ -23,6 +23,7 @@ import numpy as np
 from ..core.parallel import n_threads, pool
 from ..errors import EvaluationError
 from ..factors import base as registry
+from ..factors import symbolic
 from ..factors.base import STATE_DIM, FactorBlock, Nominal, RigView
 from . import kernels
 from .closure import Closure
@@ -212,7 +213,7 @@ def linearise(sub: Nominal, rig: RigView, closure: Closure, last: bool, walk: bo
     m = sub.n_keyframes - 1
     blocks: list[FactorBlock | None] = []
     for inst in registry.instances(rig):
-        b = inst.kind.blocks(sub, rig, inst.entry)
+        b = symbolic.jacobians(inst.kind, sub, rig, inst.entry)
         if b is not None and inst.kind.arity == 1 and not last:
             b = b.select(b.first < m)
         blocks.append(b)

@@ -217,7 +217,7 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         path = Path(data["imu"])
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
-        data["imu"] = _read_yaml(path)
+        data["imu"] = read_yaml(path)
     _refuse_per_keyframe_noise(data)
     try:
         cfg = RigConfig.model_validate(data)
@@ -364,7 +364,7 @@ def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
                                f"keyframe rate{conv}")
 
 
-def _read_yaml(path: Path) -> Any:
+def read_yaml(path: Path) -> Any:
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
@@ -394,7 +394,7 @@ def load_rig(name_or_path: str | Path = "robotaxi") -> Rig:
         if not bundled.exists():
             raise RigError(f"no bundled rig named {str(name_or_path)!r} (bundled: {', '.join(bundled_rigs())})")
         path = bundled
-    data = _read_yaml(path)
+    data = read_yaml(path)
     try:
         return build_rig(data, base_dir=path.parent)
     except RigError as exc:

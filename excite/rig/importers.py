@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from ..io import bags
 from ..errors import BagError, RigError
-from .config import _read_yaml, build_rig
+from .config import read_yaml, build_rig
 
 __all__ = ["ImportedRig", "rig_from_tf", "rig_from_kalibr", "rig_from_autoware", "rig_yaml",
            "DEFAULT_IMU", "DEFAULT_TARGETS"]
@@ -96,7 +96,7 @@ def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (),
     """A rig from a bag's ``/tf_static``: B is the ``imu`` frame, V the ``base`` frame."""
     path = Path(path)
     static = bags.read_static_tf(path)
-    edges = {c: bags._Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
+    edges = {c: bags.Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
     cfg, defaults = _from_tree(edges, path, bags.TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
                                name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig")
     notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
@@ -121,10 +121,10 @@ def rig_from_kalibr(camchain: str | Path, imu_yaml: str | Path, *, name: str | N
                     camera_rate_hz: float | None = None) -> ImportedRig:
     """A rig from a Kalibr camchain (``camN.T_cam_imu``, ``timeshift_cam_imu``) and ``imu.yaml``."""
     camchain, imu_yaml = Path(camchain), Path(imu_yaml)
-    chain = _read_yaml(camchain)
+    chain = read_yaml(camchain)
     if not isinstance(chain, dict) or not any(re.fullmatch(r"cam\d+", str(k)) for k in chain):
         raise RigError(f"{camchain}: expected a Kalibr camchain with cam0, cam1, ... at the top level")
-    imu = _read_yaml(imu_yaml)
+    imu = read_yaml(imu_yaml)
     if not isinstance(imu, dict):
         raise RigError(f"{imu_yaml}: expected a Kalibr imu.yaml mapping")
     imu_cfg = {k: imu[k] for k in DEFAULT_IMU if k in imu}
@@ -165,7 +165,7 @@ _AUTOWARE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
 def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
-    data = _read_yaml(path)
+    data = read_yaml(path)
     if not isinstance(data, dict) or not data:
         raise RigError(f"{path}: expected 'parent: {{child: {{x, y, z, roll, pitch, yaw}}}}'")
     for parent, children in data.items():
@@ -185,7 +185,7 @@ def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
                     raise RigError(f"{path}: {key}.{k}: expected a finite number, got {v!r}")
                 vals.append(float(v))
             q = Rotation.from_euler("ZYX", vals[5:2:-1]).as_quat()  # yaw, pitch, roll
-            edges[child] = bags._Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
+            edges[child] = bags.Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
 
 
 def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: list[str] = (),

@@ -25,7 +25,7 @@ Three layers, each usable alone:
   after some parameter has gained again (the driver changed the motion) and then nothing has for
   a whole window.
 - :class:`PoseStream` turns timed poses arriving one by one into keyframe chunks. Batch
-  evaluation fits smoothing splines to a whole file (:func:`excite.io.routes.trajectory_from_poses`),
+  evaluation fits smoothing splines to a whole file (:func:`excite.io.poses.trajectory_from_poses`),
   so a pose's fitted value depends (exponentially weakly) on every later pose: a stream can only
   approximate it. A chunk of keyframes is committed once the poses reach ``lookahead_s`` past its
   end, from the same fit restricted to the poses within ``lookahead_s`` on either side (the
@@ -55,7 +55,7 @@ from ..information.closure import Closure
 from ..information.elimination import DriveInformation, Piece, at_keyframe, piece
 from ..information.problem import columns, frame_step, linearise
 from ..rig.config import Rig
-from ..io.routes import DEFAULT_CUTOFF_HZ, MIN_POSES, trajectory_from_poses
+from ..io.poses import DEFAULT_CUTOFF_HZ, MIN_POSES, trajectory_from_poses
 from ..motion.trajectory import Trajectory
 
 CHUNK_S = 1.0  # drive time per appended chunk of keyframes (and so per update)

@@ -12,7 +12,7 @@ Trajectory sources (``topic``):
   ``/tf_static``.
 
 The poses go through the same smoothing fit as a TUM file
-(:func:`excite.io.routes.trajectory_from_poses`): a bag and a TUM export of it score alike.
+(:func:`excite.io.poses.trajectory_from_poses`): a bag and a TUM export of it score alike.
 
 **Body frame.** The poses describe one frame of the robot (``base_link``, a camera, ...); excite
 takes that frame as the vehicle frame V (rear-axle centre, x forward, y left, z up). With
@@ -55,7 +55,7 @@ points: topics, poses, IMU, routes), :mod:`.writer` (writing and cropping bags).
 from __future__ import annotations
 
 from ...errors import BagError
-from ..routes import is_bag
+from ..sniff import is_bag
 from .decode import AXES, IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, TF_TYPES, PoseSeries, Series
 from .imu import ImuAgreement, ImuSeries, ImuTrajectory, imu_agreement
 from .mcap import MAX_CHUNK_BYTES, MAX_RATIO, Budget, decompress
@@ -71,7 +71,3 @@ __all__ = [
     "Edge", "Series", "chain_edges", "static_transform", "crop_bag", "Budget", "decompress",
     "MAX_CHUNK_BYTES", "MAX_RATIO", "TF_TOPIC", "TF_STATIC_TOPIC", "AXES",
 ]
-
-# The names other modules used before the package was split (excite.rig.importers,
-# tests/test_bounds.py): still importable; new code uses Edge, Series and decompress.
-_Edge, _Series, _decompress = Edge, Series, decompress

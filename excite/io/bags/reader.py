@@ -13,7 +13,7 @@ import numpy as np
 from ...core import bounds
 from ...errors import BagError, RouteError
 from ...motion.trajectory import Trajectory
-from ..routes import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, trajectory_from_poses
+from ..poses import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, trajectory_from_poses
 from .decode import (AXES, DECODERS, IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TYPES, PoseSeries, Series,
                      decode_message, imu_fields)
 from .imu import ImuSeries, ImuTrajectory, imu_series

@@ -11,7 +11,7 @@ from typing import Iterator
 from weakref import WeakKeyDictionary
 
 from ...errors import BagError
-from ..routes import is_bag
+from ..sniff import is_bag
 from .mcap import Budget, bounded_decompressor, has_summary, mcap_files, verify_chunks
 
 MAX_LISTED = 40  # names an error message lists (a bag may hold 20 000 topics)

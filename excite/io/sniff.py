@@ -1,0 +1,13 @@
+"""What a path holds, told without reading it: whether a bag reader is for it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def is_bag(path: str | Path) -> bool:
+    """Whether ``path`` is a bag excite reads: ``.bag``, ``.mcap`` or a ROS 2 bag folder."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    return p.suffix.lower() in (".bag", ".mcap")
