@@ -255,9 +255,9 @@ def authorize(security_scopes: SecurityScopes, conn: HTTPConnection,
               credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
               ticket: Annotated[str | None, Depends(ticket_query)]) -> Principal:
     """The request's principal, with every scope of ``security_scopes``, within its rate."""
-    ctx = conn.app.state.ctx
-    ring: KeyRing | None = ctx.keys
-    if ring is None:
+    ctx = getattr(conn.app.state, "ctx", None)
+    ring: KeyRing | None = None if ctx is None else ctx.keys
+    if ring is None:  # an open server (or the routers alone, without the service's context)
         return OPEN
     principal = None
     secret = key or (credentials.credentials if credentials is not None else None)
