@@ -100,7 +100,7 @@ def test_fresh_container_healthy_within_30s_and_scores(container):
     where = podman("exec", name, "python", "-c",
                    "import excite, api; print(excite.__file__, api.__file__)").stdout.split()
     assert all(p.startswith("/opt/excite/lib/python3.11/site-packages/") for p in where), where
-    copies = podman("exec", name, "find", "/", "-xdev", "-name", "evaluate.py", "-path", "*excite*",
+    copies = podman("exec", name, "find", "/", "-xdev", "-path", "*/excite/score/evaluate.py",
                     check=False).stdout.split()
     assert copies == ["/opt/excite/lib/python3.11/site-packages/excite/score/evaluate.py"], copies
     # the key is needed: without one, 401
