@@ -39,8 +39,10 @@ __all__ = ["ImportedRig", "rig_from_tf", "rig_from_kalibr", "rig_from_autoware",
 DEFAULT_IMU = {"accelerometer_noise_density": 2.0e-3, "accelerometer_random_walk": 3.0e-4,
                "gyroscope_noise_density": 1.7e-4, "gyroscope_random_walk": 2.0e-5,
                "update_rate": 200.0}
-DEFAULT_SENSOR = {"lidar": {"rate_hz": 10.0, "noise": {"rotation_sigma_deg": 0.1, "translation_sigma_m": 0.01}},
-                  "camera": {"rate_hz": 10.0, "noise": {"rotation_sigma_deg": 0.1, "translation_sigma_m": 0.01}}}
+# drift densities of 0.1 deg and 1 cm per frame pair at 10 Hz (σ·√10)
+_ODOMETRY_NOISE = {"rotation_density_deg_per_sqrt_s": 0.31622776601683794, "translation_density_m_per_sqrt_s": 0.0316227766016838}
+DEFAULT_SENSOR = {"lidar": {"rate_hz": 10.0, "noise": dict(_ODOMETRY_NOISE)},
+                  "camera": {"rate_hz": 10.0, "noise": dict(_ODOMETRY_NOISE)}}
 DEFAULT_TARGETS = {"*.rot_*": "0.1 deg", "*.trans_*": "1 cm", "*.time_offset": "2 ms",
                    "imu.gyro_bias_*": "0.01 deg/s", "imu.accel_bias_*": "0.02 m/s^2"}
 _NAME = re.compile(r"[^a-z0-9_]+")

@@ -38,7 +38,7 @@ from ..factors import symbolic
 from ..factors.base import Nominal
 from ..factors.imu import preintegrate_all
 from ..factors.nonholonomic import sigma_mps
-from ..factors.odometry import Odometry
+from ..factors.odometry import Odometry, pair_sigmas
 from ..factors.wheel import increment_sigma_rad
 from ..information import dense
 from ..information import kernels as info_kernels
@@ -517,7 +517,7 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
         rows, rhs = [], []
         for s in sensors:
             frames, R_rel, _ = _relative_poses(data, rig, s)
-            sig = np.deg2rad(s.noise.rotation_sigma_deg)
+            sig = pair_sigmas(s)[0]
             t = data.t[frames] + tau[s.name]
             Ra = gyro.at(t)
             c = so3.log(np.swapaxes(Ra[:-1], 1, 2) @ Ra[1:])
@@ -622,8 +622,7 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
         RSiT = np.swapaxes(Rb[:-1] @ R_BS, 1, 2)
         lever = np.einsum("nij,j->ni", Rb, p_BS)
         rhs = t_rel - np.einsum("nij,nj->ni", RSiT, lever[1:] - lever[:-1])
-        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs,
-            s.noise.translation_sigma_m)
+        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs, pair_sigmas(s)[1])
     # non-holonomic: lateral and vertical velocity of the axle ≈ 0
     R_BV = data.R_V_B.T
     p_BV = -R_BV @ data.p_V_B
