@@ -18,6 +18,11 @@ gauge is yaw, and every symmetry has bounded components, which keeps the elimina
 on hour-long drives. A rig with a kind that observes absolute position keeps the world states
 (a GNSS fix sees one keyframe's position: the band stays a band).
 
+**The opening.** A kind whose noise is a Markov chain along the drive (a GNSS error correlated
+over time, whitened by differencing consecutive fixes) declares the factor that opens the chain
+at the stationary noise (:attr:`excite.factors.base.Kind.opening`): it is added where a drive,
+or a window closed as one, starts (:meth:`Closure.open`), beside the gauge fix.
+
 **The last keyframe.** In local states, the increment of a drive's last keyframe has no
 successor: it is held at zero (:meth:`Closure.end`). With drifting biases (the random-walk bias
 model) every keyframe carries the deviation of the bias from θ's, and θ is the bias at the end of
@@ -40,7 +45,8 @@ import numpy as np
 from ..core.lazy import ca
 from ..errors import EvaluationError
 from ..factors import base as registry
-from ..factors.base import STATE_DIM, FactorBlock, RigView
+from ..factors import symbolic
+from ..factors.base import STATE_DIM, FactorBlock, Kind, Nominal, RigView
 
 # The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
 # gives the same marginal (the gauge is an exact symmetry); one near the data's scale keeps H_xx
@@ -80,6 +86,7 @@ class Closure:
     state_dim: int
     walk_density: np.ndarray  # random-walk density of each drifting coordinate (state slots 9 …)
     walk_columns: np.ndarray  # their columns of θ
+    openers: tuple[tuple[Kind, object], ...] = ()  # (opening kind, entry) of every chain that opens a drive
 
     @classmethod
     def of(cls, rig: RigView, local: bool | None = None) -> "Closure":
@@ -94,8 +101,9 @@ class Closure:
                                   "differences only, and this rig observes absolute position")
         gauge = tuple(s for s in registry.SYMMETRIES if s not in br and not (local and s == "position"))
         drift = drifting(rig)
+        openers = tuple((i.kind.opening, i.entry) for i in registry.instances(rig) if i.kind.opening is not None)
         return cls(local, gauge, STATE_DIM + len(drift), np.array([d for _, d in drift]),
-                   np.array([c for c, _ in drift], dtype=int))
+                   np.array([c for c, _ in drift], dtype=int), openers)
 
     # --- the gauge ---
 
@@ -124,6 +132,27 @@ class Closure:
             return ca.DM.zeros(STATE_DIM, STATE_DIM)
         J = ca.vertcat(*rows)
         return ca.mtimes(J.T, J)
+
+    # --- the opening ---
+
+    def open(self, nom: Nominal, rig: RigView) -> list[FactorBlock]:
+        """The factors that open a drive (or a window closed as one) whose first keyframe is
+        ``nom``'s: every opening kind's measurement there (:attr:`~excite.factors.base.Kind.opening`;
+        none where the log has no measurement at that keyframe). World trajectory states (an
+        opening sees absolute states, so its rig has no local ones)."""
+        if not self.openers:
+            return []
+        first = nom.window(0, 0)
+        out = []
+        for kind, entry in self.openers:
+            b = symbolic.jacobians(kind, first, rig, entry)
+            if b is not None and b.n_factors:
+                out.append(self.widened(b) if self.sees_drift(b) else b)
+        return out
+
+    def is_opening(self, b: FactorBlock) -> bool:
+        """Whether ``b`` is an opening's block (:meth:`open`; a window re-opens its own)."""
+        return any(b.name == kind.block_name(entry) for kind, entry in self.openers)
 
     # --- the last keyframe ---
 

@@ -15,8 +15,8 @@ stride (:func:`frame_step`) hold every factor exactly once.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -40,6 +40,9 @@ class Problem:
     R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
     closure: Closure
     chain_starts: tuple[int, ...] = (0,)  # first keyframe of each drive (drives share only θ)
+    # the opening factors of a drive that would start at a keyframe (:meth:`Closure.open`), for
+    # :meth:`window`; None when the rig has no opening kind
+    open_at: Callable[[int], list[FactorBlock]] | None = field(default=None, compare=False)
 
     @property
     def local(self) -> bool:
@@ -65,7 +68,7 @@ class Problem:
         starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
         ends = [s - 1 for s in starts[1:]] + [k1 - k0]
         for b in self.blocks:
-            if b.name in ("gauge", "placeholder"):
+            if b.name in ("gauge", "placeholder") or self.closure.is_opening(b):
                 continue
             sel = b.within(k0, k1)
             if sel is not None:
@@ -75,11 +78,13 @@ class Problem:
         R = self.R_W_B[k0:k1 + 1]
         for s, e in zip(starts, ends):
             out += self.closure.fix(R[s], s) + self.closure.end(e)
+            if self.open_at is not None:
+                out += [b.shifted(s) for b in self.open_at(k0 + s)]
         return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.closure, tuple(starts))
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
-                       self.R_W_B, self.closure, self.chain_starts)
+                       self.R_W_B, self.closure, self.chain_starts, self.open_at)
 
 
 def trimmed(starts: Sequence[int], k0: int, k1: int) -> tuple[int, int] | None:
@@ -162,10 +167,20 @@ def build(nom: Nominal | list[Nominal], rig: RigView, gauge_keyframe: int = 0, l
         parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
         g = gauge_keyframe % K
         fixes += [b.shifted(offset) for b in closure.fix(n.R[g], g) + closure.end(K - 1)]
+        fixes += [b.shifted(offset) for b in on_drive_columns(closure.open(n, rig), col_map)]
         starts.append(offset)
         R_all.append(n.R)
         offset += K
-    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), closure, tuple(starts))
+    open_at = None
+    if closure.openers:
+        ends = np.cumsum([n.n_keyframes for n in noms])
+
+        def open_at(k: int) -> list[FactorBlock]:
+            d = int(np.searchsorted(ends, k, side="right"))
+            local = k - (ends[d] - noms[d].n_keyframes)
+            col_map = drive_column_map(rig, d, len(noms))
+            return on_drive_columns(closure.open(noms[d].window(local, local), rig), col_map)
+    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), closure, tuple(starts), open_at)
 
 
 def check_length(K: int, rig: RigView) -> int:

@@ -170,7 +170,11 @@ class _Problem:
         self.n_x = 9 * self.K
         self.gauge_R = gauge_R
         self.gauge_p = np.zeros(3) if gauge_p is None else gauge_p
-        self.instances = [i for i in registry.instances(self.rig) if i.name in data.recorded]
+        # (kind, entry, what it recorded, its label): every entry that recorded data, and the
+        # factors that open its chains at the drive's start (a GNSS antenna's first fix)
+        self.instances = [(i.kind, i.entry, i.name, i.name) for i in registry.instances(self.rig)
+                          if i.name in data.recorded]
+        self.instances += [(k, e, e.name, k.block_name(e)) for k, e in self.closure.openers if e.name in data.recorded]
 
     def nominal(self, X: States, cal: Calibration) -> Nominal:
         """The motion the factors are evaluated on: the estimated states, the IMU samples
@@ -185,22 +189,23 @@ class _Problem:
         imu_R[-1] = X.R[-1]
         return Nominal(t=d.t, R=X.R, p=X.p, v=X.v, omega=keyframe_rates(d, b_g), R_V_A=d.R_V_A, imu_R=imu_R,
                        imu_omega=d.imu.gyro - b_g, imu_f=d.imu.accel - b_a, imu_per_keyframe=n,
-                       R_V_B=d.R_V_B, p_V_B=d.p_V_B)
+                       R_V_B=d.R_V_B, p_V_B=d.p_V_B, logs=d.logs)
 
     def evaluate(self, X: States, cal: Calibration, jacobian: bool):
         """Whitened residual vector (and the sparse whitened Jacobian, in the closure's states)
         at ``(X, cal)``."""
         nom = self.nominal(X, cal)
         parts, kinds, blocks = [], [], []
-        for inst in self.instances:
-            kind, entry = inst.kind, inst.entry
-            first = kind.factor_keyframes(self.rig, entry, self.K)
-            meas, values = kind.measured(self.rig, entry, self.data.recorded[inst.name],
+        for kind, entry, record, label in self.instances:
+            first = kind.factor_keyframes(self.rig, entry, self.K, nom)
+            meas, values = kind.measured(self.rig, entry, self.data.recorded[record],
                                          cal.for_entry(kind, self.rig, entry))
             parts.append(symbolic.residuals(kind, nom, self.rig, entry, first, meas, values).ravel())
             if jacobian:  # Gauss–Newton at the prediction, as the evaluator linearises (see the docstring)
-                blocks.append(symbolic.blocks(kind, nom, self.rig, entry, cal.for_entry(kind, self.rig, entry)))
-            kinds.append(inst.name)
+                b = symbolic.blocks(kind, nom, self.rig, entry, cal.for_entry(kind, self.rig, entry))
+                if b is not None:
+                    blocks.append(b)
+            kinds.append(label)
         # the gauge, as the evaluator's: priors on the first keyframe's position and world yaw as far
         # as they are symmetries (held at the reference), and the last keyframe's held components
         fix = self.closure.fix(X.R[0], 0)
