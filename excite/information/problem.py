@@ -26,7 +26,7 @@ from ..factors import base as registry
 from ..factors import symbolic
 from ..factors.base import STATE_DIM, FactorBlock, Nominal, RigView
 from . import kernels
-from .closure import Closure
+from .closure import ORIGIN, Closure
 
 
 @dataclass(frozen=True)
@@ -117,20 +117,26 @@ def columns(rig: RigView, n_drives: int) -> tuple[list[str], np.ndarray]:
     together: the rig's coordinates, which the *last* drive's own coordinates (:func:`own_columns`)
     use, then each earlier drive's own coordinates as nuisances (``cam_front.scale@0``): drives
     share the calibration and nothing else. With random-walk biases the scored bias is therefore
-    the bias at the end of the last drive."""
+    the bias at the end of the last drive. A rig that observes absolute position then has each
+    drive's origin (``drive.origin_x@0`` …: :attr:`.closure.Closure.origin`), nuisances too."""
     own = [rig.coordinates[i].name for i in own_columns(rig)]
     names = [c.name for c in rig.coordinates] + [f"{n}@{d}" for d in range(n_drives - 1) for n in own]
+    if Closure.of(rig).origin:
+        names += [f"{n}@{d}" for d in range(n_drives) for n in ORIGIN]
     mask = np.array([c.nuisance for c in rig.coordinates] + [True] * (len(names) - len(rig.coordinates)))
     return names, mask
 
 
 def drive_column_map(rig: RigView, drive: int, n_drives: int) -> np.ndarray:
-    """Column of each rig coordinate in drive ``drive``'s factors (see :func:`columns`)."""
+    """Column of each rig coordinate in drive ``drive``'s factors (see :func:`columns`), then of
+    the drive's origin where the rig has one (the slots after the rig's coordinates)."""
     p = len(rig.coordinates)
     out = np.arange(p)
     own = own_columns(rig)
     if drive < n_drives - 1 and own.size:
         out[own] = p + drive * own.size + np.arange(own.size)
+    if Closure.of(rig).origin:
+        out = np.r_[out, p + (n_drives - 1) * own.size + 3 * drive + np.arange(3)]
     return out
 
 
@@ -231,6 +237,8 @@ def linearise(sub: Nominal, rig: RigView, closure: Closure, last: bool, walk: bo
         b = symbolic.jacobians(inst.kind, sub, rig, inst.entry)
         if b is not None and inst.kind.arity == 1 and not last:
             b = b.select(b.first < m)
+        if b is not None and "position" in inst.kind.breaks:
+            b = closure.absolute(b, rig)
         blocks.append(b)
     if closure.local:
         V, P = kernels.local_maps(sub.R, sub.v, sub.p)

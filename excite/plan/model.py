@@ -148,7 +148,7 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     n = int(round(rig.config.imu.update_rate / rig.keyframe_rate_hz))
     if n_keyframes < 3:
         raise OptimizeError(f"the drive is too short: {n_keyframes} keyframes")
-    closure = Closure.of(rig)
+    closure = Closure.of(rig, origin=False)  # plain world states (see closure: no rank test reads this model)
     if closure.state_dim != D:
         raise OptimizeError("the optimizer's model takes the IMU biases constant (use coarse_rig)")
     K = n_keyframes

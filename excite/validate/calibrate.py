@@ -164,7 +164,7 @@ class _Problem:
         # the estimator takes the biases constant (the simulator may let them drift): the factors
         # are linearised for that model, 9-wide states
         self.data, self.rig = data, rig.with_constant_biases() if rig.bias_random_walk else rig
-        self.closure = Closure.of(self.rig)
+        self.closure = Closure.of(self.rig, origin=False)  # plain world states: LM needs no origin
         self.K = data.n_keyframes
         self.n_params = len(rig.coordinates)
         self.n_x = 9 * self.K
