@@ -185,7 +185,7 @@ def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dic
         j = np.clip(np.searchsorted(ts, t), 1, ts.size - 1) if ts.size > 1 else np.zeros(t.size, dtype=int)
         if ts.size > 1:
             j = np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
-        near = np.abs(ts[j] - t) <= 0.5 * stride / rig.keyframe_rate_hz
+        near = np.abs(ts[j] - t) < 0.5 * stride / rig.keyframe_rate_hz  # (strictly: a message is one frame's)
         avail = frame & near
         cov = None
         if log.covariance is not None:
