@@ -115,7 +115,7 @@ class Settings(BaseSettings):
                                                      "over each message [Hz].")
     live_memory_mb: int = Field(3072, ge=0, le=1_048_576,
                                 description="Address-space limit of each /v1/live session's process [MiB] (0: none).")
-    max_live_sessions: int = Field(16, ge=0, le=1000,
+    max_live_sessions: int = Field(16, ge=0, le=64,
                                    description="/v1/live sessions streaming at once (each its own process).")
 
     dask_scheduler: str | None = Field(

@@ -45,7 +45,7 @@ import time
 import uuid
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 from .errors import StoreError
 
@@ -535,10 +535,10 @@ class PostgresStore(JobStore):
     LOCK = 0x657863697465  # 'excite'
 
     def __init__(self, url: str, max_idle: int = 4, connect_timeout_s: float = 10.0):
-        try:
-            import psycopg  # noqa: F401
-        except ImportError:
-            raise StoreError("a PostgreSQL job store needs psycopg: pip install 'psycopg[binary]'") from None
+        import importlib.util
+
+        if importlib.util.find_spec("psycopg") is None:
+            raise StoreError("a PostgreSQL job store needs psycopg: pip install 'psycopg[binary]'")
         self.url = url
         self.max_idle, self.connect_timeout_s = max_idle, connect_timeout_s
         self._idle: list[Any] = []
@@ -619,11 +619,3 @@ def open_store(url: str | Path) -> JobStore:
     return SqliteStore(text)
 
 
-def wait_until(check: Callable[[], bool], timeout_s: float, period_s: float = 0.1) -> bool:
-    """Poll ``check`` until it holds or ``timeout_s`` passed (tests and the shutdown path)."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(period_s)
-    return True

@@ -402,7 +402,7 @@ def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
     with client.websocket_connect("/v1/live") as ws:
         ws.send_json({"type": "start"})
         ws.receive_json()
-        (proc,) = list(live._processes)
+        (proc,) = live.session_processes()
         pid = proc.proc.pid
         assert pid != os.getpid() and proc.proc.is_alive()
         ws.send_json({"type": "poses", "poses": _poses(np.arange(0, 20, 0.1))})
@@ -410,9 +410,9 @@ def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
         while ws.receive_json()["type"] != "final":
             pass
     deadline = time.monotonic() + 10
-    while live._processes and time.monotonic() < deadline:
+    while live.session_processes() and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not live._processes and not os.path.exists(f"/proc/{pid}/status") or \
+    assert not live.session_processes() and not os.path.exists(f"/proc/{pid}/status") or \
         "zombie" in Path(f"/proc/{pid}/status").read_text()
 
 
@@ -467,9 +467,11 @@ def test_the_connection_survives_a_500(tmp_path):
         thread.join(15)
 
 
-def test_store_faults_are_named_and_metrics_never_fail(tmp_path, caplog):
+def test_store_faults_are_named_and_metrics_never_fail(tmp_path, caplog, monkeypatch):
     import logging
 
+    # `excite serve` (run by other tests) stops the service's logger from propagating
+    monkeypatch.setattr(logging.getLogger("excite"), "propagate", True)
     db = tmp_path / "jobs.sqlite3"
     app = create_app(Settings(db_path=db, workers=1, score_workers=1))
 

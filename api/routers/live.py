@@ -58,6 +58,7 @@ MAX_DEPTH = 8  # a poses message is 3 levels deep
 MAX_MESSAGES_PER_S = 50.0
 BURST = 100
 IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot freed)
+MAX_SESSIONS = 64  # the ceiling of EXCITE_MAX_LIVE_SESSIONS (16 by default), whatever it says
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
 _processes: set[Any] = set()  # every session's process, ended at shutdown
 _lock = threading.Lock()
@@ -173,11 +174,21 @@ def _poses(rows: list[list[float]]):
     return d[:, 0], d[:, 1:4], Rotation.from_quat(d[:, 4:8] / norm[:, None]).as_matrix()
 
 
+def settings_of(ws: Any) -> Any:
+    """The app's settings, or the defaults for an app built without the service's context (the
+    router alone behind uvicorn)."""
+    ctx = getattr(ws.app.state, "ctx", None)
+    if ctx is not None:
+        return ctx.settings
+    from ..settings import Settings
+
+    return Settings.model_construct()
+
+
 class Drive:
     """What the server keeps of a session to bound it: the pose count, first and last time."""
 
-    def __init__(self, ctx: Context):
-        s = ctx.settings
+    def __init__(self, s: Any):
         self.max_poses, self.max_s, self.max_rate = s.max_samples, s.max_route_duration_s, s.max_live_pose_rate_hz
         self.n, self.t0, self.t_last = 0, None, None
 
@@ -248,9 +259,10 @@ def _session_main(conn: Any, rig: Any, name: str, memory_mb: int, duration_s: fl
 class SessionProcess:
     """One session's evaluator in a process of its own; :meth:`call` is bounded in time."""
 
-    def __init__(self, ctx: Context, rig: Any, name: str):
-        s = ctx.settings
-        mp = ctx.pool.context()
+    def __init__(self, ctx: Context | None, s: Any, rig: Any, name: str):
+        import multiprocessing
+
+        mp = ctx.pool.context() if ctx is not None else multiprocessing.get_context("forkserver")
         self.conn, child = mp.Pipe()
         self.proc = mp.Process(target=_session_main, daemon=True, name="excite-live",
                                args=(child, rig, name, s.live_memory_mb, s.max_route_duration_s,
@@ -294,6 +306,12 @@ class SessionProcess:
         self.proc.join(5)
 
 
+def session_processes() -> list[SessionProcess]:
+    """The sessions' processes running now (in this server)."""
+    with _lock:
+        return list(_processes)
+
+
 def close_all() -> None:
     """End every session's process (the server is shutting down)."""
     with _lock:
@@ -335,25 +353,27 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str]:
 
 @router.websocket("/live")
 async def live(ws: WebSocket, who: LiveClient) -> None:
-    ctx: Context = ws.app.state.ctx
+    ctx: Context | None = getattr(ws.app.state, "ctx", None)
+    settings = settings_of(ws)
+    counts = ctx.live_sessions if ctx is not None else {}
     await ws.accept()
     if isinstance(who, ProblemError):
         await _refuse(ws, Refused(who.status, "X-API-Key", who.detail, 1008))
         return
-    limit = ctx.settings.max_live_sessions
+    limit = min(settings.max_live_sessions, MAX_SESSIONS)
     if _sessions["open"] >= limit:
         await _refuse(ws, Refused(503, "session", f"{limit} sessions are streaming already; "
                                                    "try again later", 1013))
         return
-    mine = ctx.live_sessions.get(who.key_id, 0)
+    mine = counts.get(who.key_id, 0)
     if who.limits is not None and mine >= who.limits.live_sessions:
         await _refuse(ws, Refused(429, "session", f"the key {who.key_id} has {mine} sessions streaming "
                                                    f"(its quota: {who.limits.live_sessions})", 1013))
         return
     _sessions["open"] += 1
-    ctx.live_sessions[who.key_id] = mine + 1
+    counts[who.key_id] = mine + 1
     try:
-        await _session(ws, ctx)
+        await _session(ws, ctx, settings)
     except WebSocketDisconnect:
         pass  # the client went away: its stream is dropped with this frame
     except Exception:
@@ -364,11 +384,11 @@ async def live(ws: WebSocket, who: LiveClient) -> None:
             pass
     finally:
         _sessions["open"] -= 1
-        left = ctx.live_sessions.get(who.key_id, 1) - 1
+        left = counts.get(who.key_id, 1) - 1
         if left:
-            ctx.live_sessions[who.key_id] = left
+            counts[who.key_id] = left
         else:
-            ctx.live_sessions.pop(who.key_id, None)
+            counts.pop(who.key_id, None)
 
 
 async def _receive_text(ws: WebSocket) -> str | None:
@@ -383,10 +403,10 @@ async def _receive_text(ws: WebSocket) -> str | None:
     return None
 
 
-async def _session(ws: WebSocket, ctx: Context) -> None:
+async def _session(ws: WebSocket, ctx: Context | None, settings: Any) -> None:
     bucket = _Bucket(MAX_MESSAGES_PER_S, BURST)
     proc: SessionProcess | None = None
-    drive = Drive(ctx)
+    drive = Drive(settings)
     try:
         while True:
             try:
@@ -398,7 +418,7 @@ async def _session(ws: WebSocket, ctx: Context) -> None:
                 msg = _message(text)
                 if proc is None:
                     rig, name = _start(msg)
-                    proc = SessionProcess(ctx, msg.get("rig", "robotaxi"), name)
+                    proc = SessionProcess(ctx, settings, msg.get("rig", "robotaxi"), name)
                     await ws.send_json({"type": "started", "rig": rig.name,
                                         "parameters": [c.name for c in rig.scored]})
                     continue

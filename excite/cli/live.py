@@ -182,9 +182,9 @@ def _source(route: Path, times: Optional[Path], replay: float | None, topic: Opt
 def _times(path: Optional[Path]) -> list[float] | None:
     if path is None:
         return None
-    from ..io.routes import numbers, split_rows
+    from ..io.routes import document, numbers, split_rows
 
-    return [float(x) for x in numbers(split_rows(Path(path), None), (1,))[:, 0]]
+    return [float(x) for x in numbers(split_rows(document(path), None), (1,))[:, 0]]
 
 
 def _table(update: dict[str, Any], rig_name: str) -> Any:

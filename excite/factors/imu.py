@@ -37,7 +37,7 @@ from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
 from ..motion.trajectory import GRAVITY, Trajectory
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
-from .symbolic import hat, log
+from .symbolic import hat, residual_log
 
 
 class ImuConfig(Model):
@@ -115,7 +115,7 @@ class Imu(Kind):
         bg, ba = f.q["gyro_bias"], f.q["accel_bias"]
         dR_m = ca.reshape(meas[0:9], 3, 3).T
         dR_b = ca.mtimes(dR_m, ca.DM.eye(3) - hat(ca.mtimes(dR_m.T, ca.mtimes(pre["G_R"], bg))))
-        return ca.vertcat(log(ca.mtimes(dR, dR_b.T)),
+        return ca.vertcat(residual_log(ca.mtimes(dR, dR_b.T)),
                           dv - (meas[9:12] + ca.mtimes(pre["V_g"], bg) + ca.mtimes(pre["V_a"], ba)),
                           dp - (meas[12:15] + ca.mtimes(pre["P_g"], bg) + ca.mtimes(pre["P_a"], ba)))
 

@@ -35,7 +35,7 @@ from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
 from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
-from .symbolic import exp, log
+from .symbolic import exp, residual_log
 
 
 class OdometryNoise(Model):
@@ -126,7 +126,7 @@ class Odometry(Kind):
     def residual(self, f, meas):
         R_rel, t_rel = self._relative(f)
         R_meas = ca.reshape(meas[0:9], 3, 3).T
-        return ca.vertcat(log(ca.mtimes(R_meas.T, R_rel)), f.q["scale"] * t_rel - meas[9:12])
+        return ca.vertcat(residual_log(ca.mtimes(R_meas.T, R_rel)), f.q["scale"] * t_rel - meas[9:12])
 
     def sqrt_information(self, f):
         sig_r, sig_t = pair_sigmas(f.entry)

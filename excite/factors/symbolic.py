@@ -24,6 +24,7 @@ orientations and ``n`` specific forces), then the values of the entry's quantiti
 
 from __future__ import annotations
 
+import contextvars
 import json
 from dataclasses import dataclass
 from typing import Any
@@ -63,6 +64,20 @@ def log(R):
     s_safe = ca.sqrt(ca.if_else(small, 1.0, s2))
     k = ca.if_else(small, 1.0 + s2 / 6.0, ca.atan2(s_safe, c) / s_safe)
     return k * w
+
+
+_AT_ZERO_RESIDUAL = contextvars.ContextVar("at_zero_residual", default=False)
+
+
+def residual_log(R):
+    """``Log(R)`` of a rotation residual, one that is the identity at the noise-free measurement
+    (``Log(R_measᵀ R_rel)``): exact, but where only its derivative at the identity is built
+    (:func:`linearised`), its first-order part — the skew part of R, whose derivative there is
+    Log's — without the series and arctangent branches that would be evaluated (and
+    differentiated) on every call."""
+    if _AT_ZERO_RESIDUAL.get():
+        return 0.5 * ca.vertcat(R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1])
+    return log(R)
 
 
 def chol(A, n: int):
@@ -229,7 +244,11 @@ def linearised(kind: Kind, rig: RigView, entry: Any, lay: Layout, x, samples, qv
     dx = ca.SX.sym("dx", 9 * lay.arity)
     dq = ca.SX.sym("dq", lay.n_theta)
     moved = _inputs(kind, rig, entry, lay, x, samples, qv, dx, dq)
-    r = whiten(kind.sqrt_information(base), kind.residual(moved, meas), kind.rows)
+    token = _AT_ZERO_RESIDUAL.set(True)
+    try:
+        r = whiten(kind.sqrt_information(base), kind.residual(moved, meas), kind.rows)
+    finally:
+        _AT_ZERO_RESIDUAL.reset(token)
     Jx = ca.substitute(ca.jacobian(r, dx), ca.vertcat(dx, dq), ca.DM.zeros(dx.numel() + dq.numel()))
     Jt = ca.substitute(ca.jacobian(r, dq), ca.vertcat(dx, dq), ca.DM.zeros(dx.numel() + dq.numel()))
     return Jx, Jt
@@ -265,7 +284,7 @@ def linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
         lay = layout(kind, rig, entry)
         x, s, q = symbols(lay)
         Jx, Jt = linearised(kind, rig, entry, lay, x, s, q)
-        return ca.Function(f"lin_{kind.name}", [x, s, q], [Jx, Jt])
+        return ca.Function(f"lin_{kind.name}", [x, s, q], [Jx, Jt], {"cse": True})
 
     return _cached("lin", kind, rig, entry, build)
 
@@ -278,7 +297,7 @@ def residual_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
         f = _inputs(kind, rig, entry, lay, x, s, q)
         meas = ca.SX.sym("m", kind.measurement(f).numel())
         r = whiten(kind.sqrt_information(f), kind.residual(f, meas), kind.rows)
-        return ca.Function(f"res_{kind.name}", [x, s, q, meas], [r])
+        return ca.Function(f"res_{kind.name}", [x, s, q, meas], [r], {"cse": True})
 
     return _cached("res", kind, rig, entry, build)
 

@@ -97,11 +97,11 @@ def _factor_information(rig: Rig, closure: Closure, arity: int, n: int, instance
         lay = symbolic.layout(kind, rig, entry)
         Jx, Jt = symbolic.linearised(kind, rig, entry, lay, x, s if lay.n_samples else ca.SX(0, 1),
                                      ca.DM(symbolic.quantity_inputs(lay)))
-        E = np.zeros((lay.n_theta, P))  # the entry's coordinates among all of θ
+        full = ca.SX(kind.rows, P)  # the entry's coordinates among all of θ (the rest structurally zero)
         for i, name in enumerate(symbolic.coordinate_names(lay)):
-            E[i, rig.index(name)] = 1.0
+            full[:, rig.index(name)] = Jt[:, i]
         Jx_all.append(Jx)
-        Jt_all.append(ca.mtimes(Jt, ca.DM(E)))
+        Jt_all.append(full)
     if not Jx_all:
         return None
     Jx, Jt = ca.vertcat(*Jx_all), ca.vertcat(*Jt_all)
@@ -112,7 +112,7 @@ def _factor_information(rig: Rig, closure: Closure, arity: int, n: int, instance
     else:
         out = [ca.mtimes(Lt[0], L[0]), ca.mtimes(Lt[1], L[1]), ca.mtimes(Lt[1], L[0]),
                ca.mtimes(Lt[0], Jt), ca.mtimes(Lt[1], Jt), ca.mtimes(Jt.T, Jt)]
-    return ca.Function(f"information{arity}", [x, s], [ca.vec(o) for o in out])
+    return ca.Function(f"information{arity}", [x, s], [ca.vec(o) for o in out], {"cse": True})
 
 
 def _to_states(Jx, x, arity: int, local: bool) -> list:
