@@ -51,9 +51,11 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numba as nb
 import numpy as np
 from pydantic import Field, model_validator
 
+from ..core import kernels
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
@@ -258,24 +260,21 @@ class Gnss(Kind):
     # --- the compiled kernel ---
 
     def blocks(self, nom: Nominal, rig: RigView, s: GnssSensor) -> FactorBlock | None:
-        """Whitened Jacobians of every differenced pair of consecutive fixes (vectorised: the
-        antenna's Jacobian at each fix, whitened and differenced)."""
+        """Whitened Jacobians of every differenced pair of consecutive fixes (compiled:
+        :func:`_pair_jacobians`)."""
         first = self.factor_keyframes(rig, s, nom.n_keyframes, nom)
         if not first.size:
             return None
         stride = self.stride(rig, s)
         phi = s.noise.phi(stride / rig.keyframe_rate_hz)
-        c = math.sqrt(1.0 - phi * phi)
-        second = first + stride
-        Wi = _whitening(nom, s, first) * (phi / c)
-        Wj = _whitening(nom, s, second) / c
-        Ai, Ti = _antenna_jacobians(nom, s, first)
-        Aj, Tj = _antenna_jacobians(nom, s, second)
-        mul = lambda W, A: np.einsum("nij,njk->nik", W, A)  # noqa: E731
-        Jx = np.concatenate([mul(Wi, Ai), -mul(Wj, Aj)], axis=2)
-        cols, Jti = _theta(rig, s, Ti)
-        _, Jtj = _theta(rig, s, Tj)
-        return FactorBlock(s.name, first, stride, 2, Jx, mul(Wi, Jti) - mul(Wj, Jtj), cols)
+        log = nom.logs.get(s.name)
+        reported = s.noise.use_reported_covariance and log is not None and log.covariance is not None
+        k = np.arange(nom.n_keyframes) if reported else np.zeros(1, dtype=int)
+        W = _whitening(nom, s, k) if reported else np.diag(1.0 / s.noise.sigmas())[None]
+        cols, _ = _theta(rig, s, np.zeros((0, 3, 4)))
+        Jx, Jt = _pair_jacobians(nom.R, nom.v, nom.omega, first.astype(np.int64), stride, s.T_B_S.p, W, reported,
+                                 phi, s.estimate.extrinsic, s.estimate.time_offset)
+        return FactorBlock(s.name, first, stride, 2, Jx, Jt, cols, _PAIR_XCOLS)
 
     # --- simulation and calibration ---
 
@@ -315,6 +314,59 @@ class Gnss(Kind):
         have = set(recorded.keyframes.tolist())
         first = np.array([k for k in recorded.keyframes.tolist() if k + stride in have], dtype=int)
         return np.hstack([recorded.at(first), recorded.at(first + stride)]), values
+
+
+_PAIR_XCOLS = np.array([0, 1, 2, 3, 4, 5, 9, 10, 11, 12, 13, 14])  # no velocity at t_d = 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _pair_jacobians(R, v, w, first, stride, l, W, reported, phi, c_trans, c_time):
+    """Per pair i → j = i + stride of fixes, with ``c = √(1 − φ²)``, ``W_i = φ L_i⁻¹ / c`` and
+    ``W_j = L_j⁻¹ / c`` (``L⁻¹``: ``W[k]`` per keyframe if ``reported``, else ``W[0]``), the
+    differenced residual ``W_j (z_j − a_j) − W_i (z_i − a_i)`` differentiated (t_d = 0)::
+
+        ∂/∂δθ_i = −W_i R_i [l]×   ∂/∂δp_i = W_i   ∂/∂δθ_j = W_j R_j [l]×   ∂/∂δp_j = −W_j
+        ∂/∂l = W_i R_i − W_j R_j   ∂/∂t_d = W_i (v_i + R_i (ω_i × l)) − W_j (v_j + R_j (ω_j × l))
+
+    (velocities do not enter at t_d = 0)."""
+    N = first.size
+    nc = (3 if c_trans else 0) + (1 if c_time else 0)
+    Jx = np.zeros((N, 3, 18))
+    Jt = np.zeros((N, 3, nc))
+    c = np.sqrt(1.0 - phi * phi)
+    hl = np.empty((3, 3))
+    kernels.hat(l, hl)
+    A, B, Wk = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    a, b, e = np.empty(3), np.empty(3), np.empty(3)
+    for n in range(N):
+        for side in range(2):
+            k = first[n] + side * stride
+            f = (phi if side == 0 else -1.0) / c  # W_i carries +φ, W_j −1
+            Wsrc = W[k] if reported else W[0]
+            for r in range(3):
+                for q in range(3):
+                    Wk[r, q] = f * Wsrc[r, q]
+            kernels.mul(R[k], hl, A)  # R [l]×
+            kernels.mul(Wk, A, B)
+            o = 9 * side
+            for r in range(3):
+                for q in range(3):
+                    Jx[n, r, o + q] = -B[r, q]
+                    Jx[n, r, o + 3 + q] = Wk[r, q]
+            if c_trans:
+                kernels.mul(Wk, R[k], A)
+                for r in range(3):
+                    for q in range(3):
+                        Jt[n, r, q] += A[r, q]
+            if c_time:
+                kernels.cross(w[k], l, a)
+                kernels.mulv(R[k], a, b)
+                for q in range(3):
+                    e[q] = v[k, q] + b[q]
+                kernels.mulv(Wk, e, a)
+                for r in range(3):
+                    Jt[n, r, nc - 1] += a[r]
+    return Jx, Jt
 
 
 def _whitening(nom: Nominal, s: GnssSensor, k: np.ndarray) -> np.ndarray:
