@@ -160,3 +160,28 @@ def test_monte_carlo_on_a_planned_drive_with_gnss_is_consistent():
     rlo, rhi = np.sqrt(chi2.ppf(a / 2, n) / n), np.sqrt(chi2.ppf(1 - a / 2, n) / n)
     gnss = {p.name: p.ratio for p in res.parameters if p.name.startswith("gnss")}
     assert len(gnss) == 4 and all(rlo <= r <= rhi for r in gnss.values()), (gnss, rlo, rhi)
+
+
+def test_the_service_scores_a_rig_with_gnss(tmp_path, rig, traj):
+    """The HTTP service takes the rig as it takes any (a new kind needs no change there): the
+    report's σ are the library's."""
+    from excite.io.routes import write_tum
+    from test_api_support import LiveServer
+
+    rig_dict = rig.config.model_dump(mode="json")
+    tum = write_tum(traj, tmp_path / "eight.tum")
+    (tmp_path / "srv").mkdir()
+    srv = LiveServer(tmp_path / "srv", workers=1, score_workers=1, max_job_time_budget_s=60).start()
+    try:
+        with srv.client() as c:
+            r = c.post("/v1/score", json={"route": {"name": "eight", "format": "tum", "text": tum.read_text()},
+                                          "rig": rig_dict})
+    finally:
+        srv.stop()
+    assert r.status_code == 200, r.text
+    got = {p["name"]: p["sigma"] for p in r.json()["parameters"]}
+    from excite.io.routes import read_route
+
+    want = sigmas(evaluate(read_route(tum), rig))
+    for n in ("gnss.trans_x", "gnss.trans_y", "gnss.time_offset"):
+        assert got[n] == pytest.approx(want[n], rel=1e-9), n
