@@ -22,7 +22,13 @@ A **kind** (:class:`Kind`) is one module of :mod:`excite.factors` and declares, 
 - optionally a **compiled kernel** (numba) that overrides :meth:`Kind.blocks` for speed; the
   contract test holds every kernel equal to the derivative of the residual;
 - its **simulated measurement** (:meth:`Kind.simulate`: physical, or exactly as the model
-  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates.
+  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates;
+- where its noise is a Markov chain along the drive (a GNSS error correlated over time, whitened
+  by differencing consecutive measurements), the **opening** factor of the chain at a drive's
+  first keyframe (:attr:`Kind.opening`, an unregistered one-keyframe kind the closure adds);
+- which measurements a **logged** drive holds (:meth:`Kind.factor_keyframes` reading
+  :attr:`Nominal.logs`, from the trajectory's :class:`~excite.motion.trajectory.SensorLog`: an
+  outage, the reported covariance).
 
 Everything else loops over the registry (:func:`kinds`, :func:`instances`): adding a kind is a
 module that calls :func:`register`, and nothing else changes.
