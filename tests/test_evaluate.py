@@ -149,8 +149,8 @@ def _scaled_noise(rig, factor):
               "gyroscope_random_walk"):
         imu[k] *= factor
     for s in data["sensors"]:
-        s["noise"]["rotation_sigma_deg"] *= factor
-        s["noise"]["translation_sigma_m"] *= factor
+        s["noise"]["rotation_density_deg_per_sqrt_s"] *= factor
+        s["noise"]["translation_density_m_per_sqrt_s"] *= factor
     data["wheels"]["noise_density"] *= factor
     nh = data["vehicle"]["nonholonomic"]
     nh["lateral_noise_density"] *= factor

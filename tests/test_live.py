@@ -47,7 +47,7 @@ sensors:
     kind: lidar
     rate_hz: 10
     T_B_S: {translation_m: [0.10, 0.00, 1.20], rpy_deg: [0, 0, 0]}
-    noise: {rotation_sigma_deg: 0.05, translation_sigma_m: 0.02}
+    noise: {rotation_density_deg_per_sqrt_s: 0.15811388300841897, translation_density_m_per_sqrt_s: 0.06324555320336758}
     estimate: {extrinsic: true, time_offset: true}
 wheels:
   radius_left_m: 0.34

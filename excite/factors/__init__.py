@@ -3,10 +3,10 @@ quantities, its math once (in CasADi), its compiled kernel and its simulation
 (:mod:`excite.factors.base` states the protocol and keeps the registry). Importing this package
 registers the built-in kinds, in this order — the order of the rows of J, and of θ's columns
 after the sensors' —: the IMU, rear-axle wheel encoders, the non-holonomic constraint, lidar and
-camera odometry. A kind of one's own is a module like these that calls
+camera odometry, GNSS antennas. A kind of one's own is a module like these that calls
 :func:`~excite.factors.base.register`."""
 
-from . import base, imu, nonholonomic, odometry, wheel
+from . import base, gnss, imu, nonholonomic, odometry, wheel
 
-for _kind in (imu.Imu(), wheel.Wheel(), nonholonomic.NonHolonomicConstraint(), odometry.Odometry()):
+for _kind in (imu.Imu(), wheel.Wheel(), nonholonomic.NonHolonomicConstraint(), odometry.Odometry(), gnss.Gnss()):
     base.register(_kind)

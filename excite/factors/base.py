@@ -22,7 +22,13 @@ A **kind** (:class:`Kind`) is one module of :mod:`excite.factors` and declares, 
 - optionally a **compiled kernel** (numba) that overrides :meth:`Kind.blocks` for speed; the
   contract test holds every kernel equal to the derivative of the residual;
 - its **simulated measurement** (:meth:`Kind.simulate`: physical, or exactly as the model
-  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates.
+  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates;
+- where its noise is a Markov chain along the drive (a GNSS error correlated over time, whitened
+  by differencing consecutive measurements), the **opening** factor of the chain at a drive's
+  first keyframe (:attr:`Kind.opening`, an unregistered one-keyframe kind the closure adds);
+- which measurements a **logged** drive holds (:meth:`Kind.factor_keyframes` reading
+  :attr:`Nominal.logs`, from the trajectory's :class:`~excite.motion.trajectory.SensorLog`: an
+  outage, the reported covariance).
 
 Everything else loops over the registry (:func:`kinds`, :func:`instances`): adding a kind is a
 module that calls :func:`register`, and nothing else changes.
@@ -64,6 +70,21 @@ class RigView(Protocol):
 
 
 @dataclass(frozen=True)
+class KeyframeLog:
+    """What a log recorded of one sensor, on the keyframe grid (:meth:`Nominal.of`): whether
+    the sensor has a measurement at each keyframe (a frame of the sensor's that the log holds;
+    False between its frames and in outages), and where the sensor reports one, the covariance
+    of that measurement (K × d × d, NaN where none)."""
+
+    available: np.ndarray
+    covariance: np.ndarray | None = None
+
+    def window(self, k0: int, k1: int) -> "KeyframeLog":
+        cov = None if self.covariance is None else self.covariance[k0:k1 + 1]
+        return KeyframeLog(self.available[k0:k1 + 1], cov)
+
+
+@dataclass(frozen=True)
 class Nominal:
     """The nominal motion a rig sees on a drive: the IMU's at every IMU sample, the body's at the
     keyframes.
@@ -72,6 +93,8 @@ class Nominal:
     (IMU frame) orientation ``R``, world position ``p`` and velocity ``v``, body rate ``omega``
     and the suspension tilt ``R_V_A``. At the IMU rate: orientation ``imu_R``, body rate
     ``imu_omega`` and specific force ``imu_f``. ``R_V_B, p_V_B`` is the IMU pose in the vehicle frame.
+    ``logs``: what a logged drive recorded of some of the rig's sensors, by sensor name
+    (:class:`KeyframeLog`; a sensor without one measures at every one of its frames).
     """
 
     t: np.ndarray
@@ -87,6 +110,7 @@ class Nominal:
     R_V_B: np.ndarray
     p_V_B: np.ndarray
     length_m: float = 0.0  # path length of the rear axle (trapezoid over the keyframes)
+    logs: dict[str, KeyframeLog] = field(default_factory=dict)
 
     @property
     def n_keyframes(self) -> int:
@@ -99,7 +123,8 @@ class Nominal:
         imu = slice(k0 * n, k1 * n + 1)
         return Nominal(t=self.t[kf], R=self.R[kf], p=self.p[kf], v=self.v[kf], omega=self.omega[kf],
                        R_V_A=self.R_V_A[kf], imu_R=self.imu_R[imu], imu_omega=self.imu_omega[imu],
-                       imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B)
+                       imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B,
+                       logs={k: v.window(k0, k1) for k, v in self.logs.items()})
 
     @staticmethod
     def grid(traj: Trajectory, rig: RigView, t_start: float | None = None,
@@ -137,8 +162,43 @@ class Nominal:
         p_V, v_V, R_V_A = traj.translation(t)
         R, p, v, omega = rigid_body(R_W_V, p_V, v_V, omega_V, R_V_B, p_V_B)
         length = float(np.trapezoid(np.linalg.norm(v_V, axis=1), t))
+        logs = keyframe_logs(traj, rig, t, k0)
         return cls(t=t, R=R, p=p, v=v, omega=omega, R_V_A=R_V_A, imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f,
-                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length)
+                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs)
+
+
+def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dict[str, KeyframeLog]:
+    """The logs ``traj`` carries of ``rig``'s sensors (:attr:`Trajectory.logs
+    <excite.motion.trajectory.Trajectory.logs>`, by sensor name) on the keyframes ``t``, the first
+    of which is keyframe ``k0`` of the drive: a keyframe holds a measurement of a sensor when it
+    is one of the sensor's frames (every ``stride``-th keyframe of the drive) and the log has a
+    message within half a frame interval of it; its covariance is that message's. Each keyframe
+    on its own, so that a window sees what the whole drive sees."""
+    out = {}
+    logs = getattr(traj, "logs", None) or {}
+    for s in rig.config.sensors:
+        log = logs.get(s.name)
+        kind = kind_of_sensor(s.kind)
+        if log is None or kind is None:
+            continue
+        stride = kind.stride(rig, s)
+        k = k0 + np.arange(t.size)
+        frame = k % stride == 0
+        ts = np.asarray(log.t, dtype=float)
+        if ts.size == 0:
+            out[s.name] = KeyframeLog(np.zeros(t.size, dtype=bool))
+            continue
+        j = np.clip(np.searchsorted(ts, t), 1, ts.size - 1) if ts.size > 1 else np.zeros(t.size, dtype=int)
+        if ts.size > 1:
+            j = np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
+        near = np.abs(ts[j] - t) < 0.5 * stride / rig.keyframe_rate_hz  # (strictly: a message is one frame's)
+        avail = frame & near
+        cov = None
+        if log.covariance is not None:
+            cov = np.full((t.size,) + log.covariance.shape[1:], np.nan)
+            cov[avail] = log.covariance[j[avail]]
+        out[s.name] = KeyframeLog(avail, cov)
+    return out
 
 
 @dataclass(frozen=True)
@@ -276,6 +336,13 @@ class Kind:
     # motion advice per (coordinate kind, vehicle axis or None): (the report's, the driver's)
     advice: ClassVar[dict[tuple[str, int | None], tuple[str, str]]] = {}
     uses_imu_samples: ClassVar[bool] = False  # its math reads the IMU samples of its interval
+    # A kind whose noise is a Markov chain along the drive (a GNSS error correlated over time,
+    # whitened by differencing consecutive measurements) declares the one-keyframe kind of the
+    # measurement that opens the chain at a drive's first keyframe (its stationary noise): not
+    # registered; the closure adds it where a drive, or a window closed as one, starts
+    # (:meth:`excite.information.closure.Closure.open`). It observes absolute states: such a
+    # kind breaks the translation symmetry.
+    opening: ClassVar["Kind | None"] = None
 
     # --- the rig ---
 
@@ -335,9 +402,11 @@ class Kind:
         rate changes (noise given as a density)."""
         return dict(entry, rate_hz=rate_hz)
 
-    def factor_keyframes(self, rig: RigView, entry: Any, n_keyframes: int) -> np.ndarray:
+    def factor_keyframes(self, rig: RigView, entry: Any, n_keyframes: int, nom: "Nominal | None" = None) -> np.ndarray:
         """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes`` (relative to
-        its start): every ``stride``-th keyframe; pairs need their second keyframe."""
+        its start): every ``stride``-th keyframe; pairs need their second keyframe. ``nom``, where
+        given, may say which measurements a logged drive holds (:attr:`Nominal.logs`); a kind
+        that reads it skips the missing ones."""
         s = self.stride(rig, entry)
         last = n_keyframes - 1 - (s if self.arity == 2 else 0)
         return np.arange(0, last + 1, s) if last >= 0 else np.zeros(0, dtype=int)
@@ -371,6 +440,9 @@ def register(kind: Kind) -> Kind:
         raise ValueError(f"sensor kind(s) {sorted(set(kind.sensor_kinds) & taken)} are measured by another kind")
     if kind.section is not None and any(o.section == kind.section for o in _KINDS.values()):
         raise ValueError(f"rig section {kind.section!r} is read by another kind")
+    if kind.opening is not None and "position" not in kind.breaks:
+        raise ValueError(f"{kind.name}: an opening factor sees one keyframe's absolute state: the kind must "
+                         f"break the position symmetry")
     unknown = set(kind.breaks) - set(SYMMETRIES)
     if unknown:
         raise ValueError(f"{kind.name}: breaks {sorted(unknown)}, not symmetries ({', '.join(SYMMETRIES)})")

@@ -9,11 +9,21 @@ taken to first order from keyframe i through the body's angular and linear veloc
 
 with ``R_rel = R_S_iᵀ R_S_j``, ``t_rel = R_S_iᵀ (p_S_j − p_S_i)`` and s the unknown scale of a
 monocular camera (1 otherwise). Extrinsic perturbations are right-multiplicative on ``R_B_S`` and
-additive on ``p_B_S``. Noise per frame pair: ``rotation_sigma_deg`` and ``translation_sigma_m``.
+additive on ``p_B_S``.
+
+Noise is a drift density: the odometry's pose error grows as a random walk in time, so a relative
+pose over Δt has σ = density·√Δt (``rotation_density_deg_per_sqrt_s``,
+``translation_density_m_per_sqrt_s``), and consecutive frame pairs are independent. The
+information per second then does not depend on the frame rate: a 20 Hz lidar of the same quality
+is told what a 10 Hz one is (with σ per frame pair, at the same σ a faster sensor came out
+*worse*, its lever-arm signal per pair shrinking with Δt). No per-frame floor is kept: a white
+error of each frame's pose makes consecutive relative poses correlated (a moving average), not
+independent, and a white floor per pair would bring the rate dependence back.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numba as nb
@@ -29,10 +39,11 @@ from .symbolic import exp, residual_log
 
 
 class OdometryNoise(Model):
-    """Noise of one relative-pose measurement between consecutive frames of the sensor."""
+    """Drift densities of the odometry: the σ of a relative pose over Δt is density·√Δt, per axis
+    (rotation [deg/√s], translation [m/√s]); see the module docstring."""
 
-    rotation_sigma_deg: PositiveFloat
-    translation_sigma_m: PositiveFloat
+    rotation_density_deg_per_sqrt_s: PositiveFloat
+    translation_density_m_per_sqrt_s: PositiveFloat
 
 
 class OdometrySensor(SensorEntry):
@@ -49,6 +60,14 @@ class OdometrySensor(SensorEntry):
         return self
 
 
+def pair_sigmas(sensor: "OdometrySensor") -> tuple[float, float]:
+    """σ of one relative pose between consecutive frames of ``sensor``: rotation [rad] and
+    translation [m] per axis, density·√(1/rate)."""
+    root_dt = math.sqrt(1.0 / sensor.rate_hz)
+    n = sensor.noise
+    return math.radians(n.rotation_density_deg_per_sqrt_s * root_dt), n.translation_density_m_per_sqrt_s * root_dt
+
+
 _LEVER = ("horizontal lever arm: add yaw at changing speed (turns both ways, figure-eight, slalom)",
           "needs turns both ways at changing speed: a figure-eight, a slalom")
 
@@ -59,8 +78,8 @@ class Odometry(Kind):
     rows = 6
     sensor_kinds = ("lidar", "camera")
     config = OdometrySensor
-    ranges = {"noise.rotation_sigma_deg": Range(1e-6, 90.0, "deg"),
-              "noise.translation_sigma_m": Range(1e-6, 100.0, "m")}
+    ranges = {"noise.rotation_density_deg_per_sqrt_s": Range(1e-6, 90.0, "deg/√s"),
+              "noise.translation_density_m_per_sqrt_s": Range(1e-6, 100.0, "m/√s")}
     advice = {
         ("trans", 2): ("vertical lever arm: add pitch and roll (hard braking and acceleration, ramps, "
                        "brisk cornering); planar driving leaves it nearly undetermined",
@@ -86,14 +105,6 @@ class Odometry(Kind):
                 Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset),
                 Quantity(s.name, "scale", 1, "1", 1.0, s.monocular, nuisance=True)]
 
-    def at_rate(self, entry: dict, rate_hz: float) -> dict:
-        """Per-pair σ grow with √(old rate / new rate): chaining the fine measurements over one
-        coarse interval has about that noise."""
-        f = float(np.sqrt(entry["rate_hz"] / rate_hz))
-        noise = entry["noise"]
-        return dict(entry, rate_hz=rate_hz, noise={"rotation_sigma_deg": noise["rotation_sigma_deg"] * f,
-                                                   "translation_sigma_m": noise["translation_sigma_m"] * f})
-
     # --- the math ---
 
     @staticmethod
@@ -118,8 +129,8 @@ class Odometry(Kind):
         return ca.vertcat(residual_log(ca.mtimes(R_meas.T, R_rel)), f.q["scale"] * t_rel - meas[9:12])
 
     def sqrt_information(self, f):
-        n = f.entry.noise
-        return ca.DM([1.0 / np.deg2rad(n.rotation_sigma_deg)] * 3 + [1.0 / n.translation_sigma_m] * 3)
+        sig_r, sig_t = pair_sigmas(f.entry)
+        return ca.DM([1.0 / sig_r] * 3 + [1.0 / sig_t] * 3)
 
     # --- the compiled kernel ---
 
@@ -132,10 +143,11 @@ class Odometry(Kind):
         name = sensor.name
         names = [c.name for c in rig.coordinates if c.block == name]
         at = lambda key, on: names.index(f"{name}.{key}") if on else -1  # noqa: E731
+        sig_r, sig_t = pair_sigmas(sensor)
         Jx, Jt = _jacobians(nom.R, nom.p, nom.v, nom.omega, stride, sensor.T_B_S.R, sensor.T_B_S.p,
                             at("rot_x", sensor.estimate.extrinsic), at("trans_x", sensor.estimate.extrinsic),
                             at("time_offset", sensor.estimate.time_offset), at("scale", sensor.monocular), len(names),
-                            np.deg2rad(sensor.noise.rotation_sigma_deg), sensor.noise.translation_sigma_m)
+                            sig_r, sig_t)
         return FactorBlock(name, np.arange(N) * stride, stride, 2, Jx, Jt, theta_columns(rig, names))
 
     # --- simulation ---
@@ -158,8 +170,9 @@ class Odometry(Kind):
         t_rel = np.einsum("nij,nj->ni", R_iT, p_S[1:] - p_S[:-1]) * truth.scalar(s.name, "scale")
         if sim.noisy:
             F = frames.size - 1
-            R_rel = R_rel @ so3.exp(sim.rng.normal(0.0, np.deg2rad(s.noise.rotation_sigma_deg), (F, 3)))
-            t_rel = t_rel + sim.rng.normal(0.0, s.noise.translation_sigma_m, (F, 3))
+            sig_r, sig_t = pair_sigmas(s)
+            R_rel = R_rel @ so3.exp(sim.rng.normal(0.0, sig_r, (F, 3)))
+            t_rel = t_rel + sim.rng.normal(0.0, sig_t, (F, 3))
         return np.hstack([R_rel.reshape(-1, 9), t_rel])
 
 

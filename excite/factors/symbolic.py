@@ -350,7 +350,7 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
     """The whitened Jacobians of every factor of ``entry`` on ``nom``, from the derivative of its
     kind's residual at the noise-free measurement (see the module docstring), at the quantity
     ``values`` (by name; the nominal ones otherwise)."""
-    first = kind.factor_keyframes(rig, entry, nom.n_keyframes)
+    first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
     if first.size == 0:
         return None
     lay = layout(kind, rig, entry)

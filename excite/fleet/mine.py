@@ -12,7 +12,8 @@ suffixes and prefixes are built once: about three combinations per window, batch
 
 **A window is closed exactly as the evaluator closes a drive**, so that its Λ_θ is the
 evaluator's on the cropped drive (:func:`crop`: the same trajectory restricted to the window's
-keyframes, sampled bit for bit as in the whole): the yaw gauge on its first keyframe, the
+keyframes, sampled bit for bit as in the whole): the yaw gauge and the opening factors (a GNSS
+antenna's first fix) on its first keyframe, the
 non-holonomic constraint at its last keyframe, and the last keyframe's local increment and bias
 deviation held at zero (``_chain_end``: with random-walk biases θ's bias columns are the bias at
 the window's end). Holding a column at zero is deleting it from the reduced system. The two
@@ -55,8 +56,9 @@ class Summaries:
     """The chunk summaries of one log (see the module docstring).
 
     ``T[c]`` is chunk ``c``'s information over ``[x_a, x_b, θ]`` (states of dimension ``sd``,
-    θ over :func:`excite.information.columns` of one drive); ``gauge[c]`` and ``cap[c]`` the
-    information a window adds at its first keyframe ``edges[c]`` (the yaw gauge, sd × sd) and at
+    θ over :func:`excite.information.columns` of one drive); ``opening[c]`` and ``cap[c]`` the
+    information a window adds at its first keyframe ``edges[c]`` (the gauge and the opening
+    factors of :meth:`~excite.information.closure.Closure.open`, over ``[x_a, θ]``) and at
     its last keyframe ``edges[c + 1]`` (the non-holonomic constraint there, over ``[x_b, θ]``); ``diag_tt[c]``
     diag H_θθ of the chunk before elimination."""
 
@@ -64,7 +66,7 @@ class Summaries:
     rate_hz: float  # keyframes per second
     edges: np.ndarray  # keyframe of each chunk boundary (C + 1)
     T: np.ndarray  # (C, 2 sd + p, 2 sd + p)
-    gauge: np.ndarray  # (C, sd, sd)
+    opening: np.ndarray  # (C, sd + p, sd + p)
     cap: np.ndarray  # (C, sd + p, sd + p)
     diag_tt: np.ndarray  # (C, p)
     length_m: np.ndarray  # (C,)
@@ -100,7 +102,8 @@ def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> lis
     """The summaries of consecutive chunks ``edges[0] … edges[-1]`` (keyframes of the drive):
     sampled and linearised in one go (little interpreter time per keyframe), then each chunk's
     factors split off and its inner keyframes eliminated. Each chunk is linearised as an inner
-    chunk of a drive; what a window starting or ending at its ends adds is kept apart (the gauge;
+    chunk of a drive; what a window starting or ending at its ends adds is kept apart (the gauge
+    and the opening factors;
     the non-holonomic constraint at its last keyframe, which the next chunk also holds)."""
     k0 = int(edges[0])
     sub = Nominal.of(traj, rig, keyframes=(k0, int(edges[-1])))
@@ -122,8 +125,8 @@ def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> lis
         T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
         T[sd:2 * sd, _A(sd, p)] = pc.H_be
         T[_A(sd, p), sd:2 * sd] = pc.H_be.T
-        gauge = at_keyframe(closure.fix(sub.R[a], 0), sd, p)[:sd, :sd]
-        out.append((T, gauge, at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
+        opening = at_keyframe(closure.fix(sub.R[a], 0) + closure.open(sub.window(a, e), rig), sd, p)
+        out.append((T, opening, at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
     return out
 
 
@@ -145,8 +148,8 @@ def summarise(traj: Trajectory, rig: Rig, chunk_s: float = DEFAULT_CHUNK_S) -> S
     per_span = max(1, -(-C // n_spans))
     spans = [edges[i:i + per_span + 1] for i in range(0, edges.size - 1, per_span)]
     parts = [x for span in pool().map(lambda e: _span(traj, rig, e, p, sd), spans) for x in span]
-    T, gauge, cap, diag_tt, length = (np.array(x) for x in zip(*parts))
-    return Summaries(t0, rig.keyframe_rate_hz, edges, T, gauge, cap, diag_tt, length, sd, Closure.of(rig).free())
+    T, opening, cap, diag_tt, length = (np.array(x) for x in zip(*parts))
+    return Summaries(t0, rig.keyframe_rate_hz, edges, T, opening, cap, diag_tt, length, sd, Closure.of(rig).free())
 
 
 def _join(T1: np.ndarray, T2: np.ndarray, sd: int) -> np.ndarray:
@@ -170,11 +173,12 @@ def _join(T1: np.ndarray, T2: np.ndarray, sd: int) -> np.ndarray:
     return 0.5 * (out + np.swapaxes(out, 1, 2))
 
 
-def _close(T: np.ndarray, gauge: np.ndarray, cap: np.ndarray, sd: int, free: np.ndarray) -> np.ndarray:
-    """Λ_θ of windows from their summaries: the gauge at the first keyframe, the constraint at
+def _close(T: np.ndarray, opening: np.ndarray, cap: np.ndarray, sd: int, free: np.ndarray) -> np.ndarray:
+    """Λ_θ of windows from their summaries: the gauge and the opening factors at the first keyframe, the constraint at
     the last, whose increment and bias deviation are held at zero (deleted); both states eliminated."""
     T = T.copy()
-    T[:, :sd, :sd] += gauge
+    A = _A(sd, T.shape[1] - 2 * sd)
+    T[:, A[:, None], A] += opening
     T[:, sd:, sd:] += cap
     x = np.r_[0:sd, sd + free]  # the last keyframe: what stays free of it
     th = np.arange(2 * sd, T.shape[1])
@@ -192,8 +196,9 @@ def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[
         T = s.T[first]
         for c in range(first + 1, first + L):
             T = _join(T[None], s.T[c][None], s.sd)[0]
-        return (_close(T[None], s.gauge[first][None], s.cap[first + L - 1][None], s.sd, s.free),
-                (s.diag_tt[first:first + L].sum(axis=0) + _cap_diag(s.cap[first + L - 1], s.sd))[None])
+        return (_close(T[None], s.opening[first][None], s.cap[first + L - 1][None], s.sd, s.free),
+                (s.diag_tt[first:first + L].sum(axis=0) + _cap_diag(s.cap[first + L - 1], s.sd)
+                 + _cap_diag(s.opening[first], s.sd))[None])
     C, sd = s.n_chunks, s.sd
     if not 1 <= L <= C:
         raise EvaluationError(f"a window of {L} chunks does not fit a log of {C}")
@@ -213,11 +218,13 @@ def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[
     if split.any():
         W[split] = _join(suf[starts[split]], pre[ends[split]], sd)
     csum = np.vstack([np.zeros(s.diag_tt.shape[1]), np.cumsum(s.diag_tt, axis=0)])
-    return _close(W, s.gauge[starts], s.cap[ends], sd, s.free), csum[ends + 1] - csum[starts] + _cap_diag(s.cap[ends], sd)
+    return (_close(W, s.opening[starts], s.cap[ends], sd, s.free),
+            csum[ends + 1] - csum[starts] + _cap_diag(s.cap[ends], sd) + _cap_diag(s.opening[starts], sd))
 
 
 def _cap_diag(cap: np.ndarray, sd: int) -> np.ndarray:
-    """diag H_θθ of the constraint at a window's last keyframe (its slip-angle column)."""
+    """diag H_θθ of what a window adds at one keyframe over ``[x, θ]`` (the constraint at its last
+    keyframe: its slip-angle column; the opening factors at its first)."""
     return np.diagonal(cap[..., sd:, sd:], axis1=-2, axis2=-1)
 
 

@@ -16,7 +16,23 @@ velocity and the body-frame increment to the next keyframe; :func:`.problem.line
 factor then sees positions only through differences, no absolute position remains, the only
 gauge is yaw, and every symmetry has bounded components, which keeps the elimination accurate
 on hour-long drives. A rig with a kind that observes absolute position keeps the world states
-(a GNSS fix sees one keyframe's position: the band stays a band).
+(a GNSS fix sees one keyframe's position: the band stays a band), each drive's positions split
+into an **origin** and positions relative to it: ``p_k = c + q_k``, the origin c three nuisance
+columns of the drive beside θ (:data:`ORIGIN`, in the border the elimination carries), the
+translation of the q's the gauge again, fixed on the first keyframe (:attr:`Closure.origin`). The
+factors that see positions through differences do not see c; those that see absolute positions
+see it through their position Jacobians (:meth:`Closure.absolute`). Why: in plain world states
+the absolute position is the weakest direction of the trajectory's information by far (a few
+centimetres of GNSS against the IMU's micrometres between keyframes), and a calibration
+coordinate that is confounded with it (a lever arm at constant heading) kept 1e-7 of its
+information as rounding noise, enough for the rank test to call it determined; with the origin
+in the border it is exactly zero. (The optimizer's model and the calibrator work on plain world
+states, ``origin=False``: no rank test reads them.)
+
+**The opening.** A kind whose noise is a Markov chain along the drive (a GNSS error correlated
+over time, whitened by differencing consecutive fixes) declares the factor that opens the chain
+at the stationary noise (:attr:`excite.factors.base.Kind.opening`): it is added where a drive,
+or a window closed as one, starts (:meth:`Closure.open`), beside the gauge fix.
 
 **The last keyframe.** In local states, the increment of a drive's last keyframe has no
 successor: it is held at zero (:meth:`Closure.end`). With drifting biases (the random-walk bias
@@ -40,7 +56,8 @@ import numpy as np
 from ..core.lazy import ca
 from ..errors import EvaluationError
 from ..factors import base as registry
-from ..factors.base import STATE_DIM, FactorBlock, RigView
+from ..factors import symbolic
+from ..factors.base import STATE_DIM, FactorBlock, Kind, Nominal, RigView
 
 # The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
 # gives the same marginal (the gauge is an exact symmetry); one near the data's scale keeps H_xx
@@ -48,6 +65,7 @@ from ..factors.base import STATE_DIM, FactorBlock, RigView
 GAUGE_SIGMA_POS_M = 1.0
 GAUGE_SIGMA_YAW_RAD = 0.01
 _NO_COLS = np.zeros(0, dtype=int)
+ORIGIN = ("drive.origin_x", "drive.origin_y", "drive.origin_z")  # a drive's origin columns [m] (world axes)
 
 
 def broken(rig: RigView) -> frozenset[str]:
@@ -80,11 +98,15 @@ class Closure:
     state_dim: int
     walk_density: np.ndarray  # random-walk density of each drifting coordinate (state slots 9 …)
     walk_columns: np.ndarray  # their columns of θ
+    openers: tuple[tuple[Kind, object], ...] = ()  # (opening kind, entry) of every chain that opens a drive
+    origin: bool = False  # world positions split into the drive's origin (nuisance columns) and q's
 
     @classmethod
-    def of(cls, rig: RigView, local: bool | None = None) -> "Closure":
+    def of(cls, rig: RigView, local: bool | None = None, origin: bool = True) -> "Closure":
         """The closure of ``rig``'s drives; ``local`` forces a parametrisation (the world states
-        always work; local ones only when no kind observes absolute position)."""
+        always work; local ones only when no kind observes absolute position); ``origin=False``
+        keeps plain world states for a rig that observes absolute position (no origin columns:
+        the optimizer's model, the calibrator)."""
         br = broken(rig)
         can_local = "position" not in br
         if local is None:
@@ -92,10 +114,30 @@ class Closure:
         elif local and not can_local:
             raise EvaluationError("local trajectory states need every factor to see positions through "
                                   "differences only, and this rig observes absolute position")
-        gauge = tuple(s for s in registry.SYMMETRIES if s not in br and not (local and s == "position"))
+        origin = origin and not can_local
+        gauge = tuple(s for s in registry.SYMMETRIES
+                      if (s not in br or (origin and s == "position")) and not (local and s == "position"))
         drift = drifting(rig)
+        openers = tuple((i.kind.opening, i.entry) for i in registry.instances(rig) if i.kind.opening is not None)
         return cls(local, gauge, STATE_DIM + len(drift), np.array([d for _, d in drift]),
-                   np.array([c for c, _ in drift], dtype=int))
+                   np.array([c for c, _ in drift], dtype=int), openers, origin)
+
+    # --- the origin ---
+
+    def absolute(self, b: FactorBlock, rig: RigView) -> FactorBlock:
+        """A block of a kind that sees absolute positions, with the drive's origin: its position
+        Jacobians (on ``q_k``) summed over its keyframes onto the origin columns, which follow
+        the rig's coordinates (``len(rig.coordinates) + 0, 1, 2``; :func:`.problem.on_drive_columns`
+        moves them to the drive's own). Unchanged without an origin."""
+        if not self.origin:
+            return b
+        N, r, nx = b.Jx.shape
+        xd = nx // b.n_states
+        J = b.Jx.reshape(N, r, b.n_states, xd)
+        Jc = J[:, :, :, 3:6].sum(axis=2)
+        P = len(rig.coordinates)
+        return FactorBlock(b.name, b.first, b.stride, b.n_states, b.Jx, np.concatenate([b.Jt, Jc], axis=2),
+                           np.r_[b.cols, P + np.arange(3)], b.xcols)
 
     # --- the gauge ---
 
@@ -124,6 +166,28 @@ class Closure:
             return ca.DM.zeros(STATE_DIM, STATE_DIM)
         J = ca.vertcat(*rows)
         return ca.mtimes(J.T, J)
+
+    # --- the opening ---
+
+    def open(self, nom: Nominal, rig: RigView) -> list[FactorBlock]:
+        """The factors that open a drive (or a window closed as one) whose first keyframe is
+        ``nom``'s: every opening kind's measurement there (:attr:`~excite.factors.base.Kind.opening`;
+        none where the log has no measurement at that keyframe). World trajectory states (an
+        opening sees absolute states, so its rig has no local ones)."""
+        if not self.openers:
+            return []
+        first = nom.window(0, 0)
+        out = []
+        for kind, entry in self.openers:
+            b = symbolic.jacobians(kind, first, rig, entry)
+            if b is not None and b.n_factors:
+                b = self.absolute(b, rig)
+                out.append(self.widened(b) if self.sees_drift(b) else b)
+        return out
+
+    def is_opening(self, b: FactorBlock) -> bool:
+        """Whether ``b`` is an opening's block (:meth:`open`; a window re-opens its own)."""
+        return any(b.name == kind.block_name(entry) for kind, entry in self.openers)
 
     # --- the last keyframe ---
 

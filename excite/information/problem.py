@@ -15,8 +15,8 @@ stride (:func:`frame_step`) hold every factor exactly once.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from ..factors import base as registry
 from ..factors import symbolic
 from ..factors.base import STATE_DIM, FactorBlock, Nominal, RigView
 from . import kernels
-from .closure import Closure
+from .closure import ORIGIN, Closure
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,9 @@ class Problem:
     R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
     closure: Closure
     chain_starts: tuple[int, ...] = (0,)  # first keyframe of each drive (drives share only θ)
+    # the opening factors of a drive that would start at a keyframe (:meth:`Closure.open`), for
+    # :meth:`window`; None when the rig has no opening kind
+    open_at: Callable[[int], list[FactorBlock]] | None = field(default=None, compare=False)
 
     @property
     def local(self) -> bool:
@@ -65,7 +68,7 @@ class Problem:
         starts = [s - k0 for s in sorted({k0, *(s for s in self.chain_starts if k0 < s <= k1)})]
         ends = [s - 1 for s in starts[1:]] + [k1 - k0]
         for b in self.blocks:
-            if b.name in ("gauge", "placeholder"):
+            if b.name in ("gauge", "placeholder") or self.closure.is_opening(b):
                 continue
             sel = b.within(k0, k1)
             if sel is not None:
@@ -75,11 +78,13 @@ class Problem:
         R = self.R_W_B[k0:k1 + 1]
         for s, e in zip(starts, ends):
             out += self.closure.fix(R[s], s) + self.closure.end(e)
+            if self.open_at is not None:
+                out += [b.shifted(s) for b in self.open_at(k0 + s)]
         return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.closure, tuple(starts))
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
-                       self.R_W_B, self.closure, self.chain_starts)
+                       self.R_W_B, self.closure, self.chain_starts, self.open_at)
 
 
 def trimmed(starts: Sequence[int], k0: int, k1: int) -> tuple[int, int] | None:
@@ -112,20 +117,26 @@ def columns(rig: RigView, n_drives: int) -> tuple[list[str], np.ndarray]:
     together: the rig's coordinates, which the *last* drive's own coordinates (:func:`own_columns`)
     use, then each earlier drive's own coordinates as nuisances (``cam_front.scale@0``): drives
     share the calibration and nothing else. With random-walk biases the scored bias is therefore
-    the bias at the end of the last drive."""
+    the bias at the end of the last drive. A rig that observes absolute position then has each
+    drive's origin (``drive.origin_x@0`` …: :attr:`.closure.Closure.origin`), nuisances too."""
     own = [rig.coordinates[i].name for i in own_columns(rig)]
     names = [c.name for c in rig.coordinates] + [f"{n}@{d}" for d in range(n_drives - 1) for n in own]
+    if Closure.of(rig).origin:
+        names += [f"{n}@{d}" for d in range(n_drives) for n in ORIGIN]
     mask = np.array([c.nuisance for c in rig.coordinates] + [True] * (len(names) - len(rig.coordinates)))
     return names, mask
 
 
 def drive_column_map(rig: RigView, drive: int, n_drives: int) -> np.ndarray:
-    """Column of each rig coordinate in drive ``drive``'s factors (see :func:`columns`)."""
+    """Column of each rig coordinate in drive ``drive``'s factors (see :func:`columns`), then of
+    the drive's origin where the rig has one (the slots after the rig's coordinates)."""
     p = len(rig.coordinates)
     out = np.arange(p)
     own = own_columns(rig)
     if drive < n_drives - 1 and own.size:
         out[own] = p + drive * own.size + np.arange(own.size)
+    if Closure.of(rig).origin:
+        out = np.r_[out, p + (n_drives - 1) * own.size + 3 * drive + np.arange(3)]
     return out
 
 
@@ -162,10 +173,20 @@ def build(nom: Nominal | list[Nominal], rig: RigView, gauge_keyframe: int = 0, l
         parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
         g = gauge_keyframe % K
         fixes += [b.shifted(offset) for b in closure.fix(n.R[g], g) + closure.end(K - 1)]
+        fixes += [b.shifted(offset) for b in on_drive_columns(closure.open(n, rig), col_map)]
         starts.append(offset)
         R_all.append(n.R)
         offset += K
-    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), closure, tuple(starts))
+    open_at = None
+    if closure.openers:
+        ends = np.cumsum([n.n_keyframes for n in noms])
+
+        def open_at(k: int) -> list[FactorBlock]:
+            d = int(np.searchsorted(ends, k, side="right"))
+            local = k - (ends[d] - noms[d].n_keyframes)
+            col_map = drive_column_map(rig, d, len(noms))
+            return on_drive_columns(closure.open(noms[d].window(local, local), rig), col_map)
+    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), closure, tuple(starts), open_at)
 
 
 def check_length(K: int, rig: RigView) -> int:
@@ -216,6 +237,8 @@ def linearise(sub: Nominal, rig: RigView, closure: Closure, last: bool, walk: bo
         b = symbolic.jacobians(inst.kind, sub, rig, inst.entry)
         if b is not None and inst.kind.arity == 1 and not last:
             b = b.select(b.first < m)
+        if b is not None and "position" in inst.kind.breaks:
+            b = closure.absolute(b, rig)
         blocks.append(b)
     if closure.local:
         V, P = kernels.local_maps(sub.R, sub.v, sub.p)

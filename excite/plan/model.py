@@ -74,9 +74,10 @@ def _row_major(c):
     return ca.vec(ca.reshape(c, 3, 3).T)
 
 
-def _factor_information(rig: Rig, closure: Closure, arity: int, n: int) -> ca.Function | None:
+def _factor_information(rig: Rig, closure: Closure, arity: int, n: int, instances: list | None = None) -> ca.Function | None:
     """``JᵀJ`` in the closure's trajectory states and θ of every factor of ``arity`` that one
-    keyframe (arity 1) or keyframe interval (arity 2) holds, summed over the rig's kinds.
+    keyframe (arity 1) or keyframe interval (arity 2) holds, summed over the rig's kinds (or over
+    ``instances``, ``(kind, entry)`` pairs: the openings of a drive).
 
     Inputs: per keyframe ``[vec R (row-major), p, v, ω, vec R_V_A]`` (27 each), and the interval's
     IMU samples (``n + 1`` orientations, ``n`` specific forces; arity 2). Outputs (vec): arity 1:
@@ -85,16 +86,16 @@ def _factor_information(rig: Rig, closure: Closure, arity: int, n: int) -> ca.Fu
     x = ca.SX.sym("x", symbolic.KEYFRAME_INPUTS * arity)
     s = ca.SX.sym("imu", 9 * (n + 1) + 3 * n if arity == 2 else 0)
     Jx_all, Jt_all = [], []
-    for inst in registry.instances(rig):
-        kind = inst.kind
+    pairs = [(i.kind, i.entry) for i in registry.instances(rig)] if instances is None else instances
+    for kind, entry in pairs:
         if kind.arity != arity:
             continue
-        if kind.stride(rig, inst.entry) != 1:
-            raise OptimizeError(f"{inst.name} runs at every {kind.stride(rig, inst.entry)}th keyframe: the "
+        if kind.stride(rig, entry) != 1:
+            raise OptimizeError(f"{kind.block_name(entry)} runs at every {kind.stride(rig, entry)}th keyframe: the "
                                 f"optimizer's model needs every sensor at the keyframe rate "
                                 f"{rig.keyframe_rate_hz:g} Hz (use coarse_rig)")
-        lay = symbolic.layout(kind, rig, inst.entry)
-        Jx, Jt = symbolic.linearised(kind, rig, inst.entry, lay, x, s if lay.n_samples else ca.SX(0, 1),
+        lay = symbolic.layout(kind, rig, entry)
+        Jx, Jt = symbolic.linearised(kind, rig, entry, lay, x, s if lay.n_samples else ca.SX(0, 1),
                                      ca.DM(symbolic.quantity_inputs(lay)))
         full = ca.SX(kind.rows, P)  # the entry's coordinates among all of θ (the rest structurally zero)
         for i, name in enumerate(symbolic.coordinate_names(lay)):
@@ -147,13 +148,14 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     n = int(round(rig.config.imu.update_rate / rig.keyframe_rate_hz))
     if n_keyframes < 3:
         raise OptimizeError(f"the drive is too short: {n_keyframes} keyframes")
-    closure = Closure.of(rig)
+    closure = Closure.of(rig, origin=False)  # plain world states (see closure: no rank test reads this model)
     if closure.state_dim != D:
         raise OptimizeError("the optimizer's model takes the IMU biases constant (use coarse_rig)")
     K = n_keyframes
     P = len(rig.coordinates)
     pair = _factor_information(rig, closure, 2, n)
     single = _factor_information(rig, closure, 1, n)
+    opening = _factor_information(rig, closure, 1, n, list(closure.openers)) if closure.openers else None
     step = _elimination_step(P)
 
     N = (K - 1) * n + 1
@@ -183,7 +185,12 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     if single is not None:
         Dn, En, Hn = single.map(K)(X, ca.MX(0, K))
         Dk, Ek, Htt = Dk + Dn, Ek + En, Htt + ca.sum2(Hn)
-    # the drive closed as the evaluator closes it: the gauge at keyframe 0, the last keyframe's end
+    if opening is not None:  # the chains that open at the drive's first keyframe (a GNSS first fix)
+        D0, E0, H0 = opening(X[:, 0], ca.MX(0, 1))
+        Dk = ca.horzcat(Dk[:, 0] + D0, Dk[:, 1:])
+        Ek = ca.horzcat(Ek[:, 0] + E0, Ek[:, 1:])
+        Htt = Htt + H0
+    # the drive closed as the evaluator closes it: the gauge (and the openings) at keyframe 0, the last keyframe's end
     G0 = closure.fix_information(ca.reshape(R[:, 0], 3, 3))
     end = np.zeros((D, D))
     held = closure.held()

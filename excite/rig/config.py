@@ -322,7 +322,7 @@ def all_ranges() -> dict[str, bounds.Range]:
 
 
 def rig_range(cfg: RigConfig, key: str) -> bounds.Range | None:
-    """The sane range of a dotted rig key: its kind's (``sensors.0.noise.rotation_sigma_deg``,
+    """The sane range of a dotted rig key: its kind's (``sensors.0.noise.rotation_density_deg_per_sqrt_s``,
     ``wheels.track_m``, ``imu.update_rate``), or the rig's own (:data:`excite.core.bounds.RIG`)."""
     head, _, rest = key.partition(".")
     kind = None
@@ -337,10 +337,29 @@ def rig_range(cfg: RigConfig, key: str) -> bounds.Range | None:
     return bounds.rig_range(key)
 
 
+_PER_PAIR_NOISE = {"rotation_sigma_deg": ("rotation_density_deg_per_sqrt_s", "deg/√s"),
+                   "translation_sigma_m": ("translation_density_m_per_sqrt_s", "m/√s")}
+
+
 def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
-    """Rigs written before the noise densities gave wheel and slip noise per keyframe, which made
-    the answer drift with the keyframe rate: name the replacement and its value at this rig's
-    keyframe rate (the conversion that keeps the old numbers)."""
+    """Rigs written before the noise densities gave wheel and slip noise per keyframe, and lidar
+    and camera odometry noise per frame pair, which made the answer drift with the keyframe or
+    frame rate: name the replacement and its value at this rig's keyframe rate or the sensor's
+    rate (the conversion that keeps the old numbers)."""
+    sensors = data.get("sensors")
+    for i, s in enumerate(sensors if isinstance(sensors, list) else []):
+        noise = s.get("noise") if isinstance(s, dict) else None
+        if not isinstance(noise, dict):
+            continue
+        for old, (new, unit) in _PER_PAIR_NOISE.items():
+            if old in noise:
+                v, rate = noise[old], s.get("rate_hz")
+                known = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (v, rate))
+                conv = (f"; at this sensor's {rate:g} Hz, {old}: {v:g} is {new}: {v * math.sqrt(rate):.6g}"
+                        if known and rate > 0 else f" ({new} = {old} · √rate_hz)")
+                raise RigError(f"sensors.{i}.noise.{old}: per-frame-pair odometry noise is replaced by "
+                               f"sensors.{i}.noise.{new} [{unit}], a drift density independent of the "
+                               f"frame rate{conv}")
     kf = data.get("keyframe_rate_hz")
     kf_text = f"{kf:g} Hz" if isinstance(kf, (int, float)) and not isinstance(kf, bool) and kf > 0 else None
     wheels = data.get("wheels")

@@ -26,7 +26,7 @@ import numpy as np
 from . import advice, spectrum
 from ..core import bounds
 from ..information import dense
-from ..information.closure import marginalise_nuisance
+from ..information.closure import ORIGIN, marginalise_nuisance
 from ..information.elimination import DriveInformation, drive_information, window_information, windows
 from ..information.problem import build, columns, frame_step
 from ..errors import EvaluationError
@@ -310,7 +310,7 @@ def report_of(drives: DriveInformation, rig: Rig, options: Options = Options(),
 
     column_map = [{"index": i, "name": c.name, "unit": c.unit, "target": c.target} for i, c in enumerate(coords)]
     names, nuisance = columns(rig, len(trajs) or 1)
-    units = {c.name: c.unit for c in rig.coordinates}
+    units = {c.name: c.unit for c in rig.coordinates} | {n: "m" for n in ORIGIN}
     all_columns = [{"index": i, "name": n, "unit": units[n.split("@")[0]], "nuisance": bool(nuisance[i])}
                    for i, n in enumerate(names)]
     numbers = [spec.score, *w, *w_unscaled, *(x for x in sigma if x is not None)]

@@ -38,7 +38,7 @@ from ..factors import symbolic
 from ..factors.base import Nominal
 from ..factors.imu import preintegrate_all
 from ..factors.nonholonomic import sigma_mps
-from ..factors.odometry import Odometry
+from ..factors.odometry import Odometry, pair_sigmas
 from ..factors.wheel import increment_sigma_rad
 from ..information import dense
 from ..information import kernels as info_kernels
@@ -164,13 +164,17 @@ class _Problem:
         # the estimator takes the biases constant (the simulator may let them drift): the factors
         # are linearised for that model, 9-wide states
         self.data, self.rig = data, rig.with_constant_biases() if rig.bias_random_walk else rig
-        self.closure = Closure.of(self.rig)
+        self.closure = Closure.of(self.rig, origin=False)  # plain world states: LM needs no origin
         self.K = data.n_keyframes
         self.n_params = len(rig.coordinates)
         self.n_x = 9 * self.K
         self.gauge_R = gauge_R
         self.gauge_p = np.zeros(3) if gauge_p is None else gauge_p
-        self.instances = [i for i in registry.instances(self.rig) if i.name in data.recorded]
+        # (kind, entry, what it recorded, its label): every entry that recorded data, and the
+        # factors that open its chains at the drive's start (a GNSS antenna's first fix)
+        self.instances = [(i.kind, i.entry, i.name, i.name) for i in registry.instances(self.rig)
+                          if i.name in data.recorded]
+        self.instances += [(k, e, e.name, k.block_name(e)) for k, e in self.closure.openers if e.name in data.recorded]
 
     def nominal(self, X: States, cal: Calibration) -> Nominal:
         """The motion the factors are evaluated on: the estimated states, the IMU samples
@@ -185,22 +189,23 @@ class _Problem:
         imu_R[-1] = X.R[-1]
         return Nominal(t=d.t, R=X.R, p=X.p, v=X.v, omega=keyframe_rates(d, b_g), R_V_A=d.R_V_A, imu_R=imu_R,
                        imu_omega=d.imu.gyro - b_g, imu_f=d.imu.accel - b_a, imu_per_keyframe=n,
-                       R_V_B=d.R_V_B, p_V_B=d.p_V_B)
+                       R_V_B=d.R_V_B, p_V_B=d.p_V_B, logs=d.logs)
 
     def evaluate(self, X: States, cal: Calibration, jacobian: bool):
         """Whitened residual vector (and the sparse whitened Jacobian, in the closure's states)
         at ``(X, cal)``."""
         nom = self.nominal(X, cal)
         parts, kinds, blocks = [], [], []
-        for inst in self.instances:
-            kind, entry = inst.kind, inst.entry
-            first = kind.factor_keyframes(self.rig, entry, self.K)
-            meas, values = kind.measured(self.rig, entry, self.data.recorded[inst.name],
+        for kind, entry, record, label in self.instances:
+            first = kind.factor_keyframes(self.rig, entry, self.K, nom)
+            meas, values = kind.measured(self.rig, entry, self.data.recorded[record],
                                          cal.for_entry(kind, self.rig, entry))
             parts.append(symbolic.residuals(kind, nom, self.rig, entry, first, meas, values).ravel())
             if jacobian:  # Gauss–Newton at the prediction, as the evaluator linearises (see the docstring)
-                blocks.append(symbolic.blocks(kind, nom, self.rig, entry, cal.for_entry(kind, self.rig, entry)))
-            kinds.append(inst.name)
+                b = symbolic.blocks(kind, nom, self.rig, entry, cal.for_entry(kind, self.rig, entry))
+                if b is not None:
+                    blocks.append(b)
+            kinds.append(label)
         # the gauge, as the evaluator's: priors on the first keyframe's position and world yaw as far
         # as they are symmetries (held at the reference), and the last keyframe's held components
         fix = self.closure.fix(X.R[0], 0)
@@ -517,7 +522,7 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
         rows, rhs = [], []
         for s in sensors:
             frames, R_rel, _ = _relative_poses(data, rig, s)
-            sig = np.deg2rad(s.noise.rotation_sigma_deg)
+            sig = pair_sigmas(s)[0]
             t = data.t[frames] + tau[s.name]
             Ra = gyro.at(t)
             c = so3.log(np.swapaxes(Ra[:-1], 1, 2) @ Ra[1:])
@@ -622,8 +627,7 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
         RSiT = np.swapaxes(Rb[:-1] @ R_BS, 1, 2)
         lever = np.einsum("nij,j->ni", Rb, p_BS)
         rhs = t_rel - np.einsum("nij,nj->ni", RSiT, lever[1:] - lever[:-1])
-        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs,
-            s.noise.translation_sigma_m)
+        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs, pair_sigmas(s)[1])
     # non-holonomic: lateral and vertical velocity of the axle ≈ 0
     R_BV = data.R_V_B.T
     p_BV = -R_BV @ data.p_V_B

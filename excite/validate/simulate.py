@@ -201,7 +201,9 @@ class SensorData:
 
     ``recorded[name]``: what each entry of the rig recorded (by its block name, :meth:`Kind.simulate`:
     the IMU's samples, an array of measurements per factor for the others). ``R_V_A`` (K, 3, 3)
-    is the known suspension tilt, ``R_V_B, p_V_B`` the known IMU pose in the vehicle frame.
+    is the known suspension tilt, ``R_V_B, p_V_B`` the known IMU pose in the vehicle frame;
+    ``logs``: which measurements the drive's log held (:attr:`excite.factors.base.Nominal.logs`:
+    a GNSS outage), as the simulation saw them.
     """
 
     t: np.ndarray
@@ -211,6 +213,7 @@ class SensorData:
     R_V_B: np.ndarray
     p_V_B: np.ndarray
     truth: Truth = field(repr=False)
+    logs: dict = field(default_factory=dict, repr=False)
 
     @property
     def n_keyframes(self) -> int:
@@ -254,7 +257,7 @@ class Simulation:
     def measured(self, kind: Kind, entry: Any) -> np.ndarray:
         """The noise-free measurements of ``entry`` as its kind's model predicts them at the true
         calibration, on the nominal motion (the model simulator's)."""
-        first = kind.factor_keyframes(self.rig, entry, self.nom.n_keyframes)
+        first = kind.factor_keyframes(self.rig, entry, self.nom.n_keyframes, self.nom)
         return symbolic.measurements(kind, self.nom, self.rig, entry, first, self.truth.for_entry(kind, self.rig, entry))
 
 
@@ -293,4 +296,4 @@ def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Gene
     imu = recorded["imu"]
     return SensorData(t=nom.t, imu_per_keyframe=nom.imu_per_keyframe, recorded=recorded, R_V_A=nom.R_V_A,
                       R_V_B=nom.R_V_B, p_V_B=nom.p_V_B,
-                      truth=Truth(nom.R, nom.p, nom.v, truth, imu.gyro_bias, imu.accel_bias))
+                      truth=Truth(nom.R, nom.p, nom.v, truth, imu.gyro_bias, imu.accel_bias), logs=nom.logs)

@@ -29,6 +29,10 @@ measured by :func:`imu_agreement` (1-s means of measured against pose-derived ra
 force, the constant offset between them and the rotation that best aligns them) and printed
 by ``excite score``; a large mounting mismatch means the rig's ``T_V_B`` is not the IMU's.
 
+**GNSS fixes.** With ``gnss_topic`` (``sensor_msgs/NavSatFix``) the drive carries the fixes'
+times (a message without a fix, or no message, is an outage) and their reported covariance as the
+log of the rig's GNSS antenna (:mod:`.gnss`): it is scored with the fixes the log holds.
+
 Decoding is streamed (one message at a time) and the fields excite needs are read straight from
 the serialized bytes (CDR for ROS 2, the ROS 1 wire format): a fraction of the cost of building
 full message objects. :func:`write_bag` writes a drive as a bag (ROS 1 ``.bag`` or a ROS 2
@@ -47,7 +51,7 @@ chains are resolved in time linear in the frames.
 The package by concern: :mod:`.decode` (message types and decoding straight from the bytes),
 :mod:`.stream` (opening a bag, streaming its messages under the decompression bounds),
 :mod:`.mcap` (excite's own MCAP reader and the bounded decompression), :mod:`.tf` (TF trees and
-chains), :mod:`.imu` (measured IMU and its agreement with the poses), :mod:`.reader` (the entry
+chains), :mod:`.imu` (measured IMU and its agreement with the poses), :mod:`.gnss` (NavSatFix fixes), :mod:`.reader` (the entry
 points: topics, poses, IMU, routes), :mod:`.writer` (writing and cropping bags).
 """
 
@@ -57,6 +61,7 @@ from __future__ import annotations
 from ...errors import BagError
 from ..sniff import is_bag
 from .decode import AXES, IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, TF_TYPES, PoseSeries, Series
+from .gnss import NAVSAT_TYPE, FixAgreement, FixSeries, fix_agreement, fix_log, read_fixes
 from .imu import ImuAgreement, ImuSeries, ImuTrajectory, imu_agreement
 from .mcap import MAX_CHUNK_BYTES, MAX_RATIO, Budget, decompress
 from .reader import BagSource, TopicInfo, bag_info, read_bag_route, read_imu, read_poses, read_static_tf
@@ -67,6 +72,7 @@ __all__ = [
     "BagError", "BagSource", "TopicInfo", "PoseSeries", "ImuSeries", "ImuTrajectory", "ImuAgreement",
     "is_bag", "bag_info", "read_poses", "read_imu", "read_static_tf", "read_bag_route",
     "imu_agreement", "write_bag", "POSE_TYPES", "TF_TYPES", "IMU_TYPE",
+    "FixSeries", "FixAgreement", "read_fixes", "fix_log", "fix_agreement", "NAVSAT_TYPE",
     # used by excite's other packages: TF edges for rig import, cropping for mining, the bounds
     "Edge", "Series", "chain_edges", "static_transform", "crop_bag", "Budget", "decompress",
     "MAX_CHUNK_BYTES", "MAX_RATIO", "TF_TOPIC", "TF_STATIC_TOPIC", "AXES",

@@ -67,6 +67,14 @@ class Cursor:
         self.o += 4
         return v
 
+    def integer(self, fmt: str) -> int:
+        """One integer of struct format ``fmt`` (``b`` int8, ``B`` uint8, ``H`` uint16), aligned to its size."""
+        n = struct.calcsize(fmt)
+        self._align(n)
+        (v,) = struct.unpack_from(self.e + fmt, self.b, self.o)
+        self.o += n
+        return v
+
     def string(self) -> str:
         n = self.u32()
         if self.o + n > len(self.b):

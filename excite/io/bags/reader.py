@@ -16,6 +16,7 @@ from ...motion.trajectory import Trajectory
 from ..poses import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, trajectory_from_poses
 from .decode import (AXES, DECODERS, IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TYPES, PoseSeries, Series,
                      decode_message, imu_fields)
+from .gnss import NAVSAT_TYPE, fix_log, read_fixes
 from .imu import ImuSeries, ImuTrajectory, imu_series
 from .mcap import mcap_files, mcap_read, verify_chunks
 from .stream import (budget, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
@@ -28,7 +29,8 @@ class TopicInfo:
     """One topic of a bag: its type, message count, span and rate, and how excite can use it.
 
     ``use``: ``"pose"`` (a trajectory source), ``"tf"`` (TF chains: ``sources`` lists them as
-    ``/tf:parent.child``), ``"imu"`` (angular rate and specific force) or ``""``.
+    ``/tf:parent.child``), ``"imu"`` (angular rate and specific force), ``"gnss"`` (NavSatFix
+    fixes) or ``""``.
     """
 
     topic: str
@@ -70,6 +72,8 @@ def bag_info(path: str | Path) -> list[TopicInfo]:
                 use = "pose"
             elif msgtype == IMU_TYPE:
                 use = "imu"
+            elif msgtype == NAVSAT_TYPE:
+                use = "gnss"
             elif dyn and pairs:
                 use = "tf"
                 sources = tuple(f"{topic}:{parent}.{child}" for parent, child in pairs)
@@ -246,8 +250,9 @@ def read_imu(path: str | Path, topic: str, *, start_s: float | None = None,
 class BagSource:
     """What to read from a bag: the trajectory ``topic`` (or ``/tf:parent.child``), an optional
     ``imu_topic``, a window ``[start_s, end_s]`` in seconds from the start of the bag, the frame
-    to take as V (``vehicle_frame``, via ``/tf_static``) and the pose axes (``vehicle`` or
-    ``optical``)."""
+    to take as V (``vehicle_frame``, via ``/tf_static``), the pose axes (``vehicle`` or
+    ``optical``), and an optional ``sensor_msgs/NavSatFix`` topic ``gnss_topic`` whose fixes
+    (times, outages, covariance) the drive carries as the log of the rig's sensor ``gnss_sensor``."""
 
     topic: str | None = None
     imu_topic: str | None = None
@@ -255,6 +260,8 @@ class BagSource:
     end_s: float | None = None
     vehicle_frame: str | None = None
     axes: str = "vehicle"
+    gnss_topic: str | None = None
+    gnss_sensor: str = "gnss"
 
     @staticmethod
     def required(bag: "BagSource | None", path: Path) -> "BagSource":
@@ -266,17 +273,36 @@ class BagSource:
                              f"{', '.join(found) if found else 'nothing'})")
 
     def options(self) -> dict:
-        return {"topic": self.topic, "imu_topic": self.imu_topic, "start_s": self.start_s,
-                "end_s": self.end_s, "vehicle_frame": self.vehicle_frame, "axes": self.axes}
+        out = {"topic": self.topic, "imu_topic": self.imu_topic, "start_s": self.start_s,
+               "end_s": self.end_s, "vehicle_frame": self.vehicle_frame, "axes": self.axes}
+        if self.gnss_topic is not None:
+            out.update(gnss_topic=self.gnss_topic, gnss_sensor=self.gnss_sensor)
+        return out
 
 
 def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None,
                    start_s: float | None = None, end_s: float | None = None,
                    vehicle_frame: str | None = None, axes: str = "vehicle",
-                   cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float | None = None) -> Trajectory:
+                   cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float | None = None,
+                   gnss_topic: str | None = None, gnss_sensor: str = "gnss") -> Trajectory:
     """A bag's trajectory source (and optional measured IMU) as a trajectory of V (see the
-    module notes)."""
-    path = Path(path)
+    module notes); with ``gnss_topic``, carrying that NavSatFix topic's fixes as the log of the
+    rig's sensor ``gnss_sensor`` (:func:`excite.io.bags.gnss.fix_log`)."""
+    traj, t0_ns = _bag_route(Path(path), topic, imu_topic, start_s, end_s, vehicle_frame, axes, cutoff_hz, rate_hz)
+    if gnss_topic is None:
+        return traj
+    log = fix_log(read_fixes(path, gnss_topic, start_s=start_s, end_s=end_s), t0_ns)
+    inside = (log.t >= traj.t_start) & (log.t <= traj.t_end)
+    if not inside.any():
+        raise BagError(Path(path), f"no fix within the {traj.duration:.1f} s of poses on {topic}: not the same "
+                                   "drive?", gnss_topic)
+    return traj.with_logs({gnss_sensor: log})
+
+
+def _bag_route(path: Path, topic: str, imu_topic: str | None, start_s: float | None, end_s: float | None,
+               vehicle_frame: str | None, axes: str, cutoff_hz: float,
+               rate_hz: float | None) -> tuple[Trajectory, int]:
+    """The trajectory of :func:`read_bag_route` and the stamp [ns] its clock starts at."""
     if axes not in AXES:
         raise BagError(path, f"axes must be one of {', '.join(AXES)}, got {axes!r}")
     if start_s is not None and end_s is not None and end_s <= start_s:
@@ -303,10 +329,10 @@ def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None
     except RouteError as exc:
         raise BagError(path, exc.problem, topic) from None
     if imu is None:
-        return traj
+        return traj, int(s.t_ns[0])
     t_imu = (imu.t_ns - s.t_ns[0]).astype(float) * 1e-9
     lo, hi = max(t_imu[0], traj.t_start), min(t_imu[-1], traj.t_end)
     if hi - lo < 0.5 * traj.duration:
         raise BagError(path, f"the IMU covers {max(hi - lo, 0):.1f} s of the {traj.duration:.1f} s "
                              f"of poses on {topic}: not the same drive?", imu_topic)
-    return ImuTrajectory.of(traj, t_imu, imu.omega, imu.accel, imu.frame)
+    return ImuTrajectory.of(traj, t_imu, imu.omega, imu.accel, imu.frame), int(s.t_ns[0])

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from ...errors import BagError
 from ...motion.trajectory import Trajectory
 from .decode import IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TOPIC
+from .gnss import NAVSAT_TYPE, STATUS_NO_FIX
 from .reader import read_poses
 from .stream import open_bag
 
@@ -29,10 +30,17 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
               msgtype: str = "nav_msgs/msg/Odometry", rate_hz: float = 50.0,
               frame: str = "odom", child: str = "base_link", imu_topic: str | None = None,
               imu_frame: str = "imu_link", T_V_B: tuple[np.ndarray, np.ndarray] | None = None,
-              imu_rate_hz: float = 200.0, tf: bool = False, start_ns: int = 1_700_000_000 * 10**9) -> Path:
+              imu_rate_hz: float = 200.0, tf: bool = False, start_ns: int = 1_700_000_000 * 10**9,
+              fix_topic: str | None = None, fix_rate_hz: float = 10.0,
+              fix_sigma_m: tuple[float, float] = (0.02, 0.04), fix_origin: tuple[float, float, float] = (48.0, 11.0, 500.0),
+              fix_outages: tuple[tuple[float, float], ...] = ()) -> Path:
     """Write V's poses sampled at ``rate_hz`` as ``msgtype`` messages on ``topic`` (and, with
     ``tf``, as ``/tf`` ``frame → child`` plus a ``/tf_static`` ``child → imu_frame``), and with
-    ``imu_topic`` a perfect IMU mounted at ``T_V_B`` (R, p) at ``imu_rate_hz``.
+    ``imu_topic`` a perfect IMU mounted at ``T_V_B`` (R, p) at ``imu_rate_hz``; with
+    ``fix_topic``, ``sensor_msgs/NavSatFix`` fixes of V's origin at ``fix_rate_hz`` (the drive's
+    x, y, z taken as east, north, up about the geodetic ``fix_origin``), their diagonal covariance
+    from ``fix_sigma_m`` (horizontal, vertical; DIAGONAL_KNOWN), and messages without a fix
+    (``STATUS_NO_FIX``) within the ``fix_outages`` (seconds from the drive's start).
 
     ``path`` ending in ``.bag`` is a ROS 1 bag; anything else a ROS 2 bag folder with MCAP
     storage (its ``.mcap`` file also reads on its own). Quaternions are written with w ≥ 0.
@@ -109,6 +117,9 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
                       angular_velocity_covariance=np.zeros(9), linear_acceleration=vec(f[k]),
                       linear_acceleration_covariance=np.zeros(9))
             records.append((t_ns, imu_topic, serialize(msg, IMU_TYPE)))
+    if fix_topic is not None:
+        records += _fixes(traj, M, serialize, header, fix_topic, fix_rate_hz, fix_sigma_m, fix_origin, fix_outages,
+                          start_ns)
     records.sort(key=lambda r: r[0])
     static = None
     if tf:
@@ -117,6 +128,8 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
     types = {topic: msgtype, TF_TOPIC: tf_type, TF_STATIC_TOPIC: tf_type}
     if imu_topic is not None:
         types[imu_topic] = IMU_TYPE
+    if fix_topic is not None:
+        types[fix_topic] = NAVSAT_TYPE
     if path.exists():
         raise BagError(path, "exists already: the writer does not overwrite")
     writer = Writer1(path) if ros1 else Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP)
@@ -129,6 +142,34 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
         for t_ns, name, raw in records:
             writer.write(conns[name], t_ns, raw)
     return path
+
+
+def _fixes(traj, M, serialize, header, topic, rate_hz, sigma, origin, outages, start_ns) -> list:
+    """NavSatFix records of V's origin (see :func:`write_bag`)."""
+    from pyproj import Transformer
+
+    t = traj.times(rate_hz)
+    enu = traj.sample(t).p_W_V
+    la, lo = np.radians(origin[0]), np.radians(origin[1])
+    R = np.array([[-np.sin(lo), np.cos(lo), 0.0],
+                  [-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)],
+                  [np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)]])
+    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    x0 = np.array(to_ecef.transform(origin[1], origin[0], origin[2]))
+    ecef = x0 + enu @ R
+    lon, lat, alt = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(
+        ecef[:, 0], ecef[:, 1], ecef[:, 2])
+    cov = np.diag([sigma[0] ** 2, sigma[0] ** 2, sigma[1] ** 2]).ravel()
+    out = []
+    for k in range(t.size):
+        t_ns = start_ns + int(round((t[k] - t[0]) * 1e9))
+        off = any(a <= t[k] - t[0] <= b for a, b in outages)
+        msg = M[NAVSAT_TYPE](header=header(t_ns, "gnss"),
+                             status=M["sensor_msgs/msg/NavSatStatus"](status=STATUS_NO_FIX if off else 0, service=1),
+                             latitude=float(lat[k]), longitude=float(lon[k]), altitude=float(alt[k]),
+                             position_covariance=cov, position_covariance_type=2)
+        out.append((t_ns, topic, serialize(msg, NAVSAT_TYPE)))
+    return out
 
 
 def crop_bag(path: str | Path, out: str | Path, start_s: float, end_s: float, topic: str) -> Path:
