@@ -163,27 +163,29 @@ def interval_means(rec: CanRecording, edges: np.ndarray) -> tuple[np.ndarray, np
     steering weighted by the distance the rear wheels report (the model's curvature is the path's,
     ``Δψ/Δs``), by time where they report none. Intervals the readings do not cover are NaN."""
     t = np.asarray(rec.t, dtype=float)
+    edges = np.asarray(edges, dtype=float)
     start = np.r_[t[0] - rec.first_period_s, t[:-1]]
+    k = np.clip(np.searchsorted(t, edges, side="left"), 0, t.size - 1)  # the reading covering each edge
+    inside = np.clip(edges - start[k], 0.0, None)
 
     def integral(values: np.ndarray) -> np.ndarray:
-        """∫ of the piecewise-constant readings from the first coverage to each edge."""
-        cum = np.vstack([np.zeros((1,) + values.shape[1:]), np.cumsum(values * (t - start).reshape(-1, *[1] * (values.ndim - 1)), axis=0)])
-        k = np.clip(np.searchsorted(t, edges, side="left"), 0, t.size - 1)  # the reading covering each edge
-        inside = np.clip(edges - start[k], 0.0, None).reshape(-1, *[1] * (values.ndim - 1))
-        return cum[k] + values[k] * inside
+        """∫ of the piecewise-constant readings from the first one's start to each edge."""
+        v = values.reshape(t.size, -1)
+        cum = np.concatenate([np.zeros((1, v.shape[1])), np.cumsum(v * (t - start)[:, None], axis=0)])
+        return cum[k] + v[k] * inside[:, None]
 
     covered = (edges >= start[0] - 1e-9) & (edges <= t[-1] + 1e-9)
+    ok = covered[:-1] & covered[1:]
     dT = np.diff(edges)
     speeds = np.diff(integral(rec.speeds), axis=0) / dT[:, None]
-    ok = covered[:-1] & covered[1:]
     speeds[~ok] = np.nan
     if rec.steering_rad is None:
         return speeds, None
     rear = 0.5 * (rec.speeds[:, 2] + rec.speeds[:, 3])
-    dist = np.diff(integral(rear))
-    timed = np.diff(integral(rec.steering_rad)) / dT
-    weighted = np.diff(integral(rec.steering_rad * rear))
-    moving = np.abs(dist) > 1e-6
+    dist = np.diff(integral(rear), axis=0)[:, 0]
+    timed = np.diff(integral(rec.steering_rad), axis=0)[:, 0] / dT
+    weighted = np.diff(integral(rec.steering_rad * rear), axis=0)[:, 0]
+    moving = np.abs(dist) > 1e-6 * dT
     steer = np.where(moving, weighted / np.where(moving, dist, 1.0), timed)
     steer[~ok] = np.nan
     return speeds, steer
@@ -353,10 +355,10 @@ def physical_stream(sim, ac: AckermannConfig) -> CanRecording:
 
     def boxcar(x: np.ndarray) -> np.ndarray:
         """Means over (stamp − h, stamp] seen at stamp + t_d, of ``x`` on the fine grid."""
-        cum = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(fine).reshape(-1, *[1] * (x.ndim - 1)), axis=0)])
-        at = lambda s: np.stack([np.interp(s, fine, cum[:, i]) for i in range(cum.shape[1])], axis=1) if cum.ndim == 2 \
-            else np.interp(s, fine, cum)  # noqa: E731
-        return (at(stamps + td) - at(stamps + td - h)) / h
+        v = x.reshape(fine.size, -1)
+        cum = np.concatenate([np.zeros((1, v.shape[1])), np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(fine)[:, None], axis=0)])
+        at = lambda s: np.column_stack([np.interp(s, fine, c) for c in cum.T])  # noqa: E731
+        return ((at(stamps + td) - at(stamps + td - h)) / h).reshape((stamps.size,) + x.shape[1:])
 
     readings = boxcar(speed) * gain
     if sim.noisy:
