@@ -21,6 +21,7 @@ from .mcap import mcap_files, mcap_read, verify_chunks
 from .stream import (budget, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
                      topic_connections, topic_list)
 from .tf import static_edges, static_transform, tf_chain
+from .vehicle import VEHICLE_USES
 
 
 @dataclass(frozen=True)
@@ -28,7 +29,8 @@ class TopicInfo:
     """One topic of a bag: its type, message count, span and rate, and how excite can use it.
 
     ``use``: ``"pose"`` (a trajectory source), ``"tf"`` (TF chains: ``sources`` lists them as
-    ``/tf:parent.child``), ``"imu"`` (angular rate and specific force) or ``""``.
+    ``/tf:parent.child``), ``"imu"`` (angular rate and specific force), ``"wheels"`` (JointState:
+    wheel speeds, a steering angle), ``"ego_velocity"`` (a radar's twist) or ``""``.
     """
 
     topic: str
@@ -70,6 +72,8 @@ def bag_info(path: str | Path) -> list[TopicInfo]:
                 use = "pose"
             elif msgtype == IMU_TYPE:
                 use = "imu"
+            elif msgtype in VEHICLE_USES:
+                use = VEHICLE_USES[msgtype]
             elif dyn and pairs:
                 use = "tf"
                 sources = tuple(f"{topic}:{parent}.{child}" for parent, child in pairs)
