@@ -19,8 +19,11 @@ The steering-wheel reading is ``ratio·δ + offset`` with the road-wheel angle o
 ``δ = atan(wheelbase·κ)``, ``κ = Δψ/Δs`` the curvature of the rear axle's path
 (``steering.ratio``, ``steering.offset`` the reading when driving straight, positive to the left);
 its interval mean is weighted by distance (what :func:`interval_means` computes from the
-readings), and below ``steering.min_speed_mps`` its weight falls as ``(v/v_min)²``: at a
-standstill the wheel may point anywhere.
+readings). Its residual is the kinematic relation itself, ``L·Δψ − Δs·tan((read − offset)/ratio)``
+[m]: at speed the reading's difference to first order (its σ the reading's), at a standstill the
+statement that the car does not yaw, and smooth in between (the reading's own form,
+``atan(L·Δψ/Δs)``, is singular there); below ``steering.min_speed_mps`` its σ in that form no
+longer shrinks with the travel (tyre scrub and compliance at walking pace).
 
 One CAN stream carries both: ``wheel.time_offset`` shifts every reading (stamped t, it describes
 the motion at ``t + t_d``), to first order through the change of each instantaneous reading over
@@ -61,6 +64,7 @@ from .wheel import G_MPS2, axle_travel
 WHEELS = ("fl", "fr", "rl", "rr")  # the order of the readings, of the rows and of the coordinates
 _EPS_M = 1e-6  # regularises a front wheel's path and the curvature at a standstill [m]
 _EPS_MPS = 1e-5
+_EPS_SMOOTH = 1e-4  # [m per interval, or m/s]: the smooth |a| of a front wheel's path at a standstill
 
 
 class SteeringConfig(Model):
@@ -142,11 +146,14 @@ def steering_sigma_rad(ac: AckermannConfig, interval_s: float) -> float:
 def contact_distance(x, y, ds, dpsi, lat=0.0):
     """How far a contact point at ``(x, y)`` in A rolls when the axle travels ``ds`` forward and
     ``lat`` sideways and turns by ``dpsi`` (SX; or rates: its speed): ``√(a² + b²)`` with
-    ``a = ds − y·dpsi``, ``b = lat + x·dpsi``, written ``a + b²/(a + √(a² + b²))`` (smooth at a
-    standstill, where it is 0; reversing is not modelled)."""
+    ``a = ds − y·dpsi``, ``b = lat + x·dpsi``, written ``a + b²/(|a| + √(a² + b²))`` with smooth
+    absolute values (exact when moving forward; linear in ``a`` through a standstill, where a
+    noisy travel may be slightly negative: no kink for a solver to stall on; reversing is not
+    modelled)."""
     a = ds - y * dpsi
     b = lat + x * dpsi
-    return a + b * b / (a + ca.sqrt(a * a + b * b + _EPS_M ** 2))
+    eps2 = _EPS_SMOOTH ** 2
+    return a + b * b / (ca.sqrt(a * a + eps2) + ca.sqrt(a * a + b * b + eps2))
 
 
 @dataclass(frozen=True)
@@ -265,13 +272,12 @@ class Ackermann(Kind):
         w = WHEELS[i]
         return f.q[f"scale_{w}"] if f.entry.speeds == "mps" else 1.0 / f.q[f"radius_{w}"]
 
-    def measurement(self, f):
-        ac = f.entry
-        tr = axle_travel(f)
-        L = f.q["wheelbase"]
+    def _speeds(self, f, tr) -> list:
+        """The four wheels' mean readings over the interval (the measurement's first rows)."""
+        L, dT = f.q["wheelbase"], f.dT
         xy = [(L, 0.5 * f.q["track_front"]), (L, -0.5 * f.q["track_front"]),
               (0.0, 0.5 * f.q["track_rear"]), (0.0, -0.5 * f.q["track_rear"])]
-        td, dT = f.q["time_offset"], f.dT
+        td = f.q["time_offset"]
         lateral = tr.ds * tr.dpsi / (dT * dT * G_MPS2)  # the interval's lateral acceleration in g
         slip = 1.0 + f.q["slip"] * tr.along + f.q["scrub"] * lateral * lateral
         out = []
@@ -279,24 +285,51 @@ class Ackermann(Kind):
             mean = contact_distance(x, y, tr.ds, tr.dpsi, tr.lat) / dT
             ends = [contact_distance(x, y, tr.u[a], tr.yaw_rate[a], tr.v_lat[a]) for a in range(2)]  # instantaneous
             out.append(self._gain(f, i) * (mean + td * (ends[1] - ends[0]) / dT) * slip)
-        if ac.steering is not None:
-            kappa = tr.dpsi * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2)
-            ends = [ca.atan(L * tr.yaw_rate[a] * tr.u[a] / (tr.u[a] * tr.u[a] + _EPS_MPS ** 2)) for a in range(2)]
-            delta = ca.atan(L * kappa) + td * (ends[1] - ends[0]) / dT
-            out.append(f.q["ratio"] * delta + f.q["offset"])
+        return out
+
+    @staticmethod
+    def _curvature(f, tr):
+        """The path's curvature the reading sees, ``Δψ/Δs`` moved by ``t_d`` along its change
+        (the instantaneous curvatures at the two keyframes), and that change per second."""
+        ends = [tr.yaw_rate[a] * tr.u[a] / (tr.u[a] * tr.u[a] + _EPS_MPS ** 2) for a in range(2)]
+        rate = (ends[1] - ends[0]) / f.dT
+        return tr.dpsi * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2) + f.q["time_offset"] * rate, rate
+
+    def measurement(self, f):
+        tr = axle_travel(f)
+        out = self._speeds(f, tr)
+        if f.entry.steering is not None:
+            kappa, _ = self._curvature(f, tr)
+            out.append(f.q["ratio"] * ca.atan(f.q["wheelbase"] * kappa) + f.q["offset"])
         return ca.vertcat(*out)
 
     def residual(self, f, meas):
-        return self.measurement(f) - meas
+        """The speeds' ``predicted − read``; the steering's in the kinematic form
+        ``L·(Δψ + t_d·Δs·κ̇) − Δs·tan((read − offset)/ratio)`` [m], zero at its measurement like
+        the reading's difference and, unlike it, smooth at a standstill (where the reading says
+        only that the car does not yaw)."""
+        tr = axle_travel(f)
+        speeds = ca.vertcat(*self._speeds(f, tr)) - meas[0:4]
+        if f.entry.steering is None:
+            return speeds
+        _, rate = self._curvature(f, tr)
+        L = f.q["wheelbase"]
+        turn = L * (tr.dpsi * tr.ds * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2) + f.q["time_offset"] * tr.ds * rate)
+        return ca.vertcat(speeds, turn - tr.ds * ca.tan((meas[4] - f.q["offset"]) / f.q["ratio"]))
 
     def sqrt_information(self, f):
+        """The speeds' ``1/σ``; the steering row's ``ratio·cos²δ / (σ·√(Δs² + (v_min·ΔT)²))``: at
+        speed the reading's ``1/σ`` (the form's derivative in the reading is ``−Δs·sec²δ/ratio``),
+        below ``v_min`` a turn-per-interval whose σ no longer shrinks with the travel."""
         ac = f.entry
         w = [1.0 / speed_sigma(ac, f.dT)] * 4
         if ac.steering is None:
             return ca.DM(w)
-        ds = axle_travel(f).ds
+        tr = axle_travel(f)
+        kappa, _ = self._curvature(f, tr)
+        cos2 = 1.0 / (1.0 + (f.q["wheelbase"] * kappa) ** 2)
         floor = ac.steering.min_speed_mps * f.dT
-        return ca.vertcat(*w, ds / ca.sqrt(ds * ds + floor * floor) / steering_sigma_rad(ac, f.dT))
+        return ca.vertcat(*w, f.q["ratio"] * cos2 / (steering_sigma_rad(ac, f.dT) * ca.sqrt(tr.ds * tr.ds + floor * floor)))
 
     # --- simulation ---
 
@@ -308,7 +341,8 @@ class Ackermann(Kind):
         one), the steering the true ratio times the bicycle model's road-wheel angle of the true
         path's curvature plus the offset, all seen at ``t + t_d``, with white noise of the densities
         and each reading quantised; then their means over the intervals (:func:`interval_means`).
-        Model: the measurement model at the truth plus white noise of its σ."""
+        Model: the measurement model at the truth plus white noise of its σ (the steering's at most
+        10 σ at a standstill, where the model's grows without bound)."""
         nom, rng = sim.nom, sim.rng
         if sim.settings.physical:
             speeds, steer = interval_means(physical_stream(sim, ac), nom.t)
@@ -321,8 +355,11 @@ class Ackermann(Kind):
         if ac.steering is not None:
             ds = _travel(nom, np.arange(m.shape[0]))
             floor = ac.steering.min_speed_mps * dT
-            sig[:, 4] = np.minimum(steering_sigma_rad(ac, dT) * np.sqrt(1.0 + (floor / np.maximum(np.abs(ds), 1e-9)) ** 2),
-                                   1e6)
+            # at a near standstill the model's σ grows without bound (the reading tells nothing
+            # there); drawing that noise would make a residual the calibrator can only shrink by
+            # moving the weight (the travel): the draw is capped at 10 σ, the weight stays the model's
+            base = steering_sigma_rad(ac, dT)
+            sig[:, 4] = np.minimum(base * np.sqrt(1.0 + (floor / np.maximum(np.abs(ds), 1e-9)) ** 2), 10.0 * base)
         return m + rng.normal(0.0, 1.0, m.shape) * sig
 
 
