@@ -1,8 +1,10 @@
 """The contract of every registered measurement kind (:mod:`excite.factors`).
 
-For every kind and every entry of a rig (both odometry sensors and a GNSS antenna, at the
-keyframe rate and at half of it, the IMU, the wheels, the non-holonomic constraint), and every
-kind's opening factor (a GNSS antenna's first fix):
+For every kind and every entry of two rigs (the robotaxi's with a GNSS antenna: both odometry
+sensors and the antenna, at the keyframe rate and at half of it, the IMU, the wheels, the
+non-holonomic constraint; the sedan's: a car's four CAN wheel speeds and steering angle, a 3-D and
+a 2-D Doppler radar, at the keyframe rate and at half of it; the CAN wheel speeds as angular rates
+too), and every kind's opening factor (a GNSS antenna's first fix):
 
 - the derivative of its one residual (CasADi's automatic differentiation) equals central finite
   differences of the same residual, evaluated numerically;
@@ -76,6 +78,42 @@ def slow_rig(rig):
     return build_rig(data)
 
 
+def _car_data(speeds: str = "mps") -> dict:
+    """The bundled sedan, its IMU and radars mounted with non-trivial rotations, a 2-D radar added."""
+    data = yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())
+    data["imu"]["update_rate"] = 1000
+    data["vehicle"]["T_V_B"] = {"translation_m": [1.3, 0.2, 0.5], "rpy_deg": [3.0, -2.0, 10.0]}
+    data["sensors"][0]["T_B_S"] = {"translation_m": [2.1, -0.3, 0.2], "rpy_deg": [2.0, -3.0, 25.0]}
+    data["sensors"].append({"name": "radar_corner", "kind": "radar", "rate_hz": 10, "dimensions": 2,
+                            "T_B_S": {"translation_m": [2.0, 0.8, 0.1], "rpy_deg": [1.0, 2.0, 60.0]},
+                            "noise": {"doppler_sigma_mps": 0.1, "stationary_targets": 4}})
+    data["ackermann"]["track_front_m"] = 1.61  # the two tracks apart
+    if speeds == "radps":
+        data["ackermann"].update(speeds="radps", radius_m=[0.33, 0.331, 0.332, 0.334], speed_noise_density=0.015,
+                                 speed_quantum=0.008)
+        data["targets"]["wheel.radius_*"] = "0.3 mm"
+        del data["targets"]["wheel.scale_*"]
+    return data
+
+
+@pytest.fixture(scope="module")
+def car_rig():
+    return build_rig(_car_data())
+
+
+@pytest.fixture(scope="module")
+def slow_car_rig():
+    data = _car_data()
+    for s in data["sensors"]:
+        s["rate_hz"] = 5.0
+    return build_rig(data)
+
+
+@pytest.fixture(scope="module")
+def radps_car_rig():
+    return build_rig(_car_data("radps"))
+
+
 _T = np.linspace(0.0, 6.0, 13)
 _PROFILE = ControlProfile(_T, 5 + 2 * np.sin(_T), 0.1 * np.cos(0.7 * _T), grade_rad=0.05 * np.sin(_T),
                           bank_rad=0.04 * np.cos(1.3 * _T))
@@ -86,10 +124,15 @@ def _nominal(rig):
 
 
 def _cases():
-    """(id, which rig, instance index) of every instance of both rigs."""
-    base = build_rig(_data())  # the ids only need the structure of the rig
-    out = [(f"{i.name}", "rig", k) for k, i in enumerate(_instances(base))]
-    out += [(f"{i.name} at 5 Hz", "slow", k) for k, i in enumerate(_instances(base)) if i.kind.sensor_kinds]
+    """(id, which rig, instance index) of every instance of the rigs."""
+    out = []
+    for base, which in ((build_rig(_data()), ""), (build_rig(_car_data()), "car")):
+        out += [(f"{i.name}", which or "rig", k) for k, i in enumerate(_instances(base))
+                if not which or i.kind.name in ("ackermann", "radar")]
+        out += [(f"{i.name} at 5 Hz", f"slow{which}", k) for k, i in enumerate(_instances(base))
+                if i.kind.sensor_kinds]
+    out += [("ackermann in rad/s", "radps", k) for k, i in enumerate(_instances(build_rig(_car_data("radps"))))
+            if i.kind.name == "ackermann"]
     return out
 
 
@@ -97,7 +140,8 @@ CASES = _cases()
 
 
 def _instance(request, rig, slow_rig, which, k):
-    r = rig if which == "rig" else slow_rig
+    r = {"rig": rig, "slow": slow_rig}.get(which) or request.getfixturevalue(
+        {"car": "car_rig", "slowcar": "slow_car_rig", "radps": "radps_car_rig"}[which])
     return r, _instances(r)[k]
 
 
@@ -139,8 +183,8 @@ def _moved(x: np.ndarray, q: np.ndarray, lay, dx: np.ndarray, dq: np.ndarray):
 
 
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
-def test_the_derivative_of_the_residual_equals_finite_differences(rig, slow_rig, name, which, k):
-    r, inst = _instance(None, rig, slow_rig, which, k)
+def test_the_derivative_of_the_residual_equals_finite_differences(request, rig, slow_rig, name, which, k):
+    r, inst = _instance(request, rig, slow_rig, which, k)
     nom = _nominal(r)
     f = min(5, inst.kind.factor_keyframes(r, inst.entry, nom.n_keyframes).size - 1)
     lay, x, s, q = _factor_inputs(nom, r, inst, f)
@@ -166,8 +210,8 @@ def test_the_derivative_of_the_residual_equals_finite_differences(rig, slow_rig,
 
 
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
-def test_the_compiled_kernel_equals_the_derivative_of_the_residual(rig, slow_rig, name, which, k):
-    r, inst = _instance(None, rig, slow_rig, which, k)
+def test_the_compiled_kernel_equals_the_derivative_of_the_residual(request, rig, slow_rig, name, which, k):
+    r, inst = _instance(request, rig, slow_rig, which, k)
     if not inst.kind.compiled:
         pytest.skip(f"{inst.kind.name} has no compiled kernel: the evaluator uses the derivative itself")
     nom = _nominal(r)
@@ -180,11 +224,11 @@ def test_the_compiled_kernel_equals_the_derivative_of_the_residual(rig, slow_rig
 
 
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
-def test_the_symmetries_a_kind_keeps_leave_its_residual_unchanged(rig, slow_rig, name, which, k):
+def test_the_symmetries_a_kind_keeps_leave_its_residual_unchanged(request, rig, slow_rig, name, which, k):
     """A kind that does not break translation sees positions through differences only (the
     evaluator's local states rely on it); one that does not break yaw is invariant to a rotation
     of the whole drive about the vertical."""
-    r, inst = _instance(None, rig, slow_rig, which, k)
+    r, inst = _instance(request, rig, slow_rig, which, k)
     nom = _nominal(r)
     blk = symbolic.blocks(inst.kind, nom, r, inst.entry)
     ks = blk.first[:, None] + blk.stride * np.arange(blk.n_states)[None, :]
@@ -199,8 +243,9 @@ def test_the_symmetries_a_kind_keeps_leave_its_residual_unchanged(rig, slow_rig,
         assert np.abs(np.einsum("nrsc,nsc->nr", Jx, g)).max() < 1e-9 * scale * max(1.0, np.abs(nom.p).max())
 
 
-def test_every_registered_kind_is_covered(rig):
-    assert {i.kind.name for i in registry.instances(rig)} == {k.name for k in registry.kinds()}
+def test_every_registered_kind_is_covered(rig, car_rig):
+    covered = {i.kind.name for r in (rig, car_rig) for i in registry.instances(r)}
+    assert covered == {k.name for k in registry.kinds()}
 
 
 # --- the physics ------------------------------------------------------------------------------

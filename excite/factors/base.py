@@ -327,7 +327,7 @@ class Kind:
 
     name: ClassVar[str]
     arity: ClassVar[int] = 2  # keyframes per factor: 1, or a pair ``stride`` keyframes apart
-    rows: ClassVar[int]  # components of one residual
+    rows: ClassVar[int]  # components of one residual (at most: an entry's residual may have fewer, a 2-D radar's)
     breaks: ClassVar[frozenset[str]] = frozenset()  # of :data:`SYMMETRIES`
     sensor_kinds: ClassVar[tuple[str, ...]] = ()  # ``sensors:`` entries of these ``kind:`` values
     section: ClassVar[str | None] = None  # or this top-level rig section

@@ -246,7 +246,8 @@ def linearised(kind: Kind, rig: RigView, entry: Any, lay: Layout, x, samples, qv
     moved = _inputs(kind, rig, entry, lay, x, samples, qv, dx, dq)
     token = _AT_ZERO_RESIDUAL.set(True)
     try:
-        r = whiten(kind.sqrt_information(base), kind.residual(moved, meas), kind.rows)
+        res = kind.residual(moved, meas)
+        r = whiten(kind.sqrt_information(base), res, res.numel())
     finally:
         _AT_ZERO_RESIDUAL.reset(token)
     Jx = ca.substitute(ca.jacobian(r, dx), ca.vertcat(dx, dq), ca.DM.zeros(dx.numel() + dq.numel()))
@@ -296,7 +297,8 @@ def residual_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
         x, s, q = symbols(lay)
         f = _inputs(kind, rig, entry, lay, x, s, q)
         meas = ca.SX.sym("m", kind.measurement(f).numel())
-        r = whiten(kind.sqrt_information(f), kind.residual(f, meas), kind.rows)
+        res = kind.residual(f, meas)
+        r = whiten(kind.sqrt_information(f), res, res.numel())
         return ca.Function(f"res_{kind.name}", [x, s, q, meas], [r], {"cse": True})
 
     return _cached("res", kind, rig, entry, build)
@@ -354,10 +356,11 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
     if first.size == 0:
         return None
     lay = layout(kind, rig, entry)
-    F = linearisation(kind, rig, entry).map(first.size, "serial")
+    lin = linearisation(kind, rig, entry)
+    F = lin.map(first.size, "serial")
     Jx, Jt = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
                np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1))
-    N, r = first.size, kind.rows
+    N, r = first.size, lin.size1_out(0)  # the entry's rows (a kind's entries may differ: a 2-D radar)
     Jx = np.asarray(Jx).reshape(r, N, 9 * lay.arity).transpose(1, 0, 2)
     Jt = np.asarray(Jt).reshape(r, N, lay.n_theta).transpose(1, 0, 2)
     cols = theta_columns(rig, coordinate_names(lay))
@@ -377,10 +380,11 @@ def residuals(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndar
     """Whitened residuals (N × rows) of the measurements ``meas`` (N × m) of the factors starting at
     keyframes ``first``, at the states and samples of ``nom`` and the quantity ``values`` (by name;
     the nominal ones otherwise)."""
+    G = residual_function(kind, rig, entry)
     if first.size == 0:
-        return np.zeros((0, kind.rows))
+        return np.zeros((0, G.size1_out(0)))
     lay = layout(kind, rig, entry)
-    F = residual_function(kind, rig, entry).map(first.size, "serial")
+    F = G.map(first.size, "serial")
     r = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
           np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1), np.asarray(meas, dtype=float).T)
     return np.asarray(r).T

@@ -23,6 +23,8 @@ slip ratio at 1 g) a nuisance of the drive, linearised at zero.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba as nb
 import numpy as np
 
@@ -82,24 +84,10 @@ class Wheel(Kind):
     # --- the math ---
 
     def measurement(self, f):
-        R_BV = ca.DM(f.R_V_B.T)
-        p_BV = ca.DM(-f.R_V_B.T @ f.p_V_B)
-        R_BA = [ca.mtimes(R_BV, f.R_V_A[a]) for a in range(2)]
-        RAi, RAj = ca.mtimes(f.R[0], R_BA[0]), ca.mtimes(f.R[1], R_BA[1])
-        dpsi = log(ca.mtimes(RAi.T, RAj))[2]
-        c = ca.mtimes(RAi.T, f.p[1] + ca.mtimes(f.R[1], p_BV) - f.p[0] - ca.mtimes(f.R[0], p_BV))
-        h = 0.5 * dpsi
-        small = ca.fabs(h) < 1e-3
-        hs = ca.if_else(small, 1.0, h)
-        arc = ca.if_else(small, 1.0 + h * h / 6.0 + 7.0 * h ** 4 / 360.0, hs / ca.sin(hs))
-        ds = arc * (ca.cos(h) * c[0] + ca.sin(h) * c[1])
+        tr = axle_travel(f)
         b = f.q["track"]
-        inc = ca.vertcat((ds - 0.5 * b * dpsi) / f.q["radius_left"], (ds + 0.5 * b * dpsi) / f.q["radius_right"])
-        # the slip: the axle's mean longitudinal acceleration along the interval's mean heading
-        vV = [f.v[a] + ca.mtimes(f.R[a], ca.cross(f.omega[a], p_BV)) for a in range(2)]
-        dv = ca.mtimes(RAi.T, vV[1] - vV[0])
-        along = (ca.cos(h) * dv[0] + ca.sin(h) * dv[1]) / (f.dT * G_MPS2)
-        return inc * (1.0 + f.q["slip"] * along)
+        inc = ca.vertcat((tr.ds - 0.5 * b * tr.dpsi) / f.q["radius_left"], (tr.ds + 0.5 * b * tr.dpsi) / f.q["radius_right"])
+        return inc * (1.0 + f.q["slip"] * tr.along)
 
     def residual(self, f, meas):
         return self.measurement(f) - meas
@@ -157,6 +145,50 @@ class Wheel(Kind):
         phase = rng.uniform(0.0, 1.0, 2) if sim.noisy else np.full(2, 0.5)
         ticks = np.floor(angle / q + phase) - np.floor(phase)
         return np.diff(ticks, axis=0) * q
+
+
+@dataclass
+class Travel:
+    """The rear axle over a pair of keyframes (CasADi SX, :func:`axle_travel`): its turn ``dpsi``
+    [rad] about the road normal, its travel ``ds`` [m] along the arc and ``lat`` [m] across the
+    interval's mean heading (a sideways slide: zero on an arc), its mean longitudinal acceleration
+    along the mean heading in g (``along``), and at each keyframe its forward and lateral speed
+    ``u``, ``v_lat`` [m/s] and its yaw rate ``yaw_rate`` [rad/s] about the road normal (the
+    nominal body rate)."""
+
+    dpsi: object
+    ds: object
+    lat: object
+    along: object
+    u: list
+    v_lat: list
+    yaw_rate: list
+
+
+def axle_travel(f) -> Travel:
+    """What the rear axle did between the two keyframes of factor ``f`` (see the module
+    docstring): the one statement of the arc that the wheel kinds read."""
+    R_BV = ca.DM(f.R_V_B.T)
+    p_BV = ca.DM(-f.R_V_B.T @ f.p_V_B)
+    R_BA = [ca.mtimes(R_BV, f.R_V_A[a]) for a in range(2)]
+    RAi, RAj = ca.mtimes(f.R[0], R_BA[0]), ca.mtimes(f.R[1], R_BA[1])
+    dpsi = log(ca.mtimes(RAi.T, RAj))[2]
+    c = ca.mtimes(RAi.T, f.p[1] + ca.mtimes(f.R[1], p_BV) - f.p[0] - ca.mtimes(f.R[0], p_BV))
+    h = 0.5 * dpsi
+    small = ca.fabs(h) < 1e-3
+    hs = ca.if_else(small, 1.0, h)
+    arc = ca.if_else(small, 1.0 + h * h / 6.0 + 7.0 * h ** 4 / 360.0, hs / ca.sin(hs))
+    ds = arc * (ca.cos(h) * c[0] + ca.sin(h) * c[1])
+    lat = ca.cos(h) * c[1] - ca.sin(h) * c[0]  # the chord of an arc lies along the mean heading
+    # the axle's velocity v_V = v + R (ω × p_BV): its mean acceleration, and its speed at each end
+    vV = [f.v[a] + ca.mtimes(f.R[a], ca.cross(f.omega[a], p_BV)) for a in range(2)]
+    dv = ca.mtimes(RAi.T, vV[1] - vV[0])
+    along = (ca.cos(h) * dv[0] + ca.sin(h) * dv[1]) / (f.dT * G_MPS2)
+    RA = (RAi, RAj)
+    u = [ca.dot(RA[a][:, 0], vV[a]) for a in range(2)]
+    v_lat = [ca.dot(RA[a][:, 1], vV[a]) for a in range(2)]
+    yaw_rate = [ca.dot(R_BA[a][:, 2], f.omega[a]) for a in range(2)]
+    return Travel(dpsi, ds, lat, along, u, v_lat, yaw_rate)
 
 
 def axle_geometry(nom: Nominal, slip: bool = False):

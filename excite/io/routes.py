@@ -26,6 +26,10 @@ smooth curve on SO(3)). The fit is resampled on a uniform grid and the velocity 
 derivative, not a finite difference of noisy poses. ``cutoff_hz`` is the smoothing bandwidth
 (-3 dB frequency of the equivalent low-pass; capped at a quarter of the sample rate).
 
+A **comma2k19 segment folder** (``processed_log/`` and ``global_pose/``): the drive of V through
+the dataset's camera pose, with the recording's measured IMU (:mod:`excite.io.comma2k19`, which
+also reads its CAN wheel speeds, steering, radar tracks and GNSS fixes).
+
 Routes (driven through :func:`~excite.motion.vehicle.drive`, so suspension tilt is modelled):
 
 - **Waypoints CSV** (``.csv``): ``x,y[,z][,speed]`` [m, m/s]. An optional header names the
@@ -67,7 +71,7 @@ from ..motion.trajectory import Trajectory
 from ..motion.vehicle import ControlProfile, Limits, Suspension, drive
 from .poses import (DEFAULT_CUTOFF_HZ, MIN_POSES, QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL, check_range, check_timed,
                     trajectory_from_poses)
-from .sniff import is_bag
+from .sniff import is_bag, is_comma2k19
 
 if TYPE_CHECKING:
     from .bags import BagSource
@@ -577,7 +581,9 @@ def read_route(source: Source, times: Source | None = None, limits: Limits = Lim
     ``.geojson``/``.json`` → GeoJSON; ``.tum`` → TUM; ``.txt`` → KITTI (12 columns, needs
     ``times``) or TUM (8 columns); ``.csv`` → EuRoC (``#timestamp`` header or ≥ 8 numeric
     columns), control CSV (header with ``curvature``) or waypoints; ``.bag``, ``.mcap`` or a
-    ROS 2 bag folder → :func:`excite.io.bags.read_bag_route` with the topic and options of ``bag``.
+    ROS 2 bag folder → :func:`excite.io.bags.read_bag_route` with the topic and options of ``bag``;
+    a comma2k19 segment folder → :func:`excite.io.comma2k19.trajectory` (V through the dataset's
+    pose, its measured IMU).
     ``limits`` and ``suspension`` shape waypoint, GeoJSON and control routes;
     ``cutoff_hz``/``rate_hz`` the timed-pose fit (bags included).
     """
@@ -591,6 +597,10 @@ def read_route(source: Source, times: Source | None = None, limits: Limits = Lim
             from .bags import BagSource, read_bag_route
 
             return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
+        if is_comma2k19(path) and bag is None:
+            from .comma2k19 import read_comma2k19, trajectory
+
+            return trajectory(read_comma2k19(path), cutoff_hz=cutoff_hz, rate_hz=rate_hz)
     if bag is not None:
         flags = {"topic": "--topic", "imu_topic": "--imu-topic", "start_s": "--start", "end_s": "--end",
                  "vehicle_frame": "--vehicle-frame", "axes": "--axes"}

@@ -48,10 +48,16 @@ zstd/lz4) may expand to at most :data:`~.mcap.MAX_CHUNK_BYTES` and to at most
 corrupt stream is a :class:`BagError`, never an allocation of the size a header claims. TF
 chains are resolved in time linear in the frames.
 
+**A car's own signals** (:mod:`.vehicle`): wheel speeds and a steering angle from
+``sensor_msgs/JointState`` (:func:`read_wheel_speeds`), a radar's ego-velocity from
+``geometry_msgs/TwistWithCovarianceStamped`` or ``TwistStamped`` (:func:`read_ego_velocity`),
+for the Ackermann and radar kinds (other types on those topics are an error naming these).
+
 The package by concern: :mod:`.decode` (message types and decoding straight from the bytes),
 :mod:`.stream` (opening a bag, streaming its messages under the decompression bounds),
 :mod:`.mcap` (excite's own MCAP reader and the bounded decompression), :mod:`.tf` (TF trees and
-chains), :mod:`.imu` (measured IMU and its agreement with the poses), :mod:`.gnss` (NavSatFix fixes), :mod:`.reader` (the entry
+chains), :mod:`.imu` (measured IMU and its agreement with the poses), :mod:`.gnss` (NavSatFix fixes),
+:mod:`.vehicle` (wheel speeds, steering, radar ego-velocity), :mod:`.reader` (the entry
 points: topics, poses, IMU, routes), :mod:`.writer` (writing and cropping bags).
 """
 
@@ -66,6 +72,8 @@ from .imu import ImuAgreement, ImuSeries, ImuTrajectory, imu_agreement
 from .mcap import MAX_CHUNK_BYTES, MAX_RATIO, Budget, decompress
 from .reader import BagSource, TopicInfo, bag_info, read_bag_route, read_imu, read_poses, read_static_tf
 from .tf import Edge, chain_edges, static_transform
+from .vehicle import (EGO_VELOCITY_TYPES, JOINT_STATE_TYPE, EgoVelocitySeries, WheelSpeeds, can_recording,
+                      ego_velocity_at, ego_velocity_noise, read_ego_velocity, read_wheel_speeds, write_vehicle_bag)
 from .writer import crop_bag, write_bag
 
 __all__ = [
@@ -73,6 +81,9 @@ __all__ = [
     "is_bag", "bag_info", "read_poses", "read_imu", "read_static_tf", "read_bag_route",
     "imu_agreement", "write_bag", "POSE_TYPES", "TF_TYPES", "IMU_TYPE",
     "FixSeries", "FixAgreement", "read_fixes", "fix_log", "fix_agreement", "NAVSAT_TYPE",
+    # a car's own signals: wheel speeds (JointState), a radar's ego-velocity (Twist)
+    "WheelSpeeds", "EgoVelocitySeries", "read_wheel_speeds", "read_ego_velocity", "can_recording",
+    "ego_velocity_at", "ego_velocity_noise", "write_vehicle_bag", "JOINT_STATE_TYPE", "EGO_VELOCITY_TYPES",
     # used by excite's other packages: TF edges for rig import, cropping for mining, the bounds
     "Edge", "Series", "chain_edges", "static_transform", "crop_bag", "Budget", "decompress",
     "MAX_CHUNK_BYTES", "MAX_RATIO", "TF_TOPIC", "TF_STATIC_TOPIC", "AXES",

@@ -88,7 +88,7 @@ class Cursor:
         self._align(8)
         if keep:
             self.kept.append((self.o, n))
-        v = _F64[(self.e, n)].unpack_from(self.b, self.o)
+        v = (_F64.get((self.e, n)) or struct.Struct(f"{self.e}{n}d")).unpack_from(self.b, self.o)
         self.o += 8 * n
         return v
 

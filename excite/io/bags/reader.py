@@ -22,6 +22,7 @@ from .mcap import mcap_files, mcap_read, verify_chunks
 from .stream import (budget, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
                      topic_connections, topic_list)
 from .tf import static_edges, static_transform, tf_chain
+from .vehicle import VEHICLE_USES
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,8 @@ class TopicInfo:
 
     ``use``: ``"pose"`` (a trajectory source), ``"tf"`` (TF chains: ``sources`` lists them as
     ``/tf:parent.child``), ``"imu"`` (angular rate and specific force), ``"gnss"`` (NavSatFix
-    fixes) or ``""``.
+    fixes), ``"wheels"`` (JointState: wheel speeds, a steering angle), ``"ego_velocity"`` (a radar's
+    twist) or ``""``.
     """
 
     topic: str
@@ -74,6 +76,8 @@ def bag_info(path: str | Path) -> list[TopicInfo]:
                 use = "imu"
             elif msgtype == NAVSAT_TYPE:
                 use = "gnss"
+            elif msgtype in VEHICLE_USES:
+                use = VEHICLE_USES[msgtype]
             elif dyn and pairs:
                 use = "tf"
                 sources = tuple(f"{topic}:{parent}.{child}" for parent, child in pairs)
