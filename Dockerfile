@@ -1,26 +1,68 @@
-# excite HTTP service: small image, non-root, health-checked.
-#   docker build -t excite . && docker run -p 8000:8000 -v excite-data:/data excite
-FROM python:3.11-slim
+# syntax=docker/dockerfile:1
+# excite HTTP service: one installed copy of the code, numba kernels compiled at build time,
+# non-root, health-checked.
+#
+#   podman build --format docker -t excite -f Dockerfile \
+#       --secret id=ca,src=/etc/ssl/certs/ca-certificates.crt .      # the CA only where pip needs it
+#   podman run -d -p 8000:8000 -v excite-data:/data excite
+#
+# BASE: a Debian 12 image with python3.11 + python3-venv, useradd and libstdc++6; where no
+# registry is reachable, container/mkbase.sh bootstraps one with mmdebstrap
+# (localhost/debian-python:bookworm). python:3.11-slim-bookworm should do too (not tried here).
+ARG BASE=localhost/debian-python:bookworm
 
-ENV PYTHONDONTWRITEBYTECODE=1 \
+# ---- build: a venv with excite and its dependencies ----------------------------------------
+FROM ${BASE} AS build
+ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore \
+    PYTHONDONTWRITEBYTECODE=1
+RUN python3 -m venv /opt/excite
+# dependencies first (own layer: a change of the code does not download them again). An empty
+# package of the same metadata pulls exactly pyproject's dependencies.
+COPY pyproject.toml README.md /src/
+RUN --mount=type=secret,id=ca,target=/run/secrets/ca \
+    if [ -s /run/secrets/ca ]; then export PIP_CERT=/run/secrets/ca; fi; \
+    /opt/excite/bin/pip install /src && /opt/excite/bin/pip uninstall -y excite
+COPY excite /src/excite
+COPY api /src/api
+COPY container/slim.py /src/container/slim.py
+# excite itself, non-editable (no source tree left beside it); then drop what nothing imports
+RUN --mount=type=secret,id=ca,target=/run/secrets/ca \
+    if [ -s /run/secrets/ca ]; then export PIP_CERT=/run/secrets/ca; fi; \
+    /opt/excite/bin/pip install --no-deps /src \
+    && /opt/excite/bin/python -m pip uninstall -q -y pip setuptools \
+    && /opt/excite/bin/python /src/container/slim.py /opt/excite/lib/python3.11/site-packages \
+    && find /opt/excite -exec touch -h -d @1700000000 {} + \
+    && /opt/excite/bin/python -m compileall -q -f -j0 --invalidation-mode checked-hash \
+        /opt/excite/lib/python3.11/site-packages
+# Above: one whole-second timestamp for every file of the install, so that no copy or export of
+# the layer can change it (numba's cache index keys each kernel by its source's path and mtime),
+# and bytecode checked by hash, not by mtime (pip wrote timestamp .pyc files; after the touch
+# they would be stale and every start would compile ~1100 modules from source again).
+
+# ---- runtime ---------------------------------------------------------------------------------
+FROM ${BASE}
+ENV PATH=/opt/excite/bin:$PATH \
     PYTHONUNBUFFERED=1 \
-    PIP_NO_CACHE_DIR=1 \
-    PIP_DISABLE_PIP_VERSION_CHECK=1 \
-    EXCITE_DB_PATH=/data/excite-jobs.sqlite3 \
-    NUMBA_CACHE_DIR=/tmp/numba-cache
-
-WORKDIR /app
-COPY pyproject.toml README.md ./
-COPY excite ./excite
-COPY api ./api
-RUN pip install . \
-    && useradd --system --uid 10001 --home-dir /app --shell /usr/sbin/nologin excite \
-    && mkdir -p /data \
-    && chown excite /data
-
+    PYTHONDONTWRITEBYTECODE=1 \
+    HOME=/var/lib/excite \
+    NUMBA_CACHE_DIR=/var/cache/excite/numba \
+    MPLCONFIGDIR=/var/cache/excite/matplotlib \
+    EXCITE_DB_PATH=/data/excite-jobs.sqlite3
+RUN useradd --system --uid 10001 --user-group --home-dir /var/lib/excite --create-home \
+        --shell /usr/sbin/nologin excite \
+    && install -d -o excite -g excite /data /var/cache/excite /var/cache/excite/numba \
+        /var/cache/excite/matplotlib
+COPY --from=build /opt/excite /opt/excite
+COPY container/warm.py /usr/local/lib/excite-warm.py
+COPY container/dask.yaml /opt/excite/etc/dask/excite.yaml
 USER excite
+WORKDIR /var/lib/excite
+# compile the kernels now, as the runtime user, in the runtime paths (the cache is written to
+# $NUMBA_CACHE_DIR, which stays writable: on a CPU other than the build machine's, the kernels
+# are compiled again at start and cached in the container)
+RUN python /usr/local/lib/excite-warm.py
 VOLUME ["/data"]
 EXPOSE 8000
-HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
+HEALTHCHECK --interval=10s --timeout=5s --start-period=30s --retries=3 \
     CMD ["python", "-c", "import sys, urllib.request; sys.exit(0 if urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=4).status == 200 else 1)"]
 CMD ["excite", "serve", "--host", "0.0.0.0", "--port", "8000"]

@@ -1,8 +1,8 @@
 """The app factory: settings → a FastAPI app with its middleware, routers, store and workers.
 
-Start-up opens the job store, re-queues jobs a dead server left running, starts the job
-dispatcher and the scoring processes; shutdown stops them and puts running jobs back in the
-queue for the next server.
+Start-up opens the job store (SQLite or PostgreSQL, migrated), reads the API keys, re-queues
+the jobs of servers that are gone, starts the job dispatcher and the scoring processes;
+shutdown stops them and puts this server's running jobs back in the queue.
 """
 
 from __future__ import annotations
@@ -10,22 +10,25 @@ from __future__ import annotations
 import logging
 import time
 from contextlib import asynccontextmanager
-from typing import AsyncIterator
+from typing import Any, AsyncIterator
 
 import anyio
-from fastapi import FastAPI
+from fastapi import FastAPI, Security
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse
 from prometheus_client import CollectorRegistry, Gauge
 
 from . import problems
+from .auth import Limits, authorize, load_keys
 from .cluster import ClusterScoring
 from .context import Context
 from .jobs import JobRunner
-from .middleware import BodyLimit, Metrics, TimeLimit
+from .middleware import BodyLimit, Guard, Metrics, TimeLimit
 from .routers import batch, health, jobs, live, maneuvers, page, rigs, score
 from .pool import WorkerPool
 from .scoring import warm
 from .settings import Settings
-from .store import JobStore
+from .store import open_store
 
 log = logging.getLogger("excite.api")
 
@@ -44,56 +47,91 @@ def create_app(settings: Settings | None = None, *,
     here, it is not a setting of the service.
     """
     settings = settings or Settings()
-    store = JobStore(settings.db_path)
+    store = open_store(settings.store_url)
+    keys = None
+    if settings.api_keys_file is not None:
+        keys = load_keys(settings.api_keys_file, Limits(settings.quota_jobs, settings.quota_live_sessions,
+                                                        settings.quota_rate_per_s, settings.quota_burst))
     registry = CollectorRegistry()
     ctx = Context(
         settings=settings, store=store,
         runner=JobRunner(store, settings.workers, job_function, settings.cancel_grace_s,
-                         settings.worker_memory_mb, scheduler=settings.dask_scheduler),
+                         settings.worker_memory_mb, scheduler=settings.dask_scheduler,
+                         lease_s=settings.job_lease_s, time_reserve_s=settings.job_time_reserve_s,
+                         max_time_budget_s=settings.max_job_time_budget_s,
+                         retention_s=settings.retention_days * 86400.0,
+                         retention_bytes=settings.retention_max_mb * 2**20),
         cluster=ClusterScoring(settings.dask_scheduler) if settings.dask_scheduler else None,
         pool=WorkerPool(settings.score_workers, settings.worker_memory_mb,
                         settings.worker_recycle_mb, warm=warm, max_queued=settings.max_queued_tasks),
         registry=registry,
         jobs_gauge=Gauge("excite_jobs", "Jobs in the store by status", ["status"], registry=registry),
-        started_at=time.time())
+        store_up=Gauge("excite_store_up", "Whether the job store answered the last scrape", registry=registry),
+        started_at=time.time(), keys=keys)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         ctx.runner.start()
         await anyio.to_thread.run_sync(ctx.pool.start)
-        log.info("excite service ready (db %s)", settings.db_path)
+        log.info("excite service ready (jobs in %s; %s)", store.describe(),
+                 f"{len(keys.entries)} API keys" if keys else "open: no API keys")
         try:
             yield
         finally:
             ctx.runner.stop()
             ctx.pool.close()
+            live.close_all()
             if ctx.cluster is not None:
                 ctx.cluster.close()
 
-    app = FastAPI(title="excite", version="1", description=DESCRIPTION, lifespan=lifespan)
+    app = FastAPI(title="excite", version="1", description=DESCRIPTION, lifespan=lifespan,
+                  docs_url=None, redoc_url=None, openapi_url=None)
     app.state.ctx = ctx
-    app.openapi = _openapi_with_settings(app, settings)
+    app.openapi = _openapi_with_settings(app, settings, open_server=keys is None)
     problems.install(app)
+    _docs_routes(app, settings, open_server=keys is None)
     app.include_router(score.bag_router)  # multipart POST /v1/score: before the JSON route
     for module in (score, batch, maneuvers, jobs, rigs, health, page, live):
         app.include_router(module.router)
+    health.add_metrics(app, "public" if keys is None else settings.metrics)
     app.mount("/static", page.static_files(), name="static")
-    # added last = outermost: metrics see every answer, the body limit comes before the clock
+    # added last = outermost: metrics see every answer, the body limit comes before the clock;
+    # the guard (browser safety, security headers, HEAD, the last word on errors) is outermost
     app.add_middleware(TimeLimit, timeout_s=settings.request_timeout_s)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
     app.add_middleware(Metrics, registry=registry)
+    app.add_middleware(Guard, origins=settings.origins)
     return app
 
 
-def _openapi_with_settings(app: FastAPI, settings: Settings):
+def _docs_routes(app: FastAPI, settings: Settings, open_server: bool) -> None:
+    """``/openapi.json`` and ``/docs`` as ``EXCITE_DOCS`` says (an open server: public)."""
+    access = "public" if open_server else settings.docs
+    if access == "off":
+        return
+    deps = [] if access == "public" else [Security(authorize)]
+
+    async def openapi_json() -> JSONResponse:
+        return JSONResponse(app.openapi())
+
+    async def swagger() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url="/openapi.json", title="excite — API")
+
+    app.add_api_route("/openapi.json", openapi_json, include_in_schema=False, dependencies=deps)
+    app.add_api_route("/docs", swagger, include_in_schema=False, dependencies=deps)
+
+
+def _openapi_with_settings(app: FastAPI, settings: Settings, open_server: bool):
     """The OpenAPI document with the bounds this server's settings tighten: what the schema
-    allows, the server accepts (the static ranges come from :mod:`excite.core.bounds`)."""
-    generate = app.openapi
+    allows, the server accepts (the static ranges come from :mod:`excite.core.bounds`). An open
+    server asks for no credentials, so its document declares none."""
+    from fastapi.openapi.utils import get_openapi
 
     def openapi() -> dict:
         if app.openapi_schema is not None:
             return app.openapi_schema
-        doc = generate()
+        doc = get_openapi(title=app.title, version=app.version, description=app.description,
+                          routes=app.routes)
         models = doc["components"]["schemas"]
 
         def array(model: str, prop: str) -> dict:
@@ -109,7 +147,17 @@ def _openapi_with_settings(app: FastAPI, settings: Settings):
         for model, prop in (("RouteIn", "waypoints"), ("RouteIn", "poses"), ("ControlIn", "t_s")):
             tighten(array(model, prop), "maxItems", s.max_samples)
         tighten(array("BatchRequest", "routes"), "maxItems", s.max_batch_routes)
+        if open_server:
+            _strip_security(doc)
+        app.openapi_schema = doc
         return doc
 
     return openapi
 
+
+def _strip_security(doc: dict[str, Any]) -> None:
+    doc.get("components", {}).pop("securitySchemes", None)
+    for item in doc.get("paths", {}).values():
+        for op in item.values():
+            if isinstance(op, dict):
+                op.pop("security", None)

@@ -1,16 +1,17 @@
 """What the routers need, carried by dependencies: settings, the job store and runner, the
-scoring pool and the metrics registry."""
+scoring pool, the API keys and request rates, and the metrics registry."""
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable
 
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry, Gauge
 
+from .auth import KeyRing, RateLimiter
 from .cluster import ClusterScoring
 from .jobs import JobRunner
 from .errors import Overloaded, ProblemError, Unsendable, WorkerDied, WorkTimeout
@@ -29,7 +30,11 @@ class Context:
     registry: CollectorRegistry
     jobs_gauge: Gauge
     started_at: float
+    store_up: Gauge
     cluster: ClusterScoring | None = None  # batch routes go to the Dask cluster when configured
+    keys: KeyRing | None = None  # None: an open server
+    rates: RateLimiter = field(default_factory=RateLimiter)
+    live_sessions: dict[str, int] = field(default_factory=dict)  # key id → sessions streaming here
 
     @property
     def bounds(self) -> Bounds:

@@ -9,7 +9,10 @@
     ├── Unsendable            a task's arguments cannot be sent to a worker
     ├── Refused               a /v1/live message or session refused: closes the socket with a problem frame
     └── excite.errors.ExciteError
-        └── StoreError        the job database cannot be opened or is not one (names the file)
+        ├── StoreError        the job database cannot be opened or used (names it and why:
+        │                     full, read-only, corrupt, unreachable); answered 503
+        ├── KeysError         the API keys file cannot be read or is invalid (names the entry)
+        └── Exposed           the server would serve without keys on a non-loopback address
 
 :mod:`api.problems` maps each to its HTTP status and problem+json body in one place; excite's own
 errors (:mod:`excite.errors`) map to 4xx there too. Anything else is a 500 without a traceback
@@ -22,14 +25,14 @@ from typing import Any
 
 from excite.errors import ExciteError
 
-TITLES = {400: "Bad request", 404: "Not found", 405: "Method not allowed",
-           406: "Not acceptable", 408: "Request timeout", 409: "Conflict", 413: "Content too large",
-           415: "Unsupported media type", 422: "Unprocessable content", 429: "Too many requests",
-           500: "Internal server error", 503: "Service unavailable"}
+TITLES = {400: "Bad request", 401: "Unauthorized", 403: "Forbidden", 404: "Not found",
+          405: "Method not allowed", 406: "Not acceptable", 408: "Request timeout", 409: "Conflict",
+          413: "Content too large", 415: "Unsupported media type", 422: "Unprocessable content",
+          429: "Too many requests", 500: "Internal server error", 503: "Service unavailable"}
 
 
 def default_type(status: int) -> str:
-    return {404: "not-found", 409: "conflict", 413: "too-large", 422: "validation",
+    return {401: "unauthorized", 403: "forbidden", 404: "not-found", 409: "conflict", 413: "too-large", 422: "validation",
             500: "internal", 503: "unavailable"}.get(status, "http-error")
 
 
@@ -84,4 +87,12 @@ class Refused(Exception):
 
 
 class StoreError(ExciteError):
-    """The job database cannot be opened or is not one (the message names the file)."""
+    """The job database cannot be opened or used (the message names it and why)."""
+
+
+class KeysError(ExciteError):
+    """The API keys file cannot be read or is not valid (the message names file and entry)."""
+
+
+class Exposed(ExciteError):
+    """The server would serve without API keys on an address others can reach."""

@@ -1,4 +1,5 @@
-"""ASGI middleware: bounded bodies, a time limit per request, request metrics.
+"""ASGI middleware: browser safety and the last word on errors, bounded bodies, a time limit
+per request, request metrics.
 
 Plain ASGI (not ``BaseHTTPMiddleware``) so that the body limit also counts a streamed body
 without buffering it, and so that a timed-out request still gets a problem document.
@@ -14,7 +15,7 @@ from typing import Any, Awaitable, Callable
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 
-from .problems import PROBLEM_JSON, TYPE_BASE
+from .problems import PROBLEM_JSON, TYPE_BASE, capped
 
 log = logging.getLogger("excite.api")
 
@@ -23,8 +24,8 @@ ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
 
 async def send_problem(send: Callable, status: int, title: str, type_: str, detail: str,
                        instance: str, headers: list[tuple[bytes, bytes]] | None = None) -> None:
-    body = json.dumps({"type": TYPE_BASE + type_, "title": title, "status": status,
-                       "detail": detail, "instance": instance}).encode()
+    body = json.dumps(capped({"type": TYPE_BASE + type_, "title": title, "status": status,
+                              "detail": detail, "instance": instance})).encode()
     await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", PROBLEM_JSON.encode()),
                             (b"content-length", str(len(body)).encode()), *(headers or [])]})
@@ -175,3 +176,117 @@ class Metrics:
             method = scope.get("method", "")
             self.requests.labels(method, name, str(status["code"])).inc()
             self.latency.labels(method, name).observe(time.perf_counter() - t0)
+
+
+# Content types a cross-site HTML form (or a "simple" fetch) can send without a preflight
+SIMPLE_TYPES = (b"multipart/form-data", b"application/x-www-form-urlencoded", b"text/plain")
+CLIENT_HEADER = b"x-excite-client"
+UNSAFE = ("POST", "PUT", "PATCH", "DELETE")
+CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; "
+       "connect-src 'self'; font-src 'self'; object-src 'none'; base-uri 'none'; "
+       "form-action 'self'; frame-ancestors 'none'")
+# Swagger UI (/docs) loads its script and style from a CDN and starts with an inline script
+DOCS_CSP = ("default-src 'self'; script-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
+            "style-src 'self' https://cdn.jsdelivr.net; img-src 'self' data: https://fastapi.tiangolo.com; "
+            "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'")
+
+
+def own_origin(scope: dict) -> str | None:
+    """``http://host:port`` of the server as the client addressed it (its Host header)."""
+    host = next((v for k, v in scope.get("headers", []) if k == b"host"), None)
+    if host is None:
+        return None
+    scheme = {"ws": "http", "wss": "https"}.get(scope.get("scheme", "http"), scope.get("scheme", "http"))
+    return f"{scheme}://{host.decode('latin-1').lower()}"
+
+
+class Guard:
+    """What keeps a browser from being used against the service, and the last word on errors:
+
+    - a WebSocket whose ``Origin`` is neither the server's own nor in ``origins`` is refused
+      before the handshake completes (HTTP 403);
+    - a state-changing request (POST, PUT, PATCH, DELETE) is refused (403 problem+json) when its
+      ``Origin`` is foreign, when the browser says it is cross-site (``Sec-Fetch-Site``), or when
+      it is one a cross-site HTML form could send (multipart, urlencoded or text/plain) and
+      carries none of the headers such a form cannot set (``X-Excite-Client``, ``X-API-Key``,
+      ``Authorization``);
+    - every response carries a Content-Security-Policy (``frame-ancestors 'none'``),
+      ``X-Frame-Options: DENY``, ``X-Content-Type-Options: nosniff`` and ``Referrer-Policy``;
+    - ``HEAD`` is answered wherever ``GET`` is (the GET's headers, no body);
+    - an exception nothing else handled becomes a 500 problem here, so it never reaches the
+      server (which would reset the connection and with it the client's next request).
+    """
+
+    def __init__(self, app: ASGIApp, origins: tuple[str, ...] = ()):
+        self.app, self.origins = app, tuple(origins)
+
+    def _allowed(self, origin: str, scope: dict) -> bool:
+        origin = origin.rstrip("/").lower()
+        return origin == own_origin(scope) or origin in self.origins
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] == "websocket":
+            origin = _header(scope, b"origin")
+            if origin is not None and not self._allowed(origin, scope):
+                log.warning("%s: WebSocket from foreign origin %s refused", scope.get("path"), origin[:200])
+                await receive()  # websocket.connect
+                return await send({"type": "websocket.close", "code": 1008})
+            return await self.app(scope, receive, send)
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        refusal = self._cross_site(scope)
+        if refusal is not None:
+            return await send_problem(send, 403, "Forbidden", "cross-site", refusal, scope.get("path", ""))
+        head = scope["method"] == "HEAD"
+        if head:
+            scope = dict(scope, method="GET")
+        csp = (DOCS_CSP if scope.get("path") == "/docs" else CSP).encode()
+        state = {"started": False}
+
+        async def guarded(message: dict) -> None:
+            if message["type"] == "http.response.start":
+                state["started"] = True
+                headers = [h for h in message.get("headers", [])
+                           if h[0].lower() not in (b"content-security-policy", b"x-frame-options")]
+                headers += [(b"content-security-policy", csp), (b"x-frame-options", b"DENY"),
+                            (b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer")]
+                message = dict(message, headers=headers)
+            elif head and message["type"] == "http.response.body":
+                message = dict(message, body=b"")
+            await send(message)
+
+        try:
+            await self.app(scope, receive, guarded)
+        except Exception:
+            log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"))
+            if not state["started"]:
+                await send_problem(guarded, 500, "Internal server error", "internal",
+                                   "The server failed to handle this request; the error is logged.",
+                                   scope.get("path", ""))
+
+    def _cross_site(self, scope: dict) -> str | None:
+        if scope["method"] not in UNSAFE:
+            return None
+        origin = _header(scope, b"origin")
+        if origin is not None:
+            if self._allowed(origin, scope):
+                return None
+            return (f"a {scope['method']} from the origin {origin[:200]!r} is refused: only this server's "
+                    "own page (or EXCITE_ALLOWED_ORIGINS) may send one from a browser")
+        site = _header(scope, b"sec-fetch-site")
+        if site in ("cross-site", "same-site"):
+            return f"a {site} {scope['method']} from a browser is refused"
+        ctype = (_header(scope, b"content-type") or "").lower().encode("latin-1")
+        simple = ctype.startswith(SIMPLE_TYPES)  # a form always has one
+        names = {k for k, _ in scope.get("headers", [])}
+        if scope["method"] == "POST" and simple and not names & {CLIENT_HEADER, b"x-api-key", b"authorization"}:
+            return ("a POST a cross-site HTML form could send is refused: send the header "
+                    "X-Excite-Client (any value) or an API key with it")
+        return None
+
+
+def _header(scope: dict, name: bytes) -> str | None:
+    for k, v in scope.get("headers", []):
+        if k == name:
+            return v.decode("latin-1")
+    return None

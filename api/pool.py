@@ -57,6 +57,21 @@ def _rss_mb() -> float:
         return 0.0
 
 
+def limit_memory(memory_mb: int) -> None:
+    """This process's address space at most ``memory_mb`` MiB (0: no limit)."""
+    if memory_mb:
+        limit = memory_mb * 2**20
+        try:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        except (ValueError, OSError):
+            log.warning("cannot limit worker memory to %d MiB", memory_mb)
+
+
+def trim() -> None:
+    """Return freed heap to the system."""
+    _trim()
+
+
 def _trim() -> None:
     try:
         ctypes.CDLL(None).malloc_trim(0)
@@ -64,7 +79,7 @@ def _trim() -> None:
         pass
 
 
-def _exit_with_server(server_pid: int, period_s: float = 1.0) -> None:
+def exit_with_server(server_pid: int, period_s: float = 1.0) -> None:
     """End this worker once the server process is gone (e.g. killed with SIGKILL): an orphan
     would otherwise wait for work forever, and keep the forkserver alive with it."""
     while True:
@@ -77,14 +92,9 @@ def _exit_with_server(server_pid: int, period_s: float = 1.0) -> None:
 
 def _worker_main(conn: Connection, memory_mb: int, recycle_mb: int, server_pid: int,
                  warm: Callable[[], Any] | None) -> None:
-    threading.Thread(target=_exit_with_server, args=(server_pid,), daemon=True,
+    threading.Thread(target=exit_with_server, args=(server_pid,), daemon=True,
                      name="server-watch").start()
-    if memory_mb:
-        limit = memory_mb * 2**20
-        try:
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-        except (ValueError, OSError):
-            log.warning("cannot limit worker memory to %d MiB", memory_mb)
+    limit_memory(memory_mb)
     if warm is not None:
         warm()
     _trim()
@@ -165,6 +175,10 @@ class WorkerPool:
     @property
     def ready(self) -> bool:
         return self._started and not self._closed and bool(self._all)
+
+    def context(self) -> Any:
+        """The forkserver context the workers (and live sessions) are started from."""
+        return self._context()
 
     def _context(self) -> Any:
         if self._ctx is None:

@@ -16,12 +16,41 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from excite.errors import EvaluationError, ExciteError, LimitError, RigError, RouteError
-from .errors import TITLES, ProblemError, default_type
+from .errors import TITLES, ProblemError, StoreError, default_type
 
 log = logging.getLogger("excite.api")
 
 PROBLEM_JSON = "application/problem+json"
 TYPE_BASE = "https://excite.dev/problems/"
+# every error body is bounded, whatever the input it talks about (a bag of 50 000 frames, a
+# rig of 20 000 topics): a long detail or message is cut, and at most MAX_ERRORS are listed
+MAX_DETAIL_CHARS = 2000
+MAX_MESSAGE_CHARS = 500
+MAX_ERRORS = 20
+
+
+def cut(text: str, limit: int) -> str:
+    """``text`` of at most ``limit`` characters, saying how much was left out."""
+    if len(text) <= limit:
+        return text
+    note = f" … ({len(text) - limit + 40:,} characters more)"
+    return text[:limit - len(note)] + note
+
+
+def capped(body: dict[str, Any]) -> dict[str, Any]:
+    """A problem document within the bounds above."""
+    out = dict(body)
+    if isinstance(out.get("detail"), str):
+        out["detail"] = cut(out["detail"], MAX_DETAIL_CHARS)
+    errors = out.get("errors")
+    if isinstance(errors, list):
+        kept = [{**e, "field": cut(str(e.get("field", "")), 200),
+                 "message": cut(str(e.get("message", "")), MAX_MESSAGE_CHARS)} for e in errors[:MAX_ERRORS]]
+        if len(errors) > MAX_ERRORS:
+            kept.append({"field": "", "message": f"… and {len(errors) - MAX_ERRORS} more errors"})
+        out["errors"] = kept
+    return out
+
 
 def problem(status: int, detail: str, *, instance: str = "", type_: str | None = None,
             title: str | None = None, errors: list[dict[str, Any]] | None = None,
@@ -32,7 +61,7 @@ def problem(status: int, detail: str, *, instance: str = "", type_: str | None =
                             "detail": detail, "instance": instance}
     if errors is not None:
         body["errors"] = errors
-    return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON, headers=headers)
+    return JSONResponse(capped(body), status_code=status, media_type=PROBLEM_JSON, headers=headers)
 
 
 def field_name(loc: tuple[Any, ...] | list[Any]) -> str:
@@ -92,6 +121,24 @@ def install(app: FastAPI) -> None:
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
         return problem(422, f"{first['field']}: {first['message']}{more}",
                        instance=request.url.path, errors=errors)
+
+    @app.exception_handler(StoreError)
+    async def _store(request: Request, exc: StoreError) -> JSONResponse:
+        log.error("job store fault on %s %s: %s", request.method, request.url.path, exc)
+        return problem(503, "the job store is unavailable; retry later (the fault is logged)",
+                       instance=request.url.path, type_="store-unavailable", headers={"Retry-After": "5"})
+
+    @app.exception_handler(OSError)
+    async def _os(request: Request, exc: OSError) -> JSONResponse:
+        import errno
+
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            log.error("%s %s: no space left on the server's disk (%s)", request.method, request.url.path, exc)
+            return problem(503, "the server's disk is full; retry later (logged)", instance=request.url.path,
+                           type_="disk-full", headers={"Retry-After": "30"})
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return problem(500, "The server failed to handle this request; the error is logged.",
+                       instance=request.url.path)
 
     @app.exception_handler(ExciteError)
     async def _domain(request: Request, exc: ExciteError) -> JSONResponse:

@@ -13,6 +13,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field
 
 from excite.core import bounds
 from excite.core.bounds import Range
+from excite.rig.config import all_ranges
 
 ROUTE_FORMATS = ("tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv")
 RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv"]
@@ -127,7 +128,7 @@ def _shallow(rig: dict[str, Any]) -> dict[str, Any]:
 
 
 def _rig_ranges() -> str:
-    return "; ".join(f"{k} {r}" for k, r in bounds.RIG.items())
+    return "; ".join(f"{k} {r}" for k, r in all_ranges().items())
 
 
 def _rig_kind(rig: Any) -> str:

@@ -11,11 +11,10 @@ server path.
 from __future__ import annotations
 
 import logging
+import io
 import math
-import tempfile
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -115,50 +114,45 @@ def route_trajectory(route: dict[str, Any], rig: Rig, limits: Limits, bounds: Bo
                      field: str = "route") -> Trajectory:
     """The trajectory of a validated :class:`~api.schemas.RouteIn` (as a dict)."""
     name = route.get("name") or "route"
-    with tempfile.TemporaryDirectory(prefix="excite-") as tmp:
-        tmpdir = Path(tmp)
-        try:
-            if route.get("text") is not None:
-                return _from_text(route, name, tmpdir, rig, limits, bounds, field)
-            if route.get("waypoints") is not None:
-                return _from_waypoints(route["waypoints"], name, tmpdir, rig, limits, bounds, field)
-            if route.get("poses") is not None:
-                return _from_poses(route["poses"], name, tmpdir, bounds, field)
-            return _from_control(route["control"], name, tmpdir, rig, bounds, field)
-        except UnicodeEncodeError:
-            raise Rejected(422, field, "the text is not valid UTF-8") from None
-        except Rejected as exc:
-            raise Rejected(exc.status, exc.field, _scrub(exc.message, tmp)) from None
-        except ExciteError as exc:  # a reader's error without a line: the file is the request's
-            message = exc.problem if isinstance(exc, RouteError) else str(exc)
-            raise Rejected(422, field, _scrub(message, tmp)) from None
+    try:
+        if route.get("text") is not None:
+            return _from_text(route, name, rig, limits, bounds, field)
+        if route.get("waypoints") is not None:
+            return _from_waypoints(route["waypoints"], name, rig, limits, bounds, field)
+        if route.get("poses") is not None:
+            return _from_poses(route["poses"], name, bounds, field)
+        return _from_control(route["control"], name, rig, bounds, field)
+    except Rejected:
+        raise
+    except ExciteError as exc:  # a reader's error without a line: the text is the request's
+        raise Rejected(422, field, exc.problem if isinstance(exc, RouteError) else str(exc)) from None
 
 
-def _scrub(message: str, tmp: str) -> str:
-    """A message without the server's temporary directory (files there are the request's)."""
-    return message.replace(tmp + "/", "").replace(tmp, "")
+def _text_of(write: Callable[[io.StringIO], None]) -> str:
+    """What ``write`` writes, in memory."""
+    buf = io.StringIO()
+    write(buf)
+    return buf.getvalue()
 
 
-def _from_text(route: dict[str, Any], name: str, tmpdir: Path, rig: Rig, limits: Limits,
-               bounds: Bounds, field: str) -> Trajectory:
+def _from_text(route: dict[str, Any], name: str, rig: Rig, limits: Limits, bounds: Bounds,
+               field: str) -> Trajectory:
     fmt, text = route["format"], route["text"]
     # A cheap upper bound on the rows (lines; brackets for single-line GeoJSON).
     n = text.count("[") if fmt == "geojson" else text.count("\n") + 1
     _count_bound(n, bounds, f"{field}.text", "lines" if fmt != "geojson" else "coordinates", 413)
-    path = tmpdir / f"{name}{_EXT[fmt]}"
-    path.write_text(text, encoding="utf-8")
+    path = routes.Text(text, f"{name}{_EXT[fmt]}")
     try:
         if fmt == "tum":
             return routes.read_tum(path)
         if fmt == "euroc":
             return routes.read_euroc(path)
         if fmt == "kitti":
-            times = tmpdir / f"{name}.times.txt"
-            times.write_text(route["times_text"], encoding="utf-8")
+            times = routes.Text(route["times_text"], f"{name}.times.txt")
             try:
                 return routes.read_kitti(path, times)
             except RouteError as exc:
-                if exc.source == str(times):
+                if exc.source == times.name:
                     raise Rejected(422, *_where(exc, f"{field}.times_text", None)) from None
                 raise
         if fmt == "waypoints_csv":
@@ -170,8 +164,8 @@ def _from_text(route: dict[str, Any], name: str, tmpdir: Path, rig: Rig, limits:
         raise Rejected(422, *_where(exc, f"{field}.text", None)) from None
 
 
-def _from_waypoints(rows: list[list[float]], name: str, tmpdir: Path, rig: Rig, limits: Limits,
-                    bounds: Bounds, field: str) -> Trajectory:
+def _from_waypoints(rows: list[list[float]], name: str, rig: Rig, limits: Limits, bounds: Bounds,
+                    field: str) -> Trajectory:
     f = f"{field}.waypoints"
     _count_bound(len(rows), bounds, f, "waypoints")
     width = len(rows[0])
@@ -186,16 +180,14 @@ def _from_waypoints(rows: list[list[float]], name: str, tmpdir: Path, rig: Rig, 
         raise Rejected(422, f, f"the route is {length:.0f} m long, over the limit of "
                                f"{bounds.max_route_length_m:g} m")
     cols = ["x", "y", "z", "speed"][:width]
-    path = tmpdir / f"{name}.csv"
-    np.savetxt(path, pts, fmt="%.17g", delimiter=",", header=",".join(cols), comments="")
+    text = _text_of(lambda f: np.savetxt(f, pts, fmt="%.17g", delimiter=",", header=",".join(cols), comments=""))
     try:
-        return routes.read_waypoints_csv(path, limits=limits, suspension=rig.suspension)
+        return routes.read_waypoints_csv(routes.Text(text, f"{name}.csv"), limits=limits, suspension=rig.suspension)
     except RouteError as exc:
         raise Rejected(422, *_where(exc, f, lambda line: f"[{line - 2}]")) from None
 
 
-def _from_poses(poses: list[dict[str, Any]], name: str, tmpdir: Path, bounds: Bounds,
-                field: str) -> Trajectory:
+def _from_poses(poses: list[dict[str, Any]], name: str, bounds: Bounds, field: str) -> Trajectory:
     f = f"{field}.poses"
     _count_bound(len(poses), bounds, f, "poses")
     t = [p["t"] for p in poses]
@@ -203,16 +195,13 @@ def _from_poses(poses: list[dict[str, Any]], name: str, tmpdir: Path, bounds: Bo
         raise Rejected(422, f, f"the poses span {t[-1] - t[0]:.1f} s, over the limit of "
                                f"{bounds.max_route_duration_s:g} s")
     data = np.array([[p["t"], *p["position"], *p["quaternion_xyzw"]] for p in poses], dtype=float)
-    path = tmpdir / f"{name}.tum"
-    np.savetxt(path, data, fmt="%.17g")
     try:
-        return routes.read_tum(path)
+        return routes.read_tum(routes.Text(_text_of(lambda f: np.savetxt(f, data, fmt="%.17g")), f"{name}.tum"))
     except RouteError as exc:
         raise Rejected(422, *_where(exc, f, lambda line: f"[{line - 1}]")) from None
 
 
-def _from_control(control: dict[str, Any], name: str, tmpdir: Path, rig: Rig, bounds: Bounds,
-                  field: str) -> Trajectory:
+def _from_control(control: dict[str, Any], name: str, rig: Rig, bounds: Bounds, field: str) -> Trajectory:
     f = f"{field}.control"
     t = control["t_s"]
     _count_bound(len(t), bounds, f"{f}.t_s", "knots")
@@ -227,14 +216,14 @@ def _from_control(control: dict[str, Any], name: str, tmpdir: Path, rig: Rig, bo
     data = np.column_stack([t, control["speed_mps"], control["curvature_1pm"],
                             control.get("grade_rad") or zeros, control.get("bank_rad") or zeros])
     start = control.get("start") or {}
-    path = tmpdir / f"{name}.csv"
-    with path.open("w", encoding="utf-8") as fh:
+    def write(fh):
         fh.write(f"# start: x_m={float(start.get('x_m', 0.0))!r} y_m={float(start.get('y_m', 0.0))!r} "
                  f"heading_rad={float(start.get('heading_rad', 0.0))!r}\n")
         fh.write("t_s,speed_mps,curvature_1pm,grade_rad,bank_rad\n")
         np.savetxt(fh, data, fmt="%.17g", delimiter=",")
+
     try:
-        return routes.read_control_csv(path, suspension=rig.suspension)
+        return routes.read_control_csv(routes.Text(_text_of(write), f"{name}.csv"), suspension=rig.suspension)
     except RouteError as exc:
         raise Rejected(422, *_where(exc, f, lambda line: f" (knot {line - 3})")) from None
 
@@ -340,6 +329,20 @@ def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
         return {"ok": True, "png": plots.report_figure(report, traj, parameter)}
 
     return _as_problem(run, "route")
+
+
+def lot_task(lot: dict[str, Any], max_vertices: int) -> str | None:
+    """Why a GeoJSON lot cannot be planned in (the message), or None: in a worker, where the
+    memory limit applies to the shape tests (bounded by ``max_vertices`` before they start)."""
+    from excite.plan.site import read_site
+
+    try:
+        read_site(lot, max_vertices=max_vertices)
+    except ExciteError as exc:
+        return str(exc)
+    except MemoryError:
+        return "lot: the lot needs more memory to check than a worker may use"
+    return None
 
 
 def warm() -> bool:

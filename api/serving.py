@@ -92,10 +92,16 @@ def header_timeout_protocol(timeout_s: float) -> type[H11Protocol]:
 
 
 def run(app: Any, header_timeout_s: float, host: str, port: int, log_level: str) -> None:
-    """Serve ``app`` (one process: the job store is shared, the dispatcher must be alone)."""
+    """Serve ``app`` in this process (several replicas: several processes on one PostgreSQL
+    job store). Refuses (:class:`~api.errors.Exposed`) to serve an open app on an address
+    other than loopback unless its settings say it is open on purpose."""
     import uvicorn
 
+    from .auth import check_exposure
     from .routers.live import MAX_MESSAGE_BYTES
+
+    ctx = app.state.ctx
+    check_exposure(host, ctx.keys is not None, ctx.settings.open)
 
     uvicorn.run(app, host=host, port=port, log_level=log_level, timeout_graceful_shutdown=10,
                 http=header_timeout_protocol(header_timeout_s), ws_max_size=MAX_MESSAGE_BYTES)

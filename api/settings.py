@@ -8,6 +8,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from typing import Literal
+
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -67,6 +69,55 @@ class Settings(BaseSettings):
                                   description="Time limit to receive a request body [s] (slow "
                                               "clients get 408 and the connection is closed).")
 
+    # -- who may do what (api.auth) ------------------------------------------------------------
+    api_keys_file: Path | None = Field(
+        None, description="YAML or JSON file of API keys (hashed, with scopes and owners; "
+                          "`python -m api.keys new`). Unset: the server is open (everyone is admin).")
+    open: bool = Field(False, description="Serve without API keys on a non-loopback address "
+                                          "(refused at start-up otherwise).")
+    docs: Literal["public", "authenticated", "off"] = Field(
+        "authenticated", description="Who gets /docs and /openapi.json when keys are configured.")
+    metrics: Literal["public", "admin", "off"] = Field(
+        "admin", description="Who gets /metrics when keys are configured.")
+    allowed_origins: str = Field(
+        "", max_length=10_000, description="Comma-separated origins (https://host:port) besides the "
+                                           "server's own that may open /v1/live and post to it from a browser.")
+    quota_jobs: int = Field(20, ge=0, le=100_000, description="Queued and running jobs per key.")
+    quota_live_sessions: int = Field(4, ge=0, le=1000, description="/v1/live sessions per key at once.")
+    quota_rate_per_s: float = Field(20.0, gt=0, le=100_000, allow_inf_nan=False,
+                                    description="Requests per second per key, on average (per replica).")
+    quota_burst: int = Field(40, ge=1, le=100_000, description="Requests per key at once above the rate.")
+
+    # -- the job store (api.store) -------------------------------------------------------------
+    database_url: str | None = Field(
+        None, description="postgresql://user:password@host:port/db: jobs in PostgreSQL, shared by "
+                          "several replicas (default: the SQLite file EXCITE_DB_PATH).")
+    job_lease_s: float = Field(30.0, ge=1, le=3600, allow_inf_nan=False,
+                               description="A running job's lease: renewed every third of it; a job "
+                                           "whose replica stopped renewing is re-run after it [s].")
+    job_time_reserve_s: float = Field(60.0, ge=0, le=3600, allow_inf_nan=False,
+                                      description="A job is stopped (failed) at its time_budget_s plus "
+                                                  "this, whatever it is doing [s].")
+    retention_days: float = Field(7.0, gt=0, le=3650, allow_inf_nan=False,
+                                  description="Finished jobs older than this are deleted [days].")
+    retention_max_mb: int = Field(1024, ge=1, le=1_048_576,
+                                  description="Beyond this total the oldest finished jobs are deleted [MiB].")
+    min_free_mb: int = Field(64, ge=0, le=1_048_576,
+                             description="Below this free space on the job database's or the temporary "
+                                         "folder's disk, /readyz fails and bag uploads get 503 [MiB].")
+
+    # -- bounds of the newer surfaces -----------------------------------------------------------
+    max_lot_vertices: int = Field(1000, ge=4, le=100_000,
+                                  description="Most vertices of a GeoJSON lot (outline, keep-out zones "
+                                              "and terrain together).")
+    max_live_pose_rate_hz: float = Field(400.0, gt=0, le=100_000, allow_inf_nan=False,
+                                         description="Densest pose stream a /v1/live session may send, "
+                                                     "over each message [Hz].")
+    live_memory_mb: int = Field(3072, ge=0, le=1_048_576,
+                                description="Address-space limit of each /v1/live session's process [MiB] (0: none).")
+    max_live_sessions: int = Field(16, ge=0, le=64,
+                                   description="/v1/live sessions streaming at once (each its own process).")
+
     dask_scheduler: str | None = Field(
         None, description="Dask scheduler (tcp://host:8786) that runs batch routes and optimization jobs "
                           "(default: none, local processes). Its workers need excite installed.")
@@ -83,6 +134,34 @@ class Settings(BaseSettings):
             return scheduler_address(v)
         except EngineError as exc:
             raise ValueError(str(exc).replace("--scheduler: ", "")) from None
+
+    @field_validator("database_url")
+    @classmethod
+    def _database_url(cls, v: str | None) -> str | None:
+        if not v:
+            return None
+        if not v.startswith(("postgresql://", "postgres://")):
+            raise ValueError("must be a postgresql:// URL (SQLite: set EXCITE_DB_PATH instead)")
+        return v
+
+    @field_validator("api_keys_file")
+    @classmethod
+    def _keys_file(cls, v: Path | None) -> Path | None:
+        if v is None or str(v) == "":
+            return None
+        v = v.expanduser().resolve()
+        if not v.is_file():
+            raise ValueError(f"{v} is not a file")
+        return v
+
+    @property
+    def store_url(self) -> str:
+        """Where the jobs are: the PostgreSQL URL, else the SQLite file."""
+        return self.database_url or str(self.db_path)
+
+    @property
+    def origins(self) -> tuple[str, ...]:
+        return tuple(o.strip().rstrip("/").lower() for o in self.allowed_origins.split(",") if o.strip())
 
     @field_validator("db_path")
     @classmethod

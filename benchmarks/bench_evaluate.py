@@ -9,7 +9,8 @@ sampling the motion, linearising every factor, marginalising, eigen-analysis and
 
 Figures: median and range over ``--runs`` for a 10-minute and a 60-minute drive (alternating) and
 KITTI 00 (loading the file excluded) with the rig's random-walk biases; the 10-minute drive with
-random-walk against constant biases, side by side; with ``--baseline REV``, the same 10-minute
+random-walk against constant biases, side by side; the 10-minute drive with a GNSS antenna added
+to the rig against the rig without it, side by side; with ``--baseline REV``, the same 10-minute
 drive scored by the package as committed at git revision REV (its default rig), alternating with
 this one; and the dense numpy reference against the fast path on a 2-minute drive.
 
@@ -35,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from excite import information
+from excite.information import dense, elimination, problem
 from excite.motion import vehicle as excite_vehicle
 from excite.score.evaluate import evaluate
 from excite.factors.base import Nominal
@@ -118,8 +119,10 @@ def baseline_package(rev: str, into: Path):
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
     (into / "excite").rename(into / "excite_baseline")
     sys.path.insert(0, str(into))
-    return (importlib.import_module("excite_baseline.evaluate"), importlib.import_module("excite_baseline.rig"),
-            importlib.import_module("excite_baseline.vehicle"))
+    # the packages by concern (from the factor registry on), or the flat layout before them
+    layout = ("score.evaluate", "rig.config", "motion.vehicle") if (into / "excite_baseline" / "score").is_dir() \
+        else ("evaluate", "rig", "vehicle")
+    return tuple(importlib.import_module(f"excite_baseline.{m}") for m in layout)
 
 
 def main() -> None:
@@ -133,7 +136,8 @@ def main() -> None:
     global IDLE_WAIT_S
     IDLE_WAIT_S = args.when_idle
     rig = load_rig("robotaxi")
-    print(f"machine: {cpu_model()}, {os.cpu_count()} cores; rig robotaxi "
+    blas = os.environ.get("OPENBLAS_NUM_THREADS")
+    print(f"machine: {cpu_model()}, {os.cpu_count()} cores; OPENBLAS_NUM_THREADS={blas or 'unset'}; rig robotaxi "
           f"({len(rig.coordinates)} coordinates, IMU {rig.config.imu.update_rate:g} Hz, keyframes "
           f"{rig.keyframe_rate_hz:g} Hz); {load()}")
 
@@ -167,6 +171,24 @@ def main() -> None:
             f"{k.removesuffix('_thread')} {statistics.median(t[k] for t in stages):.1f} ms"
             for k in stages[0] if k.endswith("_thread")))
 
+    # the same 10-minute drive with a GNSS antenna (RTK preset, 10 Hz fixes) added to the rig,
+    # alternating with the rig without it: the price of the absolute observations (world states
+    # with the drive's origin, no gauge) and of the differenced fixes, as a ratio side by side
+    data = rig.config.model_dump()
+    data["sensors"].append({"name": "gnss", "kind": "gnss", "rate_hz": 10.0,
+                            "T_B_S": {"translation_m": [0.2, 0.0, 1.5]}, "noise": "rtk"})
+    gnss = rig.with_config(**data)
+    evaluate(drives[10], gnss)
+    pairs = [(timed(lambda: evaluate(drives[10], gnss)), timed(lambda: evaluate(drives[10], rig)))
+             for _ in range(args.runs)]
+    print(row("10-minute drive, with GNSS", [p[0] for p in pairs]))
+    print(row("10-minute drive, without", [p[1] for p in pairs]))
+    print(ratios("with GNSS / without", [p[0] for p in pairs], [p[1] for p in pairs]))
+    stages = [evaluate(drives[10], gnss).timings_ms for _ in range(args.runs)]
+    print("10-minute drive, with GNSS: CPU time per stage summed over threads (medians): " + ", ".join(
+        f"{k.removesuffix('_thread')} {statistics.median(t[k] for t in stages):.1f} ms"
+        for k in stages[0] if k.endswith("_thread")))
+
     if args.baseline:
         with tempfile.TemporaryDirectory() as tmp:
             ev, rg, vh = baseline_package(args.baseline, Path(tmp))
@@ -188,10 +210,10 @@ def main() -> None:
         traj = generated(120.0, rig)
         nom = Nominal.of(traj, rig)
         t0 = time.perf_counter()
-        dense = information.marginal_dense(information.build(nom, rig))
+        dense = dense.marginal_dense(problem.build(nom, rig))
         t_dense = time.perf_counter() - t0
-        t_fast = statistics.median(timed(lambda: information.drive_information([traj], rig))[0] for _ in range(5))
-        fast = information.drive_information([traj], rig).information
+        t_fast = statistics.median(timed(lambda: elimination.drive_information([traj], rig))[0] for _ in range(5))
+        fast = elimination.drive_information([traj], rig).information
         S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
         rel = np.abs((fast - dense) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
         print(f"2-minute drive: dense reference {t_dense * 1e3:.0f} ms, fast path {t_fast:.1f} ms "

@@ -1,27 +1,32 @@
 """Soak the service: mixed traffic from 8 clients on loopback for 10 minutes, hostile requests
-included. The service must answer no 5xx at all, and its memory at the end must be within 20 %
-of the start.
+included, optimization jobs submitted and cancelled. The service must answer no 5xx at all,
+leave no process behind, and its memory at the end must be within 20 % of the start.
 
 Starts ``excite serve`` on a free 127.0.0.1 port (its own job database in a temporary folder;
 one job worker, scoring workers as configured) and runs ``--clients`` threads. Each picks a
 request by weight:
 
 - valid scores: a 90 s figure-eight as a control profile, and a 10-minute drive as TUM text;
-- a plot, a batch of three routes, a maneuver job (short budget) polled to its end or cancelled;
+- a plot, a batch of three routes, a maneuver job (the real optimizer, short budget) polled to
+  its end or cancelled (queued or running; half of them), a /v1/live session of 20 s of poses;
 - reads: rigs, health, metrics, a job that does not exist;
 - hostile: absurd numbers (a gyro density of 1e-308, an IMU rate of 1e308, coordinates at 1e300,
   limits at 1e308), a rig nested 950 levels deep, a rig with 500 sensors, a 3-knot control
-  route over 10⁶ s, malformed JSON, a method not allowed, a client that announces a body and
-  stops sending, and one that sends its headers a byte every 0.5 s (both must get 408).
+  route over 10⁶ s, malformed JSON, a method not allowed, an MCAP whose zstd chunk declares
+  192 MiB of zeros and a GeoJSON lot that crosses itself (both 422), a client that announces a
+  body and stops sending, and one that sends its headers a byte every 0.5 s (both must get 408).
 
 A valid request may also be refused at once with 429 when the scoring workers cannot finish it
 within the time limit (back-pressure, not an error): the client then waits the Retry-After it
 was given. The 429s are counted and their latency printed.
 
-The service's memory is the resident set of its whole process tree (server, forkserver,
-scoring and job workers), read from /proc once the service is warm and again at the end after
-in-flight jobs have finished. Prints the counts per kind and status, p50/p99 latency of valid
-scores, and the memory; exits 1 on any 5xx, an unexpected status, or memory growth over 20 %.
+The service's memory is the resident set of the server process and, apart, of its scoring
+workers (forkserver and workers), read from /proc once the service is warm and again at the end
+after in-flight jobs have finished. Every process below the server is noted every 2 s while the
+soak runs; at the end none of them may have outlived the server's shutdown, nor have been
+orphaned (re-parented away from the server) before it. Prints the counts per kind and status,
+p50/p99 latency of valid scores, the memory and the processes; exits 1 on any 5xx, an unexpected
+status, a process left behind, or memory growth over 20 %.
 
     python benchmarks/bench_soak.py [--duration-s 600] [--clients 8] [--seed 0]
 """
@@ -53,6 +58,82 @@ LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
 OK = {200, 429}  # a valid request is served, or refused at once as overloaded (back-pressure)
 
 
+def _start_time(pid: int) -> int | None:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def tree(pid: int) -> dict[int, int]:
+    """pid → parent of every live process below ``pid``."""
+    parents = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if fields[0] != "Z":
+                parents[int(d.name)] = int(fields[1])
+    out, frontier = {}, {pid}
+    while frontier:
+        frontier = {p for p, pp in parents.items() if pp in frontier and p not in out}
+        out.update({p: parents[p] for p in frontier})
+    return out
+
+
+def rss_mb(pids) -> float:
+    total = 0.0
+    for p in pids:
+        try:
+            total += int(Path(f"/proc/{p}/statm").read_text().split()[1]) * 4096 / 2**20
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+class Processes:
+    """Every process seen below the server (pid and start time), sampled until stopped."""
+
+    def __init__(self, server: int):
+        self.server, self.seen = server, set()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+
+    def sample(self) -> None:
+        for p in tree(self.server):
+            t = _start_time(p)
+            if t is not None:
+                self.seen.add((p, t))
+
+    def run(self) -> None:
+        while not self.stop.wait(2.0):
+            self.sample()
+
+    def alive(self) -> list[int]:
+        return [p for p, t in self.seen if _start_time(p) == t]
+
+    def orphans(self) -> list[int]:
+        below = set(tree(self.server))
+        return [p for p in self.alive() if p not in below]
+
+
+def workers_of(server: int) -> list[int]:
+    """The scoring pool: the forkserver (a child of the server running multiprocessing's
+    forkserver) and the workers it forked."""
+    t = tree(server)
+    out = []
+    for p, parent in t.items():
+        try:
+            cmd = Path(f"/proc/{p}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"forkserver" in cmd or (parent != server and b"forkserver" in Path(f"/proc/{parent}/cmdline").read_bytes()):
+            out.append(p)
+    return out
+
+
 def tree_rss_mb(pid: int) -> float:
     """Resident memory of ``pid`` and every process below it [MiB]."""
     parents, rss = {}, {}
@@ -81,6 +162,28 @@ def inline_rig(**imu: float) -> dict:
     return data
 
 
+def zstd_bomb_mcap(declared: int) -> bytes:
+    """An MCAP without a summary whose one zstd chunk declares ``declared`` bytes of zeros."""
+    import struct
+
+    try:
+        from compression import zstd
+    except ImportError:
+        from backports import zstd
+    c = zstd.ZstdCompressor()
+    data = b"".join(c.compress(bytes(64 << 20)) for _ in range(declared >> 26)) + c.flush()
+
+    def rec(op: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", op, len(body)) + body
+
+    def string(text: str) -> bytes:
+        return struct.pack("<I", len(text)) + text.encode()
+
+    chunk = struct.pack("<QQQI", 0, 10**9, declared, 0) + string("zstd") + struct.pack("<Q", len(data)) + data
+    return (b"\x89MCAP0\r\n" + rec(0x01, string("ros2") + string("soak")) + rec(0x06, chunk)
+            + rec(0x0F, struct.pack("<I", 0)) + rec(0x02, struct.pack("<QQI", 0, 0, 0)) + b"\x89MCAP0\r\n")
+
+
 class Soak:
     def __init__(self, srv: LiveServer, tum_10min: str, seed: int):
         self.srv, self.tum = srv, tum_10min
@@ -106,7 +209,11 @@ class Soak:
             ("malformed JSON", "POST", "/v1/score", b'{"route": ', {422}),
             ("method not allowed", "PUT", "/v1/score", {}, {405}),
             ("maneuver 1e308 s", "POST", "/v1/maneuvers", {"duration_s": 1e308}, {422}),
+            ("lot crossing itself", "POST", "/v1/maneuvers", {"lot": {"type": "FeatureCollection",
+                "properties": {"crs": "local"}, "features": [{"type": "Feature", "properties": {}, "geometry": {
+                    "type": "Polygon", "coordinates": [[[0, 0], [60, 60], [60, 0], [0, 60], [0, 0]]]}}]}}, {422}),
         ]
+        self.bomb = zstd_bomb_mcap(192 << 20)
 
     def record(self, kind: str, status: int, seconds: float, expected: set[int]) -> None:
         with self.lock:
@@ -181,7 +288,10 @@ class Soak:
         if r is None or r.status_code != 202:
             return
         loc = r.headers["location"]
-        cancel = self.rng.random() < 0.3
+        cancel = self.rng.random() < 0.5
+        if cancel and self.rng.random() < 0.3:  # at once: usually still queued
+            self.call(c, "job cancel", "DELETE", loc, None, {200, 202, 409})
+            cancel = False
         deadline = time.monotonic() + 300
         while time.monotonic() < deadline:
             g = self.call(c, "job poll", "GET", loc, None, {200})
@@ -192,11 +302,37 @@ class Soak:
                 cancel = False
             time.sleep(1.0)
 
+    def live(self) -> None:
+        """A 20 s drive streamed to /v1/live: started, updates, final."""
+        from websockets.sync.client import connect
+
+        t0 = time.perf_counter()
+        status = 599
+        try:
+            with connect(f"ws://127.0.0.1:{self.srv.port}/v1/live", open_timeout=60) as ws:
+                ws.send(json.dumps({"type": "start", "rig": "robotaxi"}))
+                first = json.loads(ws.recv(timeout=60))
+                if first["type"] == "error":
+                    status = first["problem"]["status"]
+                else:
+                    poses = [[0.1 * i, 0.5 * i, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] for i in range(200)]
+                    ws.send(json.dumps({"type": "poses", "poses": poses}))
+                    ws.send(json.dumps({"type": "end"}))
+                    while True:
+                        msg = json.loads(ws.recv(timeout=120))
+                        if msg["type"] in ("final", "error"):
+                            status = 200 if msg["type"] == "final" else msg["problem"]["status"]
+                            break
+        except Exception as exc:  # a closed or refused socket
+            with self.lock:
+                self.unexpected.append(f"live: {type(exc).__name__}: {str(exc)[:100]}")
+        self.record("live session", status, time.perf_counter() - t0, {200, 503})
+
     def client(self, stop_at: float, seed: int) -> None:
         rng = random.Random(seed)
         kinds = ["score 90 s", "score 10 min", "plot", "batch", "job", "read", "hostile", "slow body",
-                 "slow headers"]
-        weights = [30, 12, 4, 4, 2, 10, 16, 1, 1]
+                 "slow headers", "bag bomb", "live"]
+        weights = [30, 12, 4, 4, 4, 10, 16, 1, 1, 1, 1]
         with self.srv.client(timeout=120) as c:
             while time.monotonic() < stop_at:
                 kind = rng.choices(kinds, weights)[0]
@@ -219,6 +355,13 @@ class Soak:
                     self.call(c, "hostile: " + name, method, path, body, expected)
                 elif kind == "slow body":
                     self.slow_body()
+                elif kind == "bag bomb":
+                    t0 = time.perf_counter()
+                    r = c.post("/v1/score", files={"bag": ("bomb.mcap", self.bomb, "application/octet-stream")},
+                               data={"topic": "/odom"}, headers={"X-Excite-Client": "soak"})
+                    self.record("hostile: bag bomb", r.status_code, time.perf_counter() - t0, {422, 429})
+                elif kind == "live":
+                    self.live()
                 else:
                     self.slow_headers()
 
@@ -240,7 +383,12 @@ def main() -> int:
                     c.post("/v1/score", json={"route": {"format": "tum", "text": tum}})
                     c.post("/v1/score/plot", json={"route": FIGURE_EIGHT})
             time.sleep(2)
-            rss0 = tree_rss_mb(srv.proc.pid)
+            server_pid = srv.proc.pid
+            rss0 = tree_rss_mb(server_pid)
+            srv0, pool0 = rss_mb([server_pid]), rss_mb(workers_of(server_pid))
+            procs = Processes(server_pid)
+            procs.sample()
+            procs.thread.start()
             t0 = time.monotonic()
             stop_at = t0 + args.duration_s
             threads = [threading.Thread(target=soak.client, args=(stop_at, args.seed * 1000 + i))
@@ -251,10 +399,16 @@ def main() -> int:
                 t.join()
             elapsed = time.monotonic() - t0
             time.sleep(5)  # let the last job workers exit and replaced scoring workers start
-            rss1 = tree_rss_mb(srv.proc.pid)
+            procs.stop.set()
+            procs.sample()
+            rss1 = tree_rss_mb(server_pid)
+            srv1, pool1 = rss_mb([server_pid]), rss_mb(workers_of(server_pid))
+            orphans = procs.orphans()
         finally:
             srv.stop()
             server_log = srv.log.read_text(errors="replace")
+        time.sleep(3)
+        left = procs.alive()
     total = sum(soak.counts.values())
     errors_5xx = sum(n for (k, s), n in soak.counts.items() if s >= 500)
     print(f"machine: {machine()}")
@@ -272,7 +426,10 @@ def main() -> int:
           f"max {max(shed) * 1e3:.0f} ms")
     growth = (rss1 - rss0) / rss0
     print(f"service RSS (whole process tree): {rss0:.0f} MiB warm → {rss1:.0f} MiB at the end "
-          f"({100 * growth:+.1f} %)")
+          f"({100 * growth:+.1f} %); server process {srv0:.0f} → {srv1:.0f} MiB, scoring pool "
+          f"{pool0:.0f} → {pool1:.0f} MiB")
+    print(f"processes: {len(procs.seen)} seen below the server, {len(orphans)} orphaned during the soak, "
+          f"{len(left)} alive after its shutdown")
     if soak.unexpected:
         print("unexpected:", collections.Counter(soak.unexpected).most_common(10))
         for d in soak.details[:10]:
@@ -280,7 +437,7 @@ def main() -> int:
         for line in server_log.splitlines():
             if "WARNING" in line or "ERROR" in line:
                 print("   server:", line[:200])
-    ok = errors_5xx == 0 and not soak.unexpected and abs(growth) <= 0.20
+    ok = errors_5xx == 0 and not soak.unexpected and abs(growth) <= 0.20 and not orphans and not left
     print("PASS" if ok else "FAIL")
     return 0 if ok else 1
 

@@ -59,30 +59,33 @@ def main() -> None:
     import numba
 
     from bench_evaluate import generated
-    from excite import information as info
     from excite.core import kernels
     from excite.factors import imu, nonholonomic, odometry, wheel
+    from excite.information import elimination, problem
+    from excite.information import kernels as information_kernels
+    from excite.information.closure import Closure
+    from excite.motion import kernels as motion_kernels
     from excite.factors.base import Nominal
     from excite.rig.config import load_rig
 
     rig = load_rig("robotaxi")
     traj = generated(args.seconds, rig)
-    _, nuisance = info.columns(rig, 1)
-    p, sd = nuisance.size, info.state_dim(rig)
-    K = info._check_length(Nominal.grid(traj, rig)[1], rig)
-    col_map = info._drive_column_map(rig, 0, 1)
-    edges = info._chunk_edges(K, rig)
+    _, nuisance = problem.columns(rig, 1)
+    p, closure = nuisance.size, Closure.of(rig)
+    K = problem.check_length(Nominal.grid(traj, rig)[1], rig)
+    col_map = problem.drive_column_map(rig, 0, 1)
+    edges = problem.chunk_edges(K, rig)
     chunks = list(zip(edges[:-1], edges[1:]))
     half = len(chunks) // 2
 
     def both() -> None:
-        info._sweep(traj, 0, K - 1, 0, chunks[:half], True, col_map, rig, p, sd)
-        info._sweep(traj, 0, K - 1, 0, chunks[half:][::-1], False, col_map, rig, p, sd)
+        elimination.sweep(traj, 0, K - 1, 0, chunks[:half], True, col_map, rig, p, closure)
+        elimination.sweep(traj, 0, K - 1, 0, chunks[half:][::-1], False, col_map, rig, p, closure)
 
     print(f"compiling the kernels in {work} …", file=sys.stderr)
     both()
     entries = []  # (address, size, name, object file, offset in it)
-    for module in (kernels, imu, odometry, wheel, nonholonomic):
+    for module in (kernels, information_kernels, motion_kernels, imu, odometry, wheel, nonholonomic):
         for attr in dir(module):
             dispatcher = getattr(module, attr)
             if not isinstance(dispatcher, numba.core.registry.CPUDispatcher):

@@ -3,12 +3,14 @@ durability rules, the time limit and the catch-all handler."""
 
 from __future__ import annotations
 
+import sqlite3
+
 import pytest
 from pydantic import ValidationError
 
 import api
 from api import Settings, create_app
-from api.store import JobStore
+from api.store import SqliteStore
 
 
 def test_public_names():
@@ -30,21 +32,25 @@ def test_settings_from_environment_are_validated(monkeypatch, tmp_path):
 
 
 def test_store_re_queues_jobs_of_a_dead_server_and_ignores_stale_workers(tmp_path):
-    store = JobStore(tmp_path / "j.sqlite3")
+    store = SqliteStore(tmp_path / "j.sqlite3")
     a = store.create("maneuver", {"x": 1})
     b = store.create("maneuver", {"x": 2})
-    assert store.claim() == (a, 1)
+    assert store.claim("host/boot/1/dead", 30) == (a, 1)
     store.progress(a, 1, {"iteration": 3})
-    # the server dies; the next one re-queues a (b was never started)
-    assert store.recover() == [a]
+    # its replica is alive (a live lease, another host): nobody takes the job over
+    assert store.reclaim("me") == [] and store.get(a)["status"] == "running"
+    # the replica dies: its lease expires and the next replica re-queues a (b was never started)
+    with sqlite3.connect(tmp_path / "j.sqlite3") as db:  # the test ages the lease
+        db.execute("UPDATE jobs SET lease_expires = 0 WHERE id = ?", (a,))
+    assert store.reclaim("me") == [a]
     assert store.get(a)["status"] == "queued" and store.get(a)["progress"] == {"iteration": 3}
-    assert store.claim() == (a, 2)
+    assert store.claim("me", 30) == (a, 2)
     # the first run's straggler can neither write nor finish
     assert store.should_stop(a, 1) and not store.should_stop(a, 2)
     assert not store.finish(a, 1, "succeeded", result={"stale": True})
     assert store.finish(a, 2, "succeeded", result={"ok": True})
     assert store.get(a)["result"] == {"ok": True}
-    assert store.cancel(b) == "cancelled" and store.claim() is None
+    assert store.cancel(b) == "cancelled" and store.claim("me", 30) is None
     assert store.counts() == {"succeeded": 1, "cancelled": 1}
 
 

@@ -7,10 +7,12 @@ import time
 
 import pytest
 
-from api.store import JobStore
+from api.store import SqliteStore
 from test_api_support import LiveServer, processes_with, wait_job
 
-SLOW = {"job_function": "test_api_support:slow_job", "workers": 1, "cancel_grace_s": 5}
+# a generous grace: after the cancel the stand-in still scores its best maneuver so far, which a
+# loaded machine may take a while to do (the grace kill would discard it)
+SLOW = {"job_function": "test_api_support:slow_job", "workers": 1, "cancel_grace_s": 120}
 
 
 def test_cancel_a_running_job(tmp_path):
@@ -23,8 +25,8 @@ def test_cancel_a_running_job(tmp_path):
             t0 = time.monotonic()
             d = c.delete(loc)
             assert d.status_code == 202 and d.json()["cancel_requested"] is True, d.text
-            job = wait_job(c, loc, timeout_s=30)
-            assert job["status"] == "cancelled" and time.monotonic() - t0 < 10
+            job = wait_job(c, loc, timeout_s=150)
+            assert job["status"] == "cancelled" and time.monotonic() - t0 < 120  # stopped by the cancel
             assert job["result"]["cancelled"] is True  # the best so far is kept
             assert c.get(f"{loc}/maneuver", params={"format": "tum"}).status_code == 200
             assert c.delete(loc).status_code == 200  # cancelling again changes nothing
@@ -55,7 +57,7 @@ def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
     while pool() and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not pool(), "orphaned scoring processes outlived the server"
-    stored = JobStore(tmp_path / "jobs.sqlite3")
+    stored = SqliteStore(tmp_path / "jobs.sqlite3")
     assert stored.get(job_id)["status"] == "running"
     assert stored.get(queued.json()["id"])["status"] == "queued"
 

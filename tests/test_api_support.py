@@ -3,6 +3,7 @@ job functions injected through ``create_app(job_function=...)``."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -146,3 +147,69 @@ def slow_job(request: dict[str, Any], progress: Callable[[dict], None],
             "status": "cancelled" if cancelled else "optimal", "iterations": i, "elapsed_s": 0.1 * i,
             "cancelled": cancelled, "score": rep.score, "model_score": None, "timings_s": {},
             "message": "stand-in", "profile": profile_data(prof)}
+
+
+def write_keys(path: Path, keys: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """A keys file at ``path`` with one key per ``id → {"scopes": [...], "owner"?, "quota"?}``;
+    returns ``id → secret``."""
+    import yaml
+
+    from api.auth import hash_key, new_key
+
+    secrets, entries = {}, []
+    for key_id, spec in keys.items():
+        secrets[key_id] = new_key()
+        entry = {"id": key_id, "owner": spec.get("owner", key_id), "scopes": spec["scopes"],
+                 "sha256": hash_key(secrets[key_id])}
+        if "quota" in spec:
+            entry["quota"] = spec["quota"]
+        entries.append(entry)
+    path.write_text(yaml.safe_dump({"keys": entries}))
+    return secrets
+
+
+def quick_job(request: dict[str, Any], progress: Callable[[dict], None],
+              should_stop: Callable[[], bool]) -> dict[str, Any]:
+    """A stand-in job of ``time_budget_s`` seconds that records its end in the file named by
+    ``EXCITE_TEST_JOB_LOG`` (one line: job name and pid) and returns a minimal result."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < request["time_budget_s"]:
+        if should_stop():
+            break
+        progress({"iteration": 0, "elapsed_s": time.monotonic() - t0, "phase": "optimize"})
+        time.sleep(0.05)
+    log = os.environ.get("EXCITE_TEST_JOB_LOG")
+    if log:
+        with open(log, "a") as fh:
+            fh.write(f"{request['name']} {os.getpid()} {time.time():.6f}\n")
+    return json.loads(Path(os.environ["EXCITE_TEST_JOB_RESULT"]).read_text())
+
+
+def job_result_file(path: Path) -> Path:
+    """A valid job result (the figure eight's report) for :func:`quick_job` to return."""
+    from api.jobs import plain, profile_data
+    from excite.motion.maneuvers import figure_eight
+    from excite.motion.vehicle import drive
+    from excite.rig.config import load_rig
+    from excite.score.evaluate import evaluate
+
+    rig = load_rig("robotaxi")
+    prof = figure_eight(duration_s=20.0)
+    rep = evaluate(drive(prof, rig.suspension), rig)
+    path.write_text(json.dumps({
+        "report": plain(rep.to_dict()), "comparison": [], "status": "stand-in", "iterations": 0,
+        "elapsed_s": 0.0, "cancelled": False, "score": rep.score, "model_score": None, "timings_s": {},
+        "message": "stand-in", "profile": profile_data(prof)}))
+    return path
+
+
+def tree_job(request: dict[str, Any], progress: Callable[[dict], None],
+             should_stop: Callable[[], bool]) -> dict[str, Any]:
+    """A stand-in job that starts a child process (as the optimizer's pool does), a grandchild
+    in a session of its own, and then ignores cancellation: only killing ends it."""
+    marker = f"excite-tree-job-{request['name']}"
+    subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)", marker])
+    subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)", marker], start_new_session=True)
+    while True:
+        progress({"iteration": 0, "phase": "optimize"})
+        time.sleep(0.1)

@@ -17,13 +17,15 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from excite.io import bags
+from excite.io.bags import decode, reader, stream  # noqa: F401 (bags.decode, .reader, .stream below)
 from excite.errors import BagError
 from excite.io.bags import BagSource, ImuTrajectory, imu_agreement, read_bag_route, write_bag
 from excite.cli.app import main
 from excite.score.evaluate import evaluate
 from excite.rig.config import build_rig, load_rig
 from excite.rig.importers import rig_from_tf
-from excite.io.routes import read_route, trajectory_from_poses
+from excite.io.poses import trajectory_from_poses
+from excite.io.routes import read_route
 from helpers import weave_drive
 
 NAV2 = "nav2_turtlebot.mcap"
@@ -73,11 +75,11 @@ def test_field_decoder_matches_full_message_decoding(data_dir, name, topic):
     path = data_dir / name
     ref = _reference_messages(path, topic)
     mine = []
-    with bags._open(path) as reader:
+    with bags.stream.open_bag(path) as reader:
         cons = [c for c in reader.connections if c.topic == topic]
-        fn = bags._DECODERS[cons[0].msgtype]
-        for i, (_, raw) in enumerate(bags._stream(path, reader, cons, topic)):
-            mine += bags._decode(path, topic, i, fn, raw, bags._is_ros2(cons[0]))
+        fn = bags.decode.DECODERS[cons[0].msgtype]
+        for i, (_, raw) in enumerate(bags.stream.stream_messages(path, reader, cons, topic)):
+            mine += bags.decode.decode_message(path, topic, i, fn, raw, bags.stream.is_ros2(cons[0]))
     assert len(mine) == len(ref) > 0
     for (t, f, ch, pose), (t_r, f_r, ch_r, p_r, q_r) in zip(mine, ref):
         assert (t, f) == (t_r, f_r)
@@ -93,7 +95,7 @@ def test_mcap_chunk_reader_reads_what_rosbags_reads(data_dir, topic, monkeypatch
     for window in ({}, {"start_s": 20.0, "end_s": 50.0}):
         fast = bags.read_poses(path, topic, **window)
         with monkeypatch.context() as m:
-            m.setattr(bags, "_mcap_files", lambda p: None)
+            m.setattr(bags.reader, "mcap_files", lambda p: None)
             slow = bags.read_poses(path, topic, **window)
         assert np.array_equal(fast.t_ns, slow.t_ns) and fast.t_ns.size > 10
         assert np.array_equal(fast.p, slow.p) and np.array_equal(fast.q, slow.q)
@@ -278,7 +280,7 @@ def test_measured_imu_replaces_the_pose_derivatives_and_agrees(tmp_path, drive):
     assert isinstance(traj, ImuTrajectory) and traj.imu_frame == "imu_link"
     mcap_path = bags.read_imu(path, "/imu")
     with pytest.MonkeyPatch.context() as m:
-        m.setattr(bags, "_mcap_files", lambda p: None)
+        m.setattr(bags.reader, "mcap_files", lambda p: None)
         rosbags_path = bags.read_imu(path, "/imu")
     assert np.array_equal(mcap_path.omega, rosbags_path.omega) and np.array_equal(mcap_path.t_ns, rosbags_path.t_ns)
     t = traj.times(200.0)[10:-10]
@@ -335,8 +337,8 @@ def test_type_without_a_pose_and_tf_without_chain(tmp_path, drive, capsys):
 def test_tf_chain_that_does_not_connect_names_the_missing_link(tmp_path, data_dir, capsys):
     err = _cli_error(capsys, data_dir / "tf_example_ros2", "--topic", "/tf:odom.lidar")
     assert "'lidar'" in err and "base_footprint" in err  # the unknown frame, with the known ones
-    edges = {"base_link": bags._Edge("odom", "base_link"),
-             "camera": bags._Edge("camera_mount", "camera", p=[(0, 0, 0)], q=[(0, 0, 0, 1)])}
+    edges = {"base_link": bags.Edge("odom", "base_link"),
+             "camera": bags.Edge("camera_mount", "camera", p=[(0, 0, 0)], q=[(0, 0, 0, 1)])}
     with pytest.raises(BagError, match="'odom' and 'camera_mount'"):
         bags.chain_edges(Path("x.bag"), "/tf:odom.camera", "odom", "camera", edges)
 

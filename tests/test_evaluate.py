@@ -8,8 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from excite import information
-from excite.core import kernels, so3
+from excite.information import dense, elimination, problem
+from excite.information.closure import Closure
+from excite.core import so3
+from excite.information import kernels
 from excite.errors import EvaluationError
 from excite.score.evaluate import Options, evaluate
 from excite.factors.base import FactorBlock, Nominal
@@ -147,8 +149,8 @@ def _scaled_noise(rig, factor):
               "gyroscope_random_walk"):
         imu[k] *= factor
     for s in data["sensors"]:
-        s["noise"]["rotation_sigma_deg"] *= factor
-        s["noise"]["translation_sigma_m"] *= factor
+        s["noise"]["rotation_density_deg_per_sqrt_s"] *= factor
+        s["noise"]["translation_density_m_per_sqrt_s"] *= factor
     data["wheels"]["noise_density"] *= factor
     nh = data["vehicle"]["nonholonomic"]
     nh["lateral_noise_density"] *= factor
@@ -195,11 +197,11 @@ def test_segment_edges_next_to_a_drive_boundary(rig, segments):
 
 
 def test_window_trims_drive_fragments():
-    prob = information.Problem(10, 1, (), np.broadcast_to(np.eye(3), (10, 3, 3)), True, (0, 5))
-    assert information.trimmed(prob.chain_starts, 0, 9) == (0, 9)
-    assert information.trimmed(prob.chain_starts, 3, 9) == (5, 9)  # keyframes 3, 4: the last two of the first drive
-    assert information.trimmed(prob.chain_starts, 0, 6) == (0, 4)  # keyframes 5, 6: the first two of the second drive
-    assert information.trimmed(prob.chain_starts, 3, 6) is None
+    prob = problem.Problem(10, 1, (), np.broadcast_to(np.eye(3), (10, 3, 3)), Closure(True, ("yaw",), 9, np.zeros(0), np.zeros(0, dtype=int)), (0, 5))
+    assert problem.trimmed(prob.chain_starts, 0, 9) == (0, 9)
+    assert problem.trimmed(prob.chain_starts, 3, 9) == (5, 9)  # keyframes 3, 4: the last two of the first drive
+    assert problem.trimmed(prob.chain_starts, 0, 6) == (0, 4)  # keyframes 5, 6: the first two of the second drive
+    assert problem.trimmed(prob.chain_starts, 3, 6) is None
     with pytest.raises(EvaluationError, match="fewer than 3 keyframes"):
         prob.window(4, 9)
 
@@ -207,10 +209,10 @@ def test_window_trims_drive_fragments():
 def test_marginal_does_not_depend_on_the_gauge_fix(rig, general_drive):
     nom = Nominal.of(general_drive, rig)
     K = nom.n_keyframes
-    ref = _scaled(information.marginal(information.build(nom, rig, gauge_keyframe=0)), rig)
+    ref = _scaled(elimination.marginal(problem.build(nom, rig, gauge_keyframe=0)), rig)
     scale = np.abs(ref).max()
     for g in (K // 2, K - 1):
-        other = _scaled(information.marginal(information.build(nom, rig, gauge_keyframe=g)), rig)
+        other = _scaled(elimination.marginal(problem.build(nom, rig, gauge_keyframe=g)), rig)
         assert np.abs(other - ref).max() < 1e-9 * scale
 
 
@@ -227,13 +229,14 @@ def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
     """Small drive: the chunked elimination (one chunk, or chunks of 7 keyframes) in both
     parametrisations vs dense numpy, with the gauge prior or with the gauge removed altogether
     (pseudo-inverse)."""
-    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", chunk)
+    monkeypatch.setattr(problem, "CHUNK_KEYFRAMES", chunk)
+    monkeypatch.setattr(elimination, "CHUNK_KEYFRAMES", chunk)
     t = np.linspace(0, 12, 13)
     traj = drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
                  rig.suspension)
     nom = Nominal.of(traj, rig)
-    fast = _scaled(information.marginal(information.build(nom, rig)), rig)
-    fast_world = _scaled(information.marginal(information.build(nom, rig, local=False)), rig)
+    fast = _scaled(elimination.marginal(problem.build(nom, rig)), rig)
+    fast_world = _scaled(elimination.marginal(problem.build(nom, rig, local=False)), rig)
     d = np.sqrt(np.diag(fast))
 
     def err(ref):  # correlation-normalised: independent of units and targets
@@ -244,10 +247,10 @@ def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
     # and the pseudo-inverse without a gauge lose digits (measured 2e-7 … 2.4e-6 on this drive).
     assert err(fast_world) < 1e-5
     references = [
-        (information.marginal_dense(information.build(nom, rig)), 1e-9),
-        (information.marginal_dense(information.build(nom, rig), gauge=False), 1e-5),
-        (information.marginal_dense(information.build(nom, rig, local=False)), 1e-5),
-        (information.marginal_dense(information.build(nom, rig, local=False), gauge=False), 1e-5),
+        (dense.marginal_dense(problem.build(nom, rig)), 1e-9),
+        (dense.marginal_dense(problem.build(nom, rig), gauge=False), 1e-5),
+        (dense.marginal_dense(problem.build(nom, rig, local=False)), 1e-5),
+        (dense.marginal_dense(problem.build(nom, rig, local=False), gauge=False), 1e-5),
     ]
     for ref, tol in references:
         ref = _scaled(ref, rig)
@@ -266,10 +269,10 @@ def test_sensor_slower_than_keyframes(rig):
     slow = _five_hz_lidar(rig)
     t = np.linspace(0, 10, 11)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), slow.suspension), slow)
-    prob = information.build(nom, slow)
+    prob = problem.build(nom, slow)
     assert prob.bandwidth_blocks == 2
-    fast = _scaled(information.marginal(prob), slow)
-    ref = _scaled(information.marginal_dense(information.build(nom, slow, local=False)), slow)
+    fast = _scaled(elimination.marginal(prob), slow)
+    ref = _scaled(dense.marginal_dense(problem.build(nom, slow, local=False)), slow)
     assert np.abs(fast - ref).max() < 1e-8 * np.abs(fast).max()
 
 
@@ -286,9 +289,10 @@ def test_streamed_drives_equal_the_dense_reference(rig, monkeypatch):
     noms = [Nominal.of(d, slow) for d in drives]
     # dense in local states: with random-walk biases (information 1/(σ_rw²ΔT) ~ 1e12 per step) the
     # world-state dense solve is only good to ~1e-8 (test_fast_path_equals_dense_reference)
-    ref = _scaled(information.marginal_dense(information.build(noms, slow, local=True)), slow)
-    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)
-    got = information.drive_information(drives, slow)
+    ref = _scaled(dense.marginal_dense(problem.build(noms, slow, local=True)), slow)
+    monkeypatch.setattr(problem, "CHUNK_KEYFRAMES", 7)
+    monkeypatch.setattr(elimination, "CHUNK_KEYFRAMES", 7)
+    got = elimination.drive_information(drives, slow)
     assert got.n_keyframes == sum(n.n_keyframes for n in noms)
     assert got.length_m == pytest.approx(sum(n.length_m for n in noms), rel=1e-12)
     assert got.duration_s == pytest.approx(sum(n.t[-1] - n.t[0] for n in noms), rel=1e-12)
@@ -305,12 +309,13 @@ def test_sweeps_equal_the_dense_reference(rig, monkeypatch, slab):
     t = np.linspace(0, 14, 15)
     traj = drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
                  slow.suspension)
-    monkeypatch.setattr(information, "_SLAB", slab)
+    monkeypatch.setattr(elimination, "SLAB", slab)
     for r in (slow, slow.with_constant_biases()):
-        ref = _scaled(information.marginal_dense(information.build(Nominal.of(traj, r), r)), r)
+        ref = _scaled(dense.marginal_dense(problem.build(Nominal.of(traj, r), r)), r)
         for chunk in (500, 20):
-            monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", chunk)
-            got = _scaled(information.drive_information([traj], r).information, r)
+            monkeypatch.setattr(problem, "CHUNK_KEYFRAMES", chunk)
+            monkeypatch.setattr(elimination, "CHUNK_KEYFRAMES", chunk)
+            got = _scaled(elimination.drive_information([traj], r).information, r)
             assert np.abs(got - ref).max() < 1e-8 * np.abs(ref).max()
 
 
@@ -323,10 +328,10 @@ def test_singular_keyframe_is_named_by_either_sweep(monkeypatch, forward):
     Jt = np.zeros((first.size, 9, 1))
     Jt[:, 0, 0] = 1.0
     prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
-    monkeypatch.setattr(information, "_SLAB", 2)
+    monkeypatch.setattr(elimination, "SLAB", 2)
     carry = (np.zeros((9, 9)), np.zeros((9, 1)), np.zeros((1, 1)))
     with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
-        information._eliminated([prior], 6, carry, forward, 100)
+        elimination.eliminated([prior], 6, carry, forward, 100)
 
 
 def test_undetermined_trajectory_is_a_clear_error(rig, monkeypatch):
@@ -334,11 +339,11 @@ def test_undetermined_trajectory_is_a_clear_error(rig, monkeypatch):
     name, not answered with a meaningless Λ."""
     t = np.linspace(0, 10, 11)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), rig.suspension), rig)
-    prob = information.build(nom, rig)
-    no_imu = information.Problem(prob.n_keyframes, prob.n_params, tuple(b for b in prob.blocks if b.name != "imu"),
-                                 prob.R_W_B, prob.local, prob.chain_starts, prob.state_dim)
+    prob = problem.build(nom, rig)
+    no_imu = problem.Problem(prob.n_keyframes, prob.n_params, tuple(b for b in prob.blocks if b.name != "imu"),
+                                 prob.R_W_B, prob.closure, prob.chain_starts)
     with pytest.raises(EvaluationError, match="trajectory itself is undetermined"):
-        information.marginal(no_imu)
+        elimination.marginal(no_imu)
 
 
 def test_singular_keyframe_is_named():
@@ -350,7 +355,7 @@ def test_singular_keyframe_is_named():
     Jt[:, 0, 0] = 1.0
     prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
     with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
-        information._piece([prior], 100, 106, 1, 9)
+        elimination.piece([prior], 100, 106, 1, 9)
 
 
 # --- the report -------------------------------------------------------------------------------
@@ -463,14 +468,15 @@ def test_linearising_in_chunks_changes_nothing(rig, monkeypatch):
     slow = _five_hz_lidar(rig)
     t = np.linspace(0, 10, 11)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), slow.suspension), slow)
-    whole = information.build(nom, slow)
-    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", 7)  # → chunks of 6 keyframes (stride 2)
-    chunked = information.build(nom, slow)
+    whole = problem.build(nom, slow)
+    monkeypatch.setattr(problem, "CHUNK_KEYFRAMES", 7)  # → chunks of 6 keyframes (stride 2)
+    monkeypatch.setattr(elimination, "CHUNK_KEYFRAMES", 7)
+    chunked = problem.build(nom, slow)
     assert len(chunked.blocks) > len(whole.blocks)
     assert _kinds(chunked) == _kinds(whole)
-    Jw, Jc = information.jacobian(whole)[0].toarray(), information.jacobian(chunked)[0].toarray()
+    Jw, Jc = dense.jacobian(whole)[0].toarray(), dense.jacobian(chunked)[0].toarray()
     np.testing.assert_allclose(Jc, Jw, atol=1e-12 * np.abs(Jw).max())
-    Lw, Lc = _scaled(information.marginal(whole), slow), _scaled(information.marginal(chunked), slow)
+    Lw, Lc = _scaled(elimination.marginal(whole), slow), _scaled(elimination.marginal(chunked), slow)
     assert np.abs(Lc - Lw).max() < 1e-10 * np.abs(Lw).max()
 
 
@@ -485,7 +491,7 @@ def test_nearly_singular_keyframe_is_named():
     Jt[:, 0, 0] = 1.0
     prior = FactorBlock("prior", first, 1, 1, Jx, Jt, np.array([0]))
     with pytest.raises(EvaluationError, match="keyframe 103 is singular"):
-        information._piece([prior], 100, 106, 1, 9)
+        elimination.piece([prior], 100, 106, 1, 9)
 
 
 @pytest.mark.parametrize("variant", ["random walk", "constant biases", "5 Hz lidar"])
@@ -494,13 +500,13 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
     reported by the local-state map as it writes them); every other column is zero for every
     factor, and accumulating over ``xcols`` only gives the band, H_xθ and H_θθ of accumulating
     over every column, bit for bit, in either storage order. The backward sweep's order of a
-    state's components (bias deviations first, :func:`information._ring_order`) stores the same
+    state's components (bias deviations first, :func:`elimination.ring_order`) stores the same
     numbers, permuted."""
     r = {"random walk": rig, "constant biases": rig.with_constant_biases(), "5 Hz lidar": _five_hz_lidar(rig)}[variant]
     t = np.linspace(0, 8, 9)
     nom = Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
                            r.suspension), r)
-    prob = information.build(nom, r)
+    prob = problem.build(nom, r)
     sd, p, K = prob.state_dim, prob.n_params, prob.n_keyframes
     skipped = 0
     for blk in prob.blocks:
@@ -513,7 +519,7 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
         for sign, origin in ((1, 0), (-1, K - 1)):
             out = []
             for xc, comp in ((blk.xcols, np.arange(sd)), (np.arange(blk.Jx.shape[2]), np.arange(sd)),
-                             (blk.xcols, information._ring_order(sd, sign > 0))):
+                             (blk.xcols, elimination.ring_order(sd, sign > 0))):
                 band, Hxt, Htt = np.zeros((D + 1, K, sd, sd)), np.zeros((K, sd, p)), np.zeros((p, p))
                 kernels.accumulate(blk.Jx, blk.Jt, blk.cols, blk.first, blk.stride, blk.n_states,
                                    band, Hxt, Htt, 0, blk.n_factors, origin, sign, xc, comp)
@@ -524,7 +530,7 @@ def test_accumulate_skips_only_zero_columns(rig, variant):
             for a, b in zip(out[0], out[2]):
                 assert np.array_equal(a, b), (blk.name, sign, "ring order")
     assert skipped > 0  # the lidar, camera and wheels see no velocity
-    assert not np.array_equal(information._ring_order(sd, False), np.arange(sd)) or sd == 9
+    assert not np.array_equal(elimination.ring_order(sd, False), np.arange(sd)) or sd == 9
 
 
 @pytest.mark.parametrize("chunk", [7, 500])
@@ -540,37 +546,38 @@ def test_streamed_windows_equal_the_windows_of_the_whole_problem(rig, monkeypatc
     t = np.linspace(0, 8, 9)
     drives = [drive(ControlProfile(t, 5 + 2 * np.sin(t + s), 0.1 * np.sin(t / 2 + s), grade_rad=0.02 * np.cos(t)),
                     r.suspension) for s in ((0, 1) if case == "two drives" else (0,))]
-    prob = information.build([Nominal.of(d, r) for d in drives], r)
+    prob = problem.build([Nominal.of(d, r) for d in drives], r)
     K = prob.n_keyframes
     across = (60, 100) if case == "two drives" else (20, 62)  # two drives of 81 keyframes: 81 starts the second
     wins = [(0, 40), (40, K - 1), across, (0, K - 1)]
-    monkeypatch.setattr(information, "_CHUNK_KEYFRAMES", chunk)
-    got = information.window_information(drives, r, wins)
+    monkeypatch.setattr(problem, "CHUNK_KEYFRAMES", chunk)
+    monkeypatch.setattr(elimination, "CHUNK_KEYFRAMES", chunk)
+    got = elimination.window_information(drives, r, wins)
     for (k0, k1), (Lam, diag) in zip(wins, got):
         win = prob.window(k0, k1)
-        ref = information.marginal(win)
+        ref = elimination.marginal(win)
         assert np.abs(Lam - ref).max() < 1e-9 * np.abs(ref).max(), (k0, k1)
-        np.testing.assert_allclose(diag, information.theta_diagonal(win), rtol=1e-12)
+        np.testing.assert_allclose(diag, elimination.theta_diagonal(win), rtol=1e-12)
     if case == "two drives":  # a window across the boundary: each piece closed as a drive of its own
         assert prob.chain_starts[1] in range(63, 99)
     if case == "5 Hz lidar":
         with pytest.raises(EvaluationError, match="multiples of 2 keyframes"):
-            information.window_information(drives, r, [(3, 40)])
+            elimination.window_information(drives, r, [(3, 40)])
 
 
 def test_segment_windows_fall_on_frame_pairs_and_skip_drive_fragments(rig):
     slow = _five_hz_lidar(rig)  # frames every second keyframe
-    assert information.windows([81], slow, 4) == [(0, 20), (20, 40), (40, 60), (60, 80)]
-    assert information.windows([81], slow, 3) == [(0, 26), (26, 54), (54, 80)]  # 26.7, 53.3 to even keyframes
-    assert information.windows([80], slow, 2) == [(0, 40), (40, 79)]  # a drive's end stays an edge
-    assert information.windows([82], slow, 2) == [(0, 40), (40, 81)]  # 81 rounds to 80: the end all the same
-    assert information.windows([82, 40], slow, 3) == [(0, 40), (40, 81), (82, 121)]
+    assert elimination.windows([81], slow, 4) == [(0, 20), (20, 40), (40, 60), (60, 80)]
+    assert elimination.windows([81], slow, 3) == [(0, 26), (26, 54), (54, 80)]  # 26.7, 53.3 to even keyframes
+    assert elimination.windows([80], slow, 2) == [(0, 40), (40, 79)]  # a drive's end stays an edge
+    assert elimination.windows([82], slow, 2) == [(0, 40), (40, 81)]  # 81 rounds to 80: the end all the same
+    assert elimination.windows([82, 40], slow, 3) == [(0, 40), (40, 81), (82, 121)]
     # two drives of 61 keyframes: an edge at keyframe 60 (the first drive's end) or 62 (the
     # second's 2nd keyframe) cuts a fragment off a drive, which is left out
-    assert information.windows([61, 61], rig, 2) == [(0, 60), (61, 121)]
-    assert information.windows([61, 61], rig, 3) == [(0, 40), (40, 81), (81, 121)]  # one across the boundary
+    assert elimination.windows([61, 61], rig, 2) == [(0, 60), (61, 121)]
+    assert elimination.windows([61, 61], rig, 3) == [(0, 40), (40, 81), (81, 121)]  # one across the boundary
     # 41 windows: edges at 59 and 62 leave 2 + 2 keyframes either side of the boundary: none
-    wins = information.windows([61, 61], rig, 41)
+    wins = elimination.windows([61, 61], rig, 41)
     assert len(wins) == 40 and all(b - a >= 2 for a, b in wins) and (59, 62) not in wins
 
 

@@ -1,62 +1,72 @@
-"""Every factor's analytic Jacobian equals central finite differences of its nonlinear model.
+"""The contract of every registered measurement kind (:mod:`excite.factors`).
+
+For every kind and every entry of two rigs (the robotaxi's with a GNSS antenna: both odometry
+sensors and the antenna, at the keyframe rate and at half of it, the IMU, the wheels, the
+non-holonomic constraint; the sedan's: a car's four CAN wheel speeds and steering angle, a 3-D and
+a 2-D Doppler radar, at the keyframe rate and at half of it; the CAN wheel speeds as angular rates
+too), and every kind's opening factor (a GNSS antenna's first fix):
+
+- the derivative of its one residual (CasADi's automatic differentiation) equals central finite
+  differences of the same residual, evaluated numerically;
+- a compiled kernel, where the kind has one, equals that derivative (the second copy of the math
+  kept for speed is held to the first);
+- the residual is zero at the noise-free measurement of the nominal motion;
+- the gauge symmetries it claims not to break (translation, yaw about the vertical) leave its
+  residual unchanged: the Jacobian annihilates their generators.
 
 The drive is fully 3-D (speed, curvature, grade and bank all vary, suspension on) and the rig's
 IMU and sensors are mounted with non-trivial rotations, so that no Jacobian term hides behind a
 zero. Perturbations follow the library's conventions: right-multiplicative on rotations, additive
-on positions, velocities and scalar parameters.
+on positions, velocities and scalar parameters. Then the physics the factors stand for: the
+IMU's propagated covariance against a Monte Carlo of noisy samples, the preintegration's compiled
+sums against their CasADi statement, the wheel model against integrated wheel speeds, the slip
+columns against the drive's own accelerations.
 """
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 import yaml
 
 from excite.core import so3
-from excite.factors import imu, nonholonomic, odometry, wheel
+from excite.factors import base as registry
+from excite.factors import imu, symbolic, wheel
 from excite.factors.base import Nominal
-from excite.rig.config import RIGS_DIR, build_rig
+from excite.factors.nonholonomic import sigma_mps
 from excite.motion.vehicle import ControlProfile, drive
+from excite.rig.config import RIGS_DIR, build_rig
 
 EPS = 1e-6
 
 
+GNSS = {"name": "gnss", "kind": "gnss", "rate_hz": 10.0, "T_B_S": {"translation_m": [0.4, -0.3, 1.6]},
+        "noise": {"horizontal_sigma_m": 0.02, "vertical_sigma_m": 0.05, "correlation_time_s": 3.0}}
+
+
+def _data():
+    """The bundled rig's YAML with a GNSS antenna (a kind no bundled rig has)."""
+    data = yaml.safe_load((RIGS_DIR / "robotaxi.yaml").read_text())
+    data["sensors"].append(dict(GNSS))
+    return data
+
+
+def _instances(rig):
+    """Every instance of ``rig`` and every opening factor of its kinds (unregistered kinds that the
+    closure adds where a drive starts)."""
+    out = list(registry.instances(rig))
+    return out + [registry.Instance(i.kind.opening, i.entry, i.kind.opening.block_name(i.entry))
+                  for i in out if i.kind.opening is not None]
+
+
 @pytest.fixture(scope="module")
 def rig():
-    data = yaml.safe_load((RIGS_DIR / "robotaxi.yaml").read_text())
+    data = _data()
     data["imu"]["update_rate"] = 1000  # fine IMU sampling: the bias Jacobians are O(dt) exact
     data["vehicle"]["T_V_B"] = {"translation_m": [1.3, 0.2, 0.5], "rpy_deg": [3.0, -2.0, 10.0]}
     data["sensors"][0]["T_B_S"] = {"translation_m": [0.3, -0.4, 1.1], "rpy_deg": [1.0, 4.0, -30.0]}
     return build_rig(data)
-
-
-_T = np.linspace(0.0, 6.0, 13)
-_PROFILE = ControlProfile(_T, 5 + 2 * np.sin(_T), 0.1 * np.cos(0.7 * _T), grade_rad=0.05 * np.sin(_T),
-                          bank_rad=0.04 * np.cos(1.3 * _T))
-
-
-@pytest.fixture(scope="module")
-def nom(rig):
-    return Nominal.of(drive(_PROFILE, rig.suspension), rig)
-
-
-def _fd(fun, n: int) -> np.ndarray:
-    cols = []
-    for k in range(n):
-        d = np.zeros(n)
-        d[k] = EPS
-        cols.append((fun(d) - fun(-d)) / (2 * EPS))
-    return np.stack(cols, axis=1)
-
-
-def _perturb(R, p, v, d):
-    return R @ so3.exp(d[0:3]), p + d[3:6], v + d[6:9]
-
-
-def _assert_close(analytic, numeric, rtol):
-    scale = max(np.abs(numeric).max(), 1e-12)
-    err = np.abs(analytic - numeric).max() / scale
-    assert err < rtol, f"relative error {err:.2e}\nanalytic\n{analytic}\nnumeric\n{numeric}"
 
 
 @pytest.fixture(scope="module")
@@ -68,110 +78,237 @@ def slow_rig(rig):
     return build_rig(data)
 
 
-@pytest.mark.parametrize("sensor_index, slow", [(0, False), (1, False), (0, True), (1, True)],
-                         ids=["lidar", "camera optical frame", "lidar at 5 Hz", "camera at 5 Hz"])
-def test_odometry_jacobian(rig, slow_rig, nom, sensor_index, slow):
-    """Every mounting (a lidar turned 30° in yaw, a monocular camera in its optical frame) and
-    every stride (sensor at the keyframe rate and at half of it): the compiled Jacobians equal
-    central differences of the nonlinear residual."""
-    if slow:
-        rig = slow_rig
-        nom = Nominal.of(drive(_PROFILE, rig.suspension), rig)
-    sensor = rig.config.sensors[sensor_index]
-    blk = odometry.blocks(nom, rig, sensor)
-    assert blk.stride == (2 if slow else 1)
-    f = 7
-    i, j = blk.first[f], blk.first[f] + blk.stride
-    R_BS, p_BS = sensor.T_B_S.R, sensor.T_B_S.p
-    st = lambda k, d: (*_perturb(nom.R[k], nom.p[k], nom.v[k], d), nom.omega[k])
-    zero = np.zeros(9)
-    Ri, pi = nom.R[i] @ R_BS, nom.p[i] + nom.R[i] @ p_BS
-    Rj, pj = nom.R[j] @ R_BS, nom.p[j] + nom.R[j] @ p_BS
-    meas = (Ri.T @ Rj, Ri.T @ (pj - pi))
-    sig = np.r_[np.full(3, np.deg2rad(sensor.noise.rotation_sigma_deg)), np.full(3, sensor.noise.translation_sigma_m)]
-
-    def r_x(d):
-        return odometry.residual(st(i, d[:9]), st(j, d[9:]), R_BS, p_BS, 0.0, 1.0, meas) / sig
-
-    _assert_close(blk.Jx[f], _fd(r_x, 18), 1e-6)
-
-    def r_t(d):
-        return odometry.residual(st(i, zero), st(j, zero), R_BS @ so3.exp(d[0:3]), p_BS + d[3:6], d[6], 1.0,
-                                 meas) / sig
-
-    cols = [rig.index(f"{sensor.name}.{c}") for c in ("rot_x", "rot_y", "rot_z", "trans_x", "trans_y", "trans_z",
-                                                      "time_offset")]
-    _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, cols], _fd(r_t, 7), 1e-6)
-    others = np.setdiff1d(np.arange(len(rig.coordinates)), cols + ([rig.index(f"{sensor.name}.scale")]
-                                                                   if sensor.monocular else []))
-    assert np.all(blk.Jt_full(len(rig.coordinates))[f][:, others] == 0)
+def _car_data(speeds: str = "mps") -> dict:
+    """The bundled sedan, its IMU and radars mounted with non-trivial rotations, a 2-D radar added."""
+    data = yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())
+    data["imu"]["update_rate"] = 1000
+    data["vehicle"]["T_V_B"] = {"translation_m": [1.3, 0.2, 0.5], "rpy_deg": [3.0, -2.0, 10.0]}
+    data["sensors"][0]["T_B_S"] = {"translation_m": [2.1, -0.3, 0.2], "rpy_deg": [2.0, -3.0, 25.0]}
+    data["sensors"].append({"name": "radar_corner", "kind": "radar", "rate_hz": 10, "dimensions": 2,
+                            "T_B_S": {"translation_m": [2.0, 0.8, 0.1], "rpy_deg": [1.0, 2.0, 60.0]},
+                            "noise": {"doppler_sigma_mps": 0.1, "stationary_targets": 4}})
+    data["ackermann"]["track_front_m"] = 1.61  # the two tracks apart
+    if speeds == "radps":
+        data["ackermann"].update(speeds="radps", radius_m=[0.33, 0.331, 0.332, 0.334], speed_noise_density=0.015,
+                                 speed_quantum=0.008)
+        data["targets"]["wheel.radius_*"] = "0.3 mm"
+        del data["targets"]["wheel.scale_*"]
+    return data
 
 
-def test_monocular_scale_jacobian(rig, nom):
-    cam = rig.config.sensors[1]
-    assert cam.monocular
-    blk = odometry.blocks(nom, rig, cam)
-    f = 5
-    i, j = blk.first[f], blk.first[f] + blk.stride
-    R_BS, p_BS = cam.T_B_S.R, cam.T_B_S.p
-    st = lambda k: (nom.R[k], nom.p[k], nom.v[k], nom.omega[k])
-    RSi, pSi = odometry.sensor_pose(*st(i), R_BS, p_BS, 0.0)
-    RSj, pSj = odometry.sensor_pose(*st(j), R_BS, p_BS, 0.0)
-    meas = (RSi.T @ RSj, RSi.T @ (pSj - pSi))
-    num = _fd(lambda d: odometry.residual(st(i), st(j), R_BS, p_BS, 0.0, 1.0 + d[0], meas), 1)[:, 0]
-    num /= np.r_[np.full(3, np.deg2rad(cam.noise.rotation_sigma_deg)), np.full(3, cam.noise.translation_sigma_m)]
-    _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, rig.index("cam_front.scale")], num, 1e-6)
+@pytest.fixture(scope="module")
+def car_rig():
+    return build_rig(_car_data())
 
 
-def test_imu_jacobian(rig, nom):
-    blk = imu.blocks(nom, rig)
+@pytest.fixture(scope="module")
+def slow_car_rig():
+    data = _car_data()
+    for s in data["sensors"]:
+        s["rate_hz"] = 5.0
+    return build_rig(data)
+
+
+@pytest.fixture(scope="module")
+def radps_car_rig():
+    return build_rig(_car_data("radps"))
+
+
+_T = np.linspace(0.0, 6.0, 13)
+_PROFILE = ControlProfile(_T, 5 + 2 * np.sin(_T), 0.1 * np.cos(0.7 * _T), grade_rad=0.05 * np.sin(_T),
+                          bank_rad=0.04 * np.cos(1.3 * _T))
+
+
+def _nominal(rig):
+    return Nominal.of(drive(_PROFILE, rig.suspension), rig)
+
+
+def _cases():
+    """(id, which rig, instance index) of every instance of the rigs."""
+    out = []
+    for base, which in ((build_rig(_data()), ""), (build_rig(_car_data()), "car")):
+        out += [(f"{i.name}", which or "rig", k) for k, i in enumerate(_instances(base))
+                if not which or i.kind.name in ("ackermann", "radar")]
+        out += [(f"{i.name} at 5 Hz", f"slow{which}", k) for k, i in enumerate(_instances(base))
+                if i.kind.sensor_kinds]
+    out += [("ackermann in rad/s", "radps", k) for k, i in enumerate(_instances(build_rig(_car_data("radps"))))
+            if i.kind.name == "ackermann"]
+    return out
+
+
+CASES = _cases()
+
+
+def _instance(request, rig, slow_rig, which, k):
+    r = {"rig": rig, "slow": slow_rig}.get(which) or request.getfixturevalue(
+        {"car": "car_rig", "slowcar": "slow_car_rig", "radps": "radps_car_rig"}[which])
+    return r, _instances(r)[k]
+
+
+def _assert_close(analytic, numeric, rtol):
+    scale = max(np.abs(numeric).max(), 1e-12)
+    err = np.abs(analytic - numeric).max() / scale
+    assert err < rtol, f"relative error {err:.2e}\nanalytic\n{analytic}\nnumeric\n{numeric}"
+
+
+def _factor_inputs(nom, rig, inst, f):
+    """The flat inputs of factor ``f`` of ``inst`` (see :mod:`excite.factors.symbolic`)."""
+    kind, entry = inst.kind, inst.entry
+    lay = symbolic.layout(kind, rig, entry)
+    first = kind.factor_keyframes(rig, entry, nom.n_keyframes)[f:f + 1]
+    return (lay, symbolic.keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry))[:, 0],
+            symbolic.sample_inputs(nom, first, lay)[:, 0], symbolic.quantity_inputs(lay))
+
+
+def _moved(x: np.ndarray, q: np.ndarray, lay, dx: np.ndarray, dq: np.ndarray):
+    """Inputs moved by a world-state step ``dx`` (exact: ``R Exp(δθ)``) and a coordinate step ``dq``."""
+    x, q = x.copy(), q.copy()
+    for a in range(lay.arity):
+        o = symbolic.KEYFRAME_INPUTS * a
+        d = dx[9 * a:9 * (a + 1)]
+        x[o:o + 9] = (x[o:o + 9].reshape(3, 3) @ so3.exp(d[0:3][None])[0]).ravel()
+        x[o + 9:o + 12] += d[3:6]
+        x[o + 12:o + 15] += d[6:9]
+    o = e = 0
+    for qt in lay.quantities:
+        size = qt.nominal_vector().size
+        if qt.estimated:
+            if qt.rotation:
+                q[o:o + 9] = (q[o:o + 9].reshape(3, 3) @ so3.exp(dq[e:e + 3][None])[0]).ravel()
+            else:
+                q[o:o + size] += dq[e:e + qt.size]
+            e += qt.size
+        o += size
+    return x, q
+
+
+@pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
+def test_the_derivative_of_the_residual_equals_finite_differences(request, rig, slow_rig, name, which, k):
+    r, inst = _instance(request, rig, slow_rig, which, k)
+    nom = _nominal(r)
+    f = min(5, inst.kind.factor_keyframes(r, inst.entry, nom.n_keyframes).size - 1)
+    lay, x, s, q = _factor_inputs(nom, r, inst, f)
+    Jx, Jt = (np.array(a) for a in symbolic.linearisation(inst.kind, r, inst.entry)(x, s, q))
+    meas = np.array(symbolic.measurement_function(inst.kind, r, inst.entry)(x, s, q)).ravel()
+    res = symbolic.residual_function(inst.kind, r, inst.entry)
+    n_x, n_t = 9 * lay.arity, lay.n_theta
+
+    def at(d):
+        xm, qm = _moved(x, q, lay, d[:n_x], d[n_x:])
+        return np.array(res(xm, s, qm, meas)).ravel()
+
+    cols = []
+    for i in range(n_x + n_t):
+        d = np.zeros(n_x + n_t)
+        d[i] = EPS
+        cols.append((at(d) - at(-d)) / (2 * EPS))
+    fd = np.stack(cols, axis=1)
+    _assert_close(Jx, fd[:, :n_x], 1e-6)
+    if n_t:
+        _assert_close(Jt, fd[:, n_x:], 1e-6)
+    assert np.abs(at(np.zeros(n_x + n_t))).max() < 1e-9  # zero at its own measurement
+
+
+@pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
+def test_the_compiled_kernel_equals_the_derivative_of_the_residual(request, rig, slow_rig, name, which, k):
+    r, inst = _instance(request, rig, slow_rig, which, k)
+    if not inst.kind.compiled:
+        pytest.skip(f"{inst.kind.name} has no compiled kernel: the evaluator uses the derivative itself")
+    nom = _nominal(r)
+    fast = inst.kind.blocks(nom, r, inst.entry)
+    ref = symbolic.blocks(inst.kind, nom, r, inst.entry)
+    assert np.array_equal(fast.first, ref.first) and fast.stride == ref.stride and fast.n_states == ref.n_states
+    P = len(r.coordinates)
+    _assert_close(fast.Jx, ref.Jx, 1e-9)
+    _assert_close(fast.Jt_full(P), ref.Jt_full(P), 1e-9)
+
+
+@pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
+def test_the_symmetries_a_kind_keeps_leave_its_residual_unchanged(request, rig, slow_rig, name, which, k):
+    """A kind that does not break translation sees positions through differences only (the
+    evaluator's local states rely on it); one that does not break yaw is invariant to a rotation
+    of the whole drive about the vertical."""
+    r, inst = _instance(request, rig, slow_rig, which, k)
+    nom = _nominal(r)
+    blk = symbolic.blocks(inst.kind, nom, r, inst.entry)
+    ks = blk.first[:, None] + blk.stride * np.arange(blk.n_states)[None, :]
+    Jx = blk.Jx.reshape(blk.n_factors, blk.n_rows, blk.n_states, 9)
+    scale = np.abs(Jx).max()
+    if "position" not in inst.kind.breaks:
+        assert np.abs(Jx[..., 3:6].sum(axis=2)).max() < 1e-9 * scale
+    if "yaw" not in inst.kind.breaks:
+        ez = np.array([0.0, 0.0, 1.0])
+        g = np.concatenate([np.einsum("nkji,j->nki", nom.R[ks], ez), np.cross(ez, nom.p[ks]), np.cross(ez, nom.v[ks])],
+                           axis=2)  # (N, states, 9): δθ = Rᵀe_z, δp = e_z × p, δv = e_z × v
+        assert np.abs(np.einsum("nrsc,nsc->nr", Jx, g)).max() < 1e-9 * scale * max(1.0, np.abs(nom.p).max())
+
+
+def test_every_registered_kind_is_covered(rig, car_rig):
+    covered = {i.kind.name for r in (rig, car_rig) for i in registry.instances(r)}
+    assert covered == {k.name for k in registry.kinds()}
+
+
+# --- the physics ------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def nom(rig):
+    return _nominal(rig)
+
+
+def test_the_preintegration_compiled_equals_its_statement(rig, nom):
     cfg = rig.config.imu
     pre = imu.preintegration(nom, cfg.gyroscope_noise_density, cfg.accelerometer_noise_density)
-    W = np.linalg.inv(np.linalg.cholesky(pre["cov"][0]))
-    f = 23
     n = nom.imu_per_keyframe
-    i, j = f, f + 1
-    dT = nom.t[1] - nom.t[0]
-    dt = dT / n
-    w_s = nom.imu_omega[i * n:(i + 1) * n]
-    f_s = nom.imu_f[i * n:(i + 1) * n]
-    meas = imu.preintegrate(w_s, f_s, dt, np.zeros(3), np.zeros(3))
+    f = 17
+    R = [ca.DM(nom.imu_R[f * n + s]) for s in range(n + 1)]
+    F = [ca.DM(nom.imu_f[f * n + s]) for s in range(n)]
+    sym = imu.preintegration_symbolic(R, F, 1.0 / cfg.update_rate, cfg.gyroscope_noise_density,
+                                      cfg.accelerometer_noise_density)
+    for key in ("G_R", "V_g", "V_a", "P_g", "P_a", "cov"):
+        _assert_close(pre[key][f], np.array(ca.evalf(sym[key])), 1e-9)
+
+
+def test_the_imu_bias_jacobian_is_the_derivative_of_preintegrating_again(rig, nom):
+    """The residual corrects the preintegrated measurement for the biases to first order; that is
+    the derivative of preintegrating the samples again with the biases subtracted (to O(ω·dt):
+    the Jacobians take the attitude at a sample's start, the measurement its middle)."""
+    inst = next(i for i in registry.instances(rig) if i.kind.name == "imu")
+    blk = inst.kind.blocks(nom, rig, inst.entry)
+    f, n = 23, nom.imu_per_keyframe
+    cfg = rig.config.imu
+    dt = 1.0 / cfg.update_rate
+    pre = imu.preintegration(nom, cfg.gyroscope_noise_density, cfg.accelerometer_noise_density)
     W = np.linalg.inv(np.linalg.cholesky(pre["cov"][f]))
-
-    def r_x(d):
-        return W @ imu.residual(*_perturb(nom.R[i], nom.p[i], nom.v[i], d[:9]),
-                                *_perturb(nom.R[j], nom.p[j], nom.v[j], d[9:]), meas, dT)
-
-    _assert_close(blk.Jx[f], _fd(r_x, 18), 1e-5)
+    w_s, f_s = nom.imu_omega[f * n:(f + 1) * n], nom.imu_f[f * n:(f + 1) * n]
+    ref = imu.preintegrate_all(w_s, f_s, n, dt, np.zeros(3), np.zeros(3))
 
     def r_b(d):
-        m = imu.preintegrate(w_s, f_s, dt, d[0:3], d[3:6])
-        return W @ imu.residual(nom.R[i], nom.p[i], nom.v[i], nom.R[j], nom.p[j], nom.v[j], m, dT)
+        m = imu.preintegrate_all(w_s, f_s, n, dt, d[0:3], d[3:6])
+        return W @ np.r_[so3.log(ref[0][0] @ m[0][0].T), ref[1][0] - m[1][0], ref[2][0] - m[2][0]]
 
+    fd = np.stack([(r_b(e) - r_b(-e)) / (2 * EPS) for e in np.eye(6) * EPS], axis=1)
     g0 = rig.index("imu.gyro_bias_x")
-    # the analytic bias Jacobian uses ΔR at the sample start: exact to O(ω·dt) (dt = 1 ms here)
-    _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, g0:g0 + 6], _fd(r_b, 6), 2e-3)
+    _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, g0:g0 + 6], fd, 2e-3)
 
 
 def test_imu_covariance_matches_monte_carlo(rig, nom):
     """The propagated covariance is the covariance of preintegrating noisy samples."""
     cfg = rig.config.imu
     f, n = 11, nom.imu_per_keyframe
-    dT = nom.t[1] - nom.t[0]
-    dt = dT / n
+    dt = 1.0 / cfg.update_rate
     w_s = nom.imu_omega[f * n:(f + 1) * n]
     f_s = nom.imu_f[f * n:(f + 1) * n]
     # inflate the noise so that the sample covariance is far above rounding, still linear regime
     sg, sa = 100 * cfg.gyroscope_noise_density, 100 * cfg.accelerometer_noise_density
-    ref = imu.preintegrate(w_s, f_s, dt, np.zeros(3), np.zeros(3))
     rng = np.random.default_rng(0)
-    errs = []
-    for _ in range(2000):
-        wn = w_s + rng.normal(0, sg / np.sqrt(dt), w_s.shape)
-        fn = f_s + rng.normal(0, sa / np.sqrt(dt), f_s.shape)
-        m = imu.preintegrate(wn, fn, dt, np.zeros(3), np.zeros(3))
-        errs.append(np.r_[so3.log(m[0] @ ref[0].T), m[1] - ref[1], m[2] - ref[2]])
-    emp = np.cov(np.array(errs).T)
+    M = 2000
+    wn = w_s[None] + rng.normal(0, sg / np.sqrt(dt), (M,) + w_s.shape)
+    fn = f_s[None] + rng.normal(0, sa / np.sqrt(dt), (M,) + f_s.shape)
+    ref = imu.preintegrate_all(w_s, f_s, n, dt, np.zeros(3), np.zeros(3))
+    m = imu.preintegrate_all(wn.reshape(-1, 3), fn.reshape(-1, 3), n, dt, np.zeros(3), np.zeros(3))
+    errs = np.hstack([so3.log(m[0] @ ref[0][0].T), m[1] - ref[1][0], m[2] - ref[2][0]])
+    emp = np.cov(errs.T)
     cov = imu.preintegration(nom, sg, sa)["cov"][f]
     d = np.sqrt(np.diag(cov))
     # correlation-normalised comparison; 2000 samples give ~3 % sampling error per entry
@@ -179,116 +316,52 @@ def test_imu_covariance_matches_monte_carlo(rig, nom):
     assert np.allclose(np.sqrt(np.diag(emp)), d, rtol=0.1)
 
 
-def test_wheel_jacobian(rig, nom):
-    blk = wheel.blocks(nom, rig)
-    wc = rig.config.wheels
-    f = 31
-    i, j = f, f + 1
-    R_BV = nom.R_V_B.T
-    p_BV = -R_BV @ nom.p_V_B
-    R_BA = R_BV @ nom.R_V_A
-
-    def r_x(d):
-        Ri, pi, _ = _perturb(nom.R[i], nom.p[i], nom.v[i], d[:9])
-        Rj, pj, _ = _perturb(nom.R[j], nom.p[j], nom.v[j], d[9:])
-        return wheel.increments(Ri, pi, Rj, pj, R_BA[i], R_BA[j], p_BV, wc.radius_left_m, wc.radius_right_m,
-                                wc.track_m) / rig.wheel_increment_sigma_rad
-
-    _assert_close(blk.Jx[f], _fd(r_x, 18), 1e-6)
-
-    def r_t(d):
-        return wheel.increments(nom.R[i], nom.p[i], nom.R[j], nom.p[j], R_BA[i], R_BA[j], p_BV,
-                                wc.radius_left_m + d[0], wc.radius_right_m + d[1], wc.track_m + d[2]) / rig.wheel_increment_sigma_rad
-
-    cols = [rig.index(f"wheel.{k}") for k in ("radius_left", "radius_right", "track")]
-    _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, cols], _fd(r_t, 3), 1e-6)
+def _measured(rig, nom, name):
+    inst = next(i for i in registry.instances(rig) if i.name == name)
+    first = inst.kind.factor_keyframes(rig, inst.entry, nom.n_keyframes)
+    return inst, symbolic.measurements(inst.kind, nom, rig, inst.entry, first)
 
 
 def test_wheel_increments_match_wheel_speeds(rig, nom):
     """The chord model's increments equal the integrated wheel speeds of the trajectory model."""
     wc = rig.config.wheels
-    R_BV = nom.R_V_B.T
-    p_BV = -R_BV @ nom.p_V_B
-    R_BA = R_BV @ nom.R_V_A
+    _, inc = _measured(rig, nom, "wheel")
     f = 40
-    inc = wheel.increments(nom.R[f], nom.p[f], nom.R[f + 1], nom.p[f + 1], R_BA[f], R_BA[f + 1], p_BV,
-                           wc.radius_left_m, wc.radius_right_m, wc.track_m)
-    # independent: integrate the wheel speeds of the vehicle-frame motion over the interval
-    from excite.motion.vehicle import ControlProfile as _  # noqa: F401  (same drive as the fixture)
     t = np.linspace(nom.t[f], nom.t[f + 1], 201)
-    ts = np.linspace(0.0, 6.0, 13)
-    prof = ControlProfile(ts, 5 + 2 * np.sin(ts), 0.1 * np.cos(0.7 * ts), grade_rad=0.05 * np.sin(ts),
-                          bank_rad=0.04 * np.cos(1.3 * ts))
-    s = drive(prof, rig.suspension).sample(t)
-    ws = s.wheel_speeds(wc.radius_left_m, wc.radius_right_m, wc.track_m)
-    integ = np.trapezoid(ws, t, axis=0)
-    assert np.allclose(inc, integ, rtol=2e-3), (inc, integ)
+    s = drive(_PROFILE, rig.suspension).sample(t)
+    integ = np.trapezoid(s.wheel_speeds(wc.radius_left_m, wc.radius_right_m, wc.track_m), t, axis=0)
+    assert np.allclose(inc[f], integ, rtol=2e-3), (inc[f], integ)
 
 
-def test_nonholonomic_jacobian(rig, nom):
-    blk = nonholonomic.blocks(nom, rig)
-    k = 19
-    R_BV = nom.R_V_B.T
-    p_BV = -R_BV @ nom.p_V_B
-    R_BA = R_BV @ nom.R_V_A[k]
-    sig = np.array(rig.nonholonomic_sigma_mps)
-
-    def r_x(d):
-        R, _, v = _perturb(nom.R[k], nom.p[k], nom.v[k], d)
-        return nonholonomic.residual(R, v, nom.omega[k], R_BA, p_BV) / sig
-
-    _assert_close(blk.Jx[k], _fd(r_x, 9), 1e-6)
-    # and the generated drive satisfies the constraint it linearises
-    assert np.abs(nonholonomic.residual(nom.R[k], nom.v[k], nom.omega[k], R_BA, p_BV)).max() < 1e-3
+def test_the_generated_drive_satisfies_the_nonholonomic_constraint(rig, nom):
+    _, v = _measured(rig, nom, "nonholonomic")
+    assert np.abs(v).max() < 1e-3
 
 
-def test_wheel_slip_column_is_the_derivative_of_the_slipping_wheels(rig, nom):
-    """``wheel.slip``: the angles times ``1 + slip·ā/g`` (the calibrator's nonlinear model),
-    differentiated at slip 0; and ā is the drive's mean longitudinal acceleration over the
-    interval (integrated independently from the drive's own acceleration)."""
-    from excite.validate.calibrate import States, wheel_increments
-
-    blk = wheel.blocks(nom, rig)
-    wc = rig.config.wheels
-    R_BV = nom.R_V_B.T
-    p_BV = -R_BV @ nom.p_V_B
-    R_BA = R_BV @ nom.R_V_A
-    dT = nom.t[1] - nom.t[0]
-    X = States(nom.R, nom.p, nom.v)
-
-    def r(d):
-        return wheel_increments(X, nom.omega, R_BA, p_BV, wc.radius_left_m, wc.radius_right_m, wc.track_m, d[0],
-                                dT) / rig.wheel_increment_sigma_rad
-
-    col = rig.index("wheel.slip")
-    fd = _fd(r, 1)[:, 0, :]  # (intervals, 2)
-    _assert_close(blk.Jt_full(len(rig.coordinates))[:, :, col], fd, 1e-6)
-    assert np.abs(fd).max() > 0.1  # the drive accelerates: the column is not zero
+def test_wheel_slip_column_is_the_drives_longitudinal_acceleration(rig, nom):
+    """``wheel.slip``: the angles times ``1 + slip·ā/g``; its column is ``inc · ā/g`` with ā the
+    drive's mean longitudinal acceleration over the interval (integrated independently from the
+    drive's own acceleration)."""
+    inst, inc = _measured(rig, nom, "wheel")
+    blk = inst.kind.blocks(nom, rig, inst.entry)
+    col = blk.Jt_full(len(rig.coordinates))[:, :, rig.index("wheel.slip")] * wheel.increment_sigma_rad(
+        rig.config.wheels, rig.keyframe_rate_hz)
     f = 31
     t = np.linspace(nom.t[f], nom.t[f + 1], 201)
-    a_long = drive(_PROFILE, rig.suspension).sample(t).accel_long
-    along = wheel.longitudinal_accel_g(nom.R @ R_BA, wheel.axle_velocity(nom.R, nom.v, nom.omega, p_BV), dT)
-    assert along[f] * wheel.G_MPS2 == pytest.approx(np.trapezoid(a_long, t) / dT, rel=1e-3)
+    a_long = np.trapezoid(drive(_PROFILE, rig.suspension).sample(t).accel_long, t) / (t[-1] - t[0])
+    assert np.abs(col).max() > 0.1 * wheel.increment_sigma_rad(rig.config.wheels, rig.keyframe_rate_hz)
+    _assert_close(col[f], inc[f] * a_long / wheel.G_MPS2, 2e-3)
 
 
-def test_slip_angle_column_is_the_derivative_of_the_sliding_axle(rig, nom):
-    """``vehicle.slip_angle``: the lateral row plus ``slip_angle·u·(u·ψ̇)/g`` (the nonlinear model),
-    differentiated at zero; and ``u·ψ̇`` is the drive's lateral acceleration (no sideways slide in
-    the generated drive, so the centripetal part is all of it, up to grade and bank)."""
-    blk = nonholonomic.blocks(nom, rig)
-    R_BV = nom.R_V_B.T
-    p_BV = -R_BV @ nom.p_V_B
-    sig = np.array(rig.nonholonomic_sigma_mps)
-    col = rig.index("vehicle.slip_angle")
-    Jt = blk.Jt_full(len(rig.coordinates))[:, :, col]
-    for k in (7, 19, 44):
-        R_BA = R_BV @ nom.R_V_A[k]
-        fd = _fd(lambda d: nonholonomic.residual(nom.R[k], nom.v[k], nom.omega[k], R_BA, p_BV, d[0]) / sig, 1)
-        _assert_close(Jt[k], fd[:, 0], 1e-6)
+def test_slip_angle_column_is_the_drives_lateral_acceleration(rig, nom):
+    """``vehicle.slip_angle``: the lateral row plus ``slip_angle·u·(u·ψ̇)/g``; ``u·ψ̇`` is the
+    drive's lateral acceleration (no sideways slide in the generated drive, so the centripetal part
+    is all of it, up to grade and bank)."""
+    inst = next(i for i in registry.instances(rig) if i.name == "nonholonomic")
+    blk = inst.kind.blocks(nom, rig, inst.entry)
+    lat, _ = sigma_mps(rig.config.vehicle.nonholonomic, rig.keyframe_rate_hz)
+    Jt = blk.Jt_full(len(rig.coordinates))[:, :, rig.index("vehicle.slip_angle")]
     s = drive(_PROFILE, rig.suspension).sample(nom.t)
-    u = s.speed
-    R_BA = R_BV @ nom.R_V_A
-    reg = nonholonomic.lateral_slip_regressor(nom.R @ R_BA, wheel.axle_velocity(nom.R, nom.v, nom.omega, p_BV),
-                                              nom.omega, R_BA)
     assert np.abs(Jt[:, 1]).max() == 0.0  # the vertical row does not slide
-    assert np.abs(reg * wheel.G_MPS2 / u - s.accel_lat).max() < 0.05 * np.abs(s.accel_lat).max() + 0.02
+    a_lat = Jt[:, 0] * lat * wheel.G_MPS2 / s.speed
+    assert np.abs(a_lat - s.accel_lat).max() < 0.05 * np.abs(s.accel_lat).max() + 0.02

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 import excite.cli.live  # registers `excite live` on the app
 import excite.cli.score  # noqa: F401  (and `excite score`)
-from excite import information
+from excite.information import dense, elimination, problem
 from excite.score import live
 from excite.motion import maneuvers, vehicle
 from excite.cli.app import app
@@ -47,7 +47,7 @@ sensors:
     kind: lidar
     rate_hz: 10
     T_B_S: {translation_m: [0.10, 0.00, 1.20], rpy_deg: [0, 0, 0]}
-    noise: {rotation_sigma_deg: 0.05, translation_sigma_m: 0.02}
+    noise: {rotation_density_deg_per_sqrt_s: 0.15811388300841897, translation_density_m_per_sqrt_s: 0.06324555320336758}
     estimate: {extrinsic: true, time_offset: true}
 wheels:
   radius_left_m: 0.34
@@ -92,11 +92,11 @@ def test_rig(tmp_path_factory):
 
 def _batch_prefix(traj, rig, k1: int):
     """The batch evaluator's report of keyframes 0..k1 of ``traj`` taken as a whole drive: its
-    whole linearised problem (:func:`information.build`, which closes a drive at its last
-    keyframe itself) and :func:`information.marginal`."""
-    prob = information.build(Nominal.of(traj, rig, keyframes=(0, k1)), rig)
-    drive = information.DriveInformation(information.marginal(prob), information.theta_diagonal(prob),
-                                         information.columns(rig, 1)[1], k1 + 1, k1 / rig.keyframe_rate_hz,
+    whole linearised problem (:func:`problem.build`, which closes a drive at its last
+    keyframe itself) and :func:`elimination.marginal`."""
+    prob = problem.build(Nominal.of(traj, rig, keyframes=(0, k1)), rig)
+    drive = elimination.DriveInformation(elimination.marginal(prob), elimination.theta_diagonal(prob),
+                                         problem.columns(rig, 1)[1], k1 + 1, k1 / rig.keyframe_rate_hz,
                                          0.0, {})
     return report_of(drive, rig, route="prefix")
 
@@ -107,11 +107,11 @@ def _batch_prefix(traj, rig, k1: int):
 U = 2.0 ** -53  # unit round-off of float64
 
 
-def _roundoff_amplification(prob: information.Problem) -> tuple[np.ndarray, np.ndarray, int]:
+def _roundoff_amplification(prob: problem.Problem) -> tuple[np.ndarray, np.ndarray, int]:
     """Per parameter column j of ``prob``: κ_j (see the test below), σ_j from a sparse LU solution
     of the whole ``H = JᵀJ`` (SuperLU and numpy, none of excite's elimination), and m, the most
     nonzeros in a trajectory column of H (the longest inner product of its elimination)."""
-    J, _ = information.jacobian(prob)
+    J, _ = dense.jacobian(prob)
     H = (J.T @ J).tocsc()
     nx = prob.n_states
     Hxt = H[:nx, nx:].toarray()
@@ -168,9 +168,9 @@ def test_incremental_equals_batch_on_kitti_00(kitti, kitti_report):
     assert rep.n_keyframes == kitti_report.n_keyframes
     assert _rel(rep.length_m, kitti_report.length_m) < 1e-12
 
-    prob = information.build(Nominal.of(traj, rig), rig)
+    prob = problem.build(Nominal.of(traj, rig), rig)
     kappa, sigma_lu, m = _roundoff_amplification(prob)
-    names, nuisance = information.columns(rig, 1)
+    names, nuisance = problem.columns(rig, 1)
     kappa, sigma_lu = kappa[~nuisance], sigma_lu[~nuisance]
     C = 3 * np.sqrt(2) / 2 * np.sqrt(m)
     print(f"\nKITTI 00 round-off: m = {m}, C = {C:.1f}, u = 2^-53; |Δσ/σ| and bound per parameter")
@@ -199,7 +199,7 @@ def test_every_prefix_closes_like_a_whole_drive(test_rig):
         if inc.n_keyframes - 1 in (20, 220, 520):
             k1 = inc.n_keyframes - 1
             Lam = inc.information().information
-            ref = information.marginal(information.build(Nominal.of(traj, rig, keyframes=(0, k1)), rig))
+            ref = elimination.marginal(problem.build(Nominal.of(traj, rig, keyframes=(0, k1)), rig))
             assert np.abs(Lam - ref).max() <= 1e-9 * np.abs(ref).max()
             seen += 1
     assert seen == 3
@@ -478,7 +478,7 @@ def test_websocket_kitti_00_ends_with_excite_score(ws_client, kitti, kitti_repor
     final update is `excite score` of the same rows, and the drive's σ are KITTI 00's."""
     from scipy.spatial.transform import Rotation
 
-    from excite.io.routes import R_CAM_VEH
+    from excite.io.poses import R_CAM_VEH
 
     poses, times = kitti
     T = np.loadtxt(poses).reshape(-1, 3, 4)

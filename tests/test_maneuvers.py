@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from excite.motion import maneuvers
-from excite.io import routes
+from excite.io import references, routes
 from excite.errors import LimitError
 from excite.motion.maneuvers import REFERENCE_MANEUVERS, Lot
 from excite.motion.vehicle import Limits, Suspension, check_limits, drive
@@ -94,12 +94,12 @@ def _table(path: Path) -> np.ndarray:
 
 
 def test_committed_reference_files_are_regenerated(tmp_path):
-    """The files in trajectories/ equal what ``python -m excite.motion.maneuvers --write`` makes."""
-    written = maneuvers.write_reference_files(tmp_path)
+    """The files in trajectories/ equal what ``python -m excite.io.references --write`` makes."""
+    written = references.write_reference_files(tmp_path)
     assert len(written) == 2 * len(REFERENCE_MANEUVERS)
     for path in written:
         committed = TRAJECTORIES / path.name
-        assert committed.exists(), f"{committed} missing: run python -m excite.motion.maneuvers --write trajectories/"
+        assert committed.exists(), f"{committed} missing: run python -m excite.io.references --write trajectories/"
         # the header too: the TUM files stand for logs, unmarked (read_tum smooths them as logs)
         assert path.read_text().splitlines()[0] == committed.read_text().splitlines()[0], path.name
         new, old = _table(path), _table(committed)

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from excite import information
+from excite.information import elimination
 from excite.fleet import mine
 from excite.io.bags import read_bag_route, write_bag
 from excite.cli.app import main
@@ -44,7 +44,7 @@ def test_window_information_is_the_evaluators_on_the_crop(short_drive, L):
     for i in sorted({0, min(5, Lam.shape[0] - 1), Lam.shape[0] - 1}):
         a, b = s.time(int(s.edges[i])), s.time(int(s.edges[i + L]))
         crop = traj.cropped(a, b)
-        ref = information.drive_information([crop], RIG)
+        ref = elimination.drive_information([crop], RIG)
         assert ref.n_keyframes == s.edges[i + L] - s.edges[i] + 1
         scale = np.abs(ref.information).max()
         np.testing.assert_allclose(Lam[i], ref.information, rtol=0, atol=1e-9 * scale)

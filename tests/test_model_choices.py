@@ -10,6 +10,9 @@ import numpy as np
 
 import pytest
 
+from excite.factors.nonholonomic import sigma_mps
+from excite.factors.wheel import increment_sigma_rad
+
 from excite.errors import RigError
 from excite.score.evaluate import evaluate
 from excite.rig.config import build_rig, load_rig
@@ -51,8 +54,9 @@ def test_wheel_and_slip_noise_are_densities(rig):
     velocity: their information per second is the same at every keyframe rate."""
     for kf in (10, 20, 40):
         r = rig.with_config(keyframe_rate_hz=kf)
-        assert r.wheel_increment_sigma_rad ** 2 * kf == pytest.approx(rig.config.wheels.noise_density ** 2)
-        lat, vert = r.nonholonomic_sigma_mps
+        assert increment_sigma_rad(r.config.wheels, r.keyframe_rate_hz) ** 2 * kf == pytest.approx(
+            rig.config.wheels.noise_density ** 2)
+        lat, vert = sigma_mps(r.config.vehicle.nonholonomic, r.keyframe_rate_hz)
         nh = rig.config.vehicle.nonholonomic
         assert lat ** 2 / kf == pytest.approx(nh.lateral_noise_density ** 2)
         assert vert ** 2 / kf == pytest.approx(nh.vertical_noise_density ** 2)
@@ -137,8 +141,8 @@ def test_each_drive_has_its_own_monocular_scale(rig):
     """Drives share the calibration and nothing else: the information of two drives scored together
     is the sum of each drive's own (its monocular scale marginalised on its own). A scale shared by
     the two drives would claim more: the difference is what sharing it wrongly adds."""
-    from excite import information
-    from excite.score.evaluate import _marginalise_nuisance
+    from excite.information import elimination
+    from excite.information.closure import marginalise_nuisance
 
     rig = rig.with_constant_biases()  # the scale alone (drifting biases are each drive's own too: below)
     a = read_route("trajectories/figure_eight_control.csv", suspension=rig.suspension)
@@ -151,8 +155,8 @@ def test_each_drive_has_its_own_monocular_scale(rig):
     assert "cam_front.scale" in names and "cam_front.scale@0" in names
 
     scored = np.array([not c.nuisance for c in rig.coordinates])
-    shared = _marginalise_nuisance(information.drive_information([a], rig).information
-                                   + information.drive_information([b], rig).information, scored)
+    shared = marginalise_nuisance(elimination.drive_information([a], rig).information
+                                   + elimination.drive_information([b], rig).information, scored)
     i = [c.name for c in rig.scored].index("cam_front.trans_y")
     assert shared[i, i] > 1.1 * both.information[i, i]  # a shared scale overstates the lever arm (1.19× here)
 
@@ -217,13 +221,13 @@ def test_each_drive_has_its_own_drifting_biases(rig):
     """With random-walk biases every recording has its own bias process; the scored bias is the
     one at the end of the last drive. So two drives scored together = the first drive with its
     biases (and scale) marginalised + the last drive's own information."""
-    from excite.score.evaluate import _marginalise_nuisance
+    from excite.information.closure import marginalise_nuisance
 
     a = read_route("trajectories/figure_eight_control.csv", suspension=rig.suspension)
     b = read_route("trajectories/stop_and_go_control.csv", suspension=rig.suspension)
     both, ra, rb = evaluate([a, b], rig), evaluate(a, rig), evaluate(b, rig)
     keep = np.array([not c.name.startswith("imu.") for c in rig.scored])
-    first = _marginalise_nuisance(ra.information, keep)  # drive a's biases are its own nuisances
+    first = marginalise_nuisance(ra.information, keep)  # drive a's biases are its own nuisances
     expected = rb.information.copy()
     expected[np.ix_(keep, keep)] += first
     np.testing.assert_allclose(both.information, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())

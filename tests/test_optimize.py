@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import excite.plan as opt
-from excite import information
+from excite.information import elimination, problem
 from excite.errors import ExciteError
 from excite.score.evaluate import evaluate
 from excite.factors.base import Nominal
@@ -102,7 +102,7 @@ def test_casadi_information_equals_the_evaluator(rig, coarse, kind):
     K, args = _samples(traj, coarse)
     model = build_model(coarse, K)
     Lam = np.array(model.marginal(*args))
-    ref = information.marginal(information.build(Nominal.of(traj, coarse), coarse))
+    ref = elimination.marginal(problem.build(Nominal.of(traj, coarse), coarse))
     assert np.abs(Lam - ref).max() <= 1e-6 * np.abs(ref).max()
     M = np.array(model.scaled(*args))
     rep = evaluate(traj, coarse)

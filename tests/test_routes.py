@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excite.io import routes
+from excite.io import poses, routes
 from excite.cli.app import main
 from excite.errors import RouteError
 from excite.motion.vehicle import Limits, check_limits, drive
@@ -235,7 +235,7 @@ def test_smoothing_spline_is_scipys_without_the_per_point_loop(lam):
     rng = np.random.default_rng(7)
     x = np.cumsum(rng.uniform(0.02, 0.2, 400))
     y = np.c_[np.sin(x), np.cos(3 * x), 0.1 * x] + 0.01 * rng.normal(size=(400, 3))
-    ref, ours = make_smoothing_spline(x, y, lam=lam), routes.smoothing_spline(x, y, lam)
+    ref, ours = make_smoothing_spline(x, y, lam=lam), poses.smoothing_spline(x, y, lam)
     g = np.linspace(x[0], x[-1], 5000)
     scale = np.abs(y).max()
     assert np.abs(ours(g) - ref(g)).max() < 1e-9 * scale
@@ -318,3 +318,19 @@ def test_motion_no_car_makes_is_warned_about(tmp_path, data_dir, capsys):
     for route in sorted((ROOT / "trajectories").glob("*_control.csv")) + sorted((ROOT / "trajectories").glob("*.tum")):
         assert implausible(routes.read_route(route)) == [], route.name
     assert implausible(routes.read_kitti(data_dir / "kitti_00_poses.txt", data_dir / "kitti_00_times.txt")) == []
+
+
+@pytest.mark.parametrize("name", ["figure_eight.tum", "figure_eight_control.csv", "slalom.tum"])
+def test_a_route_held_in_memory_reads_as_its_file(name):
+    """Readers take the text itself (a service parses what it holds, no temporary file): the same
+    trajectory as from the file, bit for bit, and errors name the text's name."""
+    path = Path(__file__).resolve().parents[1] / "trajectories" / name
+    a = routes.read_route(path)
+    for content in (path.read_text(), path.read_bytes()):
+        b = routes.read_route(routes.Text(content, name))
+        t = a.times(20.0)
+        assert np.array_equal(a.sample(t).p_W_V, b.sample(t).p_W_V)
+    with pytest.raises(RouteError, match=r"^mine\.tum, line 2: expected 8 columns"):
+        routes.read_route(routes.Text("0 0 0 0 0 0 0 1\n1 2 3\n", "mine.tum"))
+    with pytest.raises(RouteError, match=r"^x\.tum: not a text file"):
+        routes.read_route(routes.Text(b"\xff\xfe\x00", "x.tum"))

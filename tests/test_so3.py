@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from excite.core import kernels, so3
+from excite.motion import kernels as motion_kernels
 from excite.motion.vehicle import ControlProfile, drive
 
 
@@ -29,7 +30,7 @@ def _spline_rotation(p0, p1, p2, t):
     c = np.zeros((4, 1, 3))
     c[1, 0], c[2, 0], c[3, 0] = p2, p1, p0
     t = np.asarray(t, dtype=float)
-    return kernels.rotation_samples(t, np.zeros(t.size, dtype=np.int64), np.array([0.0, 1.0]), c, np.eye(3)[None])
+    return motion_kernels.rotation_samples(t, np.zeros(t.size, dtype=np.int64), np.array([0.0, 1.0]), c, np.eye(3)[None])
 
 
 @pytest.mark.parametrize("scale", [1e-6, 5e-3, 0.02, 1.0])

@@ -97,7 +97,7 @@ def test_segment_index_equals_a_binary_search():
     """The compiled segment lookup (a walk along the breaks while the times increase) gives
     numpy's binary search, clipped to the segments, for increasing, decreasing and random times,
     times on the breaks and times outside them."""
-    from excite.core import kernels
+    from excite.motion import kernels
 
     rng = np.random.default_rng(3)
     for trial in range(60):

@@ -186,8 +186,8 @@ def test_drop_a_route_file_on_the_score_form(page):
         window.__over = zone.classList.contains("over");
         zone.dispatchEvent(new DragEvent("drop", {dataTransfer: dt, bubbles: true, cancelable: true}));
     }""", FIGURE_EIGHT.read_text())
-    assert page.evaluate("window.__over") and not page.locator("#drop.over").count()
-    assert page.evaluate("document.querySelector('#route-file').files[0].name") == "figure_eight.tum"
+    assert page.evaluate("() => window.__over") and not page.locator("#drop.over").count()
+    assert page.evaluate("() => document.querySelector('#route-file').files[0].name") == "figure_eight.tum"
     page.click("#score-button")
     page.wait_for_selector("#score-value")
     assert float(page.inner_text("#score-value")) == pytest.approx(_library_report().score, rel=1e-3)
@@ -311,7 +311,7 @@ def test_plan_in_a_geojson_lot_with_a_hole_and_a_ramp(page, shots, server, tmp_p
     garbage.write_text("{not json")
     page.set_input_files("#plan-lot-file", str(garbage))
     page.click("#plan-button")
-    page.wait_for_function("document.querySelector('#plan-lot-file-error').textContent.includes('not JSON')")
+    page.wait_for_function("() => document.querySelector('#plan-lot-file-error').textContent.includes('not JSON')")
 
     good = tmp_path / "l_lot.geojson"
     good.write_text(json.dumps(l_lot(ramp=True)))
@@ -346,9 +346,9 @@ def test_cancel_a_running_job(page):
     page.fill("#plan-duration_s", "60")
     page.fill("#plan-time_budget_s", "30")
     page.click("#plan-button")
-    page.wait_for_function("document.querySelector('#job-status').textContent.startsWith('running')")
+    page.wait_for_function("() => document.querySelector('#job-status').textContent.startsWith('running')")
     page.click("#cancel-button")
-    page.wait_for_function("document.querySelector('#job-status').textContent === 'cancelled'", timeout=60_000)
+    page.wait_for_function("() => document.querySelector('#job-status').textContent === 'cancelled'", timeout=60_000)
     assert page.is_disabled("#cancel-button") and page.is_enabled("#plan-button")
     assert page.console.errors == []
 
@@ -374,7 +374,7 @@ def test_live_view_replays_a_drive_to_the_websocket(page, shots):
     page.click("#tab-live")
     page.select_option("#live-speed", "10")  # 9 s of streaming: the first update comes ~1 s in
     page.click("#live-start")
-    page.wait_for_function("Number(document.querySelector('#live-result').dataset.updates) >= 1", timeout=60_000)
+    page.wait_for_function("() => Number(document.querySelector('#live-result').dataset.updates) >= 1", timeout=60_000)
     # an update before the final one (under load the service may still be catching up after the last pose)
     assert page.locator("#live-result").get_attribute("data-phase") in ("streaming", "ending")
     early = page.locator("#live-params tbody progress").evaluate_all("bs => bs.map(b => b.value)")

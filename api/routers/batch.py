@@ -6,6 +6,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from ..auth import Scorer
 from ..context import Ctx
 from ..errors import ProblemError
 from ..schemas import BatchRequest, BatchResponse
@@ -16,7 +17,7 @@ router = APIRouter(prefix="/v1", tags=["batch"])
 
 @router.post("/batch", response_model=BatchResponse, responses=SCORED,
              summary="Score many routes with one rig (a CI gate's call)")
-def batch(body: BatchRequest, ctx: Ctx) -> Any:
+def batch(body: BatchRequest, ctx: Ctx, who: Scorer) -> Any:
     """Each route gets its report, or a problem naming its field (``routes[3].text``); one bad
     route does not fail the others. ``summary.passed`` counts reports whose every parameter meets
     its target."""

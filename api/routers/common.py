@@ -10,15 +10,19 @@ from ..schemas import Problem
 
 def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
     text = {400: "The body cannot be parsed (not UTF-8 JSON)", 404: "Unknown resource",
+            401: "No API key, or not one of this server's (servers with keys only)",
+            403: "The key lacks the scope, or a browser request from another site",
             408: "The body did not arrive in time (slow client)", 409: "Conflict with the resource's state",
             413: "Body, route or batch too large (the bound is in the detail)",
             422: "Invalid input (the offending field is named in `errors`)",
-            429: "The scoring workers are too busy to finish this in time: retry after `Retry-After` seconds",
+            429: "Over a quota of the key, or the workers are too busy to finish this in time: retry "
+                 "after `Retry-After` seconds",
             500: "Internal error (no details; logged server-side)",
             503: "Time limit exceeded or not ready"}
     return {s: {"model": Problem, "description": text[s], "content": {PROBLEM_JSON: {}}}
             for s in statuses}
 
 
-BODY = problems(400, 408, 413, 422, 500, 503)
-SCORED = problems(400, 408, 413, 422, 429, 500, 503)  # operations that need a scoring worker
+AUTH = problems(401, 403, 429)  # every operation of a server with API keys
+BODY = problems(400, 401, 403, 408, 413, 422, 429, 500, 503)
+SCORED = BODY  # operations that need a scoring worker

@@ -1,17 +1,29 @@
 """Probes and metrics: ``/healthz`` (the process answers), ``/readyz`` (it can do work),
-``/metrics`` (Prometheus text)."""
+``/metrics`` (Prometheus text; who may read it is ``EXCITE_METRICS``).
+
+``/readyz`` is not ready while the job store does not answer or the dispatcher's last use of it
+failed, while the disk of the job database or of the temporary folder has less than
+``EXCITE_MIN_FREE_MB`` free, or while the scoring workers start. ``/metrics`` never fails: a
+store that does not answer is ``excite_store_up 0`` and its job counts are left out.
+"""
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
+from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, FastAPI, Security
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from ..context import Ctx
+from ..auth import authorize
+from ..context import Ctx, Context
 from ..errors import ProblemError
 from ..schemas import Health
+from ..store import SqliteStore
 from .common import problems
 
 router = APIRouter(tags=["health"])
@@ -22,28 +34,80 @@ async def healthz() -> Any:
     return {"status": "ok"}
 
 
-@router.get("/readyz", response_model=Health, responses=problems(503), summary="Readiness")
-def readyz(ctx: Ctx) -> Any:
-    """Ready when the job store answers, the scoring workers are up and jobs are dispatched."""
+def free_mb(path: Path) -> float:
+    """Free space [MiB] on the disk that holds ``path`` (or its nearest existing parent)."""
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return shutil.disk_usage(path).free / 2**20
+
+
+def unready(ctx: Context) -> str | None:
+    """Why the server cannot do its work now, or None."""
     try:
         ctx.store.ping()
-    except Exception:
-        raise ProblemError(503, "the job store does not answer") from None
+    except Exception as exc:
+        return f"the job store does not answer ({type(exc).__name__})"
+    if ctx.runner.fault is not None:
+        return "the job store failed the dispatcher's last use of it (the fault is logged)"
+    need = ctx.settings.min_free_mb
+    folders = [Path(tempfile.gettempdir())]
+    if isinstance(ctx.store, SqliteStore):
+        folders.insert(0, ctx.store.path.parent)
+    for folder in folders:
+        try:
+            left = free_mb(folder)
+        except OSError:
+            return f"cannot tell the free space of {folder}"
+        if left < need:
+            which = "job database's" if folder is not folders[-1] else "temporary folder's"
+            return f"the {which} disk has {left:.0f} MiB free, under EXCITE_MIN_FREE_MB ({need})"
+        if not os.access(folder, os.W_OK):
+            return f"the {folder} folder is not writable"
     if not ctx.pool.ready:
-        raise ProblemError(503, "the scoring workers are starting")
+        return "the scoring workers are starting"
     if ctx.settings.workers and not ctx.runner.alive:
-        raise ProblemError(503, "the job dispatcher is not running")
-    return {"status": "ready", "detail": {"score_workers": ctx.settings.score_workers,
-                                          "job_workers": ctx.settings.workers,
-                                          "jobs_running": ctx.runner.running}}
+        return "the job dispatcher is not running"
+    return None
 
 
-@router.get("/metrics", response_class=Response, summary="Prometheus metrics",
-            responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}},
-                             "description": "Prometheus text exposition format"}})
-def metrics(ctx: Ctx) -> Response:
-    gauge = ctx.jobs_gauge
-    counts = ctx.store.counts()
-    for status in ("queued", "running", "succeeded", "failed", "cancelled"):
-        gauge.labels(status).set(counts.get(status, 0))
-    return Response(generate_latest(ctx.registry), media_type=CONTENT_TYPE_LATEST)
+@router.get("/readyz", response_model=Health, responses=problems(503), summary="Readiness")
+def readyz(ctx: Ctx) -> Any:
+    """Ready when the job store answers, there is disk space, the scoring workers are up and
+    jobs are dispatched."""
+    why = unready(ctx)
+    if why is not None:
+        raise ProblemError(503, why, headers={"Retry-After": "5"})
+    detail = {} if ctx.keys is not None else {
+        "score_workers": ctx.settings.score_workers, "job_workers": ctx.settings.workers,
+        "jobs_running": ctx.runner.running}
+    return {"status": "ready", "detail": detail}
+
+
+def metrics_text(ctx: Context) -> bytes:
+    """The registry's text; the store's state and job counts as far as the store answers."""
+    up = ctx.store_up
+    try:
+        counts = ctx.store.counts()
+    except Exception:
+        up.set(0)
+    else:
+        up.set(1)
+        for status in ("queued", "running", "succeeded", "failed", "cancelled"):
+            ctx.jobs_gauge.labels(status).set(counts.get(status, 0))
+    return generate_latest(ctx.registry)
+
+
+def add_metrics(app: FastAPI, access: str) -> None:
+    """``GET /metrics`` for everyone (``public``), admin keys (``admin``) or no one (``off``)."""
+    if access == "off":
+        return
+
+    def metrics(ctx: Ctx) -> Response:
+        return Response(metrics_text(ctx), media_type=CONTENT_TYPE_LATEST)
+
+    app.add_api_route("/metrics", metrics, methods=["GET"], response_class=Response, tags=["health"],
+                      summary="Prometheus metrics",
+                      dependencies=[Security(authorize, scopes=["admin"])] if access == "admin" else [],
+                      responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}},
+                                       "description": "Prometheus text exposition format"},
+                                 **(problems(401, 403, 429) if access == "admin" else {})})

@@ -6,6 +6,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Response
 
+from ..auth import Planner
 from ..context import Ctx
 from ..export import MEDIA, maneuver_file
 from ..errors import ProblemError
@@ -33,26 +34,28 @@ def job_view(job: dict[str, Any]) -> dict[str, Any]:
             "error": job["error"], "links": links}
 
 
-def _get(ctx: Ctx, job_id: str) -> dict[str, Any]:
-    job = ctx.store.get(job_id)
+def _get(ctx: Ctx, job_id: str, who: Any) -> dict[str, Any]:
+    """The job, if ``who`` may see it (its key's, or any for admin): another key's is a 404,
+    as if it did not exist."""
+    job = ctx.store.get(job_id, key_id=who.job_filter)
     if job is None:
         raise ProblemError(404, f"no job with id {job_id!r}")
     return job
 
 
-@router.get("/jobs/{job_id}", response_model=Job, responses=problems(404, 422, 500),
+@router.get("/jobs/{job_id}", response_model=Job, responses=problems(401, 403, 404, 422, 429, 500, 503),
             summary="A job: status, progress (iteration, current score), result when done")
-def get_job(job_id: JobId, ctx: Ctx) -> Any:
-    return job_view(_get(ctx, job_id))
+def get_job(job_id: JobId, ctx: Ctx, who: Planner) -> Any:
+    return job_view(_get(ctx, job_id, who))
 
 
-@router.delete("/jobs/{job_id}", response_model=Job, responses=problems(404, 409, 422, 500),
+@router.delete("/jobs/{job_id}", response_model=Job, responses=problems(401, 403, 404, 409, 422, 429, 500, 503),
                summary="Cancel a job",
                description="A queued job is cancelled at once (200). A running job is asked to "
                            "stop (202): it finishes as `cancelled`, with the best maneuver so far "
                            "when the optimizer has one. A finished job cannot be cancelled (409).")
-def cancel_job(job_id: JobId, ctx: Ctx, response: Response) -> Any:
-    status = ctx.store.cancel(job_id)
+def cancel_job(job_id: JobId, ctx: Ctx, response: Response, who: Planner) -> Any:
+    status = ctx.store.cancel(job_id, key_id=who.job_filter)
     if status is None:
         raise ProblemError(404, f"no job with id {job_id!r}")
     if status in ("succeeded", "failed"):
@@ -60,26 +63,26 @@ def cancel_job(job_id: JobId, ctx: Ctx, response: Response) -> Any:
     if status == "running":
         response.status_code = 202
         ctx.runner.wake()
-    return job_view(_get(ctx, job_id))
+    return job_view(_get(ctx, job_id, who))
 
 
 @router.get("/jobs/{job_id}/maneuver", response_class=Response,
             responses={200: {"description": "The maneuver file",
                              "content": {m: {"schema": {"type": "string"}} for m in sorted(set(MEDIA.values()))}},
-                       **problems(404, 409, 422, 500)},
+                       **problems(401, 403, 404, 409, 422, 429, 500, 503)},
             summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON")
-def download_maneuver(job_id: JobId, ctx: Ctx,
+def download_maneuver(job_id: JobId, ctx: Ctx, who: Planner,
                       format: Annotated[Literal["tum", "csv", "control", "geojson"], Query(
                           description="tum: poses of V; csv: waypoints x,y,z,speed; control: "
                                       "t,speed,curvature CSV; geojson: WGS84 LineString")] = "tum",
                       lon_deg: Annotated[float | None, Query(ge=-180, le=180)] = None,
                       lat_deg: Annotated[float | None, Query(ge=-85, le=85)] = None) -> Response:
     """GeoJSON needs the lot's origin: from the request's ``origin`` or ``lon_deg``/``lat_deg``."""
-    job = _get(ctx, job_id)
+    job = _get(ctx, job_id, who)
     result = job["result"]
     if result is None or result.get("profile") is None:
         raise ProblemError(409, f"job {job_id} has no maneuver (status {job['status']})")
-    req = job["request"]
+    req = ctx.store.request_of(job_id) or {}
     origin = None
     if lon_deg is not None and lat_deg is not None:
         origin = (lon_deg, lat_deg)
@@ -92,7 +95,7 @@ def download_maneuver(job_id: JobId, ctx: Ctx,
                                 "and lat_deg, or origin in the request",
                            errors=[{"field": "lon_deg", "message": "required for geojson"}])
     name = req.get("name") or "maneuver"
-    text = maneuver_file(result["profile"], resolve_rig(req["rig"]), format, name, origin)
+    text = maneuver_file(result["profile"], resolve_rig(req.get("rig", "robotaxi")), format, name, origin)
     ext = {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]
     return Response(text, media_type=MEDIA[format],
                     headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})

@@ -16,49 +16,64 @@ Protocol (text frames, one JSON object each):
   :data:`MAX_SESSIONS` are already streaming).
 
 Bounds: a message is at most :data:`MAX_MESSAGE_BYTES` (uvicorn's ``ws_max_size`` bounds the
-frame before it is read) and :data:`MAX_POSES` poses; a session sends at most
-:data:`MAX_MESSAGES_PER_S` messages per second on average (burst :data:`BURST`) and is closed after
-:data:`IDLE_S` without a message. A session's state lives in its handler only: a broken
-connection frees everything.
+frame before it is read), :data:`MAX_POSES` poses and nested at most :data:`MAX_DEPTH` levels; a
+binary frame is refused (1003); a session sends at most :data:`MAX_MESSAGES_PER_S` messages per
+second on average (burst :data:`BURST`) and is closed after :data:`IDLE_S` without a message;
+its drive lasts at most ``EXCITE_MAX_ROUTE_DURATION_S``, holds at most ``EXCITE_MAX_SAMPLES``
+poses, no denser than ``EXCITE_MAX_LIVE_POSE_RATE_HZ``; at most ``EXCITE_MAX_LIVE_SESSIONS`` stream
+at once, and each key at most its quota of them.
+
+**Where the work runs.** Each session's incremental evaluator runs in a process of its own
+(forked from the scoring pool's forkserver) with an address-space limit
+(``EXCITE_LIVE_MEMORY_MB``), and every message's work, the final evaluation included, has the
+request time limit: the server process holds only the socket. A broken connection, a refusal or
+the end of the session ends that process.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
+import os
+import threading
 import time
 from typing import Any
 
 import anyio
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from excite.errors import ExciteError
-from excite.score.live import PoseStream
-
-from ..problems import TYPE_BASE
+from ..auth import LiveClient, Scorer
+from ..context import Ctx, Context
+from ..errors import ProblemError, Refused, Rejected
+from ..problems import TYPE_BASE, capped
 from ..scoring import resolve_rig
-from ..errors import Refused, Rejected
 
+log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
 
 MAX_MESSAGE_BYTES = 1 << 20
 MAX_POSES = 5000
+MAX_DEPTH = 8  # a poses message is 3 levels deep
 MAX_MESSAGES_PER_S = 50.0
 BURST = 100
-MAX_SESSIONS = 16
 IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot freed)
+MAX_SESSIONS = 64  # the ceiling of EXCITE_MAX_LIVE_SESSIONS (16 by default), whatever it says
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
+_processes: set[Any] = set()  # every session's process, ended at shutdown
+_lock = threading.Lock()
 
 
 def problem(status: int, field: str, message: str) -> dict[str, Any]:
     """The error frame: the fields of an RFC 9457 problem document."""
-    kind = {408: "timeout", 413: "too-large", 422: "validation", 429: "rate-limited",
-            503: "unavailable"}.get(status, "http-error")
-    title = {408: "Request timeout", 413: "Content too large", 422: "Unprocessable content",
-             429: "Too many requests", 503: "Service unavailable"}.get(status, "Bad request")
-    return {"type": "error", "problem": {"type": TYPE_BASE + kind, "title": title, "status": status,
-                                         "detail": f"{field}: {message}",
-                                         "errors": [{"field": field, "message": message}]}}
+    kind = {401: "unauthorized", 403: "forbidden", 408: "timeout", 413: "too-large", 422: "validation",
+            429: "rate-limited", 500: "internal", 503: "unavailable"}.get(status, "http-error")
+    title = {401: "Unauthorized", 403: "Forbidden", 408: "Request timeout", 413: "Content too large",
+             422: "Unprocessable content", 429: "Too many requests", 500: "Internal server error",
+             503: "Service unavailable"}.get(status, "Bad request")
+    return {"type": "error", "problem": capped({"type": TYPE_BASE + kind, "title": title, "status": status,
+                                                "detail": f"{field}: {message}",
+                                                "errors": [{"field": field, "message": message}]})}
 
 
 class _Bucket:
@@ -77,16 +92,55 @@ class _Bucket:
         return True
 
 
+def depth(text: str) -> int:
+    """How deeply the JSON text nests (brackets outside strings), in one linear pass."""
+    deepest = level = 0
+    in_string = escaped = False
+    for ch in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            level += 1
+            deepest = max(deepest, level)
+        elif ch in "]}":
+            level -= 1
+    return deepest
+
+
+def _number(text: str) -> float | int:
+    # an integer too large for a float (1 followed by 400 digits) is refused as non-finite later
+    return int(text) if len(text) <= 18 else float(text)
+
+
 def _message(text: str) -> dict[str, Any]:
     if len(text.encode("utf-8")) > MAX_MESSAGE_BYTES:
         raise Refused(413, "message", f"over the limit of {MAX_MESSAGE_BYTES} bytes", 1009)
+    if depth(text) > MAX_DEPTH:
+        raise Refused(422, "message", f"nested more than {MAX_DEPTH} levels deep")
     try:
-        msg = json.loads(text)
+        msg = json.loads(text, parse_int=_number)
     except ValueError as exc:
-        raise Refused(400, "message", f"not JSON ({exc.msg} at character {exc.pos})") from None
+        detail = f"{exc.msg} at character {exc.pos}" if isinstance(exc, json.JSONDecodeError) else str(exc)[:200]
+        raise Refused(400, "message", f"not JSON ({detail})") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
         raise Refused(422, "type", "each message is an object with a string field 'type'")
     return msg
+
+
+def _finite_number(x: Any) -> bool:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
 
 
 def _rows(msg: dict[str, Any], field: str, width: int, required: bool) -> list[list[float]] | None:
@@ -98,9 +152,10 @@ def _rows(msg: dict[str, Any], field: str, width: int, required: bool) -> list[l
     if len(rows) > MAX_POSES:
         raise Refused(413, field, f"{len(rows)} rows, over the limit of {MAX_POSES} per message")
     for i, r in enumerate(rows):
-        if not (isinstance(r, list) and len(r) == width
-                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in r)):
+        if not (isinstance(r, list) and len(r) == width and all(_finite_number(x) for x in r)):
             raise Refused(422, f"{field}[{i}]", f"must be {width} finite numbers")
+        if any(abs(x) > 1e12 for x in r):
+            raise Refused(422, f"{field}[{i}]", "a number beyond ±1e12")
     return rows
 
 
@@ -119,7 +174,168 @@ def _poses(rows: list[list[float]]):
     return d[:, 0], d[:, 1:4], Rotation.from_quat(d[:, 4:8] / norm[:, None]).as_matrix()
 
 
-def _start(msg: dict[str, Any]) -> PoseStream:
+def settings_of(ws: Any) -> Any:
+    """The app's settings, or the defaults for an app built without the service's context (the
+    router alone behind uvicorn)."""
+    ctx = getattr(ws.app.state, "ctx", None)
+    if ctx is not None:
+        return ctx.settings
+    from ..settings import Settings
+
+    return Settings.model_construct()
+
+
+class Drive:
+    """What the server keeps of a session to bound it: the pose count, first and last time."""
+
+    def __init__(self, s: Any):
+        self.max_poses, self.max_s, self.max_rate = s.max_samples, s.max_route_duration_s, s.max_live_pose_rate_hz
+        self.n, self.t0, self.t_last = 0, None, None
+
+    def check(self, t: Any) -> None:
+        n = len(t)
+        if self.n + n > self.max_poses:
+            raise Refused(413, "poses", f"the drive would hold {self.n + n} poses, over the limit of "
+                                        f"{self.max_poses} (EXCITE_MAX_SAMPLES)")
+        t0 = float(t[0]) if self.t0 is None else self.t0
+        span = float(t[-1]) - t0
+        if span > self.max_s:
+            raise Refused(422, "poses", f"the drive would last {span:.1f} s, over the limit of "
+                                        f"{self.max_s:g} s (EXCITE_MAX_ROUTE_DURATION_S)")
+        start = float(t[0]) if self.t_last is None else self.t_last
+        if n >= 2 or self.t_last is not None:
+            steps = n - 1 if self.t_last is None else n
+            dt = float(t[-1]) - start
+            if steps > 0 and steps > self.max_rate * max(dt, 0.0) + 1:
+                rate = steps / dt if dt > 0 else math.inf
+                raise Refused(422, "poses", f"{steps} poses in {dt:.3g} s ({rate:.4g} Hz), denser than "
+                                            f"the limit of {self.max_rate:g} Hz (EXCITE_MAX_LIVE_POSE_RATE_HZ)")
+        self.n += n
+        self.t0, self.t_last = t0, float(t[-1])
+
+
+# --------------------------------------------------------------------------------------------
+# The session's process
+
+
+def _session_main(conn: Any, rig: Any, name: str, memory_mb: int, duration_s: float,
+                  length_m: float, server_pid: int) -> None:
+    from excite.core.bounds import tightened
+    from excite.errors import ExciteError
+    from excite.score.live import PoseStream
+
+    from ..pool import exit_with_server, limit_memory, trim
+
+    threading.Thread(target=exit_with_server, args=(server_pid,), daemon=True).start()
+    limit_memory(memory_mb)
+    try:
+        with tightened(duration_s=duration_s, length_m=length_m):
+            stream = PoseStream(resolve_rig(rig), name=name)
+            while True:
+                try:
+                    msg = conn.recv()
+                except (EOFError, OSError):
+                    return
+                try:
+                    if msg[0] == "poses":
+                        out: Any = ("ok", stream.add(*msg[1:]))
+                    else:
+                        out = ("ok", stream.finish())
+                except ExciteError as exc:
+                    out = ("refused", str(exc))
+                except MemoryError:
+                    out = ("memory", None)
+                except Exception as exc:  # a bug: logged here, a 500 frame for the client
+                    log.exception("live session failed")
+                    out = ("error", repr(exc))
+                trim()
+                conn.send(out)
+                if out[0] != "ok" or msg[0] == "end":
+                    return
+    except MemoryError:
+        conn.send(("memory", None))
+
+
+class SessionProcess:
+    """One session's evaluator in a process of its own; :meth:`call` is bounded in time."""
+
+    def __init__(self, ctx: Context | None, s: Any, rig: Any, name: str):
+        import multiprocessing
+
+        mp = ctx.pool.context() if ctx is not None else multiprocessing.get_context("forkserver")
+        self.conn, child = mp.Pipe()
+        self.proc = mp.Process(target=_session_main, daemon=True, name="excite-live",
+                               args=(child, rig, name, s.live_memory_mb, s.max_route_duration_s,
+                                     s.max_route_length_m, os.getpid()))
+        self.proc.start()
+        child.close()
+        self.timeout_s = s.request_timeout_s
+        self.memory_mb = s.live_memory_mb
+        with _lock:
+            _processes.add(self)
+
+    def call(self, *msg: Any) -> Any:
+        """Runs in a thread: the reply to ``msg``, or :class:`Refused` (the process is ended)."""
+        try:
+            self.conn.send(msg)
+            ready = self.conn.poll(self.timeout_s)
+            if not ready:
+                raise Refused(503, "poses", f"the update took longer than the time limit of "
+                                            f"{self.timeout_s:g} s", 1011)
+            kind, value = self.conn.recv()
+        except (EOFError, OSError, BrokenPipeError):
+            raise Refused(503, "session", "the session's process ended unexpectedly", 1011) from None
+        if kind == "ok":
+            return value
+        if kind == "refused":
+            raise Refused(422, "poses", value)
+        if kind == "memory":
+            raise Refused(413, "poses", f"the drive needs more memory than a live session may use "
+                                        f"({self.memory_mb} MiB, EXCITE_LIVE_MEMORY_MB)", 1009)
+        raise Refused(500, "session", "the server failed to process the poses; the error is logged", 1011)
+
+    def end(self) -> None:
+        with _lock:
+            _processes.discard(self)
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join(5)
+
+
+def session_processes() -> list[SessionProcess]:
+    """The sessions' processes running now (in this server)."""
+    with _lock:
+        return list(_processes)
+
+
+def close_all() -> None:
+    """End every session's process (the server is shutting down)."""
+    with _lock:
+        procs = list(_processes)
+    for p in procs:
+        p.end()
+
+
+# --------------------------------------------------------------------------------------------
+# The socket
+
+
+@router.post("/live/tickets", summary="A ticket for a browser's /v1/live WebSocket (60 s, one key)")
+def ticket(ctx: Ctx, who: Scorer) -> dict[str, Any]:
+    """A browser cannot set headers on a WebSocket: it sends this ticket as ``?ticket=``
+    instead of its key. On an open server no ticket is needed (``null``)."""
+    if ctx.keys is None:
+        return {"ticket": None, "expires_in_s": None}
+    from ..auth import TICKET_TTL_S
+
+    return {"ticket": ctx.keys.ticket(who), "expires_in_s": TICKET_TTL_S}
+
+
+def _start(msg: dict[str, Any]) -> tuple[Any, str]:
     if msg["type"] != "start":
         raise Refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
     rig = msg.get("rig", "robotaxi")
@@ -129,64 +345,102 @@ def _start(msg: dict[str, Any]) -> PoseStream:
     if not isinstance(name, str) or len(name) > 200:
         raise Refused(422, "name", "must be a string of at most 200 characters")
     try:
-        r = resolve_rig(rig)
+        resolved = resolve_rig(rig)
     except Rejected as exc:
         raise Refused(exc.status, exc.field, exc.message) from None
-    return PoseStream(r, name=name)
+    return resolved, name
 
 
 @router.websocket("/live")
-async def live(ws: WebSocket) -> None:
+async def live(ws: WebSocket, who: LiveClient) -> None:
+    ctx: Context | None = getattr(ws.app.state, "ctx", None)
+    settings = settings_of(ws)
+    counts = ctx.live_sessions if ctx is not None else {}
     await ws.accept()
-    if _sessions["open"] >= MAX_SESSIONS:
-        await _refuse(ws, Refused(503, "session", f"{MAX_SESSIONS} sessions are streaming already; "
+    if isinstance(who, ProblemError):
+        await _refuse(ws, Refused(who.status, "X-API-Key", who.detail, 1008))
+        return
+    limit = min(settings.max_live_sessions, MAX_SESSIONS)
+    if _sessions["open"] >= limit:
+        await _refuse(ws, Refused(503, "session", f"{limit} sessions are streaming already; "
                                                    "try again later", 1013))
         return
+    mine = counts.get(who.key_id, 0)
+    if who.limits is not None and mine >= who.limits.live_sessions:
+        await _refuse(ws, Refused(429, "session", f"the key {who.key_id} has {mine} sessions streaming "
+                                                   f"(its quota: {who.limits.live_sessions})", 1013))
+        return
     _sessions["open"] += 1
+    counts[who.key_id] = mine + 1
     try:
-        await _session(ws)
+        await _session(ws, ctx, settings)
     except WebSocketDisconnect:
         pass  # the client went away: its stream is dropped with this frame
+    except Exception:
+        log.exception("live session failed")
+        try:
+            await _refuse(ws, Refused(500, "session", "the server failed; the error is logged", 1011))
+        except Exception:
+            pass
     finally:
         _sessions["open"] -= 1
+        left = counts.get(who.key_id, 1) - 1
+        if left:
+            counts[who.key_id] = left
+        else:
+            counts.pop(who.key_id, None)
 
 
-async def _session(ws: WebSocket) -> None:
+async def _receive_text(ws: WebSocket) -> str | None:
+    """The next text frame; None after :data:`IDLE_S` of silence. A binary frame is refused."""
+    with anyio.move_on_after(IDLE_S):
+        message = await ws.receive()
+        if message["type"] == "websocket.disconnect":
+            raise WebSocketDisconnect(message.get("code", 1000))
+        if message.get("text") is None:
+            raise Refused(422, "message", "binary frames are not accepted: send JSON text frames", 1003)
+        return message["text"]
+    return None
+
+
+async def _session(ws: WebSocket, ctx: Context | None, settings: Any) -> None:
     bucket = _Bucket(MAX_MESSAGES_PER_S, BURST)
-    stream: PoseStream | None = None
-    while True:
-        with anyio.move_on_after(IDLE_S) as idle:
-            text = await ws.receive_text()
-        if idle.cancelled_caught:
-            await _refuse(ws, Refused(408, "session", f"no message for {IDLE_S:g} s"))
-            return
-        try:
-            if not bucket.take():
-                raise Refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second", 1008)
-            msg = _message(text)
-            if stream is None:
-                stream = _start(msg)
-                await ws.send_json({"type": "started", "rig": stream.rig.name,
-                                    "parameters": [c.name for c in stream.rig.scored]})
-                continue
-            if msg["type"] == "poses":
-                t, p, R = _poses(_rows(msg, "poses", 8, True))
-                _rows(msg, "imu", 7, False)
-                for update in await anyio.to_thread.run_sync(stream.add, t, p, R):
-                    await ws.send_json(update)
-            elif msg["type"] == "end":
-                final = await anyio.to_thread.run_sync(stream.finish)
-                await ws.send_json(final)
-                await ws.close(1000)
+    proc: SessionProcess | None = None
+    drive = Drive(settings)
+    try:
+        while True:
+            try:
+                text = await _receive_text(ws)
+                if text is None:
+                    raise Refused(408, "session", f"no message for {IDLE_S:g} s")
+                if not bucket.take():
+                    raise Refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second", 1008)
+                msg = _message(text)
+                if proc is None:
+                    rig, name = _start(msg)
+                    proc = SessionProcess(ctx, settings, msg.get("rig", "robotaxi"), name)
+                    await ws.send_json({"type": "started", "rig": rig.name,
+                                        "parameters": [c.name for c in rig.scored]})
+                    continue
+                if msg["type"] == "poses":
+                    t, p, R = _poses(_rows(msg, "poses", 8, True))
+                    _rows(msg, "imu", 7, False)
+                    drive.check(t)
+                    for update in await anyio.to_thread.run_sync(proc.call, "poses", t, p, R):
+                        await ws.send_json(update)
+                elif msg["type"] == "end":
+                    final = await anyio.to_thread.run_sync(proc.call, "end")
+                    await ws.send_json(final)
+                    await ws.close(1000)
+                    return
+                else:
+                    raise Refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
+            except Refused as exc:
+                await _refuse(ws, exc)
                 return
-            else:
-                raise Refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
-        except Refused as exc:
-            await _refuse(ws, exc)
-            return
-        except ExciteError as exc:
-            await _refuse(ws, Refused(422, "poses", str(exc)))
-            return
+    finally:
+        if proc is not None:
+            await anyio.to_thread.run_sync(proc.end)
 
 
 async def _refuse(ws: WebSocket, exc: Refused) -> None:

@@ -8,13 +8,13 @@ from fastapi import APIRouter, Response
 
 from excite.errors import ExciteError
 from excite.plan import OptimizeSettings
-from excite.plan.site import read_site
 from excite.motion.vehicle import Limits
 
+from ..auth import Planner
 from ..context import Ctx
 from ..errors import ProblemError, Rejected
 from ..schemas import Job, ManeuverRequest
-from ..scoring import resolve_rig
+from ..scoring import lot_task, resolve_rig
 from .common import BODY
 from .jobs import job_view
 
@@ -23,8 +23,9 @@ router = APIRouter(prefix="/v1", tags=["maneuvers"])
 
 @router.post("/maneuvers", status_code=202, response_model=Job, responses=BODY,
              summary="Plan a maneuver: accepted as a job, persisted before the answer")
-def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
-    """Returns ``202`` with the job and its ``Location``; poll ``GET /v1/jobs/{id}``."""
+def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response, who: Planner) -> Any:
+    """Returns ``202`` with the job and its ``Location``; poll ``GET /v1/jobs/{id}``. A key may
+    have at most its quota of jobs queued and running (429 with ``Retry-After`` beyond)."""
     s = ctx.settings
     errors: list[dict[str, str]] = []  # every refused field at once, so a form can mark them all
     if body.duration_s > s.max_route_duration_s:
@@ -33,11 +34,11 @@ def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
     if body.time_budget_s > s.max_job_time_budget_s:
         errors.append({"field": "time_budget_s", "message": f"{body.time_budget_s:g} s is over the limit of "
                                                             f"{s.max_job_time_budget_s:g} s"})
-    if body.lot is not None:
-        try:
-            read_site(body.lot)
-        except ExciteError as exc:
-            errors.append({"field": "lot", "message": str(exc)})
+    if body.lot is not None:  # checked in a scoring worker: its memory limit applies
+        (fut,) = ctx.submit(lot_task, [(body.lot, s.max_lot_vertices)], ctx.deadline())
+        (why,) = ctx.wait([fut])
+        if why is not None:
+            errors.append({"field": "lot", "message": why})
     try:
         OptimizeSettings(duration_s=body.duration_s, lot_x_m=body.lot_x_m,
                          lot_y_m=body.lot_y_m, limits=Limits(**body.limits.model_dump()),
@@ -55,7 +56,11 @@ def create_maneuver(body: ManeuverRequest, ctx: Ctx, response: Response) -> Any:
     if errors:
         raise ProblemError(422, "; ".join(e["message"] if e["message"].startswith(e["field"]) else
                                           f"{e['field']}: {e['message']}" for e in errors), errors=errors)
-    job_id = ctx.store.create("maneuver", body.model_dump())
+    if who.limits is not None and ctx.store.active(who.key_id) >= who.limits.jobs:
+        raise ProblemError(429, f"the key {who.key_id} has {who.limits.jobs} jobs queued or running "
+                                "already (its quota); retry when one has finished",
+                           type_="quota", headers={"Retry-After": "30"})
+    job_id = ctx.store.create("maneuver", body.model_dump(), key_id=who.key_id, owner=who.owner)
     ctx.runner.wake()
     response.headers["Location"] = f"/v1/jobs/{job_id}"
     return job_view(ctx.store.get(job_id))

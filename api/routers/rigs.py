@@ -11,10 +11,11 @@ from fastapi import APIRouter
 
 from excite.rig.config import Rig, bundled_rigs
 
+from ..auth import Anyone
 from ..errors import ProblemError, Rejected
 from ..schemas import RigParsed, RigsResponse, RigYaml
 from ..scoring import resolve_rig
-from .common import BODY
+from .common import AUTH, BODY
 
 router = APIRouter(prefix="/v1", tags=["rigs"])
 
@@ -28,8 +29,8 @@ def _summary(name: str, rig: Rig) -> dict[str, Any]:
                            for c in rig.scored]}
 
 
-@router.get("/rigs", response_model=RigsResponse, summary="Bundled rigs")
-def rigs() -> Any:
+@router.get("/rigs", response_model=RigsResponse, responses=AUTH, summary="Bundled rigs")
+def rigs(who: Anyone) -> Any:
     return {"rigs": [_summary(name, resolve_rig(name)) for name in bundled_rigs()]}
 
 
@@ -39,7 +40,7 @@ def _yaml_problem(message: str) -> ProblemError:
 
 @router.post("/rigs/parse", response_model=RigParsed, responses=BODY,
              summary="Read a rig YAML file: the config object to send as `rig`, and its parameters")
-def parse_rig(body: RigYaml) -> Any:
+def parse_rig(body: RigYaml, who: Anyone) -> Any:
     """For clients that cannot read YAML (the page): the file's mapping, checked as a rig.
     Anchors and aliases are refused (a few nested aliases expand to gigabytes)."""
     try:

@@ -11,6 +11,7 @@ function el(tag, attrs = {}, ...children) {
   for (const [k, v] of Object.entries(attrs)) {
     if (v === null || v === undefined || v === false) continue;
     if (k === "text") node.textContent = v;
+    else if (k === "style") node.style.cssText = v; // CSSOM: allowed by the page's CSP, an attribute is not
     else node.setAttribute(k, v === true ? "" : v);
   }
   for (const c of children) if (c !== null && c !== undefined) node.append(c);
@@ -35,13 +36,43 @@ class Problem extends Error {
   }
 }
 
+// The API key, when the server needs one: kept for this tab only (sessionStorage), sent as a
+// header (never in a URL). Every request also says it comes from this page (X-Excite-Client),
+// which a cross-site form cannot.
+function authHeaders() {
+  const key = sessionStorage.getItem("excite-key");
+  return { "X-Excite-Client": "page", ...(key ? { "X-API-Key": key } : {}) };
+}
+
+async function authFetch(path, init = {}) {
+  const r = await fetch(path, { ...init, headers: { ...(init.headers || {}), ...authHeaders() } });
+  if (r.status === 401) $("#key-error").textContent = "this server needs a valid API key";
+  else if (r.ok) $("#key-error").textContent = "";
+  return r;
+}
+
+// A download with the key: fetched, then saved from a blob (a plain link would carry no header).
+async function download(ev) {
+  ev.preventDefault();
+  const a = ev.currentTarget;
+  const r = await authFetch(a.getAttribute("href"));
+  if (!r.ok) return;
+  const name = (r.headers.get("content-disposition") || "").match(/filename="([^"]+)"/);
+  const url = URL.createObjectURL(await r.blob());
+  const tmp = el("a", { href: url, download: name ? name[1] : "" });
+  document.body.append(tmp);
+  tmp.click();
+  tmp.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10_000);
+}
+
 async function api(method, path, body) {
   const init = { method, headers: { Accept: "application/json" } };
   if (body !== undefined) {
     init.headers["Content-Type"] = "application/json";
     init.body = JSON.stringify(body);
   }
-  const r = await fetch(path, init);
+  const r = await authFetch(path, init);
   const type = r.headers.get("content-type") || "";
   const data = type.includes("json") ? await r.json() : await r.text();
   if (!r.ok) throw new Problem(typeof data === "object" ? data : { detail: String(data) }, r.status);
@@ -112,8 +143,11 @@ async function initRigs() {
   state.rigs = rigs;
   select.replaceChildren(...rigs.map((r) => el("option", { value: r.name, text: `${r.name} — ${r.description}` })),
     el("option", { value: "@upload", text: "upload a rig YAML…" }));
-  select.addEventListener("change", onRigChange);
-  $("#rig-file").addEventListener("change", onRigFile);
+  if (!state.rigsWired) {
+    state.rigsWired = true;
+    select.addEventListener("change", onRigChange);
+    $("#rig-file").addEventListener("change", onRigFile);
+  }
   onRigChange();
 }
 
@@ -531,7 +565,7 @@ function parseCsv(text) {
 async function showPlan(job) {
   const res = job.result, rep = res.report;
   const base = `/v1/jobs/${job.id}/maneuver`;
-  const pts = parseCsv(await (await fetch(`${base}?format=csv`)).text());
+  const pts = parseCsv(await (await authFetch(`${base}?format=csv`)).text());
   $("#plan-result").hidden = false;
   drawLot(pts, job);
   $("#plan-summary").replaceChildren(el("div", { class: "big" }, el("span", { class: "label", text: "planned maneuver score " }),
@@ -552,6 +586,7 @@ async function showPlan(job) {
     ? el("a", { href: origin ? `${base}?format=geojson` : `${base}?format=geojson&lon_deg=${lon}&lat_deg=${lat}`, download: "", text: "GeoJSON (WGS84)" })
     : el("span", { class: "hint", text: "GeoJSON: set the lot's origin longitude and latitude" })));
   $("#downloads").replaceChildren(...links);
+  if (sessionStorage.getItem("excite-key")) for (const a of $("#downloads").querySelectorAll("a")) a.addEventListener("click", download);
 }
 
 function ringPath(ring) {
@@ -632,7 +667,18 @@ async function onLiveStart(ev) {
     return;
   }
   const name = $("#live-file").files[0].name.slice(0, 200);
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/live`);
+  let query = "";
+  if (sessionStorage.getItem("excite-key")) {  // a WebSocket carries no header: a short-lived ticket instead
+    try {
+      const { ticket } = await api("POST", "/v1/live/tickets");
+      if (ticket) query = `?ticket=${encodeURIComponent(ticket)}`;
+    } catch (err) {
+      if (!(err instanceof Problem)) throw err;
+      showProblem(form, err, $("#live-error"));
+      return;
+    }
+  }
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/live${query}`);
   const live = { ws, poses, next: 0, speed: Number($("#live-speed").value), updates: 0, timer: null, over: false };
   state.live = live;
   $("#live-start").disabled = true;
@@ -780,6 +826,15 @@ function main() {
   $("#cancel-button").addEventListener("click", onCancel);
   $("#live-form").addEventListener("submit", onLiveStart);
   $("#live-stop").addEventListener("click", () => stopLive("stopped"));
+  const key = $("#api-key");
+  key.value = sessionStorage.getItem("excite-key") || "";
+  key.addEventListener("change", () => {
+    if (key.value.trim()) sessionStorage.setItem("excite-key", key.value.trim());
+    else sessionStorage.removeItem("excite-key");
+    $("#key-error").textContent = "";
+    state.schema = null;
+    initRigs().catch((err) => { $("#rig-error").textContent = `cannot list the rigs: ${err.message}`; });
+  });
   initRigs().catch((err) => { $("#rig-error").textContent = `cannot list the rigs: ${err.message}`; });
   document.body.dataset.ready = "1";
 }

@@ -43,7 +43,7 @@ class _Lines:
 
     def parse(self, raw: str) -> tuple[float, list[float]] | None:
         from ..errors import RouteError
-        from ..io.routes import _is_number
+        from ..io.routes import is_number
 
         self.line += 1
         text = raw.strip()
@@ -53,7 +53,7 @@ class _Lines:
         try:
             numbers = [float(f) for f in fields]
         except ValueError:
-            bad = next(f for f in fields if not _is_number(f))
+            bad = next(f for f in fields if not is_number(f))
             raise RouteError(f"cannot parse {bad!r} as a number", source=self.source, line=self.line) from None
         if not all(math.isfinite(x) for x in numbers):
             raise RouteError("a number is not finite", source=self.source, line=self.line)
@@ -73,7 +73,7 @@ class _Lines:
         from scipy.spatial.transform import Rotation
 
         from ..errors import RouteError
-        from ..io.routes import QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL
+        from ..io.poses import QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL
 
         t = np.array([r[0] for r in parsed])
         d = np.array([r[1] for r in parsed])
@@ -182,9 +182,9 @@ def _source(route: Path, times: Optional[Path], replay: float | None, topic: Opt
 def _times(path: Optional[Path]) -> list[float] | None:
     if path is None:
         return None
-    from ..io.routes import _numbers, _split_rows
+    from ..io.routes import document, numbers, split_rows
 
-    return [float(x) for x in _numbers(_split_rows(Path(path), None), (1,))[:, 0]]
+    return [float(x) for x in numbers(split_rows(document(path), None), (1,))[:, 0]]
 
 
 def _table(update: dict[str, Any], rig_name: str) -> Any:
@@ -264,7 +264,8 @@ def live(
     speed = _speed(replay)
     r = load_rig(rig)
     batches, name = _source(route, times, speed, topic, idle)
-    from ..io.routes import DEFAULT_CUTOFF_HZ, already_smooth
+    from ..io.poses import DEFAULT_CUTOFF_HZ
+    from ..io.routes import already_smooth
 
     # a TUM file excite wrote is read as read_tum reads it: not smoothed a second time
     smooth = str(route) != "-" and route.is_file() and already_smooth(route)

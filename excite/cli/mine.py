@@ -107,7 +107,7 @@ def mine(
         results = miner.mine_logs(tasks, jobs=jobs, scheduler=scheduler, on_result=lambda r, _: bar.advance(r.log))
     total_s = time.perf_counter() - t0
     best, shortest = miner.ranked(results)
-    n_params = {s.name: len(gate._rig(s.rig).scored) for s in specs if s.error is None}
+    n_params = {s.name: len(gate.cached_rig(s.rig).scored) for s in specs if s.error is None}
     out = console()
     out.print(_table(f"best windows of {window:g} s (whole {chunk:g} s chunks)", best, n_params))
     if goal is not None:

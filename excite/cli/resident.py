@@ -24,7 +24,7 @@ def _where() -> dict:
     if not sys.platform.startswith("linux"):
         raise ExciteError("the resident process runs on Linux only: here every command runs in its own process")
     try:
-        return resident._paths(resident.key(), create=True)
+        return resident.paths_of(resident.key(), create=True)
     except OSError as exc:
         raise ExciteError(str(exc)) from None
 

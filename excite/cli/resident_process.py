@@ -156,7 +156,7 @@ def private_home(create: bool) -> Path:
     return d
 
 
-def _paths(k: str, create: bool = False) -> dict[str, Path]:
+def paths_of(k: str, create: bool = False) -> dict[str, Path]:
     d = private_home(create)
     paths = {part: d / f"{k}.{part}" for part in ("sock", "lock", "log", "failed")}
     if len(str(paths["sock"])) > 100:  # sun_path holds 108 bytes
@@ -209,7 +209,7 @@ def control(op: str, k: str | None = None, path: Path | None = None) -> dict | N
     """Ask the resident process of key ``k`` (this installation's by default; or the one at
     socket ``path``) for its ``status`` or to ``stop``; None when none answers."""
     try:
-        s = _connect(path or _paths(k or key())["sock"])
+        s = _connect(path or paths_of(k or key())["sock"])
     except OSError:
         return None
     if s is None:
@@ -243,7 +243,7 @@ def ask(argv: list[str]) -> int | None:
         for fd in (0, 1, 2):
             os.fstat(fd)  # a closed standard stream cannot be passed on
         k = key()
-        s = _connect(_paths(k)["sock"])
+        s = _connect(paths_of(k)["sock"])
         if s is None:
             return None
         streams = (sys.stdin, sys.stdout, sys.stderr)
@@ -318,7 +318,7 @@ def _served(s: socket.socket, f, k: str, request: dict) -> int | None:
     if done is not None and "signal" in done:
         _die(done["signal"])
     print(f"excite: error: the resident process's command {started['pid']} ended without an exit code "
-          f"(its log: {_paths(k)['log']}); EXCITE_RESIDENT=0 runs commands in this process",
+          f"(its log: {paths_of(k)['log']}); EXCITE_RESIDENT=0 runs commands in this process",
           file=sys.stderr)
     return 1
 
@@ -344,7 +344,7 @@ def start(idle_minutes: float = IDLE_MINUTES, wait_s: float = 0.0) -> int:
     if not sys.platform.startswith("linux"):
         raise RuntimeError("the resident process runs on Linux only")
     k = key()
-    paths = _paths(k, create=True)
+    paths = paths_of(k, create=True)
     paths["failed"].unlink(missing_ok=True)
     with open(paths["log"], "ab") as log:  # the resident process that takes the lock empties it
         proc = subprocess.Popen([sys.executable, "-c", "from excite.cli.resident_process import main; main()",
@@ -380,7 +380,7 @@ def may_start(argv: list[str]) -> None:
         if not (os.isatty(0) and os.isatty(2)):
             return
         k = key()
-        paths = _paths(k, create=True)
+        paths = paths_of(k, create=True)
         if paths["failed"].exists() or control("status", k) is not None:
             return
         pid = start()
@@ -666,7 +666,7 @@ def main() -> None:
     if not getattr(sys.flags, "safe_path", False):
         del sys.path[0]  # `python -c`'s "": modules come from where the `excite` script finds them
     os.chdir("/")  # every command runs in its caller's directory
-    paths = _paths(k, create=True)
+    paths = paths_of(k, create=True)
     lock = open(paths["lock"], "w")
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)

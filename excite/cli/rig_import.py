@@ -29,6 +29,9 @@ def _write(rig: "ImportedRig", output: Optional[Path]) -> None:
 Output = Annotated[Optional[Path], typer.Option("--output", "-o", help="Write the rig YAML here (default: stdout).")]
 Lidar = Annotated[list[str], typer.Option("--lidar", help="Frame of a lidar (repeatable).")]
 Camera = Annotated[list[str], typer.Option("--camera", help="Frame of a camera (repeatable).")]
+Gnss = Annotated[Optional[list[str]], typer.Option(
+    "--gnss", help="Frame of a GNSS antenna (repeatable; default: every frame named like one, gnss/gps).")]
+NoGnss = Annotated[bool, typer.Option("--no-gnss", help="Place no GNSS antenna.")]
 
 
 @rig_app.command("from-tf")
@@ -38,13 +41,16 @@ def from_tf(
     base: Annotated[str, typer.Option(help="Base frame: the vehicle frame V (e.g. base_link).")],
     lidar: Lidar = [],
     camera: Camera = [],
+    gnss: Gnss = None,
+    no_gnss: NoGnss = False,
     name: Annotated[Optional[str], typer.Option(help="Rig name (default: the bag's name).")] = None,
     output: Output = None,
 ) -> None:
     """A rig YAML from a bag's /tf_static: T_V_B and every sensor's T_B_S composed over the tree."""
     from ..rig import importers as rig_import
 
-    _write(rig_import.rig_from_tf(bag, imu=imu, base=base, lidar=lidar, camera=camera, name=name), output)
+    _write(rig_import.rig_from_tf(bag, imu=imu, base=base, lidar=lidar, camera=camera,
+                                  gnss=[] if no_gnss else (gnss or None), name=name), output)
 
 
 @rig_app.command("from-kalibr")
@@ -70,6 +76,8 @@ def from_autoware(
     camera: Camera = [],
     sensors_calibration: Annotated[Optional[Path], typer.Option(
         help="Autoware sensors_calibration.yaml (places the sensor kit on base_link).")] = None,
+    gnss: Gnss = None,
+    no_gnss: NoGnss = False,
     name: Annotated[Optional[str], typer.Option(help="Rig name.")] = None,
     output: Output = None,
 ) -> None:
@@ -77,4 +85,5 @@ def from_autoware(
     from ..rig import importers as rig_import
 
     _write(rig_import.rig_from_autoware(sensor_kit, imu=imu, base=base, lidar=lidar, camera=camera,
-                                        sensors_calibration=sensors_calibration, name=name), output)
+                                        sensors_calibration=sensors_calibration,
+                                        gnss=[] if no_gnss else (gnss or None), name=name), output)

@@ -92,6 +92,9 @@ def score(
     axes: Annotated[str, typer.Option(
         help="Bags: axes of the logged poses: vehicle (x forward, z up) or optical (x right, "
              "y down, z forward).")] = "vehicle",
+    gnss_topic: Annotated[Optional[str], typer.Option(
+        help="Bags: a sensor_msgs/NavSatFix topic: the rig's GNSS antenna is scored with the fixes "
+             "it holds (outages, and the reported covariance where the rig asks for it).")] = None,
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
     from ..score.evaluate import Options, evaluate, max_segments
@@ -106,10 +109,15 @@ def score(
                                  f"(parameters: {', '.join(c.name for c in r.scored)})",
                                  param_hint="--plot-parameter")
     bag = None
-    if any(x is not None for x in (topic, imu_topic, start, end, vehicle_frame)) or axes != "vehicle":
+    if any(x is not None for x in (topic, imu_topic, start, end, vehicle_frame, gnss_topic)) or axes != "vehicle":
         from ..io.bags import BagSource
 
-        bag = BagSource(topic, imu_topic, start, end, vehicle_frame, axes)
+        antennas = [s.name for s in r.config.sensors if s.kind == "gnss"]
+        if gnss_topic is not None and len(antennas) != 1:
+            raise typer.BadParameter(f"rig {r.name} has {len(antennas)} GNSS antennas: --gnss-topic needs "
+                                     "exactly one", param_hint="--gnss-topic")
+        bag = BagSource(topic, imu_topic, start, end, vehicle_frame, axes, gnss_topic,
+                        antennas[0] if antennas else "gnss")
     traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
     if bag is not None:  # a bag was read (with --imu-topic: its measured IMU too)
         from ..io.bags import ImuTrajectory, imu_agreement
@@ -118,6 +126,11 @@ def score(
             pose = r.config.vehicle.T_V_B
             typer.echo(f"IMU {imu_topic} (frame {traj.imu_frame}) gives the angular rate and specific "
                        f"force; {imu_agreement(traj, pose.R, pose.p).text()}", err=True)
+        if gnss_topic is not None:
+            t = traj.logs[bag.gnss_sensor].t
+            gap = max((b - a for a, b in zip(t[:-1], t[1:])), default=0.0)
+            typer.echo(f"GNSS {gnss_topic}: {t.size} fixes over {t[-1] - t[0]:.1f} s for {bag.gnss_sensor} "
+                       f"(longest gap {gap:.2f} s)", err=True)
     rep = evaluate(traj, r, Options(segments=segments))
     for w in rep.warnings:  # on stderr: the report (or its JSON) stays what stdout carries
         typer.secho(f"warning: {w}", err=True, fg="yellow")

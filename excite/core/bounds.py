@@ -145,22 +145,11 @@ _POSE = {
 
 RIG: dict[str, Range] = {
     "keyframe_rate_hz": Range(0.1, 100.0, "Hz"),
-    "imu.accelerometer_noise_density": Range(1e-7, 10.0, "m/s^2/√Hz"),
-    "imu.accelerometer_random_walk": Range(1e-13, 10.0, "m/s^3/√Hz"),  # tiny: a nearly constant bias
-    "imu.gyroscope_noise_density": Range(1e-8, 1.0, "rad/s/√Hz"),
-    "imu.gyroscope_random_walk": Range(1e-14, 1.0, "rad/s^2/√Hz"),  # (1e-6 of a MEMS IMU's: tests)
-    "imu.update_rate": Range(1.0, 10_000.0, "Hz"),
     "vehicle.suspension.pitch_deg_per_mps2": Range(0.0, 10.0, "deg/(m/s^2)"),
     "vehicle.suspension.roll_deg_per_mps2": Range(0.0, 10.0, "deg/(m/s^2)"),
     "vehicle.nonholonomic.lateral_noise_density": Range(1e-7, 10.0, "m/s/√Hz"),
     "vehicle.nonholonomic.vertical_noise_density": Range(1e-7, 10.0, "m/s/√Hz"),
     "sensors.*.rate_hz": Range(0.1, 100.0, "Hz"),
-    "sensors.*.noise.rotation_sigma_deg": Range(1e-6, 90.0, "deg"),
-    "sensors.*.noise.translation_sigma_m": Range(1e-6, 100.0, "m"),
-    "wheels.radius_left_m": Range(0.05, 5.0, "m"),
-    "wheels.radius_right_m": Range(0.05, 5.0, "m"),
-    "wheels.track_m": Range(0.1, 20.0, "m"),
-    "wheels.noise_density": Range(1e-7, 10.0, "rad/s/√Hz"),
     **{f"vehicle.T_V_B.{k}": r for k, r in _POSE.items()},
     **{f"sensors.*.T_B_S.{k}": r for k, r in _POSE.items()},
 }

@@ -1,2 +1,14 @@
-"""Sensor models: one module per factor kind, each giving whitened Jacobian blocks at the nominal
-motion (``blocks``) and its nonlinear residual (for finite-difference tests and simulation)."""
+"""Measurement kinds: one module per kind, each declaring its rig entry, its calibration
+quantities, its math once (in CasADi), its compiled kernel and its simulation
+(:mod:`excite.factors.base` states the protocol and keeps the registry). Importing this package
+registers the built-in kinds, in this order — the order of the rows of J, and of θ's columns
+after the sensors' —: the IMU, rear-axle wheel encoders, the non-holonomic constraint, lidar and
+camera odometry, GNSS antennas, a car's CAN wheel speeds and steering (Ackermann), Doppler radar
+ego-velocity. A kind of one's own is a module like these that calls
+:func:`~excite.factors.base.register`."""
+
+from . import ackermann, base, gnss, imu, nonholonomic, odometry, radar, wheel
+
+for _kind in (imu.Imu(), wheel.Wheel(), nonholonomic.NonHolonomicConstraint(), odometry.Odometry(), gnss.Gnss(),
+              ackermann.Ackermann(), radar.Radar()):
+    base.register(_kind)

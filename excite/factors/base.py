@@ -1,19 +1,53 @@
-"""What every factor shares: the nominal states it is linearised at, and its Jacobian blocks.
+"""The factor protocol: what one measurement kind declares, the registry of kinds, and what every
+factor shares (the nominal states it is linearised at, its Jacobian blocks).
 
-The nuisance state of keyframe k is ``x_k = [δθ (3), δp (3), δv (3)]``: a right perturbation of
-the body orientation ``R_W_B · Exp(δθ)``, and additive world position and velocity of B. The
-calibration vector θ has one column per :class:`~excite.rig.config.Coordinate` of the rig, in its order.
-Every factor returns *whitened* Jacobians: one row per residual component divided by its σ
-(or multiplied by the inverse Cholesky factor of its covariance).
+A **kind** (:class:`Kind`) is one module of :mod:`excite.factors` and declares, in one place:
+
+- its **rig entry**: the ``kind:`` values of the ``sensors:`` entries it measures
+  (:attr:`Kind.sensor_kinds`) or the top-level rig section it reads (:attr:`Kind.section`), the
+  pydantic model that validates it (:attr:`Kind.config`), the sane ranges of its numbers
+  (:attr:`Kind.ranges`) and the calibration **quantities** it is a function of
+  (:meth:`Kind.quantities`: each a rotation, a 3-vector or a scalar, with the coordinates it
+  adds to θ);
+- its **arity** (one keyframe or a pair, :attr:`Kind.arity`) and **stride** (keyframes between
+  its factors), and which gauge symmetries its measurements **break** (:attr:`Kind.breaks`: an
+  absolute position or an absolute yaw), which decides the trajectory's parametrisation and gauge
+  (:mod:`excite.information.closure`);
+- its **math, once**: the noise-free measurement at the nominal motion
+  (:meth:`Kind.measurement`), the residual (:meth:`Kind.residual`) and its whitening
+  (:meth:`Kind.sqrt_information`), in CasADi symbols for one factor
+  (:mod:`excite.factors.symbolic`). The optimizer's information model differentiates it with
+  CasADi, the calibrator evaluates it, and the evaluator's whitened Jacobians are its derivative
+  (:func:`excite.factors.symbolic.jacobians`);
+- optionally a **compiled kernel** (numba) that overrides :meth:`Kind.blocks` for speed; the
+  contract test holds every kernel equal to the derivative of the residual;
+- its **simulated measurement** (:meth:`Kind.simulate`: physical, or exactly as the model
+  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates;
+- where its noise is a Markov chain along the drive (a GNSS error correlated over time, whitened
+  by differencing consecutive measurements), the **opening** factor of the chain at a drive's
+  first keyframe (:attr:`Kind.opening`, an unregistered one-keyframe kind the closure adds);
+- which measurements a **logged** drive holds (:meth:`Kind.factor_keyframes` reading
+  :attr:`Nominal.logs`, from the trajectory's :class:`~excite.motion.trajectory.SensorLog`: an
+  outage, the reported covariance).
+
+Everything else loops over the registry (:func:`kinds`, :func:`instances`): adding a kind is a
+module that calls :func:`register`, and nothing else changes.
+
+States. The nuisance state of keyframe k is ``x_k = [δθ (3), δp (3), δv (3)]``: a right
+perturbation of the body orientation ``R_W_B · Exp(δθ)``, and additive world position and velocity
+of B. The calibration vector θ has one column per coordinate of the rig, in its order. Every
+factor gives *whitened* Jacobians: one row per residual component divided by its σ (or multiplied
+by the inverse Cholesky factor of its covariance).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar, Iterator, Protocol
 
 import numpy as np
 
-from ..rig.config import Rig
+from ..core.bounds import Range
 from ..motion.trajectory import Trajectory, rigid_body
 
 STATE_DIM = 9
@@ -21,6 +55,33 @@ ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 # with random-walk IMU biases every keyframe also carries the bias deviations [δb_g, δb_a]
 BIAS_STATE_DIM = 15
 BIAS = slice(9, 15)
+SYMMETRIES = ("position", "yaw")  # the gauge of a drive whose measurements break none of them
+
+
+class RigView(Protocol):
+    """What a kind reads of the rig it is linearised for (:class:`excite.rig.config.Rig` is one):
+    the validated configuration, the parameter coordinates in column order, the keyframe rate."""
+
+    config: Any
+    coordinates: tuple
+    keyframe_rate_hz: float
+
+    def index(self, name: str) -> int: ...
+
+
+@dataclass(frozen=True)
+class KeyframeLog:
+    """What a log recorded of one sensor, on the keyframe grid (:meth:`Nominal.of`): whether
+    the sensor has a measurement at each keyframe (a frame of the sensor's that the log holds;
+    False between its frames and in outages), and where the sensor reports one, the covariance
+    of that measurement (K × d × d, NaN where none)."""
+
+    available: np.ndarray
+    covariance: np.ndarray | None = None
+
+    def window(self, k0: int, k1: int) -> "KeyframeLog":
+        cov = None if self.covariance is None else self.covariance[k0:k1 + 1]
+        return KeyframeLog(self.available[k0:k1 + 1], cov)
 
 
 @dataclass(frozen=True)
@@ -32,6 +93,8 @@ class Nominal:
     (IMU frame) orientation ``R``, world position ``p`` and velocity ``v``, body rate ``omega``
     and the suspension tilt ``R_V_A``. At the IMU rate: orientation ``imu_R``, body rate
     ``imu_omega`` and specific force ``imu_f``. ``R_V_B, p_V_B`` is the IMU pose in the vehicle frame.
+    ``logs``: what a logged drive recorded of some of the rig's sensors, by sensor name
+    (:class:`KeyframeLog`; a sensor without one measures at every one of its frames).
     """
 
     t: np.ndarray
@@ -47,6 +110,7 @@ class Nominal:
     R_V_B: np.ndarray
     p_V_B: np.ndarray
     length_m: float = 0.0  # path length of the rear axle (trapezoid over the keyframes)
+    logs: dict[str, KeyframeLog] = field(default_factory=dict)
 
     @property
     def n_keyframes(self) -> int:
@@ -59,10 +123,11 @@ class Nominal:
         imu = slice(k0 * n, k1 * n + 1)
         return Nominal(t=self.t[kf], R=self.R[kf], p=self.p[kf], v=self.v[kf], omega=self.omega[kf],
                        R_V_A=self.R_V_A[kf], imu_R=self.imu_R[imu], imu_omega=self.imu_omega[imu],
-                       imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B)
+                       imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B,
+                       logs={k: v.window(k0, k1) for k, v in self.logs.items()})
 
     @staticmethod
-    def grid(traj: Trajectory, rig: Rig, t_start: float | None = None,
+    def grid(traj: Trajectory, rig: RigView, t_start: float | None = None,
              t_end: float | None = None) -> tuple[float, int]:
         """Start time and number of keyframes of the whole keyframe intervals of ``traj`` within
         ``[t_start, t_end]``."""
@@ -71,7 +136,7 @@ class Nominal:
         return t0, int(np.floor((t1 - t0) * rig.keyframe_rate_hz + 1e-9)) + 1
 
     @staticmethod
-    def keyframe_times(traj: Trajectory, rig: Rig) -> np.ndarray:
+    def keyframe_times(traj: Trajectory, rig: RigView) -> np.ndarray:
         """The times of the keyframes of ``traj`` (those of :meth:`of`, bit for bit)."""
         t0, K = Nominal.grid(traj, rig)
         imu_rate = rig.config.imu.update_rate
@@ -79,7 +144,7 @@ class Nominal:
         return np.clip(t0 + np.arange(K) * n / imu_rate, traj.t_start, traj.t_end)
 
     @classmethod
-    def of(cls, traj: Trajectory, rig: Rig, t_start: float | None = None, t_end: float | None = None,
+    def of(cls, traj: Trajectory, rig: RigView, t_start: float | None = None, t_end: float | None = None,
            keyframes: tuple[int, int] | None = None) -> "Nominal":
         """Sample ``traj`` for ``rig`` on the whole keyframe intervals within ``[t_start, t_end]``
         (:meth:`grid`), or on its keyframes ``k0 … k1`` only: the same samples as those of the
@@ -97,8 +162,43 @@ class Nominal:
         p_V, v_V, R_V_A = traj.translation(t)
         R, p, v, omega = rigid_body(R_W_V, p_V, v_V, omega_V, R_V_B, p_V_B)
         length = float(np.trapezoid(np.linalg.norm(v_V, axis=1), t))
+        logs = keyframe_logs(traj, rig, t, k0)
         return cls(t=t, R=R, p=p, v=v, omega=omega, R_V_A=R_V_A, imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f,
-                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length)
+                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs)
+
+
+def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dict[str, KeyframeLog]:
+    """The logs ``traj`` carries of ``rig``'s sensors (:attr:`Trajectory.logs
+    <excite.motion.trajectory.Trajectory.logs>`, by sensor name) on the keyframes ``t``, the first
+    of which is keyframe ``k0`` of the drive: a keyframe holds a measurement of a sensor when it
+    is one of the sensor's frames (every ``stride``-th keyframe of the drive) and the log has a
+    message within half a frame interval of it; its covariance is that message's. Each keyframe
+    on its own, so that a window sees what the whole drive sees."""
+    out = {}
+    logs = getattr(traj, "logs", None) or {}
+    for s in rig.config.sensors:
+        log = logs.get(s.name)
+        kind = kind_of_sensor(s.kind)
+        if log is None or kind is None:
+            continue
+        stride = kind.stride(rig, s)
+        k = k0 + np.arange(t.size)
+        frame = k % stride == 0
+        ts = np.asarray(log.t, dtype=float)
+        if ts.size == 0:
+            out[s.name] = KeyframeLog(np.zeros(t.size, dtype=bool))
+            continue
+        j = np.clip(np.searchsorted(ts, t), 1, ts.size - 1) if ts.size > 1 else np.zeros(t.size, dtype=int)
+        if ts.size > 1:
+            j = np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
+        near = np.abs(ts[j] - t) < 0.5 * stride / rig.keyframe_rate_hz  # (strictly: a message is one frame's)
+        avail = frame & near
+        cov = None
+        if log.covariance is not None:
+            cov = np.full((t.size,) + log.covariance.shape[1:], np.nan)
+            cov[avail] = log.covariance[j[avail]]
+        out[s.name] = KeyframeLog(avail, cov)
+    return out
 
 
 @dataclass(frozen=True)
@@ -108,7 +208,7 @@ class FactorBlock:
     Factor ``f`` touches the keyframes ``first[f] + stride · m`` for ``m < n_states`` through
     ``Jx[f]`` (r × 9·n_states), and the calibration columns ``cols`` through ``Jt[f]``
     (r × len(cols)). ``xcols``, where known: the columns of ``Jx`` that may be non-zero (every other
-    one is zero for every factor), which :func:`excite.core.kernels.accumulate` can skip.
+    one is zero for every factor), which :func:`excite.information.kernels.accumulate` can skip.
     """
 
     name: str
@@ -147,11 +247,279 @@ class FactorBlock:
 
     def within(self, k0: int, k1: int) -> "FactorBlock | None":
         """The factors that lie entirely within keyframes ``k0 … k1``, indexed from ``k0``; None
-        if there are none (a window's factors: :meth:`excite.information.Problem.window`)."""
+        if there are none (a window's factors: :meth:`excite.information.problem.Problem.window`)."""
         inside = (self.first >= k0) & (self.first + self.stride * (self.n_states - 1) <= k1)
         return self.select(inside).shifted(-k0) if inside.any() else None
 
 
-def theta_columns(rig: Rig, names: list[str]) -> np.ndarray:
+def theta_columns(rig: RigView, names: list[str]) -> np.ndarray:
     """Column indices of the named calibration coordinates."""
     return np.array([rig.index(n) for n in names], dtype=int)
+
+
+# --- calibration quantities --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One calibration quantity of a rig entry, as its kind's math uses it.
+
+    ``size`` 3 is a 3-vector, or with ``kind == "rot"`` a rotation (``nominal`` a 3 × 3 matrix,
+    perturbed on the right: ``R · Exp(δφ)``); ``size`` 1 a scalar. ``estimated``: it adds
+    coordinates to θ (``block.kind_x/y/z`` or ``block.kind``, or ``names``); otherwise the math
+    sees its nominal value. ``nuisance``: estimated but not scored (each drive has its own: a
+    monocular camera's scale, tyre slip). ``key``: the name the kind's math reads it by
+    (default ``kind``); ``axis``: the axis a scalar coordinate reports (the left wheel 0, the
+    right 1). ``drift``: the density of the quantity's random walk along the drive (the IMU
+    biases with the random-walk bias model; 0: constant): each keyframe carries its deviation,
+    θ is its value at the drive's end (:mod:`excite.information.closure`)."""
+
+    block: str
+    kind: str
+    size: int
+    unit: str
+    nominal: Any
+    estimated: bool = True
+    nuisance: bool = False
+    names: tuple[str, ...] | None = None
+    key: str | None = None
+    axis: int = 0
+    drift: float = 0.0
+
+    @property
+    def rotation(self) -> bool:
+        return self.kind == "rot"
+
+    @property
+    def name(self) -> str:
+        return self.key or self.kind
+
+    def coordinate_names(self) -> list[str]:
+        if self.names is not None:
+            return list(self.names)
+        if self.size == 3:
+            return [f"{self.block}.{self.kind}_{a}" for a in "xyz"]
+        return [f"{self.block}.{self.kind}"]
+
+    def nominal_vector(self) -> np.ndarray:
+        """The nominal value as a flat vector (a rotation: its 9 entries, row-major)."""
+        return np.asarray(self.nominal, dtype=float).reshape(-1)
+
+
+@dataclass(frozen=True)
+class Column:
+    """One coordinate of θ as a kind declares it (the rig adds its target and prior)."""
+
+    name: str
+    unit: str
+    block: str
+    kind: str
+    axis: int
+    nuisance: bool
+
+
+# --- the protocol ------------------------------------------------------------------------------
+
+
+class Kind:
+    """One measurement kind (see the module docstring). Subclasses set the class attributes and
+    implement the math; instances are stateless and registered once (:func:`register`)."""
+
+    name: ClassVar[str]
+    arity: ClassVar[int] = 2  # keyframes per factor: 1, or a pair ``stride`` keyframes apart
+    rows: ClassVar[int]  # components of one residual (at most: an entry's residual may have fewer, a 2-D radar's)
+    breaks: ClassVar[frozenset[str]] = frozenset()  # of :data:`SYMMETRIES`
+    sensor_kinds: ClassVar[tuple[str, ...]] = ()  # ``sensors:`` entries of these ``kind:`` values
+    section: ClassVar[str | None] = None  # or this top-level rig section
+    config: ClassVar[type | None] = None  # the pydantic model of an entry (or of the section)
+    ranges: ClassVar[dict[str, Range]] = {}  # sane ranges of an entry's numbers (dotted keys within it)
+    # motion advice per (coordinate kind, vehicle axis or None): (the report's, the driver's)
+    advice: ClassVar[dict[tuple[str, int | None], tuple[str, str]]] = {}
+    uses_imu_samples: ClassVar[bool] = False  # its math reads the IMU samples of its interval
+    # A kind whose noise is a Markov chain along the drive (a GNSS error correlated over time,
+    # whitened by differencing consecutive measurements) declares the one-keyframe kind of the
+    # measurement that opens the chain at a drive's first keyframe (its stationary noise): not
+    # registered; the closure adds it where a drive, or a window closed as one, starts
+    # (:meth:`excite.information.closure.Closure.open`). It observes absolute states: such a
+    # kind breaks the translation symmetry.
+    opening: ClassVar["Kind | None"] = None
+
+    # --- the rig ---
+
+    def entries(self, rig: RigView) -> list[Any]:
+        """The rig entries this kind measures: its sensors, or its section if the rig has one."""
+        if self.sensor_kinds:
+            return [s for s in rig.config.sensors if s.kind in self.sensor_kinds]
+        if self.section is not None:
+            entry = getattr(rig.config, self.section, None)
+            return [] if entry is None else [entry]
+        return [rig.config]
+
+    def block_name(self, entry: Any) -> str:
+        """The name of the entry's factor block (a sensor's name; the kind's own otherwise)."""
+        return getattr(entry, "name", None) if self.sensor_kinds else self.name
+
+    def quantities(self, cfg: Any, entry: Any) -> list[Quantity]:
+        """The calibration quantities of ``entry`` (``cfg`` is the whole rig configuration)."""
+        return []
+
+    def stride(self, rig: RigView, entry: Any) -> int:
+        """Keyframes between consecutive factors (a sensor slower than the keyframes: its ratio)."""
+        rate = getattr(entry, "rate_hz", None)
+        return 1 if rate is None else int(round(rig.keyframe_rate_hz / rate))
+
+    # --- the math (CasADi, one factor: :class:`excite.factors.symbolic.FactorInputs`) ---
+
+    def measurement(self, f: Any) -> Any:
+        """The noise-free measurement of the factor at its nominal inputs (a flat SX vector)."""
+        raise NotImplementedError
+
+    def residual(self, f: Any, meas: Any) -> Any:
+        """The unwhitened residual (SX, :attr:`rows` entries) of measurement ``meas``; zero at
+        ``meas = measurement(f)``."""
+        raise NotImplementedError
+
+    def sqrt_information(self, f: Any) -> Any:
+        """``W`` with ``WᵀW = Σ⁻¹`` of the residual (a vector: diagonal; or a lower-triangular matrix)."""
+        raise NotImplementedError
+
+    # --- the evaluator's Jacobians ---
+
+    def blocks(self, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
+        """A compiled kernel: whitened Jacobians (world states) of every factor of ``entry`` on
+        ``nom``, None if it has none. A kind without one does not define it, and the evaluator
+        differentiates :meth:`residual` instead (:func:`excite.factors.symbolic.jacobians`)."""
+        raise NotImplementedError
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the kind has a compiled kernel (:meth:`blocks`)."""
+        return type(self).blocks is not Kind.blocks
+
+    def at_rate(self, entry: dict, rate_hz: float) -> dict:
+        """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second
+        (the optimizer's coarse rig, :func:`excite.plan.model.coarse_rig`); by default only its
+        rate changes (noise given as a density)."""
+        return dict(entry, rate_hz=rate_hz)
+
+    def factor_keyframes(self, rig: RigView, entry: Any, n_keyframes: int, nom: "Nominal | None" = None) -> np.ndarray:
+        """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes`` (relative to
+        its start): every ``stride``-th keyframe; pairs need their second keyframe. ``nom``, where
+        given, may say which measurements a logged drive holds (:attr:`Nominal.logs`); a kind
+        that reads it skips the missing ones."""
+        s = self.stride(rig, entry)
+        last = n_keyframes - 1 - (s if self.arity == 2 else 0)
+        return np.arange(0, last + 1, s) if last >= 0 else np.zeros(0, dtype=int)
+
+    def measured(self, rig: RigView, entry: Any, recorded: Any, values: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        """What :meth:`residual` compares with the model, from what ``entry`` recorded (its
+        :meth:`simulate` output), at the estimate ``values`` of its quantities; and the values the
+        residual is to be evaluated at. By default the recorded measurements as they are."""
+        return recorded, values
+
+    # --- simulation ---
+
+    def simulate(self, sim: Any, entry: Any) -> Any:
+        """What ``entry`` records on the simulated drive ``sim``
+        (:class:`excite.validate.simulate.Simulation`): a flat measurement per factor, in the
+        layout of :meth:`measurement` (rows of an array, one per factor of :meth:`factor_keyframes`)."""
+        raise NotImplementedError
+
+
+# --- the registry ------------------------------------------------------------------------------
+
+_KINDS: dict[str, Kind] = {}
+
+
+def register(kind: Kind) -> Kind:
+    """Add ``kind`` to the registry (its name, ``sensors:`` kinds and section must be new)."""
+    if kind.name in _KINDS:
+        raise ValueError(f"a measurement kind named {kind.name!r} is registered already")
+    taken = {k for other in _KINDS.values() for k in other.sensor_kinds}
+    if set(kind.sensor_kinds) & taken:
+        raise ValueError(f"sensor kind(s) {sorted(set(kind.sensor_kinds) & taken)} are measured by another kind")
+    if kind.section is not None and any(o.section == kind.section for o in _KINDS.values()):
+        raise ValueError(f"rig section {kind.section!r} is read by another kind")
+    if kind.opening is not None and "position" not in kind.breaks:
+        raise ValueError(f"{kind.name}: an opening factor sees one keyframe's absolute state: the kind must "
+                         f"break the position symmetry")
+    unknown = set(kind.breaks) - set(SYMMETRIES)
+    if unknown:
+        raise ValueError(f"{kind.name}: breaks {sorted(unknown)}, not symmetries ({', '.join(SYMMETRIES)})")
+    _KINDS[kind.name] = kind
+    return kind
+
+
+def unregister(name: str) -> None:
+    """Remove a kind (tests that register a kind of their own remove it again)."""
+    _KINDS.pop(name, None)
+
+
+def kinds() -> list[Kind]:
+    """Every registered kind, in registration order (the built-in ones first)."""
+    return list(_KINDS.values())
+
+
+def kind_of_sensor(kind: str) -> Kind | None:
+    """The kind that measures ``sensors:`` entries of ``kind``."""
+    return next((k for k in _KINDS.values() if kind in k.sensor_kinds), None)
+
+
+def kind_of_section(section: str) -> Kind | None:
+    """The kind that reads the top-level rig section ``section``."""
+    return next((k for k in _KINDS.values() if k.section == section), None)
+
+
+def sensor_kinds() -> list[str]:
+    """Every ``kind:`` a ``sensors:`` entry may have."""
+    return [s for k in _KINDS.values() for s in k.sensor_kinds]
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One rig entry of one kind: what the loops over a rig's factors iterate."""
+
+    kind: Kind
+    entry: Any
+    name: str = field(default="")
+
+
+def instances(rig: RigView) -> Iterator[Instance]:
+    """Every (kind, entry) of ``rig``, kind by kind in registration order, entries in rig order."""
+    for k in _KINDS.values():
+        for e in k.entries(rig):
+            yield Instance(k, e, k.block_name(e))
+
+
+def quantities(cfg: Any) -> list[tuple[Kind, Any, Quantity]]:
+    """Every calibration quantity of a rig configuration, in the column order of θ: the
+    ``sensors:`` entries in their order, then the other kinds in registration order."""
+    view = _ConfigOnly(cfg)
+    out = []
+    for s in cfg.sensors:
+        k = kind_of_sensor(s.kind)
+        out += [(k, s, q) for q in k.quantities(cfg, s)]
+    for k in _KINDS.values():
+        if k.sensor_kinds:
+            continue
+        for e in k.entries(view):
+            out += [(k, e, q) for q in k.quantities(cfg, e)]
+    return out
+
+
+def columns(cfg: Any) -> list[Column]:
+    """The coordinates of θ a rig configuration estimates, in column order."""
+    out = []
+    for _, _, q in quantities(cfg):
+        if not q.estimated:
+            continue
+        for i, name in enumerate(q.coordinate_names()):
+            out.append(Column(name, q.unit, q.block, q.kind, i if q.size == 3 else q.axis, q.nuisance))
+    return out
+
+
+@dataclass(frozen=True)
+class _ConfigOnly:
+    """A rig configuration seen as a rig before its coordinates exist (for :meth:`Kind.entries`)."""
+
+    config: Any

@@ -12,29 +12,90 @@ In a turn the rear tyres run at a slip angle ``β = slip_angle·a_lat/g`` and th
 outwards at ``u·β`` (``u`` its forward speed). With ``vehicle.slip`` estimated, the lateral row
 is ``e_yᵀ R_W_Aᵀ v_V + slip_angle·u·(u·ψ̇)/g`` with ``a_lat ≈ u·ψ̇`` (ψ̇ the yaw rate about A's
 normal): ``slip_angle`` (``vehicle.slip_angle``, the slip angle at 1 g, rad) is a nuisance of the
-drive, linearised at zero (:func:`lateral_slip_regressor`).
+drive, linearised at zero.
 """
 
 from __future__ import annotations
+
+import math
 
 import numba as nb
 import numpy as np
 
 from ..core import kernels
-from ..rig.config import Rig
-from .base import FactorBlock, Nominal, theta_columns
-from .wheel import G_MPS2, _geometry, axle_velocity
+from ..core.lazy import ca
+from ..core.schema import Model, PositiveFloat
+from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
+from .wheel import G_MPS2, axle_geometry
 
 
-def blocks(nom: Nominal, rig: Rig) -> FactorBlock:
-    """Whitened Jacobians of the constraint at every keyframe."""
-    slip = rig.config.vehicle.slip.estimate
-    p_BV, R_BA, v_V = _geometry(nom, slip)
-    sig_lat, sig_vert = rig.nonholonomic_sigma_mps
-    Jx, Jt = _jacobians(nom.R, nom.v, nom.omega, R_BA, v_V, sig_lat, sig_vert, slip)
-    K = nom.n_keyframes
-    cols = theta_columns(rig, ["vehicle.slip_angle"]) if slip else np.zeros(0, dtype=int)
-    return FactorBlock("nonholonomic", np.arange(K), 1, 1, Jx, Jt, cols)
+class NonHolonomic(Model):
+    """The rear axle neither slides sideways nor lifts: lateral and vertical velocity ≈ 0, up to a
+    white slip velocity of density ``*_noise_density`` [m/s/√Hz] (its information per second does
+    not depend on how often the constraint is applied)."""
+
+    lateral_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
+    vertical_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
+
+
+def sigma_mps(nh: NonHolonomic, keyframe_rate_hz: float) -> tuple[float, float]:
+    """σ of the lateral and vertical velocity of the rear axle sampled at every keyframe [m/s]:
+    a white slip of density q sampled at rate f has σ = q·√f."""
+    f = math.sqrt(keyframe_rate_hz)
+    return nh.lateral_noise_density * f, nh.vertical_noise_density * f
+
+
+class NonHolonomicConstraint(Kind):
+    name = "nonholonomic"
+    arity = 1
+    rows = 2
+
+    def entries(self, rig: RigView) -> list:
+        return [rig.config.vehicle.nonholonomic]
+
+    def quantities(self, cfg, nh: NonHolonomic) -> list[Quantity]:
+        return [Quantity("vehicle", "slip_angle", 1, "rad", 0.0, cfg.vehicle.slip.estimate, nuisance=True)]
+
+    # --- the math ---
+
+    def measurement(self, f):
+        R_BV = ca.DM(f.R_V_B.T)
+        p_BV = ca.DM(-f.R_V_B.T @ f.p_V_B)
+        R, v, w = f.R[0], f.v[0], f.omega[0]
+        R_BA = ca.mtimes(R_BV, f.R_V_A[0])
+        R_W_A = ca.mtimes(R, R_BA)
+        along = ca.mtimes(R_W_A.T, v + ca.mtimes(R, ca.cross(w, p_BV)))
+        u, yaw_rate = along[0], ca.dot(R_BA[:, 2], w)
+        return ca.vertcat(along[1] + f.q["slip_angle"] * u * u * yaw_rate / G_MPS2, along[2])
+
+    def residual(self, f, meas):
+        return self.measurement(f) - meas
+
+    def sqrt_information(self, f):
+        lat, vert = sigma_mps(f.entry, f.rig.keyframe_rate_hz)
+        return ca.DM([1.0 / lat, 1.0 / vert])
+
+    # --- the compiled kernel ---
+
+    def blocks(self, nom: Nominal, rig: RigView, nh: NonHolonomic) -> FactorBlock:
+        """Whitened Jacobians of the constraint at every keyframe."""
+        slip = rig.config.vehicle.slip.estimate
+        p_BV, R_BA, v_V = axle_geometry(nom, slip)
+        sig_lat, sig_vert = sigma_mps(nh, rig.keyframe_rate_hz)
+        Jx, Jt = _jacobians(nom.R, nom.v, nom.omega, R_BA, v_V, sig_lat, sig_vert, slip)
+        cols = theta_columns(rig, ["vehicle.slip_angle"]) if slip else np.zeros(0, dtype=int)
+        return FactorBlock("nonholonomic", np.arange(nom.n_keyframes), 1, 1, Jx, Jt, cols)
+
+    # --- simulation ---
+
+    def simulate(self, sim, nh: NonHolonomic) -> np.ndarray:
+        """The pseudo-measurement of zero lateral and vertical axle velocity, with white slip of
+        the configured σ (physical: the body also yaws into every turn by the rear tyres' slip
+        angle, so the axle really slides outwards; that is the simulated drive's, not this)."""
+        K = sim.nom.n_keyframes
+        if not (sim.noisy and sim.settings.slip_noise):
+            return np.zeros((K, 2))
+        return sim.rng.normal(0.0, 1.0, (K, 2)) * np.array(sigma_mps(nh, sim.rig.keyframe_rate_hz))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -70,20 +131,3 @@ def _jacobians(R, v, omega_B, R_BA, v_V, sig_lat, sig_vert, slip):
     return Jx, Jt
 
 
-def lateral_slip_regressor(R_W_A, v_V, omega_B, R_BA) -> np.ndarray:
-    """``u·(u·ψ̇)/g`` at every keyframe [m/s]: the rear axle's outward slide per unit slip angle at
-    1 g, ``u`` its forward speed (from its world velocity ``v_V``, :func:`~excite.factors.wheel.axle_velocity`)
-    and ψ̇ the yaw rate about A's normal (stacks (K,3,3), (K,3), (K,3), (K,3,3) → (K,))."""
-    u = np.einsum("kj,kj->k", R_W_A[:, :, 0], v_V)  # e_xᵀ R_W_Aᵀ v_V
-    yaw_rate = np.einsum("kj,kj->k", R_BA[:, :, 2], omega_B)  # e_zᵀ R_BAᵀ ω_B
-    return u * u * yaw_rate / G_MPS2
-
-
-def residual(R, v, omega_B, R_BA, p_BV, slip_angle: float = 0.0) -> np.ndarray:
-    """Unwhitened lateral and vertical velocity of the rear axle in the axle frame [m/s], less the
-    outward slide of a slip angle of ``slip_angle`` at 1 g (one keyframe)."""
-    v_V = axle_velocity(R[None], v[None], omega_B[None], p_BV)
-    R_W_A = R[None] @ R_BA[None]
-    r = (R_W_A[0].T @ v_V[0])[1:3]
-    r[0] += slip_angle * lateral_slip_regressor(R_W_A, v_V, omega_B[None], R_BA[None])[0]
-    return r

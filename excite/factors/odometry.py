@@ -1,40 +1,179 @@
-"""Relative pose of an exteroceptive sensor (lidar or camera odometry) between consecutive frames.
+"""Relative pose of an exteroceptive sensor (lidar or camera odometry) between its consecutive frames.
 
 The sensor's pose at frame i is ``T_W_B(t_i + t_d) · T_B_S``; the body pose at ``t_i + t_d`` is
-taken to first order from keyframe i through the body's angular and linear velocity. Frames
-coincide with every ``stride``-th keyframe. Residual (rotation, translation) in frame ``S_i``:
+taken to first order from keyframe i through the body's angular and linear velocity
+(``R Exp(ω t_d)``, ``p + v t_d``). Frames coincide with every ``stride``-th keyframe. Residual
+(rotation, translation) in frame ``S_i``:
 
     r_R = Log(R_measᵀ R_rel),   r_t = s · t_rel − t_meas
 
 with ``R_rel = R_S_iᵀ R_S_j``, ``t_rel = R_S_iᵀ (p_S_j − p_S_i)`` and s the unknown scale of a
 monocular camera (1 otherwise). Extrinsic perturbations are right-multiplicative on ``R_B_S`` and
 additive on ``p_B_S``.
+
+Noise is a drift density: the odometry's pose error grows as a random walk in time, so a relative
+pose over Δt has σ = density·√Δt (``rotation_density_deg_per_sqrt_s``,
+``translation_density_m_per_sqrt_s``), and consecutive frame pairs are independent. The
+information per second then does not depend on the frame rate: a 20 Hz lidar of the same quality
+is told what a 10 Hz one is (with σ per frame pair, at the same σ a faster sensor came out
+*worse*, its lever-arm signal per pair shrinking with Δt). No per-frame floor is kept: a white
+error of each frame's pose makes consecutive relative poses correlated (a moving average), not
+independent, and a white floor per pair would bring the rate dependence back.
 """
 
 from __future__ import annotations
 
+import math
+from typing import Literal
+
 import numba as nb
 import numpy as np
+from pydantic import model_validator
 
 from ..core import kernels, so3
-from ..rig.config import Rig, SensorConfig
-from .base import FactorBlock, Nominal, theta_columns
+from ..core.bounds import Range
+from ..core.lazy import ca
+from ..core.schema import Model, PositiveFloat, SensorEntry
+from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
+from .symbolic import exp, residual_log
 
 
-def blocks(nom: Nominal, rig: Rig, sensor: SensorConfig) -> FactorBlock | None:
-    """Whitened Jacobians of every relative-pose measurement of ``sensor`` (None if < 2 frames)."""
-    stride = int(round(rig.keyframe_rate_hz / sensor.rate_hz))
-    N = (nom.n_keyframes - 1) // stride
-    if N < 1:
-        return None
-    name = sensor.name
-    names = [c.name for c in rig.coordinates if c.block == name]
-    at = lambda key, on: names.index(f"{name}.{key}") if on else -1  # noqa: E731
-    Jx, Jt = _jacobians(nom.R, nom.p, nom.v, nom.omega, stride, sensor.T_B_S.R, sensor.T_B_S.p,
-                        at("rot_x", sensor.estimate.extrinsic), at("trans_x", sensor.estimate.extrinsic),
-                        at("time_offset", sensor.estimate.time_offset), at("scale", sensor.monocular), len(names),
-                        np.deg2rad(sensor.noise.rotation_sigma_deg), sensor.noise.translation_sigma_m)
-    return FactorBlock(name, np.arange(N) * stride, stride, 2, Jx, Jt, theta_columns(rig, names))
+class OdometryNoise(Model):
+    """Drift densities of the odometry: the σ of a relative pose over Δt is density·√Δt, per axis
+    (rotation [deg/√s], translation [m/√s]); see the module docstring."""
+
+    rotation_density_deg_per_sqrt_s: PositiveFloat
+    translation_density_m_per_sqrt_s: PositiveFloat
+
+
+class OdometrySensor(SensorEntry):
+    """A lidar or camera whose odometry gives the relative pose between its frames."""
+
+    kind: Literal["lidar", "camera"]
+    noise: OdometryNoise
+    monocular: bool = False
+
+    @model_validator(mode="after")
+    def _mono_is_camera(self) -> "OdometrySensor":
+        if self.monocular and self.kind != "camera":
+            raise ValueError("monocular applies to cameras only")
+        return self
+
+
+def pair_sigmas(sensor: "OdometrySensor") -> tuple[float, float]:
+    """σ of one relative pose between consecutive frames of ``sensor``: rotation [rad] and
+    translation [m] per axis, density·√(1/rate)."""
+    root_dt = math.sqrt(1.0 / sensor.rate_hz)
+    n = sensor.noise
+    return math.radians(n.rotation_density_deg_per_sqrt_s * root_dt), n.translation_density_m_per_sqrt_s * root_dt
+
+
+_LEVER = ("horizontal lever arm: add yaw at changing speed (turns both ways, figure-eight, slalom)",
+          "needs turns both ways at changing speed: a figure-eight, a slalom")
+
+
+class Odometry(Kind):
+    name = "odometry"
+    arity = 2
+    rows = 6
+    sensor_kinds = ("lidar", "camera")
+    config = OdometrySensor
+    ranges = {"noise.rotation_density_deg_per_sqrt_s": Range(1e-6, 90.0, "deg/√s"),
+              "noise.translation_density_m_per_sqrt_s": Range(1e-6, 100.0, "m/√s")}
+    advice = {
+        ("trans", 2): ("vertical lever arm: add pitch and roll (hard braking and acceleration, ramps, "
+                       "brisk cornering); planar driving leaves it nearly undetermined",
+                       "needs pitch and roll: a ramp, hard braking, brisk cornering"),
+        ("trans", 0): _LEVER,
+        ("trans", 1): _LEVER,
+        ("rot", 0): ("extrinsic rotation about the travel direction: add turns; straight driving "
+                     "leaves it undetermined", "needs turns: straight driving cannot reach it"),
+        ("rot", 1): ("extrinsic rotation about the lateral axis: add turns and pitch (braking, ramps)",
+                     "needs turns and pitch: braking, a ramp"),
+        ("rot", 2): ("extrinsic rotation about the vertical axis: add straight runs and turns",
+                     "needs straight runs and turns"),
+        ("time_offset", None): ("time offset: vary angular rate and acceleration (slalom, stop-and-go); "
+                                "constant velocity hides it",
+                                "needs changing turn rate and speed: a slalom, stop-and-go"),
+        ("scale", None): ("monocular scale: accelerate and decelerate", "needs speed changes: accelerate and brake"),
+    }
+
+    def quantities(self, cfg, s: OdometrySensor) -> list[Quantity]:
+        ext = s.estimate.extrinsic
+        return [Quantity(s.name, "rot", 3, "rad", s.T_B_S.R, ext),
+                Quantity(s.name, "trans", 3, "m", s.T_B_S.p, ext),
+                Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset),
+                Quantity(s.name, "scale", 1, "1", 1.0, s.monocular, nuisance=True)]
+
+    # --- the math ---
+
+    @staticmethod
+    def _relative(f):
+        """``R_rel``, ``t_rel`` of the sensor between the factor's two frames."""
+        R_BS, p_BS, t_d = f.q["rot"], f.q["trans"], f.q["time_offset"]
+        poses = []
+        for a in range(2):
+            Rb = ca.mtimes(f.R[a], exp(f.omega[a] * t_d))
+            pb = f.p[a] + f.v[a] * t_d
+            poses.append((ca.mtimes(Rb, R_BS), pb + ca.mtimes(Rb, p_BS)))
+        (Ri, pi), (Rj, pj) = poses
+        return ca.mtimes(Ri.T, Rj), ca.mtimes(Ri.T, pj - pi)
+
+    def measurement(self, f):
+        R_rel, t_rel = self._relative(f)
+        return ca.vertcat(ca.reshape(R_rel.T, 9, 1), f.q["scale"] * t_rel)
+
+    def residual(self, f, meas):
+        R_rel, t_rel = self._relative(f)
+        R_meas = ca.reshape(meas[0:9], 3, 3).T
+        return ca.vertcat(residual_log(ca.mtimes(R_meas.T, R_rel)), f.q["scale"] * t_rel - meas[9:12])
+
+    def sqrt_information(self, f):
+        sig_r, sig_t = pair_sigmas(f.entry)
+        return ca.DM([1.0 / sig_r] * 3 + [1.0 / sig_t] * 3)
+
+    # --- the compiled kernel ---
+
+    def blocks(self, nom: Nominal, rig: RigView, sensor: OdometrySensor) -> FactorBlock | None:
+        """Whitened Jacobians of every relative-pose measurement of ``sensor`` (None if < 2 frames)."""
+        stride = self.stride(rig, sensor)
+        N = (nom.n_keyframes - 1) // stride
+        if N < 1:
+            return None
+        name = sensor.name
+        names = [c.name for c in rig.coordinates if c.block == name]
+        at = lambda key, on: names.index(f"{name}.{key}") if on else -1  # noqa: E731
+        sig_r, sig_t = pair_sigmas(sensor)
+        Jx, Jt = _jacobians(nom.R, nom.p, nom.v, nom.omega, stride, sensor.T_B_S.R, sensor.T_B_S.p,
+                            at("rot_x", sensor.estimate.extrinsic), at("trans_x", sensor.estimate.extrinsic),
+                            at("time_offset", sensor.estimate.time_offset), at("scale", sensor.monocular), len(names),
+                            sig_r, sig_t)
+        return FactorBlock(name, np.arange(N) * stride, stride, 2, Jx, Jt, theta_columns(rig, names))
+
+    # --- simulation ---
+
+    def simulate(self, sim, s: OdometrySensor) -> np.ndarray:
+        """Relative poses between the sensor's frames at its own clock: the frame stamped ``t``
+        shows the body at ``t + t_d`` (the exact pose of the drive; the factor takes it to first
+        order); a monocular camera's translations carry its true scale."""
+        first = self.factor_keyframes(sim.rig, s, sim.nom.n_keyframes)
+        frames = np.r_[first, first[-1] + self.stride(sim.rig, s)] if first.size else first
+        if frames.size < 2:
+            return np.zeros((0, 12))
+        truth = sim.truth
+        R_BS, p_BS = truth.rotation(s.name), truth.vector(s.name, "trans")
+        R_b, p_b = sim.body_at(sim.nom.t[frames] + truth.scalar(s.name, "time_offset"))
+        R_S = R_b @ R_BS
+        p_S = p_b + R_b @ p_BS
+        R_iT = np.swapaxes(R_S[:-1], 1, 2)
+        R_rel = R_iT @ R_S[1:]
+        t_rel = np.einsum("nij,nj->ni", R_iT, p_S[1:] - p_S[:-1]) * truth.scalar(s.name, "scale")
+        if sim.noisy:
+            F = frames.size - 1
+            sig_r, sig_t = pair_sigmas(s)
+            R_rel = R_rel @ so3.exp(sim.rng.normal(0.0, sig_r, (F, 3)))
+            t_rel = t_rel + sim.rng.normal(0.0, sig_t, (F, 3))
+        return np.hstack([R_rel.reshape(-1, 9), t_rel])
 
 
 @nb.njit(cache=True, nogil=True)
@@ -130,19 +269,3 @@ def _jacobians(R, p, v, w, stride, R_BS, p_BS, c_rot, c_trans, c_time, c_scale, 
     return Jx, Jt
 
 
-# --- nonlinear model ---------------------------------------------------------------------------
-
-def sensor_pose(R, p, v, w, R_BS, p_BS, t_d):
-    """Pose of the sensor at body time ``t + t_d`` (first order in ``t_d``)."""
-    Rb = R @ so3.exp(w * t_d)
-    pb = p + v * t_d
-    return Rb @ R_BS, pb + Rb @ p_BS
-
-
-def residual(state_i, state_j, R_BS, p_BS, t_d, scale, meas) -> np.ndarray:
-    """Unwhitened 6-vector residual; ``state = (R, p, v, omega_B)``, ``meas = (R_rel, t_rel)``."""
-    RSi, pSi = sensor_pose(*state_i, R_BS, p_BS, t_d)
-    RSj, pSj = sensor_pose(*state_j, R_BS, p_BS, t_d)
-    R_rel = RSi.T @ RSj
-    t_rel = RSi.T @ (pSj - pSi)
-    return np.concatenate([so3.log(meas[0].T @ R_rel), scale * t_rel - meas[1]])

@@ -12,31 +12,188 @@ with ``m = (cos Δψ/2, sin Δψ/2, 0)`` along the mean heading (``mᵀc`` is th
 undetermined — came out weakly determined by an O(Δψ²) artefact that shrank with the keyframe
 rate.) The left and right wheels
 turn by ``(Δs ∓ ½·track·Δψ) / radius_{left,right}`` radians, each with noise
-``noise_density·√Δt`` (:attr:`excite.rig.config.Rig.wheel_increment_sigma_rad`).
+``noise_density·√Δt``.
 
 Tyres slip: a driven wheel turns faster than it travels, a braking one slower. With
 ``vehicle.slip`` estimated, both angles are multiplied by ``1 + slip·ā/g``, ``ā`` the interval's
-mean longitudinal acceleration (:func:`longitudinal_accel_g`) and ``slip`` (``wheel.slip``, the
+mean longitudinal acceleration ``mᵀ R_W_A,iᵀ (v_V,j − v_V,i) / ΔT`` along the interval's mean
+heading (the axle's velocity ``v_V = v + R_W_B (ω_B × p_B_V)``) and ``slip`` (``wheel.slip``, the
 slip ratio at 1 g) a nuisance of the drive, linearised at zero.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba as nb
 import numpy as np
 
-from ..core import kernels, so3
-from ..rig.config import Rig
-from ..motion.trajectory import GRAVITY
-from .base import FactorBlock, Nominal, theta_columns
-
+from ..core import kernels
+from ..core.bounds import Range
+from ..core.lazy import ca
+from ..core.schema import Model, PositiveFloat
+from ..motion.trajectory import GRAVITY, Trajectory
+from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
+from .symbolic import log
 
 G_MPS2 = float(-GRAVITY[2])  # [m/s²]: slip is stated per g
 
 
-def _geometry(nom: Nominal, slip: bool = False):
+class WheelConfig(Model):
+    """Wheel encoders on the rear axle. ``noise_density`` [rad/s/√Hz]: white noise on each
+    wheel's measured rate (quantisation, slip), so that a rotation increment over Δt has
+    σ = noise_density·√Δt whatever the keyframe rate (the gyroscope's convention, Kalibr's units)."""
+
+    radius_left_m: PositiveFloat
+    radius_right_m: PositiveFloat
+    track_m: PositiveFloat
+    noise_density: PositiveFloat
+    estimate: bool = True
+
+
+def increment_sigma_rad(wheels: WheelConfig, keyframe_rate_hz: float) -> float:
+    """σ of one wheel's rotation increment over a keyframe interval [rad]."""
+    return wheels.noise_density / float(np.sqrt(keyframe_rate_hz))
+
+
+class Wheel(Kind):
+    name = "wheel"
+    arity = 2
+    rows = 2
+    section = "wheels"
+    config = WheelConfig
+    ranges = {"radius_left_m": Range(0.05, 5.0, "m"), "radius_right_m": Range(0.05, 5.0, "m"),
+              "track_m": Range(0.1, 20.0, "m"), "noise_density": Range(1e-7, 10.0, "rad/s/√Hz")}
+    advice = {
+        ("radius", None): ("wheel radii: drive several curvatures, left, right and straight; one "
+                           "constant curvature leaves a radii/track combination undetermined",
+                           "needs several curvatures: turn left, turn right, drive straight"),
+        ("track", None): ("wheel track: turn both ways; straight driving says nothing about it",
+                          "needs turns: turn both ways"),
+    }
+
+    def quantities(self, cfg, wc: WheelConfig) -> list[Quantity]:
+        on = wc.estimate
+        return [Quantity("wheel", "radius", 1, "m", wc.radius_left_m, on, names=("wheel.radius_left",),
+                         key="radius_left", axis=0),
+                Quantity("wheel", "radius", 1, "m", wc.radius_right_m, on, names=("wheel.radius_right",),
+                         key="radius_right", axis=1),
+                Quantity("wheel", "track", 1, "m", wc.track_m, on),
+                Quantity("wheel", "slip", 1, "1", 0.0, cfg.vehicle.slip.estimate, nuisance=True)]
+
+    # --- the math ---
+
+    def measurement(self, f):
+        tr = axle_travel(f)
+        b = f.q["track"]
+        inc = ca.vertcat((tr.ds - 0.5 * b * tr.dpsi) / f.q["radius_left"], (tr.ds + 0.5 * b * tr.dpsi) / f.q["radius_right"])
+        return inc * (1.0 + f.q["slip"] * tr.along)
+
+    def residual(self, f, meas):
+        return self.measurement(f) - meas
+
+    def sqrt_information(self, f):
+        return ca.DM([1.0 / increment_sigma_rad(f.entry, f.rig.keyframe_rate_hz)] * 2)
+
+    # --- the compiled kernel ---
+
+    def blocks(self, nom: Nominal, rig: RigView, wc: WheelConfig) -> FactorBlock:
+        """Whitened Jacobians of the left/right wheel increments of every keyframe interval."""
+        names = ["wheel.radius_left", "wheel.radius_right", "wheel.track"] if wc.estimate else []
+        slip = rig.config.vehicle.slip.estimate
+        p_BV, R_BA, v_V = axle_geometry(nom, slip)
+        dT = nom.t[1] - nom.t[0] if nom.n_keyframes > 1 else 1.0
+        Jx, Jt = _jacobians(nom.R, nom.p, R_BA, p_BV, wc.radius_left_m, wc.radius_right_m,
+                            wc.track_m, increment_sigma_rad(wc, rig.keyframe_rate_hz), wc.estimate, slip, v_V, dT)
+        cols = (theta_columns(rig, names + (["wheel.slip"] if slip else [])) if names or slip
+                else np.zeros(0, dtype=int))
+        return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
+
+    # --- simulation ---
+
+    def simulate(self, sim, wc: WheelConfig) -> np.ndarray:
+        """Each wheel's rotation over every keyframe interval as its encoder counts it: ticks
+        (quantisation ``2π/ticks_per_rev``) of the cumulative angle plus white noise, so that the
+        total noise of one increment (white + two quantisation errors) equals the rig's.
+        Physical: the angle integrates the wheel's contact-point speed with a slip ratio that grows
+        linearly with longitudinal acceleration (what ``wheel.slip`` models) and with the square of
+        the lateral one (which nothing models); model: the increments of the measurement model."""
+        nom, settings, rng, truth = sim.nom, sim.settings, sim.rng, sim.truth
+        K, n = nom.n_keyframes, nom.imu_per_keyframe
+        rl, rr = truth.scalar("wheel", "radius_left"), truth.scalar("wheel", "radius_right")
+        track = truth.scalar("wheel", "track")
+        if settings.wheel_slip_per_g or settings.wheel_scrub_per_g2:
+            over = max(settings.imu_oversampling, 1)
+            dt = 1.0 / sim.rig.config.imu.update_rate
+            t_fine = nom.t[0] + np.arange((K - 1) * n * over + 1) * (dt / over)
+            inc = np.diff(_wheel_angles(sim.traj, t_fine, nom.t, (rl, rr), track, settings.wheel_slip_per_g,
+                                        settings.wheel_scrub_per_g2), axis=0)
+        else:
+            inc = sim.measured(self, wc)  # the measurement model at the truth, slip aside
+        tpr = settings.wheel_ticks_per_rev
+        q = 2 * np.pi / tpr if tpr else 0.0
+        sigma = increment_sigma_rad(wc, sim.rig.keyframe_rate_hz)
+        white2 = sigma ** 2 - q ** 2 / 6.0  # an increment differences two quantisation errors
+        if white2 <= 0:
+            raise ValueError(f"wheel quantisation of {tpr} ticks/rev alone exceeds the wheel noise "
+                             f"per keyframe ({sigma:g} rad): use more ticks per revolution")
+        if sim.noisy:
+            inc = inc + rng.normal(0.0, np.sqrt(white2), inc.shape)
+        if not tpr:
+            return inc
+        angle = np.vstack([np.zeros((1, 2)), np.cumsum(inc, axis=0)])
+        phase = rng.uniform(0.0, 1.0, 2) if sim.noisy else np.full(2, 0.5)
+        ticks = np.floor(angle / q + phase) - np.floor(phase)
+        return np.diff(ticks, axis=0) * q
+
+
+@dataclass
+class Travel:
+    """The rear axle over a pair of keyframes (CasADi SX, :func:`axle_travel`): its turn ``dpsi``
+    [rad] about the road normal, its travel ``ds`` [m] along the arc and ``lat`` [m] across the
+    interval's mean heading (a sideways slide: zero on an arc), its mean longitudinal acceleration
+    along the mean heading in g (``along``), and at each keyframe its forward and lateral speed
+    ``u``, ``v_lat`` [m/s] and its yaw rate ``yaw_rate`` [rad/s] about the road normal (the
+    nominal body rate)."""
+
+    dpsi: object
+    ds: object
+    lat: object
+    along: object
+    u: list
+    v_lat: list
+    yaw_rate: list
+
+
+def axle_travel(f) -> Travel:
+    """What the rear axle did between the two keyframes of factor ``f`` (see the module
+    docstring): the one statement of the arc that the wheel kinds read."""
+    R_BV = ca.DM(f.R_V_B.T)
+    p_BV = ca.DM(-f.R_V_B.T @ f.p_V_B)
+    R_BA = [ca.mtimes(R_BV, f.R_V_A[a]) for a in range(2)]
+    RAi, RAj = ca.mtimes(f.R[0], R_BA[0]), ca.mtimes(f.R[1], R_BA[1])
+    dpsi = log(ca.mtimes(RAi.T, RAj))[2]
+    c = ca.mtimes(RAi.T, f.p[1] + ca.mtimes(f.R[1], p_BV) - f.p[0] - ca.mtimes(f.R[0], p_BV))
+    h = 0.5 * dpsi
+    small = ca.fabs(h) < 1e-3
+    hs = ca.if_else(small, 1.0, h)
+    arc = ca.if_else(small, 1.0 + h * h / 6.0 + 7.0 * h ** 4 / 360.0, hs / ca.sin(hs))
+    ds = arc * (ca.cos(h) * c[0] + ca.sin(h) * c[1])
+    lat = ca.cos(h) * c[1] - ca.sin(h) * c[0]  # the chord of an arc lies along the mean heading
+    # the axle's velocity v_V = v + R (ω × p_BV): its mean acceleration, and its speed at each end
+    vV = [f.v[a] + ca.mtimes(f.R[a], ca.cross(f.omega[a], p_BV)) for a in range(2)]
+    dv = ca.mtimes(RAi.T, vV[1] - vV[0])
+    along = (ca.cos(h) * dv[0] + ca.sin(h) * dv[1]) / (f.dT * G_MPS2)
+    RA = (RAi, RAj)
+    u = [ca.dot(RA[a][:, 0], vV[a]) for a in range(2)]
+    v_lat = [ca.dot(RA[a][:, 1], vV[a]) for a in range(2)]
+    yaw_rate = [ca.dot(R_BA[a][:, 2], f.omega[a]) for a in range(2)]
+    return Travel(dpsi, ds, lat, along, u, v_lat, yaw_rate)
+
+
+def axle_geometry(nom: Nominal, slip: bool = False):
     """The rear axle seen from B: ``p_BV`` (origin of V in B), ``R_BA = R_BV R_V_A`` at every
-    keyframe and, with ``slip``, the axle's world velocity :func:`axle_velocity` (else an empty
+    keyframe and, with ``slip``, the axle's world velocity ``v + R (ω_B × p_BV)`` (else an empty
     stack); compiled (:func:`_axle`), as these run per keyframe on every evaluation."""
     R_BV = np.ascontiguousarray(nom.R_V_B.T)
     p_BV = -R_BV @ nom.p_V_B  # origin of V in B
@@ -47,7 +204,7 @@ def _geometry(nom: Nominal, slip: bool = False):
 @nb.njit(cache=True, nogil=True)
 def _axle(R, v, omega_B, R_V_A, R_BV, p_BV, velocity):
     """``R_BA = R_BV R_V_A`` per keyframe and, if ``velocity``, ``v + R (ω_B × p_BV)``
-    (:func:`axle_velocity`; else (0, 3))."""
+    (``v + R (ω_B × p_BV)``; else (0, 3))."""
     K = R.shape[0]
     R_BA = np.empty((K, 3, 3))
     v_V = np.empty((K if velocity else 0, 3))
@@ -60,36 +217,6 @@ def _axle(R, v, omega_B, R_V_A, R_BV, p_BV, velocity):
             for c in range(3):
                 v_V[k, c] = v[k, c] + b[c]
     return R_BA, v_V
-
-
-def blocks(nom: Nominal, rig: Rig) -> FactorBlock | None:
-    """Whitened Jacobians of the left/right wheel increments of every keyframe interval."""
-    wc = rig.config.wheels
-    if wc is None:
-        return None
-    names = ["wheel.radius_left", "wheel.radius_right", "wheel.track"] if wc.estimate else []
-    slip = rig.config.vehicle.slip.estimate
-    p_BV, R_BA, v_V = _geometry(nom, slip)
-    dT = nom.t[1] - nom.t[0] if nom.n_keyframes > 1 else 1.0
-    Jx, Jt = _jacobians(nom.R, nom.p, R_BA, p_BV, wc.radius_left_m, wc.radius_right_m,
-                        wc.track_m, rig.wheel_increment_sigma_rad, wc.estimate, slip, v_V, dT)
-    cols = theta_columns(rig, names + (["wheel.slip"] if slip else [])) if names or slip else np.zeros(0, dtype=int)
-    return FactorBlock("wheel", np.arange(nom.n_keyframes - 1), 1, 2, Jx, Jt, cols)
-
-
-def axle_velocity(R: np.ndarray, v: np.ndarray, omega_B: np.ndarray, p_BV: np.ndarray) -> np.ndarray:
-    """World velocity of the rear axle's centre ``v + R (ω_B × p_B_V)`` (stacks (K,3,3), (K,3), (K,3))."""
-    return v + np.einsum("kij,kj->ki", R, np.cross(omega_B, p_BV))
-
-
-def longitudinal_accel_g(R_W_A: np.ndarray, v_V: np.ndarray, dT: float) -> np.ndarray:
-    """The axle's mean longitudinal acceleration over each keyframe interval in g, the regressor
-    of the wheel slip: ``mᵀ R_W_A,iᵀ (v_V,j − v_V,i) / (ΔT·g)`` along the interval's mean heading
-    ``m`` (the chord's); stacks (K,3,3), (K,3) → (K−1,)."""
-    RAi, RAj = R_W_A[:-1], R_W_A[1:]
-    h = 0.5 * so3.log(np.swapaxes(RAi, 1, 2) @ RAj)[:, 2]
-    dv = np.einsum("nji,nj->ni", RAi, v_V[1:] - v_V[:-1])
-    return (np.cos(h) * dv[:, 0] + np.sin(h) * dv[:, 1]) / (dT * G_MPS2)
 
 
 @nb.njit(cache=True, inline="always")
@@ -115,8 +242,8 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, v_V, dT):
         ∂Δs = a ∂(mᵀc) + a′ (mᵀc) ∂Δψ
 
     and the wheel angles ``(Δs ∓ ½ b Δψ)/r`` differentiated in the states and in (r_l, r_r, b)
-    and, with ``slip``, in the slip at 1 g (the angles times ``1 + slip·ā/g`` at slip 0, ā of
-    :func:`longitudinal_accel_g` from the axle velocities ``v_V``); everything divided by σ."""
+    and, with ``slip``, in the slip at 1 g (the angles times ``1 + slip·ā/g`` at slip 0, ā from the
+    axle velocities ``v_V``); everything divided by σ."""
     N = R.shape[0] - 1
     Jx = np.empty((N, 2, 18))  # every entry written below
     ns = 1 if slip else 0
@@ -195,14 +322,19 @@ def _jacobians(R, p, R_BA, p_BV, rl, rr, track, sigma, estimate, slip, v_V, dT):
     return Jx, Jt
 
 
-def increments(Ri, pi, Rj, pj, R_BA_i, R_BA_j, p_BV, radius_left, radius_right, track) -> np.ndarray:
-    """Left and right wheel rotation [rad] between two body poses (the nonlinear model); poses
-    may be stacks (N,3,3), (N,3), giving (N, 2)."""
-    RAi, RAj = Ri @ R_BA_i, Rj @ R_BA_j
-    dpsi = so3.log(np.swapaxes(RAi, -1, -2) @ RAj)[..., 2]
-    c = np.einsum("...ji,...j->...i", RAi, pj + Rj @ p_BV - pi - Ri @ p_BV)
-    h = 0.5 * dpsi
-    safe = np.where(np.abs(h) < 1e-3, 1.0, h)
-    arc = np.where(np.abs(h) < 1e-3, 1.0 + h * h / 6.0 + 7.0 * h**4 / 360.0, safe / np.sin(safe))
-    ds = arc * (np.cos(h) * c[..., 0] + np.sin(h) * c[..., 1])
-    return np.stack([(ds - 0.5 * track * dpsi) / radius_left, (ds + 0.5 * track * dpsi) / radius_right], axis=-1)
+def _wheel_angles(traj: Trajectory, t: np.ndarray, t_keyframes: np.ndarray, radii: tuple[float, float],
+                  track: float, slip_per_g: float, scrub_per_g2: float) -> np.ndarray:
+    """Cumulative left/right wheel angles at ``t_keyframes`` [rad]: each wheel's contact-point speed
+    along its heading (the axle's forward speed ∓ half the track times the yaw rate), times
+    ``1 + κ`` with the slip ratio ``κ = slip_per_g·a_long/g + scrub_per_g2·(a_lat/g)²``, over its
+    true radius, integrated (trapezoid) on the fine grid ``t``."""
+    smp = traj.sample(t)
+    g = float(np.linalg.norm(GRAVITY))
+    kappa = slip_per_g * smp.accel_long / g + scrub_per_g2 * (smp.accel_lat / g) ** 2
+    u, r = smp.speed, smp.yaw_rate
+    rate = np.stack([(u - 0.5 * track * r) / radii[0], (u + 0.5 * track * r) / radii[1]], axis=1)
+    rate *= (1.0 + kappa)[:, None]
+    angle = np.vstack([np.zeros((1, 2)), np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t)[:, None], axis=0)])
+    return np.stack([np.interp(t_keyframes, t, angle[:, i]) for i in range(2)], axis=1)
+
+

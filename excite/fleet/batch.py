@@ -212,7 +212,8 @@ def _expand(pattern: str, base: Path | None = None) -> list[Path]:
 
 
 @lru_cache(maxsize=32)
-def _rig(rig: str) -> Rig:
+def cached_rig(rig: str) -> Rig:
+    """The rig of a manifest's reference, read once (the routes of a manifest share their rig)."""
     return load_rig(rig)
 
 
@@ -255,7 +256,7 @@ def _rig_ref(value: Any, base: Path, key: str, where: str) -> str:
     p = base / value
     ref = str(p) if (Path(value).suffix or "/" in value) and p.exists() else value
     try:
-        _rig(ref)
+        cached_rig(ref)
     except ExciteError as exc:
         raise ManifestError(f"{where}: {key}: {exc}") from None
     return ref
@@ -308,7 +309,7 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
         if not isinstance(route, str) or not route:
             raise ManifestError(f"{where}: {key}.route: required, a route file or glob relative to the manifest")
         rig_ref = _rig_ref(entry["rig"], base, f"{key}.rig", where) if "rig" in entry else top_rig
-        rig = _rig(rig_ref)
+        rig = cached_rig(rig_ref)
         times = entry.get("times")
         if times is not None and not isinstance(times, str):
             raise ManifestError(f"{where}: {key}.times: expected a path, got {times!r}")
@@ -388,7 +389,7 @@ def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float
     for s in specs:  # command-line rigs are checked once, up front, like a manifest's
         if s.source == COMMAND_LINE:
             try:
-                _rig(s.rig)
+                cached_rig(s.rig)
             except ExciteError as exc:
                 raise ManifestError(f"--rig: {exc}") from None
     return specs
@@ -464,7 +465,7 @@ def load(spec: RouteSpec) -> tuple[Rig, Any]:
     from ..io.bags import BagSource, is_bag
     from ..io.routes import read_route
 
-    rig = _rig(spec.rig)
+    rig = cached_rig(spec.rig)
     with remote.local(spec.path) as path, remote.local(spec.times) as times:
         bag = BagSource(spec.topic, spec.imu_topic) if is_bag(path) else None
         return rig, read_route(path, times=times, suspension=rig.suspension, bag=bag)

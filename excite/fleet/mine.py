@@ -12,7 +12,8 @@ suffixes and prefixes are built once: about three combinations per window, batch
 
 **A window is closed exactly as the evaluator closes a drive**, so that its Λ_θ is the
 evaluator's on the cropped drive (:func:`crop`: the same trajectory restricted to the window's
-keyframes, sampled bit for bit as in the whole): the yaw gauge on its first keyframe, the
+keyframes, sampled bit for bit as in the whole): the yaw gauge and the opening factors (a GNSS
+antenna's first fix) on its first keyframe, the
 non-holonomic constraint at its last keyframe, and the last keyframe's local increment and bias
 deviation held at zero (``_chain_end``: with random-walk biases θ's bias columns are the bias at
 the window's end). Holding a column at zero is deleting it from the reduced system. The two
@@ -34,12 +35,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .. import information as info
 from ..io import remote
 from ..score import spectrum
 from ..errors import EvaluationError
-from ..score.evaluate import _scaled, _scored_mask, evaluate
-from ..factors.base import Nominal
+from ..score.evaluate import evaluate, scaled, scored_mask
+from ..factors.base import STATE_DIM, Nominal
+from ..information.closure import Closure
+from ..information.elimination import at_keyframe, piece
+from ..information.problem import check_length, columns, frame_step, linearise
 from ..core.parallel import n_threads, pool
 from ..rig.config import Rig
 from ..motion.trajectory import Trajectory
@@ -53,8 +56,9 @@ class Summaries:
     """The chunk summaries of one log (see the module docstring).
 
     ``T[c]`` is chunk ``c``'s information over ``[x_a, x_b, θ]`` (states of dimension ``sd``,
-    θ over :func:`excite.information.columns` of one drive); ``gauge[c]`` and ``cap[c]`` the
-    information a window adds at its first keyframe ``edges[c]`` (the yaw gauge, sd × sd) and at
+    θ over :func:`excite.information.columns` of one drive); ``opening[c]`` and ``cap[c]`` the
+    information a window adds at its first keyframe ``edges[c]`` (the gauge and the opening
+    factors of :meth:`~excite.information.closure.Closure.open`, over ``[x_a, θ]``) and at
     its last keyframe ``edges[c + 1]`` (the non-holonomic constraint there, over ``[x_b, θ]``); ``diag_tt[c]``
     diag H_θθ of the chunk before elimination."""
 
@@ -62,11 +66,12 @@ class Summaries:
     rate_hz: float  # keyframes per second
     edges: np.ndarray  # keyframe of each chunk boundary (C + 1)
     T: np.ndarray  # (C, 2 sd + p, 2 sd + p)
-    gauge: np.ndarray  # (C, sd, sd)
+    opening: np.ndarray  # (C, sd + p, sd + p)
     cap: np.ndarray  # (C, sd + p, sd + p)
     diag_tt: np.ndarray  # (C, p)
     length_m: np.ndarray  # (C,)
     sd: int
+    free: np.ndarray  # the components of a window's last keyframe that stay free (the closure's)
 
     @property
     def n_chunks(self) -> int:
@@ -80,7 +85,7 @@ class Summaries:
 def _chunk_edges(K: int, rig: Rig, chunk_s: float) -> np.ndarray:
     """Chunk boundaries of a drive of ``K`` keyframes: every ``chunk_s`` rounded to a multiple of
     every sensor's frame stride (no factor reaches across a boundary), the last chunk shorter."""
-    step = info.frame_step(rig)
+    step = frame_step(rig)
     size = max(step, int(round(chunk_s * rig.keyframe_rate_hz / step)) * step)
     edges = list(range(0, K - 1, size)) + [K - 1]
     if len(edges) > 2 and edges[-1] - edges[-2] < step:  # no sliver of a chunk at the end
@@ -97,33 +102,31 @@ def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> lis
     """The summaries of consecutive chunks ``edges[0] … edges[-1]`` (keyframes of the drive):
     sampled and linearised in one go (little interpreter time per keyframe), then each chunk's
     factors split off and its inner keyframes eliminated. Each chunk is linearised as an inner
-    chunk of a drive; what a window starting or ending at its ends adds is kept apart (the gauge;
+    chunk of a drive; what a window starting or ending at its ends adds is kept apart (the gauge
+    and the opening factors;
     the non-holonomic constraint at its last keyframe, which the next chunk also holds)."""
     k0 = int(edges[0])
     sub = Nominal.of(traj, rig, keyframes=(k0, int(edges[-1])))
     m = int(edges[-1]) - k0
-    blocks = []
-    for b in info._linearise(sub, rig, True, last=True):
-        if b is None or not b.n_factors:
-            continue
-        if b.name == "bias_walk":  # not anchored: a chunk's end is a window's end only sometimes
-            b = info._bias_walk(rig, m, float(sub.t[1] - sub.t[0]))
-        blocks.append(b)
+    closure = Closure.of(rig)
+    blocks = [b for b in linearise(sub, rig, closure, last=True, walk=False) if b is not None and b.n_factors]
+    if closure.state_dim > STATE_DIM:  # not anchored: a chunk's end is a window's end only sometimes
+        blocks.append(closure.walk(m, float(sub.t[1] - sub.t[0])))
     rel = edges - k0
     speed = np.linalg.norm(traj.sample(sub.t).v_W, axis=1)  # the rear axle's, as Nominal.length_m
     length = 0.5 * (speed[1:] + speed[:-1]) * np.diff(sub.t)  # per keyframe interval
     out = []
     for a, e in zip(rel[:-1], rel[1:]):
         own = [b.select((b.first >= a) & (b.first < e)).shifted(-a) for b in blocks]
-        cap = [b.select(b.first == e).shifted(-e) for b in blocks if b.name == "nonholonomic"]
-        pc = info._piece([b for b in own if b.n_factors], k0 + a, k0 + e, p, sd)
+        cap = [b.select(b.first == e).shifted(-e) for b in blocks if b.n_states == 1]  # one-keyframe factors
+        pc = piece([b for b in own if b.n_factors], k0 + a, k0 + e, p, sd)
         T = np.zeros((2 * sd + p,) * 2)  # over [x_a, x_b, θ]; the kernels keep H_bb's lower triangle only
         T[np.ix_(_A(sd, p), _A(sd, p))] = pc.H_ee
         T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
         T[sd:2 * sd, _A(sd, p)] = pc.H_be
         T[_A(sd, p), sd:2 * sd] = pc.H_be.T
-        gauge = info.at_keyframe(info._gauge(sub.R[a], 0, True), sd, p)[:sd, :sd]
-        out.append((T, gauge, info.at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
+        opening = at_keyframe(closure.fix(sub.R[a], 0) + closure.open(sub.window(a, e), rig), sd, p)
+        out.append((T, opening, at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
     return out
 
 
@@ -136,17 +139,17 @@ def summarise(traj: Trajectory, rig: Rig, chunk_s: float = DEFAULT_CHUNK_S) -> S
     if not (math.isfinite(chunk_s) and chunk_s > 0):
         raise EvaluationError(f"chunk_s must be a duration > 0 s, got {chunk_s}")
     t0, K = Nominal.grid(traj, rig)
-    info._check_length(K, rig)
+    check_length(K, rig)
     edges = _chunk_edges(K, rig, chunk_s)
-    p = len(info.columns(rig, 1)[0])
-    sd = info.state_dim(rig)
+    p = len(columns(rig, 1)[0])
+    sd = Closure.of(rig).state_dim
     C = edges.size - 1  # as many spans as a multiple of the thread count: every thread an equal share
     n_spans = -(-max(1, -(-(K - 1) // _SPAN_KEYFRAMES)) // n_threads()) * n_threads()
     per_span = max(1, -(-C // n_spans))
     spans = [edges[i:i + per_span + 1] for i in range(0, edges.size - 1, per_span)]
     parts = [x for span in pool().map(lambda e: _span(traj, rig, e, p, sd), spans) for x in span]
-    T, gauge, cap, diag_tt, length = (np.array(x) for x in zip(*parts))
-    return Summaries(t0, rig.keyframe_rate_hz, edges, T, gauge, cap, diag_tt, length, sd)
+    T, opening, cap, diag_tt, length = (np.array(x) for x in zip(*parts))
+    return Summaries(t0, rig.keyframe_rate_hz, edges, T, opening, cap, diag_tt, length, sd, Closure.of(rig).free())
 
 
 def _join(T1: np.ndarray, T2: np.ndarray, sd: int) -> np.ndarray:
@@ -170,13 +173,14 @@ def _join(T1: np.ndarray, T2: np.ndarray, sd: int) -> np.ndarray:
     return 0.5 * (out + np.swapaxes(out, 1, 2))
 
 
-def _close(T: np.ndarray, gauge: np.ndarray, cap: np.ndarray, sd: int) -> np.ndarray:
-    """Λ_θ of windows from their summaries: the gauge at the first keyframe, the constraint at
+def _close(T: np.ndarray, opening: np.ndarray, cap: np.ndarray, sd: int, free: np.ndarray) -> np.ndarray:
+    """Λ_θ of windows from their summaries: the gauge and the opening factors at the first keyframe, the constraint at
     the last, whose increment and bias deviation are held at zero (deleted); both states eliminated."""
     T = T.copy()
-    T[:, :sd, :sd] += gauge
+    A = _A(sd, T.shape[1] - 2 * sd)
+    T[:, A[:, None], A] += opening
     T[:, sd:, sd:] += cap
-    x = np.r_[0:sd, sd + info.end_free(sd)]  # the last keyframe: what stays free of it
+    x = np.r_[0:sd, sd + free]  # the last keyframe: what stays free of it
     th = np.arange(2 * sd, T.shape[1])
     Exx = T[:, x[:, None], x]
     Etx = T[:, th[:, None], x]
@@ -192,8 +196,9 @@ def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[
         T = s.T[first]
         for c in range(first + 1, first + L):
             T = _join(T[None], s.T[c][None], s.sd)[0]
-        return (_close(T[None], s.gauge[first][None], s.cap[first + L - 1][None], s.sd),
-                (s.diag_tt[first:first + L].sum(axis=0) + _cap_diag(s.cap[first + L - 1], s.sd))[None])
+        return (_close(T[None], s.opening[first][None], s.cap[first + L - 1][None], s.sd, s.free),
+                (s.diag_tt[first:first + L].sum(axis=0) + _cap_diag(s.cap[first + L - 1], s.sd)
+                 + _cap_diag(s.opening[first], s.sd))[None])
     C, sd = s.n_chunks, s.sd
     if not 1 <= L <= C:
         raise EvaluationError(f"a window of {L} chunks does not fit a log of {C}")
@@ -213,11 +218,13 @@ def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[
     if split.any():
         W[split] = _join(suf[starts[split]], pre[ends[split]], sd)
     csum = np.vstack([np.zeros(s.diag_tt.shape[1]), np.cumsum(s.diag_tt, axis=0)])
-    return _close(W, s.gauge[starts], s.cap[ends], sd), csum[ends + 1] - csum[starts] + _cap_diag(s.cap[ends], sd)
+    return (_close(W, s.opening[starts], s.cap[ends], sd, s.free),
+            csum[ends + 1] - csum[starts] + _cap_diag(s.cap[ends], sd) + _cap_diag(s.opening[starts], sd))
 
 
 def _cap_diag(cap: np.ndarray, sd: int) -> np.ndarray:
-    """diag H_θθ of the constraint at a window's last keyframe (its slip-angle column)."""
+    """diag H_θθ of what a window adds at one keyframe over ``[x, θ]`` (the constraint at its last
+    keyframe: its slip-angle column; the opening factors at its first)."""
     return np.diagonal(cap[..., sd:, sd:], axis1=-2, axis2=-1)
 
 
@@ -278,9 +285,9 @@ class Goal:
 
 def _analysed(rig: Rig, Lam: np.ndarray, diag: np.ndarray) -> tuple[float, np.ndarray]:
     """(score, σ per scored coordinate) of one window, as :func:`excite.score.evaluate.evaluate`."""
-    Ls, _ = _scaled(rig, Lam)
+    Ls, _ = scaled(rig, Lam)
     S = np.array([c.target for c in rig.scored])
-    spec = spectrum.analyse(Ls, diag[_scored_mask(rig, diag.size)], S)
+    spec = spectrum.analyse(Ls, diag[scored_mask(rig, diag.size)], S)
     return spec.score, spec.sigma
 
 
@@ -300,7 +307,7 @@ def batch_scores(rig: Rig, Lam_all: np.ndarray, diag: np.ndarray) -> tuple[np.nd
     """Score and ``passed`` (every σ within its target) of a stack of windows at once: what
     :func:`excite.score.spectrum.analyse` finds, without its null-space basis (a window with any
     unobservable direction scores 0 and does not pass). The tests hold the two equal."""
-    scored = _scored_mask(rig, Lam_all.shape[1])
+    scored = scored_mask(rig, Lam_all.shape[1])
     nu = ~scored
     Lam = Lam_all[:, scored][:, :, scored]
     if nu.any():  # the nuisances' Schur complement, as evaluate._marginalise_nuisance

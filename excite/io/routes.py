@@ -26,6 +26,10 @@ smooth curve on SO(3)). The fit is resampled on a uniform grid and the velocity 
 derivative, not a finite difference of noisy poses. ``cutoff_hz`` is the smoothing bandwidth
 (-3 dB frequency of the equivalent low-pass; capped at a quarter of the sample rate).
 
+A **comma2k19 segment folder** (``processed_log/`` and ``global_pose/``): the drive of V through
+the dataset's camera pose, with the recording's measured IMU (:mod:`excite.io.comma2k19`, which
+also reads its CAN wheel speeds, steering, radar tracks and GNSS fixes).
+
 Routes (driven through :func:`~excite.motion.vehicle.drive`, so suspension tilt is modelled):
 
 - **Waypoints CSV** (``.csv``): ``x,y[,z][,speed]`` [m, m/s]. An optional header names the
@@ -58,8 +62,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.linalg import solveh_banded
 from scipy.spatial.transform import Rotation
 
 from ..core import bounds, so3
@@ -67,24 +69,19 @@ from ..errors import RouteError
 from ..motion.paths import plan_given_speed, plan_speed, profile_from_plan, smooth_path
 from ..motion.trajectory import Trajectory
 from ..motion.vehicle import ControlProfile, Limits, Suspension, drive
+from .poses import (DEFAULT_CUTOFF_HZ, MIN_POSES, QUAT_NORM_TOL, R_CAM_VEH, ROTATION_TOL, check_range, check_timed,
+                    trajectory_from_poses)
+from .sniff import is_bag, is_comma2k19
 
 if TYPE_CHECKING:
     from .bags import BagSource
 
 __all__ = [
     "read_route", "read_tum", "read_kitti", "read_euroc", "read_waypoints_csv", "read_geojson",
-    "read_control_csv", "read_control_profile", "trajectory_from_poses", "route_from_waypoints",
+    "read_control_csv", "read_control_profile", "route_from_waypoints", "Text",
     "control_profile_of", "write_tum", "write_waypoints_csv", "write_control_csv",
 ]
 
-QUAT_NORM_TOL = 1e-3
-ROTATION_TOL = 1e-3
-MIN_POSES = 6
-DEFAULT_CUTOFF_HZ = 1.0  # vehicle motion lives below ~1 Hz; logged poses jitter above
-
-# KITTI camera (x right, y down, z forward) → vehicle (x forward, y left, z up): columns are V's
-# axes expressed in camera coordinates.
-R_CAM_VEH = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -102,33 +99,75 @@ class _Table:
     header_line: int | None = None
 
 
-def _read_text(path: Path) -> str:
+@dataclass(frozen=True)
+class Text:
+    """A route file held in memory: its ``content`` and the ``name`` it would have as a file
+    (its extension chooses the format, as a path's does; its stem names the route). Every reader
+    takes one wherever it takes a path, so a service parses what it holds without a temporary file."""
+
+    content: str | bytes
+    name: str = "route"
+
+
+@dataclass(frozen=True)
+class _Doc:
+    """A route file's text and how errors name it (the path, or the in-memory text's name)."""
+
+    text: str
+    label: str
+    name: str
+
+    @property
+    def stem(self) -> str:
+        return Path(self.name).stem
+
+    @property
+    def suffix(self) -> str:
+        return Path(self.name).suffix.lower()
+
+
+Source = str | Path | Text
+
+
+def document(source: "Source | _Doc") -> _Doc:
+    """The text of a path or of a :class:`Text`, decoded as UTF-8 (a clear error otherwise)."""
+    if isinstance(source, _Doc):
+        return source
+    if isinstance(source, Text):
+        content, label = source.content, source.name
+        if isinstance(content, bytes):
+            try:
+                content = content.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise RouteError(f"not a text file ({exc.reason})", source=label) from None
+        return _Doc(content, label, Path(label).name)
+    path = Path(source)
     try:
-        return path.read_text(encoding="utf-8")
+        return _Doc(path.read_text(encoding="utf-8"), str(path), path.name)
     except UnicodeDecodeError as exc:
         raise RouteError(f"not a text file ({exc.reason})", source=str(path)) from None
 
 
-def _split_rows(path: Path, sep: str | None, header: bool = False) -> _Table:
+def split_rows(doc: _Doc, sep: str | None, header: bool = False) -> _Table:
     """Non-blank, non-comment lines split into fields; with ``header``, a first line holding a
     non-number is returned as the header."""
-    table = _Table(str(path), [], [])
-    for i, raw in enumerate(_read_text(path).splitlines(), start=1):
+    table = _Table(doc.label, [], [])
+    for i, raw in enumerate(doc.text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
         fields = [f.strip() for f in line.split(sep)] if sep else line.split()
-        if header and table.header is None and not table.rows and not _is_number(fields[0]):
+        if header and table.header is None and not table.rows and not is_number(fields[0]):
             table.header, table.header_line = [f.lower() for f in fields], i
             continue
         table.rows.append(fields)
         table.lines.append(i)
     if not table.rows:
-        raise RouteError("the file has no data rows (empty file)", source=str(path))
+        raise RouteError("the file has no data rows (empty file)", source=doc.label)
     return table
 
 
-def _is_number(text: str) -> bool:
+def is_number(text: str) -> bool:
     try:
         float(text)
     except ValueError:
@@ -136,7 +175,7 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarray:
+def numbers(table: _Table, allowed: tuple[int, ...] | None = None) -> np.ndarray:
     """The rows as a float array; rejects wrong column counts, unparseable numbers, NaN/inf.
 
     Every row must have as many fields as the header (or, without one, as the first row), and
@@ -172,7 +211,7 @@ def _rows_one_by_one(table: _Table, want: int) -> np.ndarray:
         try:
             out[k] = [float(f) for f in fields]
         except ValueError:
-            j = next(j for j, f in enumerate(fields) if not _is_number(f))
+            j = next(j for j, f in enumerate(fields) if not is_number(f))
             raise RouteError(f"column {j + 1}: cannot parse {fields[j]!r} as a number",
                              source=table.source, line=line) from None
     return out
@@ -185,50 +224,6 @@ def _check_times(t: np.ndarray, source: str, lines: list[int]) -> None:
         what = "duplicate time" if dt[k - 1] == 0 else "time goes backwards"
         raise RouteError(f"{what}: {t[k]:.9g} s after {t[k - 1]:.9g} s (times must be strictly "
                          "increasing)", source=source, line=lines[k])
-
-
-def _check_range(values: np.ndarray, kind: str, what: str, source: str | None,
-                 lines: list[int] | None) -> None:
-    """Every value within the sane range ``bounds.ROUTE[kind]``, else the first one outside."""
-    sane = bounds.ROUTE[kind]
-    bad = ~((values >= sane.lo) & (values <= sane.hi))
-    if bad.any():
-        k = int(np.argwhere(bad)[0][0])
-        raise RouteError(f"{what} {np.asarray(values)[bad][0]:.6g} is outside the sane range {sane}",
-                         source=source, line=None if lines is None else lines[k])
-
-
-def _cutoff(cutoff_hz: float, h: float) -> float:
-    """The smoothing's bandwidth for poses ``h`` seconds apart: ``cutoff_hz``, at most a quarter
-    of their rate."""
-    return min(cutoff_hz, 0.25 / h)
-
-
-def _check_timed(t: np.ndarray, p: np.ndarray, rate_hz: float | None, source: str | None = None,
-                 lines: list[int] | None = None, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> None:
-    """Timed poses a drive can be made of: times and positions in range, a resampling grid
-    within the work bounds (checked before the grid is allocated), and no gap the smoothing
-    would fill with motion of its own (``MAX_GAP_PERIODS`` periods of its cutoff)."""
-    if not cutoff_hz > 0:  # ∞: the widest band the poses' rate allows (poses already smooth)
-        raise RouteError(f"the smoothing cutoff must be positive, got {cutoff_hz!r}", source=source)
-    _check_range(t, "t_s", "time", source, lines)
-    _check_range(p, "position_m", "position", source, lines)
-    if len(t) < 2:
-        return
-    rate = 1.0 / float(np.median(np.diff(t))) if rate_hz is None else rate_hz
-    if not (math.isfinite(rate) and rate > 0):
-        raise RouteError(f"the resampling rate must be positive and finite, got {rate!r}", source=source)
-    too_much = bounds.work_problem(float(t[-1] - t[0]), rate, bounds.MAX_SAMPLES, "samples")
-    if too_much:
-        raise RouteError(too_much, source=source)
-    dt = np.diff(t)
-    widest = int(np.argmax(dt))
-    longest = MAX_GAP_PERIODS / _cutoff(cutoff_hz, float(np.median(dt)))
-    if dt[widest] > longest:
-        raise RouteError(f"a gap of {dt[widest]:.3g} s before the pose at t = {t[widest + 1]:.3f} s: the "
-                         f"smoothing would invent the motion over more than "
-                         f"{longest:g} s; split the log at the gap (each part a drive of its own) or crop it",
-                         source=source, line=None if lines is None else lines[widest + 1])
 
 
 @contextmanager
@@ -252,72 +247,6 @@ def _check_count(n: int, minimum: int, what: str, source: str, lines: list[int])
 # Timed poses
 
 
-MAX_GAP_PERIODS = 5.0  # the widest gap between poses, in periods of the smoothing's cutoff (5 s at 1 Hz)
-
-
-def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
-                          cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float | None = None,
-                          name: str = "route") -> Trajectory:
-    """A smooth trajectory of V through noisy timed poses ``(t_s, p_m, R)``.
-
-    Times and positions are re-based on the first sample before any math. Positions and
-    (sign-unwrapped) quaternions are fitted with cubic smoothing splines whose penalty makes them
-    a low-pass of bandwidth ``cutoff_hz`` (``λ = 1 / (h (2π f_c)⁴)`` for sample spacing ``h``); the
-    fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
-    velocity is the derivative of the position spline.
-    """
-    _check_timed(np.asarray(t_s, dtype=float), np.asarray(p_m, dtype=float), rate_hz, cutoff_hz=cutoff_hz)
-    t = np.asarray(t_s, dtype=float) - float(t_s[0])
-    p = np.asarray(p_m, dtype=float) - np.asarray(p_m, dtype=float)[0]
-    q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
-    flips = np.concatenate([[1.0], np.sign(np.sum(q[1:] * q[:-1], axis=1))])
-    flips[flips == 0] = 1.0
-    q *= np.cumprod(flips)[:, None]
-    h = float(np.median(np.diff(t)))
-    f_c = _cutoff(cutoff_hz, h)
-    lam = 1.0 / (h * (2.0 * np.pi * f_c) ** 4)
-    pos = smoothing_spline(t, p, lam)
-    quat = smoothing_spline(t, q, lam)
-    rate = 1.0 / h if rate_hz is None else rate_hz
-    grid = np.linspace(0.0, t[-1], max(int(round(t[-1] * rate)) + 1, MIN_POSES))
-    qg = quat(grid)
-    qg /= np.linalg.norm(qg, axis=1, keepdims=True)
-    return Trajectory(grid, Rotation.from_quat(qg).as_matrix(), pos(grid),
-                      velocity=pos.derivative(1)(grid), name=name)
-
-
-def smoothing_spline(x: np.ndarray, y: np.ndarray, lam: float) -> CubicSpline:
-    """The cubic smoothing spline: of all twice-differentiable ``g``, the minimiser of
-    ``Σ |y_i − g(x_i)|² + λ ∫ |g''|²`` (the function of ``scipy.interpolate.make_smoothing_spline``).
-
-    Reinsch's algorithm: with ``Q`` the second-difference operator and ``R`` the tridiagonal
-    Gram matrix of the hat functions, ``(R + λ QᵀQ) γ = Qᵀ y`` for the second derivatives γ at
-    the interior knots, and ``g(x_i) = y_i − λ Q γ``; ``g`` is then the natural cubic spline
-    through those values. One banded (pentadiagonal) solve, no per-point Python loop.
-    """
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = x.size
-    h = np.diff(x)
-    inv = 1.0 / h
-    # Q (n × n-2): column j holds 1/h_j, −1/h_j − 1/h_{j+1}, 1/h_{j+1} at rows j, j+1, j+2
-    q0, q1, q2 = inv[:-1], -inv[:-1] - inv[1:], inv[1:]
-    m = n - 2
-    ab = np.zeros((3, m))  # upper form of the symmetric pentadiagonal R + λ QᵀQ
-    ab[2] = (h[:-1] + h[1:]) / 3.0 + lam * (q0**2 + q1**2 + q2**2)
-    ab[1, 1:] = h[1:-1] / 6.0 + lam * (q1[:-1] * q0[1:] + q2[:-1] * q1[1:])
-    ab[0, 2:] = lam * q2[:-2] * q0[2:]
-    Y = y.reshape(n, -1)
-    rhs = q0[:, None] * Y[:-2] + q1[:, None] * Y[1:-1] + q2[:, None] * Y[2:]
-    gamma = solveh_banded(ab, rhs)
-    Qg = np.zeros_like(Y)
-    Qg[:-2] += q0[:, None] * gamma
-    Qg[1:-1] += q1[:, None] * gamma
-    Qg[2:] += q2[:, None] * gamma
-    fit = (Y - lam * Qg).reshape(y.shape)
-    return CubicSpline(x, fit, bc_type="natural")
-
-
 def _quaternions(q: np.ndarray, source: str, lines: list[int], first_col: int) -> np.ndarray:
     norm = np.linalg.norm(q, axis=1)
     bad = np.abs(norm - 1.0) > QUAT_NORM_TOL
@@ -328,32 +257,32 @@ def _quaternions(q: np.ndarray, source: str, lines: list[int], first_col: int) -
     return q / norm[:, None]
 
 
-def read_tum(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+def read_tum(source: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
              rate_hz: float | None = None) -> Trajectory:
     """A TUM file ``t tx ty tz qx qy qz qw`` as a trajectory of V (see the module notes)."""
-    path = Path(path)
-    table = _split_rows(path, None)
-    d = _numbers(table, (8,))
+    doc = document(source)
+    table = split_rows(doc, None)
+    d = numbers(table, (8,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(d[:, 0], table.source, table.lines)
-    if already_smooth(path):  # what write_tum wrote: smoothing it again would attenuate the motion
+    if already_smooth(doc):  # what write_tum wrote: smoothing it again would attenuate the motion
         cutoff_hz = math.inf
-    _check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
+    check_timed(d[:, 0], d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     return trajectory_from_poses(d[:, 0], d[:, 1:4], Rotation.from_quat(q).as_matrix(),
-                                 cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=path.stem)
+                                 cutoff_hz=cutoff_hz, rate_hz=rate_hz, name=doc.stem)
 
 
-def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+def read_euroc(source: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None) -> Trajectory:
     """An EuRoC ground-truth CSV (ns timestamps, position, w-first quaternion) as V's trajectory."""
-    path = Path(path)
-    table = _split_rows(path, ",")
+    doc = document(source)
+    table = split_rows(doc, ",")
     n_cols = len(table.rows[0])
     if n_cols < 8:
         raise RouteError(f"expected at least 8 columns (timestamp, p_xyz, q_wxyz), got {n_cols}",
                          source=table.source, line=table.lines[0])
-    d = _numbers(table, (n_cols,))
+    d = numbers(table, (n_cols,))
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     # Integer nanoseconds: subtract the first stamp exactly before converting to seconds.
     try:
@@ -362,31 +291,31 @@ def read_euroc(path: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         ns = np.round(d[:, 0]).astype(np.int64)
     t = (ns - ns[0]).astype(float) * 1e-9
     _check_times(t, table.source, table.lines)
-    _check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
+    check_timed(t, d[:, 1:4], rate_hz, table.source, table.lines, cutoff_hz)
     q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
     R = Rotation.from_quat(q, scalar_first=True).as_matrix()
     return trajectory_from_poses(t, d[:, 1:4], R, cutoff_hz=cutoff_hz, rate_hz=rate_hz,
-                                 name=path.stem)
+                                 name=doc.stem)
 
 
-def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+def read_kitti(source: Source, times: Source, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None) -> Trajectory:
     """KITTI camera poses (12 numbers per line) with their times file, as V's trajectory.
 
     The camera frame is mapped to vehicle axes (x forward, y left, z up) and the world is the
     first *vehicle* frame, so it is z-up as far as the first camera was level.
     """
-    path, times = Path(path), Path(times)
-    table = _split_rows(path, None)
-    d = _numbers(table, (12,))
-    ttable = _split_rows(times, None)
-    t = _numbers(ttable, (1,))[:, 0]
+    doc, tdoc = document(source), document(times)
+    table = split_rows(doc, None)
+    d = numbers(table, (12,))
+    ttable = split_rows(tdoc, None)
+    t = numbers(ttable, (1,))[:, 0]
     if len(t) != len(d):
-        raise RouteError(f"{len(t)} times for {len(d)} poses in {path.name}", source=str(times),
+        raise RouteError(f"{len(t)} times for {len(d)} poses in {doc.name}", source=tdoc.label,
                          line=ttable.lines[min(len(t), len(d)) - 1])
     _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
     _check_times(t, ttable.source, ttable.lines)
-    _check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines, cutoff_hz)
+    check_timed(t, d[:, [3, 7, 11]], rate_hz, table.source, table.lines, cutoff_hz)
     T = d.reshape(-1, 3, 4)
     R_W_C, p_W_C = T[:, :, :3], T[:, :, 3]
     err = np.abs(np.swapaxes(R_W_C, 1, 2) @ R_W_C - np.eye(3)).max(axis=(1, 2))
@@ -400,7 +329,7 @@ def read_kitti(path: str | Path, times: str | Path, *, cutoff_hz: float = DEFAUL
     R = R_CAM_VEH.T @ R_W_C @ R_CAM_VEH
     p = p_W_C @ R_CAM_VEH  # R_CAM_VEHᵀ p, row-wise
     return trajectory_from_poses(t, p, Rotation.from_matrix(R).as_matrix(), cutoff_hz=cutoff_hz,
-                                 rate_hz=rate_hz, name=path.stem)
+                                 rate_hz=rate_hz, name=doc.stem)
 
 
 # --------------------------------------------------------------------------------------------
@@ -438,8 +367,8 @@ _WAYPOINT_COLS = {"x": "x", "x_m": "x", "y": "y", "y_m": "y", "z": "z", "z_m": "
 def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
                      lines: list[int]) -> None:
     _check_count(len(xyz), 2, "waypoints", source, lines)
-    _check_range(xyz[:, :2], "position_m", "coordinate", source, lines)
-    _check_range(xyz[:, 2], "altitude_m", "altitude", source, lines)
+    check_range(xyz[:, :2], "position_m", "coordinate", source, lines)
+    check_range(xyz[:, 2], "altitude_m", "altitude", source, lines)
     step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     if np.any(step < 1e-3):
         k = int(np.argmax(step < 1e-3)) + 1
@@ -449,7 +378,7 @@ def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
         if np.any(speed < 0):
             k = int(np.argmax(speed < 0))
             raise RouteError(f"negative speed {speed[k]:g} m/s", source=source, line=lines[k])
-        _check_range(speed, "speed_mps", "speed", source, lines)
+        check_range(speed, "speed_mps", "speed", source, lines)
         both = (speed[1:] == 0) & (speed[:-1] == 0)
         if both.any():
             k = int(np.argmax(both)) + 1
@@ -457,11 +386,11 @@ def _check_waypoints(xyz: np.ndarray, speed: np.ndarray | None, source: str,
                              "never get there", source=source, line=lines[k])
 
 
-def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
+def read_waypoints_csv(source: Source, *, limits: Limits = Limits(),
                        suspension: Suspension = Suspension()) -> Trajectory:
     """A waypoints CSV ``x,y[,z][,speed]`` as a drive (see the module notes)."""
-    path = Path(path)
-    table = _split_rows(path, ",", header=True)
+    doc = document(source)
+    table = split_rows(doc, ",", header=True)
     if table.header is not None:
         unknown = [h for h in table.header if h not in _WAYPOINT_COLS]
         names = [_WAYPOINT_COLS.get(h) for h in table.header]
@@ -469,16 +398,16 @@ def read_waypoints_csv(path: str | Path, *, limits: Limits = Limits(),
             raise RouteError(f"a header must be x,y[,z][,speed] (waypoints) or t_s,speed_mps,curvature_1pm"
                              f"[,grade_rad][,bank_rad] (controls), got {','.join(table.header)}",
                              source=table.source, line=table.header_line)
-        d = _numbers(table)
+        d = numbers(table)
     else:
-        d = _numbers(table, (2, 3, 4))
+        d = numbers(table, (2, 3, 4))
         names = ["x", "y", "z", "speed"][: d.shape[1]]
     cols = {n: d[:, i] for i, n in enumerate(names)}
     xyz = np.column_stack([cols["x"], cols["y"], cols.get("z", np.zeros(len(d)))])
     speed = cols.get("speed")
     _check_waypoints(xyz, speed, table.source, table.lines)
-    with _located(str(path)):
-        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(doc.label):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=doc.stem)
 
 
 def _json_line(text: str, pattern: str) -> int | None:
@@ -486,14 +415,13 @@ def _json_line(text: str, pattern: str) -> int | None:
     return None if m is None else text.count("\n", 0, m.start()) + 1
 
 
-def read_geojson(path: str | Path, *, limits: Limits = Limits(),
+def read_geojson(source: Source, *, limits: Limits = Limits(),
                  suspension: Suspension = Suspension()) -> Trajectory:
     """A GeoJSON LineString (lon/lat[/alt]) projected about its first point, as a drive."""
     from pyproj import Transformer
 
-    path = Path(path)
-    src = str(path)
-    text = _read_text(path)
+    source_doc = document(source)
+    src, text = source_doc.label, source_doc.text
     if not text.strip():
         raise RouteError("the file is empty", source=src)
     try:
@@ -551,8 +479,8 @@ def read_geojson(path: str | Path, *, limits: Limits = Limits(),
             raise RouteError("properties.speed_mps contains NaN or inf", source=src, line=sline)
     # Per-point problems are located at the coordinates key: JSON keeps no positions.
     _check_waypoints(xyz, speed, src, [cline] * len(xyz))
-    with _located(str(path)):
-        return route_from_waypoints(xyz, speed, limits, suspension, name=path.stem)
+    with _located(source_doc.label):
+        return route_from_waypoints(xyz, speed, limits, suspension, name=source_doc.stem)
 
 
 _CONTROL_COLS = {"t": "t_s", "t_s": "t_s", "speed": "speed_mps", "speed_mps": "speed_mps",
@@ -562,10 +490,10 @@ _CONTROL_COLS = {"t": "t_s", "t_s": "t_s", "speed": "speed_mps", "speed_mps": "s
 _START_RE = re.compile(r"#\s*start:\s*x_m=(\S+)\s+y_m=(\S+)\s+heading_rad=(\S+)")
 
 
-def read_control_profile(path: str | Path) -> ControlProfile:
+def read_control_profile(source: Source) -> ControlProfile:
     """A control CSV ``t_s,speed_mps,curvature_1pm[,grade_rad][,bank_rad]`` (header required)."""
-    path = Path(path)
-    table = _split_rows(path, ",", header=True)
+    doc = document(source)
+    table = split_rows(doc, ",", header=True)
     if table.header is None:
         raise RouteError("a control CSV needs a header naming its columns "
                          "t_s,speed_mps,curvature_1pm[,grade_rad][,bank_rad]",
@@ -576,7 +504,7 @@ def read_control_profile(path: str | Path) -> ControlProfile:
         raise RouteError("control CSV header must be t_s,speed_mps,curvature_1pm[,grade_rad]"
                          f"[,bank_rad], got {','.join(table.header)}", source=table.source,
                          line=table.header_line)
-    d = _numbers(table)
+    d = numbers(table)
     _check_count(len(d), 2, "knots", table.source, table.lines)
     cols = {n: d[:, i] for i, n in enumerate(names)}
     _check_times(cols["t_s"], table.source, table.lines)
@@ -589,9 +517,9 @@ def read_control_profile(path: str | Path) -> ControlProfile:
         raise RouteError(f"negative speed {cols['speed_mps'][k]:g} m/s (reversing is not "
                          "modelled)", source=table.source, line=table.lines[k])
     for name in names:
-        _check_range(cols[name], name, name, table.source, table.lines)
+        check_range(cols[name], name, name, table.source, table.lines)
     start = (0.0, 0.0, 0.0)
-    for i, raw in enumerate(_read_text(path).splitlines(), start=1):
+    for i, raw in enumerate(doc.text.splitlines(), start=1):
         m = _START_RE.match(raw.strip())
         if m:
             try:
@@ -602,17 +530,18 @@ def read_control_profile(path: str | Path) -> ControlProfile:
                 raise RouteError("the start pose is NaN or infinite", source=table.source, line=i)
             for x, kind, what in zip(start, ("position_m", "position_m", "heading_rad"),
                                      ("start x_m", "start y_m", "start heading_rad")):
-                _check_range(np.array([x]), kind, what, table.source, [i])
+                check_range(np.array([x]), kind, what, table.source, [i])
             break
     return ControlProfile(t_s=cols["t_s"], speed_mps=cols["speed_mps"],
                           curvature_1pm=cols["curvature_1pm"], grade_rad=cols.get("grade_rad"),
-                          bank_rad=cols.get("bank_rad"), start=start, name=path.stem)
+                          bank_rad=cols.get("bank_rad"), start=start, name=doc.stem)
 
 
-def read_control_csv(path: str | Path, *, suspension: Suspension = Suspension()) -> Trajectory:
+def read_control_csv(source: Source, *, suspension: Suspension = Suspension()) -> Trajectory:
     """A control CSV driven through :func:`~excite.motion.vehicle.drive`."""
-    profile = read_control_profile(path)
-    with _located(str(path)):
+    doc = document(source)
+    profile = read_control_profile(doc)
+    with _located(doc.label):
         return drive(profile, suspension)
 
 
@@ -620,8 +549,8 @@ def read_control_csv(path: str | Path, *, suspension: Suspension = Suspension())
 # Dispatch
 
 
-def _sniff_csv(path: Path) -> str:
-    for raw in _read_text(path).splitlines():
+def _sniff_csv(doc: _Doc) -> str:
+    for raw in doc.text.splitlines():
         line = raw.strip()
         if not line:
             continue
@@ -630,29 +559,21 @@ def _sniff_csv(path: Path) -> str:
                 return "euroc"
             continue
         fields = [f.strip().lower() for f in line.split(",")]
-        if not _is_number(fields[0]):
+        if not is_number(fields[0]):
             return "control" if any("curvature" in f for f in fields) else "waypoints"
         return "euroc" if len(fields) >= 8 else "waypoints"
-    raise RouteError("the file has no data rows (empty file)", source=str(path))
+    raise RouteError("the file has no data rows (empty file)", source=doc.label)
 
 
-def _sniff_txt(path: Path) -> int:
-    for raw in _read_text(path).splitlines():
+def _sniff_txt(doc: _Doc) -> int:
+    for raw in doc.text.splitlines():
         line = raw.strip()
         if line and not line.startswith("#"):
             return len(line.split())
-    raise RouteError("the file has no data rows (empty file)", source=str(path))
+    raise RouteError("the file has no data rows (empty file)", source=doc.label)
 
 
-def is_bag(path: str | Path) -> bool:
-    """Whether ``path`` is a bag excite reads: ``.bag``, ``.mcap`` or a ROS 2 bag folder."""
-    p = Path(path)
-    if p.is_dir():
-        return (p / "metadata.yaml").is_file()
-    return p.suffix.lower() in (".bag", ".mcap")
-
-
-def read_route(path: str | Path, times: str | Path | None = None, limits: Limits = Limits(), *,
+def read_route(source: Source, times: Source | None = None, limits: Limits = Limits(), *,
                suspension: Suspension = Suspension(), cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                rate_hz: float | None = None, bag: "BagSource | None" = None) -> Trajectory:
     """Any supported route file as a trajectory of V, the format chosen by extension and content.
@@ -660,50 +581,59 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
     ``.geojson``/``.json`` → GeoJSON; ``.tum`` → TUM; ``.txt`` → KITTI (12 columns, needs
     ``times``) or TUM (8 columns); ``.csv`` → EuRoC (``#timestamp`` header or ≥ 8 numeric
     columns), control CSV (header with ``curvature``) or waypoints; ``.bag``, ``.mcap`` or a
-    ROS 2 bag folder → :func:`excite.io.bags.read_bag_route` with the topic and options of ``bag``.
+    ROS 2 bag folder → :func:`excite.io.bags.read_bag_route` with the topic and options of ``bag``;
+    a comma2k19 segment folder → :func:`excite.io.comma2k19.trajectory` (V through the dataset's
+    pose, its measured IMU).
     ``limits`` and ``suspension`` shape waypoint, GeoJSON and control routes;
     ``cutoff_hz``/``rate_hz`` the timed-pose fit (bags included).
     """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(2, "No such file or directory", str(path))
-    ext = path.suffix.lower()
     timed = {"cutoff_hz": cutoff_hz, "rate_hz": rate_hz}
-    if is_bag(path):
-        from .bags import BagSource, read_bag_route
+    label = source.name if isinstance(source, Text) else str(source)
+    if not isinstance(source, Text):
+        path = Path(source)
+        if not path.exists():
+            raise FileNotFoundError(2, "No such file or directory", str(path))
+        if is_bag(path):
+            from .bags import BagSource, read_bag_route
 
-        return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
+            return read_bag_route(path, **BagSource.required(bag, path).options(), **timed)
+        if is_comma2k19(path) and bag is None:
+            from .comma2k19 import read_comma2k19, trajectory
+
+            return trajectory(read_comma2k19(path), cutoff_hz=cutoff_hz, rate_hz=rate_hz)
     if bag is not None:
         flags = {"topic": "--topic", "imu_topic": "--imu-topic", "start_s": "--start", "end_s": "--end",
                  "vehicle_frame": "--vehicle-frame", "axes": "--axes"}
         given = [flag for key, flag in flags.items() if getattr(bag, key) not in (None, "vehicle")]
         raise RouteError(f"bag options ({', '.join(given) or 'none given'}) apply to bags only (.bag, .mcap, "
-                         "a ROS 2 bag folder)", source=str(path))
+                         "a ROS 2 bag folder)", source=label)
+    doc = document(source)
+    ext = doc.suffix
     if times is not None:
-        return read_kitti(path, times, **timed)
+        return read_kitti(doc, times, **timed)
     if ext in (".geojson", ".json"):
-        return read_geojson(path, limits=limits, suspension=suspension)
+        return read_geojson(doc, limits=limits, suspension=suspension)
     if ext == ".tum":
-        return read_tum(path, **timed)
+        return read_tum(doc, **timed)
     if ext == ".txt":
-        n = _sniff_txt(path)
+        n = _sniff_txt(doc)
         if n == 12:
             raise RouteError("looks like KITTI poses (12 columns): pass the times file (--times)",
-                             source=str(path))
+                             source=doc.label)
         if n == 8:
-            return read_tum(path, **timed)
+            return read_tum(doc, **timed)
         raise RouteError(f"cannot tell the format of a .txt with {n} columns (TUM has 8, KITTI 12)",
-                         source=str(path))
+                         source=doc.label)
     if ext == ".csv":
-        kind = _sniff_csv(path)
+        kind = _sniff_csv(doc)
         if kind == "euroc":
-            return read_euroc(path, **timed)
+            return read_euroc(doc, **timed)
         if kind == "control":
-            return read_control_csv(path, suspension=suspension)
-        return read_waypoints_csv(path, limits=limits, suspension=suspension)
+            return read_control_csv(doc, suspension=suspension)
+        return read_waypoints_csv(doc, limits=limits, suspension=suspension)
     raise RouteError(f"unknown route format {ext or '(no extension)'!r}: use .csv, .tum, .txt "
                      "(KITTI with --times, or TUM), .geojson, or a bag (.bag, .mcap, ROS 2 folder)",
-                     source=str(path))
+                     source=doc.label)
 
 
 # --------------------------------------------------------------------------------------------
@@ -713,10 +643,13 @@ def read_route(path: str | Path, times: str | Path | None = None, limits: Limits
 SMOOTH_MARK = "already smooth: read back without smoothing"  # in the first line of what write_tum writes
 
 
-def already_smooth(path: Path) -> bool:
+def already_smooth(source: "Source | _Doc") -> bool:
     """Whether the TUM file's first line is the one :func:`write_tum` writes."""
-    with open(path, encoding="utf-8", errors="replace") as f:
-        first = f.readline(1000)
+    if isinstance(source, (_Doc, Text)):
+        first = document(source).text[:1000].split("\n", 1)[0]
+    else:
+        with open(source, encoding="utf-8", errors="replace") as f:
+            first = f.readline(1000)
     return first.startswith("# excite ") and SMOOTH_MARK in first
 
 

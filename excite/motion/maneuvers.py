@@ -8,16 +8,13 @@ rest to rest, lasting ``duration_s`` (to a fraction of a second). Drive one with
 :func:`~excite.motion.vehicle.drive` and a :class:`~excite.motion.vehicle.Suspension` (:func:`reference_drives`
 does both).
 
-``python -m excite.motion.maneuvers --write trajectories/`` regenerates the committed reference files
+``python -m excite.io.references --write trajectories/`` regenerates the committed reference files
 (TUM and control CSV) deterministically.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -30,7 +27,6 @@ from .vehicle import ControlProfile, Limits, Suspension, check_limits, drive
 __all__ = [
     "Lot", "REFERENCE_MANEUVERS", "highway_run", "stop_and_go", "circle_left", "circle_right",
     "figure_eight", "slalom", "reference_maneuvers", "reference_drives", "random_candidates",
-    "write_reference_files",
 ]
 
 LOT_LENGTH_M = 80.0
@@ -409,39 +405,3 @@ def random_candidates(n: int, duration_s: float = 90.0, lot: Lot | None = None,
             continue
         out.append(prof)
     return out
-
-
-# --------------------------------------------------------------------------------------------
-# Reference files
-
-
-def write_reference_files(out_dir: str | Path, duration_s: float = 90.0,
-                          rate_hz: float = 10.0) -> list[Path]:
-    """Write every reference maneuver (default limits, 80 × 50 m lot, default suspension) as
-    ``<name>.tum`` (poses at ``rate_hz``) and ``<name>_control.csv``. Deterministic. The TUM files
-    stand for logged drives: they are not marked already smooth, and are smoothed when read, as a
-    log is."""
-    from ..io.routes import write_control_csv, write_tum
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, prof in reference_maneuvers(duration_s).items():
-        written.append(write_control_csv(prof, out_dir / f"{name}_control.csv"))
-        written.append(write_tum(drive(prof, Suspension()), out_dir / f"{name}.tum", rate_hz, as_log=True))
-    return written
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m excite.motion.maneuvers",
-                                     description="Write the reference maneuvers as route files.")
-    parser.add_argument("--write", metavar="DIR", required=True, help="output folder")
-    parser.add_argument("--duration", type=float, default=90.0, help="seconds per maneuver")
-    args = parser.parse_args(argv)
-    for path in write_reference_files(args.write, args.duration):
-        print(path)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -123,6 +123,33 @@ class BodySamples:
         return np.einsum("nji,nj->ni", self.R_W_B, self.a_W - GRAVITY)
 
 
+@dataclass(frozen=True)
+class SensorLog:
+    """What a log recorded of one of the rig's sensors: the times of its messages ``t`` [s, on
+    the drive's clock, increasing] and, where the sensor reports one, each message's covariance
+    ``covariance`` (n × d × d) in its kind's measurement frame (a GNSS fix: world position, m²).
+    A drive that carries a sensor's log is scored with the measurements the log holds (a GNSS
+    outage: no fixes), and with the covariances where its rig asks for them."""
+
+    t: np.ndarray
+    covariance: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float)
+        if t.ndim != 1 or (t.size > 1 and not np.all(np.diff(t) > 0)) or not np.all(np.isfinite(t)):
+            raise RouteError("a sensor log's message times must be finite and strictly increasing")
+        if self.covariance is not None and np.asarray(self.covariance).shape[:1] != t.shape:
+            raise RouteError(f"a sensor log has {t.size} messages and {np.asarray(self.covariance).shape[0]} covariances")
+
+    def shifted(self, dt_s: float) -> "SensorLog":
+        return SensorLog(np.asarray(self.t) + dt_s, self.covariance)
+
+    def rotated(self, R: np.ndarray) -> "SensorLog":
+        """The log of the same drive rotated by ``R`` in the world (a world-frame covariance rotates)."""
+        cov = None if self.covariance is None else R @ self.covariance @ R.T
+        return SensorLog(self.t, cov)
+
+
 class Trajectory:
     """Continuous nominal motion of the vehicle frame V over ``[t_start, t_end]``.
 
@@ -169,6 +196,13 @@ class Trajectory:
         self.t_start = float(t[0])
         self.t_end = float(t[-1])
         self.name = name
+        self.logs: dict[str, SensorLog] = {}  # what a log recorded of the rig's sensors, by sensor name
+
+    def with_logs(self, logs: dict[str, SensorLog]) -> "Trajectory":
+        """The same drive carrying ``logs`` (by the rig's sensor name) besides its own."""
+        out = copy.copy(self)
+        out.logs = {**self.logs, **logs}
+        return out
 
     @property
     def duration(self) -> float:
@@ -187,9 +221,9 @@ class Trajectory:
     def rotation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Orientation of V at ``t`` (clipped to the drive), its body rate and angular acceleration: the cubic
         rotation-vector spline of ``RotationSpline`` (R = R_k·Exp(φ(t)) on segment k), evaluated
-        in one compiled loop (:func:`excite.core.kernels.rotation_samples`) rather than through scipy's
+        in one compiled loop (:func:`excite.motion.kernels.rotation_samples`) rather than through scipy's
         rotation objects."""
-        from ..core import kernels
+        from . import kernels
 
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
         rot = self._rot.interpolator
@@ -226,8 +260,8 @@ class Trajectory:
         """What a perfect IMU at pose ``(R_V_B, p_V_B)`` in V sees at ``t``: its orientation
         ``R_W_B``, body rate ``ω_B`` and specific force ``f_B = R_W_Bᵀ(a_B − g)`` with the lever-arm
         acceleration ``α × p + ω × (ω × p)``. The same splines as :meth:`sample`, evaluated in one
-        compiled loop (:func:`excite.core.kernels.imu_samples`): this runs at the IMU rate."""
-        from ..core import kernels
+        compiled loop (:func:`excite.motion.kernels.imu_samples`): this runs at the IMU rate."""
+        from . import kernels
 
         t = np.clip(np.asarray(t, dtype=float), self.t_start, self.t_end)
         rot = self._rot.interpolator
@@ -247,13 +281,15 @@ class Trajectory:
         """
         R = np.asarray(R, dtype=float)
         v = None if self._v is None else self._v @ R.T
-        return Trajectory(self._t, R @ self._R, self._p @ R.T + np.asarray(p, dtype=float),
-                          tilt_pitch_roll=self._tilt_samples, velocity=v, name=name or self.name)
+        out = Trajectory(self._t, R @ self._R, self._p @ R.T + np.asarray(p, dtype=float),
+                         tilt_pitch_roll=self._tilt_samples, velocity=v, name=name or self.name)
+        return out.with_logs({k: log.rotated(R) for k, log in self.logs.items()})
 
     def shifted(self, dt_s: float) -> "Trajectory":
         """The same drive with every time stamp moved by ``dt_s``."""
-        return Trajectory(self._t + dt_s, self._R, self._p, tilt_pitch_roll=self._tilt_samples,
-                          velocity=self._v, name=self.name)
+        out = Trajectory(self._t + dt_s, self._R, self._p, tilt_pitch_roll=self._tilt_samples,
+                         velocity=self._v, name=self.name)
+        return out.with_logs({k: log.shifted(dt_s) for k, log in self.logs.items()})
 
     def cropped(self, t_start: float, t_end: float, name: str | None = None) -> "Trajectory":
         """The same motion restricted to ``[t_start, t_end]`` (within the drive): the same splines,
@@ -274,7 +310,7 @@ class Trajectory:
 
 def _segments(breaks: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Index of the piecewise-polynomial segment (between ``breaks``) that holds every time
-    (compiled: :func:`excite.core.kernels.segments`)."""
-    from ..core import kernels
+    (compiled: :func:`excite.motion.kernels.segments`)."""
+    from . import kernels
 
     return kernels.segments(np.ascontiguousarray(breaks, dtype=float), np.ascontiguousarray(t, dtype=float))

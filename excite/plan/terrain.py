@@ -57,8 +57,14 @@ class Feature:
         return np.all(cross >= 0, axis=1)
 
 
+MAX_FEATURE_VERTICES = 16  # a convex ramp, bank or bump: each edge is a factor of its smooth indicator
+
+
 def _convex_ccw(ring: np.ndarray, what: str) -> np.ndarray:
     a = np.asarray(ring, dtype=float)
+    if len(a) > MAX_FEATURE_VERTICES:
+        raise OptimizeError(f"{what}: {len(a)} vertices, over the limit of {MAX_FEATURE_VERTICES} for a "
+                            "terrain feature (a convex polygon)")
     area2 = np.sum(a[:, 0] * np.roll(a[:, 1], -1) - np.roll(a[:, 0], -1) * a[:, 1])
     if area2 < 0:
         a = a[::-1]
@@ -74,7 +80,12 @@ def _number(props: dict[str, Any], key: str, what: str, default: float | None = 
     v = props.get(key, default)
     if v is None:
         raise OptimizeError(f"{what}: property {key} is required")
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+    try:
+        bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi
+    except OverflowError:  # an integer beyond any float
+        bad = True
+    if bad:
+        v = v if not isinstance(v, int) or abs(v) < 10**20 else f"an integer of {len(str(abs(v)))} digits"
         raise OptimizeError(f"{what}: property {key} must be a number between {lo:g} and {hi:g}, got {v!r}")
     return float(v)
 

@@ -15,14 +15,19 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any
 
-import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import ConfigDict, Field, ValidationError, field_validator
 
-from ..core import bounds, so3
+from .. import factors  # noqa: F401  (registers the built-in measurement kinds)
+from ..core import bounds
+from ..core.schema import Model as _Model
+from ..core.schema import Pose, PositiveFloat
 from ..errors import RigError
+from ..factors import base as registry
+from ..factors.imu import ImuConfig
+from ..factors.nonholonomic import NonHolonomic
 from ..motion.vehicle import Suspension
 
 RIGS_DIR = Path(__file__).parent / "bundled"
@@ -70,120 +75,6 @@ def parse_quantity(value: Any, unit: str, key: str) -> float:
     return x
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-
-
-class Pose(_Model):
-    """A rigid transform: translation [m] plus rotation as roll/pitch/yaw [deg] (R = Rz·Ry·Rx)
-    or as a 3×3 matrix."""
-
-    translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[float, float, float] | None = None
-    matrix: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]] | None = None
-
-    @model_validator(mode="after")
-    def _one_rotation(self) -> "Pose":
-        if self.rpy_deg is not None and self.matrix is not None:
-            raise ValueError("give the rotation as rpy_deg or as matrix, not both")
-        if not all(math.isfinite(x) for x in self.translation_m):
-            raise ValueError("translation_m must be finite")
-        if self.matrix is not None:
-            R = np.asarray(self.matrix, dtype=float)
-            if not np.all(np.isfinite(R)) or np.abs(R).max() > 1.001 or np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
-                raise ValueError("matrix must be a proper rotation (orthonormal, det +1)")
-        return self
-
-    @property
-    def R(self) -> np.ndarray:
-        """The rotation matrix (computed once per distinct rotation; a fresh copy each time)."""
-        return _rotation(self.rpy_deg, self.matrix).copy()
-
-    @property
-    def p(self) -> np.ndarray:
-        return np.asarray(self.translation_m, dtype=float)
-
-
-@functools.lru_cache(maxsize=1024)
-def _rotation(rpy_deg: tuple | None, matrix: tuple | None) -> np.ndarray:
-    """:attr:`Pose.R` of a pose's rotation fields (a matrix is re-orthonormalised)."""
-    if matrix is not None:
-        u, _, vt = np.linalg.svd(np.asarray(matrix, dtype=float))
-        return u @ vt
-    r, p, y = np.deg2rad(rpy_deg or (0.0, 0.0, 0.0))
-    return so3.rot_z(y) @ so3.rot_y(p) @ so3.rot_x(r)
-
-
-class ImuConfig(_Model):
-    """IMU noise in Kalibr's keys and units (continuous-time densities)."""
-
-    model_config = ConfigDict(extra="ignore", frozen=True)  # a Kalibr imu.yaml has rostopic etc.
-
-    accelerometer_noise_density: PositiveFloat  # m/s^2/√Hz
-    accelerometer_random_walk: PositiveFloat  # m/s^3/√Hz
-    gyroscope_noise_density: PositiveFloat  # rad/s/√Hz
-    gyroscope_random_walk: PositiveFloat  # rad/s^2/√Hz
-    update_rate: PositiveFloat  # Hz
-    estimate_biases: bool = True
-    # random_walk: the biases drift with the *_random_walk densities and the report scores the
-    # bias at the end of the drive; constant: one bias over the whole drive (shared by drives)
-    bias_model: Literal["random_walk", "constant"] = "random_walk"
-
-
-class SensorNoise(_Model):
-    """Noise of one relative-pose measurement between consecutive frames of the sensor."""
-
-    rotation_sigma_deg: PositiveFloat
-    translation_sigma_m: PositiveFloat
-
-
-class Estimate(_Model):
-    extrinsic: bool = True
-    time_offset: bool = True
-
-
-class SensorConfig(_Model):
-    """An exteroceptive sensor (lidar or camera odometry) rigidly mounted on the body."""
-
-    name: str = Field(pattern=r"^[a-z][a-z0-9_]*$")
-    kind: Literal["lidar", "camera"]
-    rate_hz: PositiveFloat
-    T_B_S: Pose
-    noise: SensorNoise
-    estimate: Estimate = Estimate()
-    monocular: bool = False
-
-    @model_validator(mode="after")
-    def _mono_is_camera(self) -> "SensorConfig":
-        if self.monocular and self.kind != "camera":
-            raise ValueError("monocular applies to cameras only")
-        return self
-
-
-class WheelConfig(_Model):
-    """Wheel encoders on the rear axle. ``noise_density`` [rad/s/√Hz]: white noise on each
-    wheel's measured rate (quantisation, slip), so that a rotation increment over Δt has
-    σ = noise_density·√Δt whatever the keyframe rate (the gyroscope's convention, Kalibr's units)."""
-
-    radius_left_m: PositiveFloat
-    radius_right_m: PositiveFloat
-    track_m: PositiveFloat
-    noise_density: PositiveFloat
-    estimate: bool = True
-
-
-class NonHolonomic(_Model):
-    """The rear axle neither slides sideways nor lifts: lateral and vertical velocity ≈ 0, up to a
-    white slip velocity of density ``*_noise_density`` [m/s/√Hz] (its information per second does
-    not depend on how often the constraint is applied)."""
-
-    lateral_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
-    vertical_noise_density: PositiveFloat = 0.05 / math.sqrt(10.0)
-
-
 class SlipConfig(_Model):
     """Tyre slip, linear in the acceleration, estimated as nuisances of each drive (not scored):
     ``wheel.slip`` [1], the rear wheels' longitudinal slip ratio at 1 g of longitudinal
@@ -209,28 +100,37 @@ class VehicleConfig(_Model):
 
 
 class RigConfig(_Model):
-    """The whole rig, as validated from YAML."""
+    """The whole rig, as validated from YAML. ``sensors`` holds each entry validated by its
+    measurement kind's own model (:mod:`excite.factors`); a top-level section that a kind reads
+    (``wheels``, …) is an extra field validated by that kind's model (:func:`build_rig`)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
 
     name: str = "rig"
     description: str = ""
     keyframe_rate_hz: PositiveFloat | None = None  # default: the fastest sensor's rate
     imu: ImuConfig
     vehicle: VehicleConfig = VehicleConfig()
-    sensors: list[SensorConfig] = []
-    wheels: WheelConfig | None = None
+    sensors: list[Any] = []
     targets: dict[str, float | str] = {}
     priors: dict[str, float | str] = {}
 
     @field_validator("sensors")
     @classmethod
-    def _unique_names(cls, sensors: list[SensorConfig]) -> list[SensorConfig]:
-        names = [s.name for s in sensors]
+    def _unique_names(cls, sensors: list[Any]) -> list[Any]:
+        names = [s.get("name") if isinstance(s, dict) else getattr(s, "name", None) for s in sensors]
+        names = [n for n in names if isinstance(n, str)]
         dup = {n for n in names if names.count(n) > 1}
         if dup:
             raise ValueError(f"sensor names must be unique, repeated: {', '.join(sorted(dup))}")
-        if {"imu", "wheel"} & set(names):
-            raise ValueError("'imu' and 'wheel' are reserved names")
+        taken = set(_RESERVED) & set(names)
+        if taken:
+            raise ValueError(f"{', '.join(repr(n) for n in sorted(taken))}: reserved name(s) "
+                             f"(reserved: {', '.join(sorted(_RESERVED))})")
         return sensors
+
+
+_RESERVED = ("imu", "wheel", "vehicle", "nonholonomic", "steering")  # blocks of the vehicle's own parameters
 
 
 @dataclass(frozen=True)
@@ -240,12 +140,12 @@ class Coordinate:
     name: str  # e.g. "lidar.trans_z"
     unit: str  # SI unit
     block: str  # "lidar", "imu", "wheel", ...
-    kind: str  # "rot", "trans", "time_offset", "gyro_bias", "accel_bias", "radius", "track", "scale",
-    # "slip", "slip_angle"
-    axis: int  # 0..2 for vector coordinates, else 0
+    kind: str  # "rot", "trans", "time_offset", "gyro_bias", "accel_bias", "radius", "track", "scale", …
+    axis: int  # 0..2 for vector coordinates, else the axis its quantity reports (0)
     target: float  # required accuracy (1σ) in SI units; nan for nuisances
     prior_sigma: float | None = None
     nuisance: bool = False  # estimated but not scored (monocular scale, tyre slip)
+    source: str = ""  # the measurement kind that declares it (excite.factors)
 
 
 @dataclass(frozen=True)
@@ -268,25 +168,11 @@ class Rig:
     @property
     def bias_random_walk(self) -> bool:
         """The IMU biases are estimated and drift as random walks (nuisance states per keyframe)."""
-        imu = self.config.imu
-        return imu.estimate_biases and imu.bias_model == "random_walk"
+        return self.config.imu.bias_random_walk
 
     def with_constant_biases(self) -> "Rig":
         """This rig with the IMU biases constant over each drive."""
         return self.with_config(imu=dict(self.config.imu.model_dump(), bias_model="constant"))
-
-    @property
-    def wheel_increment_sigma_rad(self) -> float:
-        """σ of one wheel's rotation increment over a keyframe interval [rad]."""
-        return self.config.wheels.noise_density / math.sqrt(self.keyframe_rate_hz)
-
-    @property
-    def nonholonomic_sigma_mps(self) -> tuple[float, float]:
-        """σ of the lateral and vertical velocity of the rear axle sampled at every keyframe [m/s]:
-        a white slip of density q sampled at rate f has σ = q·√f."""
-        nh = self.config.vehicle.nonholonomic
-        f = math.sqrt(self.keyframe_rate_hz)
-        return nh.lateral_noise_density * f, nh.vertical_noise_density * f
 
     @property
     def scored(self) -> tuple[Coordinate, ...]:
@@ -304,34 +190,6 @@ class Rig:
         data = self.config.model_dump()
         data.update(changes)
         return build_rig(data)
-
-
-_AXES = "xyz"
-
-
-def _coordinates(cfg: RigConfig) -> list[tuple[str, str, str, str, int, bool]]:
-    """(name, unit, block, kind, axis, nuisance) of every estimated coordinate, in column order."""
-    out = []
-    for s in cfg.sensors:
-        if s.estimate.extrinsic:
-            out += [(f"{s.name}.rot_{a}", "rad", s.name, "rot", i, False) for i, a in enumerate(_AXES)]
-            out += [(f"{s.name}.trans_{a}", "m", s.name, "trans", i, False) for i, a in enumerate(_AXES)]
-        if s.estimate.time_offset:
-            out.append((f"{s.name}.time_offset", "s", s.name, "time_offset", 0, False))
-        if s.monocular:
-            out.append((f"{s.name}.scale", "1", s.name, "scale", 0, True))
-    if cfg.imu.estimate_biases:
-        out += [(f"imu.gyro_bias_{a}", "rad/s", "imu", "gyro_bias", i, False) for i, a in enumerate(_AXES)]
-        out += [(f"imu.accel_bias_{a}", "m/s^2", "imu", "accel_bias", i, False) for i, a in enumerate(_AXES)]
-    if cfg.wheels is not None and cfg.wheels.estimate:
-        out += [("wheel.radius_left", "m", "wheel", "radius", 0, False),
-                ("wheel.radius_right", "m", "wheel", "radius", 1, False),
-                ("wheel.track", "m", "wheel", "track", 0, False)]
-    if cfg.vehicle.slip.estimate:
-        if cfg.wheels is not None:
-            out.append(("wheel.slip", "1", "wheel", "slip", 0, True))
-        out.append(("vehicle.slip_angle", "rad", "vehicle", "slip_angle", 0, True))
-    return out
 
 
 def _lookup(table: dict[str, float | str], name: str) -> tuple[str, float | str] | None:
@@ -359,17 +217,15 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         path = Path(data["imu"])
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
-        data["imu"] = _read_yaml(path)
+        data["imu"] = read_yaml(path)
     _refuse_per_keyframe_noise(data)
     try:
         cfg = RigConfig.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        key = ".".join(str(p) for p in err["loc"]) or "rig"
-        msg = "not a key of a rig file here" if err["type"] == "extra_forbidden" else err["msg"]
-        raise RigError(f"{key}: {msg.removeprefix('Value error, ')}") from None
+        raise _rig_error(exc) from None
+    cfg = _with_kinds(cfg)
     for key, x in bounds.rig_numbers(cfg.model_dump()):
-        sane = bounds.rig_range(key)
+        sane = rig_range(cfg, key)
         if sane is not None and not sane.contains(x):
             raise RigError(f"{key}: {x!r} is outside the sane range {sane}")
 
@@ -389,10 +245,12 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
 
     coords = []
     names = []
-    for name, unit, block, kind, axis, nuisance in _coordinates(cfg):
+    sources = {q.block: k.name for k, _, q in registry.quantities(cfg)}
+    for col in registry.columns(cfg):
+        name, unit = col.name, col.unit
         names.append(name)
         target = math.nan
-        if not nuisance:
+        if not col.nuisance:
             hit = _lookup(cfg.targets, name)
             if hit is None:
                 raise RigError(f"targets: no accuracy target for {name} (add '{name}: <value> <unit>' "
@@ -400,7 +258,8 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
             target = parse_quantity(hit[1], unit, f"targets.{hit[0]}")
         prior = _lookup(cfg.priors, name)
         prior_sigma = None if prior is None else parse_quantity(prior[1], unit, f"priors.{prior[0]}")
-        coords.append(Coordinate(name, unit, block, kind, axis, target, prior_sigma, nuisance))
+        coords.append(Coordinate(name, unit, col.block, col.kind, col.axis, target, prior_sigma, col.nuisance,
+                                 sources.get(col.block, "")))
     for table, label in ((cfg.targets, "targets"), (cfg.priors, "priors")):
         for key in table:
             if not any(fnmatch.fnmatchcase(n, key) for n in names):
@@ -411,10 +270,96 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     return Rig(cfg, tuple(coords), float(kf))
 
 
+def _rig_error(exc: ValidationError, prefix: str = "") -> RigError:
+    """The first error of a validation, as a rig error naming its key."""
+    err = exc.errors()[0]
+    key = prefix + ".".join(str(p) for p in err["loc"]) or "rig"
+    msg = "not a key of a rig file here" if err["type"] == "extra_forbidden" else err["msg"]
+    return RigError(f"{key.rstrip('.') or 'rig'}: {msg.removeprefix('Value error, ')}")
+
+
+def _with_kinds(cfg: RigConfig) -> RigConfig:
+    """``cfg`` with every ``sensors:`` entry validated by the model of the kind that measures it,
+    and every extra top-level section by the kind that reads it (any other key is an error)."""
+    sensors = []
+    for i, s in enumerate(cfg.sensors):
+        if not isinstance(s, dict):
+            raise RigError(f"sensors.{i}: expected a mapping (name, kind, rate_hz, …), got {type(s).__name__}")
+        kind = registry.kind_of_sensor(s.get("kind")) if isinstance(s.get("kind"), str) else None
+        if kind is None:
+            raise RigError(f"sensors.{i}.kind: {s.get('kind')!r} is not a sensor kind here "
+                           f"(known: {', '.join(registry.sensor_kinds())})")
+        try:
+            sensors.append(kind.config.model_validate(s))
+        except ValidationError as exc:
+            raise _rig_error(exc, f"sensors.{i}.") from None
+    sections = {}
+    for key, value in (cfg.model_extra or {}).items():
+        kind = registry.kind_of_section(key)
+        if kind is None:
+            raise RigError(f"{key}: not a key of a rig file here")
+        if value is None:
+            continue
+        try:
+            sections[key] = kind.config.model_validate(value)
+        except ValidationError as exc:
+            raise _rig_error(exc, f"{key}.") from None
+    absent = {k.section: None for k in registry.kinds()  # an absent section reads as None
+              if k.section is not None and k.section not in RigConfig.model_fields and k.section not in sections}
+    return cfg.model_copy(update={"sensors": sensors, **absent, **sections})
+
+
+def all_ranges() -> dict[str, bounds.Range]:
+    """The sane range of every numeric rig key, by dotted glob: the rig's own
+    (:data:`excite.core.bounds.RIG`) and every registered kind's (``sensors.*.…`` for a sensor's,
+    ``<section>.…`` for a section's)."""
+    out = dict(bounds.RIG)
+    for kind in registry.kinds():
+        prefix = "sensors.*." if kind.sensor_kinds else f"{kind.section}." if kind.section else None
+        if prefix is not None:
+            out.update({prefix + k: r for k, r in kind.ranges.items()})
+    return out
+
+
+def rig_range(cfg: RigConfig, key: str) -> bounds.Range | None:
+    """The sane range of a dotted rig key: its kind's (``sensors.0.noise.rotation_density_deg_per_sqrt_s``,
+    ``wheels.track_m``, ``imu.update_rate``), or the rig's own (:data:`excite.core.bounds.RIG`)."""
+    head, _, rest = key.partition(".")
+    kind = None
+    if head == "sensors":
+        index, _, rest = rest.partition(".")
+        if index.isdigit() and int(index) < len(cfg.sensors):
+            kind = registry.kind_of_sensor(cfg.sensors[int(index)].kind)
+    else:
+        kind = registry.kind_of_section(head)
+    if kind is not None and rest in kind.ranges:
+        return kind.ranges[rest]
+    return bounds.rig_range(key)
+
+
+_PER_PAIR_NOISE = {"rotation_sigma_deg": ("rotation_density_deg_per_sqrt_s", "deg/√s"),
+                   "translation_sigma_m": ("translation_density_m_per_sqrt_s", "m/√s")}
+
+
 def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
-    """Rigs written before the noise densities gave wheel and slip noise per keyframe, which made
-    the answer drift with the keyframe rate: name the replacement and its value at this rig's
-    keyframe rate (the conversion that keeps the old numbers)."""
+    """Rigs written before the noise densities gave wheel and slip noise per keyframe, and lidar
+    and camera odometry noise per frame pair, which made the answer drift with the keyframe or
+    frame rate: name the replacement and its value at this rig's keyframe rate or the sensor's
+    rate (the conversion that keeps the old numbers)."""
+    sensors = data.get("sensors")
+    for i, s in enumerate(sensors if isinstance(sensors, list) else []):
+        noise = s.get("noise") if isinstance(s, dict) else None
+        if not isinstance(noise, dict):
+            continue
+        for old, (new, unit) in _PER_PAIR_NOISE.items():
+            if old in noise:
+                v, rate = noise[old], s.get("rate_hz")
+                known = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (v, rate))
+                conv = (f"; at this sensor's {rate:g} Hz, {old}: {v:g} is {new}: {v * math.sqrt(rate):.6g}"
+                        if known and rate > 0 else f" ({new} = {old} · √rate_hz)")
+                raise RigError(f"sensors.{i}.noise.{old}: per-frame-pair odometry noise is replaced by "
+                               f"sensors.{i}.noise.{new} [{unit}], a drift density independent of the "
+                               f"frame rate{conv}")
     kf = data.get("keyframe_rate_hz")
     kf_text = f"{kf:g} Hz" if isinstance(kf, (int, float)) and not isinstance(kf, bool) and kf > 0 else None
     wheels = data.get("wheels")
@@ -438,7 +383,7 @@ def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
                                f"keyframe rate{conv}")
 
 
-def _read_yaml(path: Path) -> Any:
+def read_yaml(path: Path) -> Any:
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
@@ -468,7 +413,7 @@ def load_rig(name_or_path: str | Path = "robotaxi") -> Rig:
         if not bundled.exists():
             raise RigError(f"no bundled rig named {str(name_or_path)!r} (bundled: {', '.join(bundled_rigs())})")
         path = bundled
-    data = _read_yaml(path)
+    data = read_yaml(path)
     try:
         return build_rig(data, base_dir=path.parent)
     except RigError as exc:

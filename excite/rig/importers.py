@@ -2,7 +2,9 @@
 
 - **TF tree** of a bag's ``/tf_static`` (:func:`rig_from_tf`): the IMU frame is the body frame B,
   ``T_V_B`` is the IMU in the base frame (V) and each sensor's ``T_B_S`` is its frame in the IMU
-  frame, both composed over every hop of the tree.
+  frame, both composed over every hop of the tree. A frame named like a GNSS antenna (``gnss``,
+  ``gps``, ``gnss_link``, ``gps/antenna`` …) becomes a ``kind: gnss`` sensor at its position (an
+  antenna has no orientation), unless the antennas are named (``gnss=[…]``, ``[]`` for none).
 - **Kalibr** (:func:`rig_from_kalibr`): a camchain (``camN.T_cam_imu``, the 4×4 transform of
   IMU-frame points into the camera frame, so ``T_B_S = T_cam_imu⁻¹``; ``timeshift_cam_imu`` with
   ``t_imu = t_cam + shift``) and the ``imu.yaml`` (noise densities, ``update_rate``) loaded as is.
@@ -30,7 +32,8 @@ from scipy.spatial.transform import Rotation
 
 from ..io import bags
 from ..errors import BagError, RigError
-from .config import _read_yaml, build_rig
+from ..factors.gnss import PRESETS
+from .config import read_yaml, build_rig
 
 __all__ = ["ImportedRig", "rig_from_tf", "rig_from_kalibr", "rig_from_autoware", "rig_yaml",
            "DEFAULT_IMU", "DEFAULT_TARGETS"]
@@ -39,8 +42,12 @@ __all__ = ["ImportedRig", "rig_from_tf", "rig_from_kalibr", "rig_from_autoware",
 DEFAULT_IMU = {"accelerometer_noise_density": 2.0e-3, "accelerometer_random_walk": 3.0e-4,
                "gyroscope_noise_density": 1.7e-4, "gyroscope_random_walk": 2.0e-5,
                "update_rate": 200.0}
-DEFAULT_SENSOR = {"lidar": {"rate_hz": 10.0, "noise": {"rotation_sigma_deg": 0.1, "translation_sigma_m": 0.01}},
-                  "camera": {"rate_hz": 10.0, "noise": {"rotation_sigma_deg": 0.1, "translation_sigma_m": 0.01}}}
+# drift densities of 0.1 deg and 1 cm per frame pair at 10 Hz (σ·√10)
+_ODOMETRY_NOISE = {"rotation_density_deg_per_sqrt_s": 0.31622776601683794, "translation_density_m_per_sqrt_s": 0.0316227766016838}
+DEFAULT_SENSOR = {"lidar": {"rate_hz": 10.0, "noise": dict(_ODOMETRY_NOISE)},
+                  "camera": {"rate_hz": 10.0, "noise": dict(_ODOMETRY_NOISE)},
+                  "gnss": {"rate_hz": 10.0, "noise": dict(PRESETS["standalone"])}}
+_GNSS_FRAME = re.compile(r"(^|[/_])(gnss|gps)([/_]|$)", re.IGNORECASE)
 DEFAULT_TARGETS = {"*.rot_*": "0.1 deg", "*.trans_*": "1 cm", "*.time_offset": "2 ms",
                    "imu.gyro_bias_*": "0.01 deg/s", "imu.accel_bias_*": "0.02 m/s^2"}
 _NAME = re.compile(r"[^a-z0-9_]+")
@@ -73,34 +80,48 @@ def _finish(cfg: dict[str, Any], defaults: set[str], notes: list[str]) -> Import
     return ImportedRig(cfg, defaults, notes)
 
 
+def gnss_frames(edges: dict[str, Any], exclude: set[str]) -> list[str]:
+    """The frames of a tree named like a GNSS antenna (sorted), but those in ``exclude``."""
+    frames = set(edges) | {e.parent for e in edges.values()}
+    return sorted(f for f in frames - exclude if _GNSS_FRAME.search(f))
+
+
 def _from_tree(edges: dict[str, Any], source: Path, topic: str, imu: str, base: str,
-               lidars: list[str], cameras: list[str], name: str) -> tuple[dict, set[str]]:
+               lidars: list[str], cameras: list[str], name: str,
+               antennas: list[str] | None = None) -> tuple[dict, set[str], list[str]]:
     R_V_B, p_V_B = bags.static_transform(source, edges, base, imu, topic)
+    if antennas is None:
+        antennas = gnss_frames(edges, {imu, base, *lidars, *cameras})
     sensors, defaults = [], {"imu"}
-    for kind, frames in (("lidar", lidars), ("camera", cameras)):
+    for kind, frames in (("lidar", lidars), ("camera", cameras), ("gnss", antennas)):
         for i, frame in enumerate(frames):
             R, p = bags.static_transform(source, edges, imu, frame, topic)
             k = len(sensors)
+            pose = {"translation_m": _pose(R, p)["translation_m"]} if kind == "gnss" else _pose(R, p)
             sensors.append({"name": _sensor_name(kind, i, len(frames)), "kind": kind,
-                            "rate_hz": DEFAULT_SENSOR[kind]["rate_hz"], "T_B_S": _pose(R, p),
+                            "rate_hz": DEFAULT_SENSOR[kind]["rate_hz"], "T_B_S": pose,
                             "noise": dict(DEFAULT_SENSOR[kind]["noise"])})
             defaults |= {f"sensors.{k}.rate_hz", f"sensors.{k}.noise"}
+    targets = {k: v for k, v in DEFAULT_TARGETS.items()  # those that match a coordinate of this rig
+               if not (k == "*.rot_*" and not (lidars or cameras)) and not (k.startswith("*.") and not sensors)}
     cfg = {"name": name, "imu": dict(DEFAULT_IMU),
-           "vehicle": {"T_V_B": _pose(R_V_B, p_V_B)}, "sensors": sensors, "targets": dict(DEFAULT_TARGETS)}
+           "vehicle": {"T_V_B": _pose(R_V_B, p_V_B)}, "sensors": sensors, "targets": targets}
     defaults.add("targets")
-    return cfg, defaults
+    return cfg, defaults, list(lidars) + list(cameras) + list(antennas)
 
 
 def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (), camera: list[str] = (),
-                name: str | None = None) -> ImportedRig:
-    """A rig from a bag's ``/tf_static``: B is the ``imu`` frame, V the ``base`` frame."""
+                gnss: list[str] | None = None, name: str | None = None) -> ImportedRig:
+    """A rig from a bag's ``/tf_static``: B is the ``imu`` frame, V the ``base`` frame; GNSS
+    antennas at the ``gnss`` frames (default: every frame named like one)."""
     path = Path(path)
     static = bags.read_static_tf(path)
-    edges = {c: bags._Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
-    cfg, defaults = _from_tree(edges, path, bags.TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
-                               name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig")
+    edges = {c: bags.Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
+    cfg, defaults, frames = _from_tree(edges, path, bags.TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
+                                       name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig",
+                                       None if gnss is None else list(gnss))
     notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
-    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], list(lidar) + list(camera))]
+    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], frames)]
     return _finish(cfg, defaults, notes)
 
 
@@ -121,10 +142,10 @@ def rig_from_kalibr(camchain: str | Path, imu_yaml: str | Path, *, name: str | N
                     camera_rate_hz: float | None = None) -> ImportedRig:
     """A rig from a Kalibr camchain (``camN.T_cam_imu``, ``timeshift_cam_imu``) and ``imu.yaml``."""
     camchain, imu_yaml = Path(camchain), Path(imu_yaml)
-    chain = _read_yaml(camchain)
+    chain = read_yaml(camchain)
     if not isinstance(chain, dict) or not any(re.fullmatch(r"cam\d+", str(k)) for k in chain):
         raise RigError(f"{camchain}: expected a Kalibr camchain with cam0, cam1, ... at the top level")
-    imu = _read_yaml(imu_yaml)
+    imu = read_yaml(imu_yaml)
     if not isinstance(imu, dict):
         raise RigError(f"{imu_yaml}: expected a Kalibr imu.yaml mapping")
     imu_cfg = {k: imu[k] for k in DEFAULT_IMU if k in imu}
@@ -165,7 +186,7 @@ _AUTOWARE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
 def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
-    data = _read_yaml(path)
+    data = read_yaml(path)
     if not isinstance(data, dict) or not data:
         raise RigError(f"{path}: expected 'parent: {{child: {{x, y, z, roll, pitch, yaw}}}}'")
     for parent, children in data.items():
@@ -185,27 +206,28 @@ def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
                     raise RigError(f"{path}: {key}.{k}: expected a finite number, got {v!r}")
                 vals.append(float(v))
             q = Rotation.from_euler("ZYX", vals[5:2:-1]).as_quat()  # yaw, pitch, roll
-            edges[child] = bags._Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
+            edges[child] = bags.Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
 
 
 def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: list[str] = (),
                       camera: list[str] = (), sensors_calibration: str | Path | None = None,
-                      name: str | None = None) -> ImportedRig:
+                      gnss: list[str] | None = None, name: str | None = None) -> ImportedRig:
     """A rig from Autoware's ``sensor_kit_calibration.yaml`` (plus ``sensors_calibration.yaml``
-    that places the sensor kit on ``base_link``, when the base frame is outside the kit)."""
+    that places the sensor kit on ``base_link``, when the base frame is outside the kit); GNSS
+    antennas at the ``gnss`` frames (default: every frame named like one, as ``gnss_link``)."""
     sensor_kit = Path(sensor_kit)
     edges: dict[str, Any] = {}
     files = [sensor_kit] + ([Path(sensors_calibration)] if sensors_calibration else [])
     for f in files:
         _autoware_edges(f, edges)
     try:
-        cfg, defaults = _from_tree(edges, sensor_kit, "calibration", imu, base, list(lidar),
-                                   list(camera), name or "autoware")
+        cfg, defaults, frames = _from_tree(edges, sensor_kit, "calibration", imu, base, list(lidar),
+                                           list(camera), name or "autoware", None if gnss is None else list(gnss))
     except BagError as exc:
         problem = exc.problem.removeprefix(f"topic {exc.topic}: ") if exc.topic else exc.problem
         raise RigError(f"{sensor_kit}: {problem.replace('on /tf or /tf_static', 'in the calibration files')}") from None
     notes = [f"from Autoware {', '.join(f.name for f in files)}: B = {imu}, V = {base}"]
-    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], list(lidar) + list(camera))]
+    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], frames)]
     return _finish(cfg, defaults, notes)
 
 
@@ -223,7 +245,7 @@ def rig_yaml(rig: ImportedRig) -> str:
         return mark if key in d else ""
 
     def pose(indent: str, p: dict[str, Any]) -> list[str]:
-        return [f"{indent}translation_m: {_flow(p['translation_m'])}", f"{indent}matrix: {_flow(p['matrix'])}"]
+        return [f"{indent}{k}: {_flow(p[k])}" for k in ("translation_m", "matrix") if k in p]
 
     out = [f"# {n}" for n in rig.notes]
     out.append("# Keys marked 'DEFAULT: review' are not in the source files: check them before "

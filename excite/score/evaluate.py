@@ -25,7 +25,10 @@ import numpy as np
 
 from . import advice, spectrum
 from ..core import bounds
-from .. import information
+from ..information import dense
+from ..information.closure import ORIGIN, marginalise_nuisance
+from ..information.elimination import DriveInformation, drive_information, window_information, windows
+from ..information.problem import build, columns, frame_step
 from ..errors import EvaluationError
 from ..factors.base import Nominal
 from ..rig.config import Rig
@@ -165,11 +168,11 @@ class Report:
         if self._drives is None:
             raise EvaluationError("this report carries no drive to export")
         trajs, rig = self._drives
-        prob = information.build([Nominal.of(t, rig) for t in trajs], rig)
-        J, rows = information.jacobian(prob)
+        prob = build([Nominal.of(t, rig) for t in trajs], rig)
+        J, rows = dense.jacobian(prob)
         H = (J.T @ J).tocoo()
         J = J.tocoo()
-        states = information.state_names(prob.n_keyframes, prob.local, prob.state_dim)
+        states = dense.state_names(prob.n_keyframes, prob.local, prob.state_dim)
         params = [c["name"] for c in self._all_columns]
         np.savez_compressed(
             path,
@@ -184,31 +187,15 @@ class Report:
         )
 
 
-def _marginalise_nuisance(Lam: np.ndarray, scored: np.ndarray) -> np.ndarray:
-    """Schur complement of the nuisance coordinates (pseudo-inverse: an unobservable nuisance
-    carries no information to remove)."""
-    nu = ~scored
-    if not nu.any():
-        return Lam
-    A = Lam[np.ix_(scored, scored)]
-    B = Lam[np.ix_(scored, nu)]
-    C = Lam[np.ix_(nu, nu)]
-    d = np.sqrt(np.maximum(np.diag(C), 1e-300))
-    Cn = C / np.outer(d, d)
-    X = np.linalg.pinv(Cn, rcond=1e-12, hermitian=True)
-    out = A - (B / d) @ X @ (B / d).T
-    return 0.5 * (out + out.T)
-
-
-def _scaled(rig: Rig, Lam_all: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(Λ over the scored coordinates, S Λ S) from Λ over all columns (:func:`information.columns`)."""
-    scored = _scored_mask(rig, Lam_all.shape[0])
-    Lam = _marginalise_nuisance(Lam_all, scored)
+def scaled(rig: Rig, Lam_all: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Λ over the scored coordinates, S Λ S) from Λ over all columns (:func:`excite.information.problem.columns`)."""
+    scored = scored_mask(rig, Lam_all.shape[0])
+    Lam = marginalise_nuisance(Lam_all, scored)
     S = np.array([c.target for c in rig.scored])
     return Lam, Lam * np.outer(S, S)
 
 
-def _scored_mask(rig: Rig, n_columns: int) -> np.ndarray:
+def scored_mask(rig: Rig, n_columns: int) -> np.ndarray:
     """Which of ``n_columns`` parameter columns (the rig's, then further drives' nuisances) are scored."""
     out = np.zeros(n_columns, dtype=bool)
     out[:len(rig.coordinates)] = [not c.nuisance for c in rig.coordinates]
@@ -227,10 +214,10 @@ def check_work(trajs: Sequence[Trajectory], rig: Rig) -> None:
 
 
 def max_segments(trajs: Sequence[Trajectory], rig: Rig) -> int:
-    """The most route segments ``trajs`` hold (:func:`information.windows`): each at least 3
+    """The most route segments ``trajs`` hold (:func:`excite.information.elimination.windows`): each at least 3
     keyframes and a whole number of every sensor's frames."""
     K = sum(Nominal.grid(t, rig)[1] for t in trajs)
-    return max(1, (K - 1) // max(2, information.frame_step(rig)))
+    return max(1, (K - 1) // max(2, frame_step(rig)))
 
 
 def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options = Options()) -> Report:
@@ -244,10 +231,10 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
         raise EvaluationError("no drive to evaluate")
     check_work(trajs, rig)
     t0 = time.perf_counter()
-    return report_of(information.drive_information(trajs, rig), rig, options, trajs, t0=t0)
+    return report_of(drive_information(trajs, rig), rig, options, trajs, t0=t0)
 
 
-def report_of(drives: information.DriveInformation, rig: Rig, options: Options = Options(),
+def report_of(drives: DriveInformation, rig: Rig, options: Options = Options(),
               trajs: Sequence[Trajectory] = (), route: str | None = None, t0: float | None = None) -> Report:
     """The report of the information ``drives`` of the drives ``trajs`` (needed for segments and
     the export only; ``route`` names them otherwise): :func:`evaluate`'s second half, shared with
@@ -260,7 +247,7 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
     if not np.all(np.isfinite(Lam_all)):
         raise EvaluationError("the information is not finite: the drive or the rig has numbers "
                               "beyond what the model can represent")
-    Lam, Ls = _scaled(rig, Lam_all)
+    Lam, Ls = scaled(rig, Lam_all)
     t3 = time.perf_counter()
     timings = {f"{k}_thread": v for k, v in drives.thread_ms.items()}
     timings["information"] = (t3 - t0) * 1e3
@@ -305,15 +292,15 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
         t_kf = np.concatenate([Nominal.keyframe_times(t, rig) for t in trajs])
         Ks = [Nominal.grid(t, rig)[1] for t in trajs]
         most = max_segments(trajs, rig)
-        spans = information.windows(Ks, rig, min(options.segments, most))
+        spans = windows(Ks, rig, min(options.segments, most))
         if len(spans) < options.segments:  # said, never silently fewer
             why = (f"the drive holds at most {most} of 3 keyframes or more and a whole number of every sensor's "
                    f"frames ({sum(Ks)} keyframes at {rig.keyframe_rate_hz:g} Hz)" if options.segments > most else
                    "pieces of fewer than 3 keyframes at a boundary between drives are left out")
             notes.append(f"segments: {options.segments} asked, {len(spans)} reported: {why}")
         v_weak = V[:, 0]
-        for (k0, k1), (Lam_w, diag_w) in zip(spans, information.window_information(trajs, rig, spans)):
-            Lam_seg, Lseg = _scaled(rig, Lam_w)
+        for (k0, k1), (Lam_w, diag_w) in zip(spans, window_information(trajs, rig, spans)):
+            Lam_seg, Lseg = scaled(rig, Lam_w)
             seg = spectrum.analyse(Lam_seg, diag_w[scored], S, options.rank_rtol)
             segments.append(Segment(float(t_kf[k0]), float(t_kf[k1]), seg.score,
                                     float(v_weak @ Lseg @ v_weak),
@@ -322,8 +309,8 @@ def report_of(drives: information.DriveInformation, rig: Rig, options: Options =
     timings.update(report=(t4 - t3) * 1e3, segments=(t5 - t4) * 1e3, total=(t5 - t0) * 1e3)
 
     column_map = [{"index": i, "name": c.name, "unit": c.unit, "target": c.target} for i, c in enumerate(coords)]
-    names, nuisance = information.columns(rig, len(trajs) or 1)
-    units = {c.name: c.unit for c in rig.coordinates}
+    names, nuisance = columns(rig, len(trajs) or 1)
+    units = {c.name: c.unit for c in rig.coordinates} | {n: "m" for n in ORIGIN}
     all_columns = [{"index": i, "name": n, "unit": units[n.split("@")[0]], "nuisance": bool(nuisance[i])}
                    for i, n in enumerate(names)]
     numbers = [spec.score, *w, *w_unscaled, *(x for x in sigma if x is not None)]

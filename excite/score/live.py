@@ -6,10 +6,10 @@ Three layers, each usable alone:
 - :class:`Incremental` runs the evaluator's elimination forward. A chunk of keyframes is
   appended (a :class:`~excite.factors.base.Nominal` that starts at the previous chunk's last
   keyframe), linearised and its inner keyframes eliminated exactly as the batch evaluator does a
-  chunk (:func:`excite.information._piece`); the running state is the Schur complement on
+  chunk (:func:`excite.information.elimination.piece`); the running state is the Schur complement on
   ``[x_end, θ]``, into which each new piece is folded by eliminating the old end keyframe.
   :meth:`Incremental.information` closes the drive "so far" the way the batch evaluator closes a
-  drive at its last keyframe: the non-holonomic factor at the end keyframe is added, its
+  drive at its last keyframe: the one-keyframe factors at the end keyframe (the non-holonomic constraint) are added, its
   increment (it has no successor yet) and, with random-walk biases, its bias deviation (θ's bias
   columns are the bias at the end of the drive) are held at zero, and the rest of ``x_end`` is
   eliminated. Cost and memory per update are constant (matrices of the state and parameter
@@ -25,7 +25,7 @@ Three layers, each usable alone:
   after some parameter has gained again (the driver changed the motion) and then nothing has for
   a whole window.
 - :class:`PoseStream` turns timed poses arriving one by one into keyframe chunks. Batch
-  evaluation fits smoothing splines to a whole file (:func:`excite.io.routes.trajectory_from_poses`),
+  evaluation fits smoothing splines to a whole file (:func:`excite.io.poses.trajectory_from_poses`),
   so a pose's fitted value depends (exponentially weakly) on every later pose: a stream can only
   approximate it. A chunk of keyframes is committed once the poses reach ``lookahead_s`` past its
   end, from the same fit restricted to the poses within ``lookahead_s`` on either side (the
@@ -47,13 +47,15 @@ import scipy.linalg as sla
 
 from . import advice
 from ..core import bounds
-from .. import information
 from ..errors import EvaluationError, RouteError
 from .evaluate import Options, Report, evaluate, report_of
 from ..factors.base import Nominal
-from ..information import DriveInformation, Piece
+from ..factors.base import STATE_DIM
+from ..information.closure import Closure
+from ..information.elimination import DriveInformation, Piece, at_keyframe, piece
+from ..information.problem import columns, frame_step, linearise
 from ..rig.config import Rig
-from ..io.routes import DEFAULT_CUTOFF_HZ, MIN_POSES, trajectory_from_poses
+from ..io.poses import DEFAULT_CUTOFF_HZ, MIN_POSES, trajectory_from_poses
 from ..motion.trajectory import Trajectory
 
 CHUNK_S = 1.0  # drive time per appended chunk of keyframes (and so per update)
@@ -69,15 +71,16 @@ class Incremental:
 
     def __init__(self, rig: Rig):
         self.rig = rig
-        names, self.nuisance = information.columns(rig, 1)
+        names, self.nuisance = columns(rig, 1)
         self.p = len(names)
-        self.sd = information.state_dim(rig)
-        self.step = information.frame_step(rig)
+        self.closure = Closure.of(rig)
+        self.sd = self.closure.state_dim
+        self.step = frame_step(rig)
         self.n_keyframes = 0  # keyframes so far (0 before the first chunk)
         self.length_m = 0.0
         self.t_end = None  # time of the last keyframe
         self._state: np.ndarray | None = None  # Schur complement on [x_end, θ]
-        self._end_nhc = None  # the non-holonomic factor at the end keyframe (closes the drive)
+        self._end_caps: list = []  # the one-keyframe factors at the end keyframe (they close the drive)
         self._diag_tt = np.zeros(self.p)
         self.thread_ms = {"sample": 0.0, "linearise": 0.0, "eliminate": 0.0}
 
@@ -91,24 +94,24 @@ class Incremental:
                                   f"intervals (every sensor's frame stride), got {m}")
         c0 = time.perf_counter()
         first = self._state is None
-        blocks, end_nhc = [], None
-        for b in information._linearise(nom, self.rig, True, last=True):
+        blocks, end_caps = [], []
+        for b in linearise(nom, self.rig, self.closure, last=True, walk=False):
             if b is None or not b.n_factors:
                 continue
-            if b.name == "nonholonomic":  # the one at the chunk's end belongs to the next chunk
-                end_nhc = b.select(b.first == m).shifted(-m)
+            if b.n_states == 1:  # a one-keyframe factor at the chunk's end belongs to the next chunk
+                end_caps.append(b.select(b.first == m).shifted(-m))
                 b = b.select(b.first < m)
-            elif b.name == "bias_walk":  # the walk into the end keyframe is not anchored yet
-                b = information._bias_walk(self.rig, m, float(nom.t[1] - nom.t[0]))
             blocks.append(b)
+        if self.sd > STATE_DIM:  # the walk into the end keyframe is not anchored yet
+            blocks.append(self.closure.walk(m, float(nom.t[1] - nom.t[0])))
         if first:
-            blocks += information._gauge(nom.R[0], 0, True)
+            blocks += self.closure.fix(nom.R[0], 0) + self.closure.open(nom, self.rig)
         c1 = time.perf_counter()
         a = max(self.n_keyframes - 1, 0)
-        piece = information._piece(blocks, a, a + m, self.p, self.sd)
-        self._state = self._fold(piece)
-        self._end_nhc = end_nhc
-        self._diag_tt += piece.diag_tt
+        pc = piece([b for b in blocks if b.n_factors], a, a + m, self.p, self.sd)
+        self._state = self._fold(pc)
+        self._end_caps = [b for b in end_caps if b.n_factors]
+        self._diag_tt += pc.diag_tt
         self.n_keyframes = a + m + 1
         self.length_m += nom.length_m
         self.t_end = float(nom.t[-1])
@@ -144,11 +147,11 @@ class Incremental:
         sd = self.sd
         H = self._state.copy()
         diag_tt = self._diag_tt.copy()
-        if self._end_nhc is not None and self._end_nhc.n_factors:
-            cap = information.at_keyframe([self._end_nhc], sd, self.p)
+        if self._end_caps:
+            cap = at_keyframe(self._end_caps, sd, self.p)
             H += cap
             diag_tt += np.diag(cap)[sd:]
-        free = information.end_free(sd)
+        free = self.closure.free()
         n = free.size
         keep = np.r_[free, sd:sd + self.p]  # what stays free of x_end, then θ
         H = H[np.ix_(keep, keep)]
@@ -170,7 +173,7 @@ def _solve(A: np.ndarray, B: np.ndarray, keyframe: int) -> np.ndarray:
 def chunk_keyframes(rig: Rig, chunk_s: float = CHUNK_S) -> int:
     """Keyframe intervals per chunk: about ``chunk_s`` of drive, a multiple of every sensor's
     frame stride."""
-    step = information.frame_step(rig)
+    step = frame_step(rig)
     return max(step, int(round(chunk_s * rig.keyframe_rate_hz / step)) * step)
 
 
@@ -178,7 +181,7 @@ def chunks(traj: Trajectory, rig: Rig, chunk_s: float = CHUNK_S) -> Iterator[Nom
     """A trajectory's keyframes as the chunks a live drive would append (the batch evaluator's
     samples, bit for bit: :meth:`Nominal.of`); a last chunk shorter than the others ends it."""
     _, K = Nominal.grid(traj, rig)
-    m, step = chunk_keyframes(rig, chunk_s), information.frame_step(rig)
+    m, step = chunk_keyframes(rig, chunk_s), frame_step(rig)
     k0 = 0
     while k0 + step <= K - 1:
         k1 = min(k0 + m, k0 + (K - 1 - k0) // step * step)
@@ -255,7 +258,7 @@ class Guide:
             weakest = {"coordinates": [[n, w] for n, w in mode.coordinates],
                        "sigma_in_targets": mode.sigma_in_targets,
                        "advice": advice.describe(self.rig, [coords[n] for n in names],
-                                                 np.array([w for _, w in mode.coordinates]), advice.NEEDS),
+                                                 np.array([w for _, w in mode.coordinates]), advice.DRIVER),
                        "detail": mode.advice}
         return {"type": kind, "t_s": float(t), "n_keyframes": rep.n_keyframes,
                 "duration_s": rep.duration_s, "length_m": rep.length_m, "score": rep.score,

@@ -2,27 +2,28 @@
 
 :func:`calibrate` estimates the body trajectory (orientation, position, velocity at every
 keyframe) and the calibration from :class:`~excite.validate.simulate.SensorData`, with the factors
-the evaluator scores:
-
-- residuals from the factors' nonlinear models (:func:`excite.factors.imu.residual` on the
-  measurements preintegrated with the current bias estimate, :func:`~excite.factors.odometry.residual`,
-  :func:`~excite.factors.wheel.increments`, :func:`~excite.factors.nonholonomic.residual`),
-  vectorised here and held equal to those functions by the tests;
-- Jacobians from the factors' own ``blocks``, evaluated at the current estimate: a
-  :class:`~excite.factors.base.Nominal` built from the estimated states and the bias-corrected IMU
-  samples, and a rig carrying the estimated extrinsics and wheel values, assembled by
-  :func:`excite.information.build` in the world parametrisation with the evaluator's gauge (a prior
-  on the first keyframe's position and yaw, an exact symmetry) and exported by
-  :func:`excite.information.jacobian`.
+the evaluator scores: every entry of the rig that recorded data, through its measurement kind's
+one statement of the residual (:mod:`excite.factors`), evaluated at the current estimate on a
+:class:`~excite.factors.base.Nominal` made of the estimated states and the bias-corrected IMU
+samples. The Jacobian is that residual's derivative at the noise-free measurement of the
+estimate (:func:`excite.factors.symbolic.blocks`, the evaluator's linearisation): at the recorded
+one, the noise of the measurements would add terms of O(residual) that give an exactly
+unobservable direction spurious information of its own (a vertical lever arm on a flat lot
+wandered 76 targets), while Gauss–Newton converges to the same optimum either way. The drive is closed as the evaluator closes it (:mod:`excite.information.closure`:
+the same parametrisation, a prior on the first keyframe's gauge, the last keyframe's held
+components) and the sparse Jacobian assembled by :func:`excite.information.dense.jacobian`.
 
 The body rate at a keyframe (lever-arm velocity, time-offset prediction) is the bias-corrected
 gyro averaged over the two samples around it; the suspension tilt is a known input. Both are
-taken as known by the information model too.
+taken as known by the information model too. :func:`initialise` builds a start as real
+calibrators do, from the kinds it knows (rotations from the odometry sensors' rotations and the
+gyro; the trajectory from the IMU, the metric sensors, the wheels and the non-holonomic
+constraint); a kind it does not know starts at its nominal values.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -30,17 +31,22 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dpbtrf, dtbtrs
 
-from .. import information
 from ..core import so3
-from ..factors import imu as imu_factor
-from ..factors import nonholonomic, wheel
-from ..factors.base import Nominal
-from ..rig.config import Rig
-from ..motion.trajectory import GRAVITY
-from .simulate import Calibration, SensorData
 from ..errors import FactorisationError, ValidateError
-
-_GAUGE_SIGMA_YAW_RAD = 0.01
+from ..factors import base as registry
+from ..factors import symbolic
+from ..factors.base import Nominal
+from ..factors.imu import preintegrate_all
+from ..factors.nonholonomic import sigma_mps
+from ..factors.odometry import Odometry, pair_sigmas
+from ..factors.wheel import increment_sigma_rad
+from ..information import dense
+from ..information import kernels as info_kernels
+from ..information.closure import GAUGE_SIGMA_POS_M, GAUGE_SIGMA_YAW_RAD, Closure
+from ..information.problem import Problem, to_local
+from ..motion.trajectory import GRAVITY
+from ..rig.config import Rig
+from .simulate import Calibration, SensorData
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,9 @@ class SolverSettings:
     (measured on a planar drive, against ~2e-8 for a vertical lever arm seen through suspension
     pitch), so the default sits at 1e-9. With a smaller value an unobservable direction is
     "estimated" from that noise and wanders (metres for a vertical lever arm on a planar drive).
+    Away from the optimum that spurious information grows with the estimate's error, as the
+    excess cost does: the threshold is multiplied by the normalised cost ``2·cost/dof`` where it
+    exceeds 1 (a start 10× off in cost moved a vertical lever arm 680 targets in one step).
     ``scale_sigma``: the scale unit of a monocular camera's scale (it has no target).
     """
 
@@ -132,86 +141,11 @@ class CalibrationResult:
         return self.status == "converged"
 
 
-# ------------------------------------------------------------------------------------------------
-# The measurement models, vectorised
-
-
-def preintegrate_all(gyro: np.ndarray, accel: np.ndarray, n: int, dt: float, b_g: np.ndarray,
-                     b_a: np.ndarray):
-    """:func:`excite.factors.imu.preintegrate` for every keyframe interval at once.
-
-    Returns ``ΔR, Δv, Δp`` (N, …) and ``R_s`` (N, n, 3, 3): the rotation at the start of each sample
-    relative to the interval's start.
-    """
-    N = gyro.shape[0] // n
-    w = (gyro - b_g).reshape(N, n, 3)
-    a = (accel - b_a).reshape(N, n, 3)
-    dR = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
-    dv = np.zeros((N, 3))
-    dp = np.zeros((N, 3))
-    Rs = np.empty((N, n, 3, 3))
-    for s in range(n):
-        Rs[:, s] = dR
-        h = so3.exp(0.5 * w[:, s] * dt)  # Exp(ω dt) = Exp(ω dt/2)²
-        half = dR @ h  # the mid-sample attitude
-        acc = np.einsum("nij,nj->ni", half, a[:, s])
-        dp = dp + dv * dt + 0.5 * acc * dt * dt
-        dv = dv + acc * dt
-        dR = half @ h
-    return dR, dv, dp, Rs
-
-
-def imu_residuals(X: States, pre, dT: float) -> np.ndarray:
-    """Unwhitened (rotation, velocity, position) residuals of every interval (N, 9)."""
-    dR, dv, dp = pre[:3]
-    RiT = np.swapaxes(X.R[:-1], 1, 2)
-    rR = so3.log(RiT @ X.R[1:] @ np.swapaxes(dR, 1, 2))
-    rv = np.einsum("nij,nj->ni", RiT, X.v[1:] - X.v[:-1] - GRAVITY * dT) - dv
-    rp = np.einsum("nij,nj->ni", RiT, X.p[1:] - X.p[:-1] - X.v[:-1] * dT - 0.5 * GRAVITY * dT**2) - dp
-    return np.hstack([rR, rv, rp])
-
-
-def odometry_residuals(X: States, omega: np.ndarray, frames: np.ndarray, R_BS: np.ndarray, p_BS: np.ndarray,
-                       t_d: float, scale: float, R_meas: np.ndarray, t_meas: np.ndarray) -> np.ndarray:
-    """:func:`excite.factors.odometry.residual` of every frame pair (F−1, 6)."""
-    R, p, v, w = X.R[frames], X.p[frames], X.v[frames], omega[frames]
-    Rb = R @ so3.exp(w * t_d)
-    R_S = Rb @ R_BS
-    p_S = p + v * t_d + Rb @ p_BS
-    R_iT = np.swapaxes(R_S[:-1], 1, 2)
-    R_rel = R_iT @ R_S[1:]
-    t_rel = np.einsum("nij,nj->ni", R_iT, p_S[1:] - p_S[:-1])
-    return np.hstack([so3.log(np.swapaxes(R_meas, 1, 2) @ R_rel), scale * t_rel - t_meas])
-
-
-def wheel_increments(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray, radius_left: float,
-                     radius_right: float, track: float, slip: float, dT: float) -> np.ndarray:
-    """:func:`excite.factors.wheel.increments` of every keyframe interval (N, 2), times the slip
-    ``1 + slip·ā/g`` (:func:`excite.factors.wheel.longitudinal_accel_g`)."""
-    inc = wheel.increments(X.R[:-1], X.p[:-1], X.R[1:], X.p[1:], R_BA[:-1], R_BA[1:], p_BV,
-                           radius_left, radius_right, track)
-    if slip:
-        along = wheel.longitudinal_accel_g(X.R @ R_BA, wheel.axle_velocity(X.R, X.v, omega, p_BV), dT)
-        inc = inc * (1.0 + slip * along)[:, None]
-    return inc
-
-
-def nonholonomic_residuals(X: States, omega: np.ndarray, R_BA: np.ndarray, p_BV: np.ndarray,
-                           slip_angle: float) -> np.ndarray:
-    """:func:`excite.factors.nonholonomic.residual` at every keyframe (K, 2)."""
-    v_V = wheel.axle_velocity(X.R, X.v, omega, p_BV)
-    R_W_A = X.R @ R_BA
-    r = np.einsum("kji,kj->ki", R_W_A, v_V)[:, 1:3]
-    if slip_angle:
-        r[:, 0] += slip_angle * nonholonomic.lateral_slip_regressor(R_W_A, v_V, omega, R_BA)
-    return r
-
-
 def keyframe_rates(data: SensorData, b_g: np.ndarray) -> np.ndarray:
     """Bias-corrected body rate at every keyframe: the mean of the samples just before and after
     it (each sample is the mean rate over its interval, so this is centred on the keyframe)."""
     n = data.imu_per_keyframe
-    g = data.gyro - b_g
+    g = data.imu.gyro - b_g
     after = np.vstack([g[::n], g[-1:]])
     before = np.vstack([g[:1], g[n - 1::n]])
     return 0.5 * (after + before)
@@ -222,98 +156,80 @@ def keyframe_rates(data: SensorData, b_g: np.ndarray) -> np.ndarray:
 
 
 class _Problem:
-    """Residuals and Jacobian of the joint problem for fixed data, rig and gauge reference."""
+    """Residuals and Jacobian of the joint problem for fixed data, rig and gauge reference: every
+    entry of the rig that recorded data, through its kind's one statement of the residual
+    (:mod:`excite.factors.symbolic`), closed as the evaluator closes a drive."""
 
-    def __init__(self, data: SensorData, rig: Rig, gauge_R: np.ndarray):
+    def __init__(self, data: SensorData, rig: Rig, gauge_R: np.ndarray, gauge_p: np.ndarray | None = None):
         # the estimator takes the biases constant (the simulator may let them drift): the factors
         # are linearised for that model, 9-wide states
         self.data, self.rig = data, rig.with_constant_biases() if rig.bias_random_walk else rig
-        self.coords = rig.coordinates
+        self.closure = Closure.of(self.rig, origin=False)  # plain world states: LM needs no origin
         self.K = data.n_keyframes
-        self.n_params = len(self.coords)
+        self.n_params = len(rig.coordinates)
         self.n_x = 9 * self.K
         self.gauge_R = gauge_R
-        self.dT = float(data.t[1] - data.t[0])
-        R_BV = data.R_V_B.T
-        self.p_BV = -R_BV @ data.p_V_B
-        self.R_BA = R_BV @ data.R_V_A
-        self.inc = data.wheel_increments
-        cfg = rig.config
-        self.sensors = [s for s in cfg.sensors if s.name in data.odometry]
-        self.bias_cols = None
-        if cfg.imu.estimate_biases:
-            self.bias_cols = np.array([rig.index(f"imu.{k}_bias_{a}") for k in ("gyro", "accel") for a in "xyz"])
+        self.gauge_p = np.zeros(3) if gauge_p is None else gauge_p
+        # (kind, entry, what it recorded, its label): every entry that recorded data, and the
+        # factors that open its chains at the drive's start (a GNSS antenna's first fix)
+        self.instances = [(i.kind, i.entry, i.name, i.name) for i in registry.instances(self.rig)
+                          if i.name in data.recorded]
+        self.instances += [(k, e, e.name, k.block_name(e)) for k, e in self.closure.openers if e.name in data.recorded]
+
+    def nominal(self, X: States, cal: Calibration) -> Nominal:
+        """The motion the factors are evaluated on: the estimated states, the IMU samples
+        corrected for the estimated biases, their attitudes integrated from the states, and the
+        bias-corrected body rate at the keyframes (lever-arm velocity, time-offset prediction)."""
+        d = self.data
+        n = d.imu_per_keyframe
+        b_g, b_a = cal.vector("imu", "gyro_bias"), cal.vector("imu", "accel_bias")
+        Rs = preintegrate_all(d.imu.gyro, d.imu.accel, n, d.dt_imu, b_g, b_a)[3]
+        imu_R = np.empty(((self.K - 1) * n + 1, 3, 3))
+        imu_R[:-1] = (X.R[:-1, None] @ Rs).reshape(-1, 3, 3)
+        imu_R[-1] = X.R[-1]
+        return Nominal(t=d.t, R=X.R, p=X.p, v=X.v, omega=keyframe_rates(d, b_g), R_V_A=d.R_V_A, imu_R=imu_R,
+                       imu_omega=d.imu.gyro - b_g, imu_f=d.imu.accel - b_a, imu_per_keyframe=n,
+                       R_V_B=d.R_V_B, p_V_B=d.p_V_B, logs=d.logs)
 
     def evaluate(self, X: States, cal: Calibration, jacobian: bool):
-        """Whitened residual vector (and the sparse whitened Jacobian) at ``(X, cal)``."""
-        d, cfg = self.data, self.rig.config
-        n = d.imu_per_keyframe
-        pre = preintegrate_all(d.gyro, d.accel, n, d.dt_imu, cal.gyro_bias, cal.accel_bias)
-        omega = keyframe_rates(d, cal.gyro_bias)
-        N = self.K - 1
-        imu_R = np.empty((N * n + 1, 3, 3))
-        imu_R[:-1] = (X.R[:-1, None] @ pre[3]).reshape(-1, 3, 3)
-        imu_R[-1] = X.R[-1]
-        nom = Nominal(t=d.t, R=X.R, p=X.p, v=X.v, omega=omega, R_V_A=d.R_V_A, imu_R=imu_R,
-                      imu_omega=d.gyro - cal.gyro_bias, imu_f=d.accel - cal.accel_bias, imu_per_keyframe=n,
-                      R_V_B=d.R_V_B, p_V_B=d.p_V_B)
-        ic = cfg.imu
-        cov = imu_factor.preintegration(nom, ic.gyroscope_noise_density, ic.accelerometer_noise_density)["cov"]
-        L = np.linalg.cholesky(cov)
-        r_imu = np.linalg.solve(L, imu_residuals(X, pre, self.dT)[:, :, None])[..., 0]
-        r_nh = (nonholonomic_residuals(X, omega, self.R_BA, self.p_BV, cal.slip[1]) - d.slip) / np.array(
-            self.rig.nonholonomic_sigma_mps)
-        parts = [r_imu.ravel(), r_nh.ravel()]
-        kinds = ["imu", "nonholonomic"]
-        if cfg.wheels is not None:
-            parts.append(((wheel_increments(X, omega, self.R_BA, self.p_BV, *cal.wheel, cal.slip[0], self.dT) - self.inc)
-                          / self.rig.wheel_increment_sigma_rad).ravel())
-            kinds.append("wheel")
-        for s in self.sensors:
-            od = d.odometry[s.name]
-            R_BS, p_BS = cal.extrinsics[s.name]
-            r = odometry_residuals(X, omega, od.frames, R_BS, p_BS, cal.time_offsets[s.name], cal.scales[s.name],
-                                   od.R_rel, od.t_rel)
-            r[:, 0:3] /= np.deg2rad(s.noise.rotation_sigma_deg)
-            r[:, 3:6] /= s.noise.translation_sigma_m
-            parts.append(r.ravel())
-            kinds.append(s.name)
-        yaw = (self.gauge_R @ so3.log(self.gauge_R.T @ X.R[0]))[2]  # world yaw of the first keyframe
-        # the evaluator's local states: a yaw prior, and the last keyframe's increment held at zero
-        # (it has no successor); positions are differences, the first one stays where it started
-        parts.append(np.r_[yaw / _GAUGE_SIGMA_YAW_RAD, np.zeros(3)])
+        """Whitened residual vector (and the sparse whitened Jacobian, in the closure's states)
+        at ``(X, cal)``."""
+        nom = self.nominal(X, cal)
+        parts, kinds, blocks = [], [], []
+        for kind, entry, record, label in self.instances:
+            first = kind.factor_keyframes(self.rig, entry, self.K, nom)
+            meas, values = kind.measured(self.rig, entry, self.data.recorded[record],
+                                         cal.for_entry(kind, self.rig, entry))
+            parts.append(symbolic.residuals(kind, nom, self.rig, entry, first, meas, values).ravel())
+            if jacobian:  # Gauss–Newton at the prediction, as the evaluator linearises (see the docstring)
+                b = symbolic.blocks(kind, nom, self.rig, entry, cal.for_entry(kind, self.rig, entry))
+                if b is not None:
+                    blocks.append(b)
+            kinds.append(label)
+        # the gauge, as the evaluator's: priors on the first keyframe's position and world yaw as far
+        # as they are symmetries (held at the reference), and the last keyframe's held components
+        fix = self.closure.fix(X.R[0], 0)
+        gauge = []
+        if "position" in self.closure.gauge:
+            gauge += list((X.p[0] - self.gauge_p) / GAUGE_SIGMA_POS_M)
+        if "yaw" in self.closure.gauge:
+            gauge.append((self.gauge_R @ so3.log(self.gauge_R.T @ X.R[0]))[2] / GAUGE_SIGMA_YAW_RAD)
+        end = self.closure.end(self.K - 1)
+        parts.append(np.r_[gauge, np.zeros(len(self.closure.held()))])
         kinds.append("gauge")
         edges = np.cumsum([0] + [x.size for x in parts])
         self.kinds = {k: slice(a, b) for k, a, b in zip(kinds, edges[:-1], edges[1:])}
         r = np.concatenate(parts)
         if not jacobian:
             return r, None
-        prob = information.build(nom, cal.rig(self.rig), local=True)
-        J, _ = information.jacobian(prob)
+        if self.closure.local:
+            V, P = info_kernels.local_maps(X.R, X.v, X.p)
+            blocks = [to_local(b, V, P) for b in blocks]
+        prob = Problem(self.K, self.n_params, tuple(blocks + fix + end), X.R, self.closure)
+        J, _ = dense.jacobian(prob)
         if J.shape[0] != r.size:
             raise ValidateError(f"internal: {J.shape[0]} Jacobian rows for {r.size} residuals")
-        return r, self._monocular_scale(J, prob, cal)
-
-    def _monocular_scale(self, J: sp.csr_matrix, prob: information.Problem, cal: Calibration) -> sp.csr_matrix:
-        """The factor linearises a monocular camera at unit scale; its translation rows scale with ŝ
-        (all but the scale column, whose entry t_rel is already right)."""
-        mono = [s for s in self.sensors if s.monocular and cal.scales[s.name] != 1.0]
-        if not mono:
-            return J
-        rows = np.ones(J.shape[0])
-        r0 = 0
-        for b in prob.blocks:
-            for s in mono:
-                if b.name == s.name:
-                    idx = r0 + np.arange(b.n_factors)[:, None] * b.n_rows + np.arange(3, 6)[None, :]
-                    rows[idx.ravel()] = cal.scales[s.name]
-            r0 += b.n_factors * b.n_rows
-        J = (sp.diags(rows) @ J).tocsc()
-        for s in mono:
-            c = self.n_x + self.rig.index(f"{s.name}.scale")
-            sl = slice(J.indptr[c], J.indptr[c + 1])
-            J.data[sl] /= rows[J.indices[sl]]
-        return J.tocsr()
+        return r, J
 
 
 # ------------------------------------------------------------------------------------------------
@@ -393,8 +309,8 @@ class _Normal:
         return np.asarray(self.Js.T @ (self.Js @ y)).ravel()
 
 
-def _unknown_names(rig: Rig, n_keyframes: int) -> list[str]:
-    return information.state_names(n_keyframes, local=True) + [c.name for c in rig.coordinates]
+def _unknown_names(rig: Rig, n_keyframes: int, local: bool) -> list[str]:
+    return dense.state_names(n_keyframes, local=local) + [c.name for c in rig.coordinates]
 
 
 def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: States,
@@ -417,9 +333,9 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
     """
     if initial_states.R.shape[0] != data.n_keyframes:
         raise ValidateError(f"{initial_states.R.shape[0]} initial states for {data.n_keyframes} keyframes")
-    prob = _Problem(data, rig, initial_states.R[0].copy())
+    prob = _Problem(data, rig, initial_states.R[0].copy(), initial_states.p[0].copy())
     scale = np.array([settings.scale_sigma if c.nuisance else c.target for c in rig.coordinates])
-    names = _unknown_names(rig, data.n_keyframes)
+    names = _unknown_names(rig, data.n_keyframes, prob.closure.local)
     X, cal = initial_states, initial
     r, J = prob.evaluate(X, cal, jacobian=True)
     cost0 = cost = 0.5 * float(r @ r)
@@ -437,7 +353,9 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
             status, reason = "failed", f"the normal equations are singular at {names[e.column]}"
             _emit(log, dict(event="step", iteration=it, failure=reason, failed_variable=names[e.column]))
             break
-        basis, tol, cond_t = nrm.rank(fac0[3], settings.rank_rtol)
+        # spurious information of an estimate's error grows with it, as its excess cost does
+        excess = max(1.0, 2.0 * cost / max(r.size - J.shape[1], 1))
+        basis, tol, cond_t = nrm.rank(fac0[3], settings.rank_rtol * excess)
         info = fac0[3] / np.outer(scale, scale)
         if np.abs(nrm.g).max() <= settings.gradient_tolerance * np.sqrt(2 * cost):
             status, reason = "converged", "gradient below tolerance"
@@ -465,7 +383,7 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
             lin_res = float(np.linalg.norm(Hy + lam * nrm.diag * y + nrm.g) / max(np.linalg.norm(nrm.g), 1e-300))
             predicted = -float(nrm.g @ y + 0.5 * y @ Hy)
             step = y / nrm.D
-            X_new = X.plus_local(step[:prob.n_x])
+            X_new = X.plus_local(step[:prob.n_x]) if prob.closure.local else X.plus(step[:prob.n_x])
             cal_new = cal.plus(rig, step[prob.n_x:])
             r_new, _ = prob.evaluate(X_new, cal_new, jacobian=False)
             cost_new = 0.5 * float(r_new @ r_new)
@@ -544,8 +462,8 @@ class _GyroAttitude:
     (samples held over their interval), at any time; extrapolated at the end rates."""
 
     def __init__(self, data: SensorData, b_g: np.ndarray):
-        self.t0, self.dt = float(data.t_imu[0]), data.dt_imu
-        self.w = data.gyro - b_g
+        self.t0, self.dt = float(data.imu.t[0]), data.dt_imu
+        self.w = data.imu.gyro - b_g
         inc = so3.exp(self.w * self.dt)
         self.R = np.empty((inc.shape[0] + 1, 3, 3))
         self.R[0] = np.eye(3)
@@ -583,12 +501,11 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
     Translations, accelerometer biases, wheel values and scales start at ``nominal``: the joint
     solve estimates them, and leaves the directions the drive does not determine where they are.
     """
-    cfg = rig.config
     names = {c.name for c in rig.coordinates}
-    sensors = [s for s in cfg.sensors if s.name in data.odometry]
-    R_BS = {s.name: nominal.extrinsics[s.name][0].copy() for s in sensors}
-    tau = dict(nominal.time_offsets)
-    b_g = nominal.gyro_bias.copy()
+    sensors = _odometry_sensors(data, rig)
+    R_BS = {s.name: nominal.rotation(s.name).copy() for s in sensors}
+    tau = {s.name: nominal.scalar(s.name, "time_offset") for s in sensors}
+    b_g = nominal.vector("imu", "gyro_bias").copy()
     est_b = "imu.gyro_bias_x" in names
     # unknown layout: per sensor [φ (3) if its rotation is estimated, δτ (1) if its offset is], then δb_g
     layout, n = {}, 0
@@ -604,12 +521,12 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
         gyro = _GyroAttitude(data, b_g)
         rows, rhs = [], []
         for s in sensors:
-            od = data.odometry[s.name]
-            sig = np.deg2rad(s.noise.rotation_sigma_deg)
-            t = data.t[od.frames] + tau[s.name]
+            frames, R_rel, _ = _relative_poses(data, rig, s)
+            sig = pair_sigmas(s)[0]
+            t = data.t[frames] + tau[s.name]
             Ra = gyro.at(t)
             c = so3.log(np.swapaxes(Ra[:-1], 1, 2) @ Ra[1:])
-            a = so3.log(od.R_rel)
+            a = so3.log(R_rel)
             Ra_ = np.einsum("ij,nj->ni", R_BS[s.name], a)
             e = c - Ra_  # residual at the current values
             F = e.shape[0]
@@ -637,10 +554,10 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
         for s in sensors:
             i_rot, i_td = layout[s.name]
             if i_rot is not None:
-                cur[i_rot:i_rot + 3] = so3.log(nominal.extrinsics[s.name][0].T @ R_BS[s.name])
+                cur[i_rot:i_rot + 3] = so3.log(nominal.rotation(s.name).T @ R_BS[s.name])
             if i_td is not None:
-                cur[i_td] = tau[s.name] - nominal.time_offsets[s.name]
-        cur[nb:] = b_g - nominal.gyro_bias
+                cur[i_td] = tau[s.name] - nominal.scalar(s.name, "time_offset")
+        cur[nb:] = b_g - nominal.vector("imu", "gyro_bias")
         A = np.vstack(rows + [np.diag(1.0 / prior)])
         b = np.concatenate(rhs + [-cur / prior])
         delta = np.linalg.lstsq(A, b, rcond=None)[0]
@@ -652,8 +569,9 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
                 tau[s.name] += delta[i_td]
         if est_b:
             b_g = b_g + delta[nb:]
-    cal = replace(nominal, extrinsics={k: (R_BS.get(k, R), p) for k, (R, p) in nominal.extrinsics.items()},
-                  time_offsets=tau, gyro_bias=b_g)
+    cal = nominal.with_values("imu", gyro_bias=b_g)
+    for s in sensors:
+        cal = cal.with_values(s.name, rot=R_BS[s.name], time_offset=tau[s.name])
     gyro = _GyroAttitude(data, b_g)
     R = R0 @ gyro.R[::data.imu_per_keyframe][:data.n_keyframes]
     p, v = _positions_and_velocities(data, rig, cal, R, p0)
@@ -687,8 +605,8 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
     V = lambda k: 6 * k + 3  # noqa: E731
     i, j = np.arange(K - 1), np.arange(1, K)
     RiT = np.swapaxes(R[:-1], 1, 2)
-    pre = preintegrate_all(data.gyro, data.accel, data.imu_per_keyframe, data.dt_imu, cal.gyro_bias,
-                           cal.accel_bias)
+    pre = preintegrate_all(data.imu.gyro, data.imu.accel, data.imu_per_keyframe, data.dt_imu,
+                           cal.vector("imu", "gyro_bias"), cal.vector("imu", "accel_bias"))
     ic = cfg.imu
     g = np.linalg.norm(GRAVITY)
     s_v = ic.accelerometer_noise_density * np.sqrt(dT) + _INIT_ATTITUDE_RAD * g * dT
@@ -697,40 +615,39 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
     add([(RiT, P(j)), (-RiT, P(i)), (-RiT * dT, V(i))],
         pre[2] + np.einsum("nji,j->ni", R[:-1], 0.5 * GRAVITY * dT**2), s_p)
     # metric sensors: R_S,iᵀ (p_j + v_j τ + R_j p_BS − p_i − v_i τ − R_i p_BS) = t_meas
-    omega = keyframe_rates(data, cal.gyro_bias)
-    for s in cfg.sensors:
-        if s.name not in data.odometry or s.monocular:
+    omega = keyframe_rates(data, cal.vector("imu", "gyro_bias"))
+    for s in _odometry_sensors(data, rig):
+        if s.monocular:
             continue
-        od = data.odometry[s.name]
-        R_BS, p_BS = cal.extrinsics[s.name]
-        td = cal.time_offsets[s.name]
-        fi, fj = od.frames[:-1], od.frames[1:]
-        Rb = R[od.frames] @ so3.exp(omega[od.frames] * td)
+        frames, _, t_rel = _relative_poses(data, rig, s)
+        R_BS, p_BS = cal.rotation(s.name), cal.vector(s.name, "trans")
+        td = cal.scalar(s.name, "time_offset")
+        fi, fj = frames[:-1], frames[1:]
+        Rb = R[frames] @ so3.exp(omega[frames] * td)
         RSiT = np.swapaxes(Rb[:-1] @ R_BS, 1, 2)
         lever = np.einsum("nij,j->ni", Rb, p_BS)
-        rhs = od.t_rel - np.einsum("nij,nj->ni", RSiT, lever[1:] - lever[:-1])
-        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs,
-            s.noise.translation_sigma_m)
+        rhs = t_rel - np.einsum("nij,nj->ni", RSiT, lever[1:] - lever[:-1])
+        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs, pair_sigmas(s)[1])
     # non-holonomic: lateral and vertical velocity of the axle ≈ 0
     R_BV = data.R_V_B.T
     p_BV = -R_BV @ data.p_V_B
     RA = R @ (R_BV @ data.R_V_A)
     RAT = np.swapaxes(RA, 1, 2)
     lever_v = np.einsum("kij,kj->ki", R, np.cross(omega, p_BV))
-    add([(RAT[:, 1:3], V(np.arange(K)))], data.slip - np.einsum("kij,kj->ki", RAT[:, 1:3], lever_v),
-        np.array(rig.nonholonomic_sigma_mps))
+    add([(RAT[:, 1:3], V(np.arange(K)))], data.recorded["nonholonomic"] - np.einsum("kij,kj->ki", RAT[:, 1:3], lever_v),
+        np.array(sigma_mps(cfg.vehicle.nonholonomic, rig.keyframe_rate_hz)))
     # wheels: the axle's travel along the mean heading of each interval (chord ≈ arc: a start value)
     wc = cfg.wheels
-    if wc is not None and data.wheel_increments is not None:
-        rl, rr, _ = cal.wheel
-        inc = data.wheel_increments
+    if wc is not None and "wheel" in data.recorded:
+        rl, rr = cal.scalar("wheel", "radius_left"), cal.scalar("wheel", "radius_right")
+        inc = data.recorded["wheel"]
         ds = 0.5 * (rl * inc[:, 0] + rr * inc[:, 1])
         dpsi = so3.log(RAT[:-1] @ RA[1:])[:, 2]
         m = np.stack([np.cos(dpsi / 2), np.sin(dpsi / 2), np.zeros_like(dpsi)], axis=1)
         M = np.einsum("ni,nji->nj", m, RA[:-1])[:, None, :]  # mᵀ R_A,iᵀ
         arm = np.einsum("kij,j->ki", R, p_BV)
         rhs = ds - np.einsum("nij,nj->ni", M, arm[1:] - arm[:-1])[:, 0]
-        add([(M, P(j)), (-M, P(i))], rhs[:, None], 0.5 * np.hypot(rl, rr) * rig.wheel_increment_sigma_rad)
+        add([(M, P(j)), (-M, P(i))], rhs[:, None], 0.5 * np.hypot(rl, rr) * increment_sigma_rad(wc, rig.keyframe_rate_hz))
     add([(np.eye(3)[None], np.array([P(0)]))], np.asarray(p0, dtype=float)[None], 1e-3)
     rows = np.concatenate([b[0] for b in blocks if b[0] is not None])
     cols = np.concatenate([b[1] for b in blocks if b[0] is not None])
@@ -740,6 +657,20 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
     x = spla.spsolve((A.T @ A).tocsc(), A.T @ rhs)
     x = x.reshape(K, 6)
     return x[:, 0:3], x[:, 3:6]
+
+
+def _odometry_sensors(data: SensorData, rig: Rig) -> list:
+    """The rig's lidar and camera odometry sensors that recorded data."""
+    return [s for s in rig.config.sensors
+            if isinstance(registry.kind_of_sensor(s.kind), Odometry) and s.name in data.recorded]
+
+
+def _relative_poses(data: SensorData, rig: Rig, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames (keyframe indices), relative rotations and translations an odometry sensor recorded."""
+    kind = registry.kind_of_sensor(s.kind)
+    first = kind.factor_keyframes(rig, s, data.n_keyframes)
+    rows = data.recorded[s.name]
+    return np.r_[first, first[-1] + kind.stride(rig, s)], rows[:, :9].reshape(-1, 3, 3), rows[:, 9:12]
 
 
 def perturbed_states(states: States, rng: np.random.Generator, sigma_rot_rad: float = 0.01,

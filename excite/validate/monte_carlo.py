@@ -230,7 +230,7 @@ def run_trial(traj: Trajectory, rig: Rig, index: int, settings: MonteCarloSettin
     res: CalibrationResult = calibrate(data, rig, init.calibration, init.states, settings.solver,
                                        None if log is None else (lambda rec: log({"trial": index, **rec})))
     # a constant-bias calibration of drifting biases estimates their mean over the drive
-    truth = replace(truth, gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
+    truth = truth.with_values("imu", gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
     return Trial(index, res.calibration.minus(truth, rig), init.calibration.minus(truth, rig), res.status,
                  res.reason, res.iterations, res.cost, res.n_residuals - res.n_unknowns,
                  time.perf_counter() - t0, res.residual_rms or {})
@@ -289,7 +289,7 @@ def systematic_error(traj: Trajectory, rig: Rig, report: Report, settings: Monte
                     replace(settings.simulation, noise=False))
     tr = data.truth
     res = calibrate(data, rig, truth, States(tr.R, tr.p, tr.v), settings.solver)
-    truth = replace(truth, gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
+    truth = truth.with_values("imu", gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
     e = res.calibration.minus(truth, rig)[[not c.nuisance for c in rig.coordinates]]
     return {p.name: float(x / p.sigma) for p, x in zip(report.parameters, e) if p.sigma}
 

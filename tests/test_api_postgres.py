@@ -1,0 +1,162 @@
+"""The job store on a real PostgreSQL server (issue 30): several replicas share it, jobs are
+claimed with leases and heartbeats, a replica that dies loses no job and a live replica's job is
+never taken over. The server is Debian's ``postgresql`` package, started here on loopback in a
+temporary folder and stopped at the end (``.ci/run`` installs it)."""
+
+from __future__ import annotations
+
+import glob
+import os
+import pwd
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from test_api_support import LiveServer, free_port, job_result_file
+
+
+def _binaries() -> Path | None:
+    found = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"), key=lambda p: int(p.split("/")[4]))
+    if found:
+        return Path(found[-1]).parent
+    initdb = shutil.which("initdb")
+    return Path(initdb).resolve().parent if initdb else None
+
+
+@pytest.fixture(scope="module")
+def postgres():
+    """``postgresql://…`` of a fresh server on 127.0.0.1 (its own cluster in a temp folder)."""
+    pytest.importorskip("psycopg", reason="psycopg is not installed (pip install 'psycopg[binary]')")
+    bindir = _binaries()
+    if bindir is None:
+        pytest.skip("PostgreSQL's server binaries are not installed (Debian: apt-get install postgresql)")
+    # not under pytest's folders: those are the root user's alone, and the server runs as postgres
+    tmp = Path(tempfile.mkdtemp(prefix="excite-pg-"))
+    data, sock = tmp / "data", tmp / "sock"
+    sock.mkdir()
+    user = None
+    if os.geteuid() == 0:  # the server refuses to run as root
+        try:
+            user = pwd.getpwnam("postgres")
+        except KeyError:
+            pytest.skip("running as root and there is no 'postgres' user to run the server as")
+        for p in (tmp, sock):
+            os.chown(p, user.pw_uid, user.pw_gid)
+
+    def run(*cmd: str) -> None:
+        def demote() -> None:
+            if user is not None:
+                os.setgid(user.pw_gid)
+                os.setuid(user.pw_uid)
+
+        subprocess.run(cmd, check=True, preexec_fn=demote, cwd=tmp, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.PIPE, timeout=120)
+
+    port = free_port()
+    run(str(bindir / "initdb"), "-D", str(data), "-U", "excite", "--auth=trust", "-E", "UTF8", "--no-sync")
+    run(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(tmp / "server.log"), "-w", "-t", "60", "-o",
+        f"-p {port} -k {sock} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200", "start")
+    try:
+        import psycopg
+
+        with psycopg.connect(f"postgresql://excite@127.0.0.1:{port}/postgres", autocommit=True) as db:
+            db.execute("CREATE DATABASE excite_jobs")
+        yield f"postgresql://excite@127.0.0.1:{port}/excite_jobs"
+    finally:
+        run(str(bindir / "pg_ctl"), "-D", str(data), "-m", "fast", "-w", "stop")
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.fixture
+def fresh(postgres):
+    """The store emptied for this test."""
+    import psycopg
+
+    from api.store import PostgresStore
+
+    store = PostgresStore(postgres)
+    with psycopg.connect(postgres, autocommit=True) as db:
+        db.execute("TRUNCATE jobs, job_runs")
+    return store
+
+
+def test_migrations_leases_and_fairness_on_postgres(postgres, fresh):
+    from api.store import SCHEMA_VERSION, PostgresStore
+
+    store = fresh
+    assert PostgresStore(postgres).schema_version() == SCHEMA_VERSION  # opening again migrates nothing
+    flood = [store.create("maneuver", {"n": i}, key_id="flood") for i in range(50)]
+    first = store.claim("host/boot/1/a", 30)
+    assert first == (flood[0], 1)
+    late = store.create("maneuver", {"name": "late"}, key_id="late")
+    assert store.claim("host/boot/1/a", 30)[0] == late  # the key with nothing running goes first
+    assert store.reclaim("host/boot/2/b") == []  # live leases of another replica: untouched
+    assert store.heartbeat("host/boot/1/a", 30) == {first, (late, 1)}
+    import psycopg
+
+    with psycopg.connect(postgres, autocommit=True) as db:
+        db.execute("UPDATE jobs SET lease_expires = 0 WHERE id = %s", (first[0],))
+    assert store.reclaim("host/boot/2/b") == [first[0]]
+    assert not store.finish(*first, "succeeded", result={})  # the lost run cannot write
+    assert store.claim("host/boot/2/b", 30) == (flood[0], 2)
+    assert [r["outcome"] for r in store.runs(flood[0])] == ["lost", None]
+
+
+def test_three_replicas_run_thirty_jobs_exactly_once_with_one_killed(tmp_path, postgres, fresh):
+    """Replicas A and B take 30 jobs; A is killed with SIGKILL mid-job and C starts afterwards.
+    Every job succeeds exactly once: one succeeded run per job in the records, the runs lost
+    with A re-run once (attempt 2), and no job of a live replica was ever taken over."""
+    result = job_result_file(tmp_path / "result.json")
+    log = tmp_path / "completions.log"
+    common = {"database_url": postgres, "workers": 2, "job_lease_s": 3, "job_function": "test_api_support:quick_job",
+              "test_job_result": result, "test_job_log": log}
+
+    def replica(name: str) -> LiveServer:
+        folder = tmp_path / name
+        folder.mkdir()
+        return LiveServer(folder, **common).start()
+
+    a, b = replica("a"), replica("b")
+    c = None
+    try:
+        ids = []
+        for i in range(30):
+            srv = (a, b)[i % 2]
+            with srv.client() as client:
+                r = client.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 2, "name": f"j{i}"})
+                assert r.status_code == 202, r.text
+                ids.append(r.json()["id"])
+        a_tag = f"/{a.proc.pid}/"
+        deadline = time.monotonic() + 60
+        while not any(a_tag in (fresh.get(i)["lease_owner"] or "") for i in ids):
+            assert time.monotonic() < deadline, "replica A never ran a job"
+            time.sleep(0.1)
+        time.sleep(0.5)  # mid-job
+        a.kill9()
+        c = replica("c")
+        deadline = time.monotonic() + 300
+        while fresh.counts().get("succeeded", 0) < 30:
+            assert time.monotonic() < deadline, fresh.counts()
+            time.sleep(0.5)
+        jobs = [fresh.get(i) for i in ids]
+        assert all(j["status"] == "succeeded" for j in jobs), fresh.counts()
+        rerun = 0
+        for j in jobs:
+            runs = fresh.runs(j["id"])
+            assert [r["outcome"] for r in runs].count("succeeded") == 1, runs
+            assert j["attempt"] == len(runs)
+            lost = [r for r in runs if r["outcome"] != "succeeded"]
+            assert all(a_tag in r["replica"] and r["outcome"] == "lost" for r in lost), runs
+            rerun += bool(lost)
+        assert rerun >= 1, "the killed replica had a job running"
+        done = log.read_text().split()
+        names = done[0::3]
+        assert sorted(names) == sorted(f"j{i}" for i in range(30)), "a job completed twice or never"
+    finally:
+        for srv in (a, b, c):
+            if srv is not None:
+                srv.stop()
