@@ -244,13 +244,15 @@ def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
 
     # Round-off differs between the parametrisations: in local states with the gauge prior the
     # dense reference agrees to ~1e-11; world-frame states (the fast path's or the dense one's)
-    # and the pseudo-inverse without a gauge lose digits (measured 2e-7 … 2.4e-6 on this drive).
+    # and the pseudo-inverse without a gauge lose digits (measured 2e-7 … 2.4e-6 on this drive;
+    # since the wheels' scrub nuisance, nearly collinear with the radii on this drive, the
+    # eigenvalues of world states without a gauge agree to 5e-6 … 1.1e-5, the rest unchanged).
     assert err(fast_world) < 1e-5
     references = [
         (dense.marginal_dense(problem.build(nom, rig)), 1e-9),
         (dense.marginal_dense(problem.build(nom, rig), gauge=False), 1e-5),
         (dense.marginal_dense(problem.build(nom, rig, local=False)), 1e-5),
-        (dense.marginal_dense(problem.build(nom, rig, local=False), gauge=False), 1e-5),
+        (dense.marginal_dense(problem.build(nom, rig, local=False), gauge=False), 3e-5),
     ]
     for ref, tol in references:
         ref = _scaled(ref, rig)

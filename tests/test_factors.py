@@ -353,6 +353,24 @@ def test_wheel_slip_column_is_the_drives_longitudinal_acceleration(rig, nom):
     _assert_close(col[f], inc[f] * a_long / wheel.G_MPS2, 2e-3)
 
 
+def test_wheel_scrub_column_is_the_square_of_the_drives_lateral_acceleration(rig, nom):
+    """``wheel.scrub``: the angles times ``1 + scrub·(a_y/g)²``; its column is ``inc · (a_y/g)²``
+    with a_y the drive's lateral acceleration over the interval (the generated drive's own
+    ``accel_lat`` averaged, independently of the factor's Δs·Δψ/ΔT²); zero on a straight."""
+    inst, inc = _measured(rig, nom, "wheel")
+    blk = inst.kind.blocks(nom, rig, inst.entry)
+    col = blk.Jt_full(len(rig.coordinates))[:, :, rig.index("wheel.scrub")] * wheel.increment_sigma_rad(
+        rig.config.wheels, rig.keyframe_rate_hz)
+    s = drive(_PROFILE, rig.suspension)
+    worst = 0.0
+    for f in (12, 31, 47):
+        t = np.linspace(nom.t[f], nom.t[f + 1], 201)
+        a_lat = np.trapezoid(s.sample(t).accel_lat, t) / (t[-1] - t[0])
+        _assert_close(col[f], inc[f] * (a_lat / wheel.G_MPS2) ** 2, 2e-2)
+        worst = max(worst, abs(a_lat))
+    assert worst > 0.5  # the intervals turn (m/s²)
+
+
 def test_slip_angle_column_is_the_drives_lateral_acceleration(rig, nom):
     """``vehicle.slip_angle``: the lateral row plus ``slip_angle·u·(u·ψ̇)/g``; ``u·ψ̇`` is the
     drive's lateral acceleration (no sideways slide in the generated drive, so the centripetal part

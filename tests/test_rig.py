@@ -23,7 +23,8 @@ def test_bundled_rig_estimates_every_parameter():
                          "lidar.trans_z", "lidar.time_offset"]
     assert {"imu.gyro_bias_z", "imu.accel_bias_x", "wheel.radius_left", "wheel.radius_right",
             "wheel.track", "cam_front.time_offset"} <= set(names)
-    assert [c.name for c in rig.coordinates if c.nuisance] == ["cam_front.scale", "wheel.slip", "vehicle.slip_angle"]
+    assert [c.name for c in rig.coordinates if c.nuisance] == ["cam_front.scale", "wheel.slip", "wheel.scrub",
+                                                                   "vehicle.slip_angle"]
     assert rig.keyframe_rate_hz == 10.0
     assert next(c for c in rig.scored if c.name == "lidar.rot_x").target == pytest.approx(math.radians(0.05))
 

@@ -59,7 +59,7 @@ from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
 from ..errors import RigError
 from .base import Kind, Quantity, RigView
-from .wheel import G_MPS2, axle_travel
+from .wheel import G_MPS2, axle_travel, lateral_g
 
 WHEELS = ("fl", "fr", "rl", "rr")  # the order of the readings, of the rows and of the coordinates
 _EPS_M = 1e-6  # regularises a front wheel's path and the curvature at a standstill [m]
@@ -278,7 +278,7 @@ class Ackermann(Kind):
         xy = [(L, 0.5 * f.q["track_front"]), (L, -0.5 * f.q["track_front"]),
               (0.0, 0.5 * f.q["track_rear"]), (0.0, -0.5 * f.q["track_rear"])]
         td = f.q["time_offset"]
-        lateral = tr.ds * tr.dpsi / (dT * dT * G_MPS2)  # the interval's lateral acceleration in g
+        lateral = lateral_g(tr.ds, tr.dpsi, dT)  # the interval's lateral acceleration in g
         slip = 1.0 + f.q["slip"] * tr.along + f.q["scrub"] * lateral * lateral
         out = []
         for i, (x, y) in enumerate(xy):
