@@ -98,7 +98,7 @@ def systematic_nees(traj, rig, sim: SimulationSettings, seed: int = 0) -> tuple[
     data = simulate(traj, rig, truth, __import__("numpy").random.default_rng([seed, 0, 1]), replace(sim, noise=False))
     tr = data.truth
     res = calibrate(data, rig, truth, States(tr.R, tr.p, tr.v), MonteCarloSettings().solver)
-    truth = replace(truth, gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
+    truth = truth.with_values("imu", gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
     e = res.calibration.minus(truth, rig)[[not c.nuisance for c in rig.coordinates]]
     sig = sorted(((p.name, float(x / p.sigma)) for p, x in zip(report.parameters, e) if p.sigma),
                  key=lambda kv: -abs(kv[1]))
