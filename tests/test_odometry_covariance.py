@@ -242,3 +242,18 @@ def test_the_cli_needs_one_sensor_asking_for_it(tmp_path, eight):
                               "--rig", str(tmp_path / "rig.yaml"), "--json"])
     assert res.exit_code == 0, res.output
     assert "with a pose covariance, weigh the frame pairs of lidar" in res.stderr
+
+
+def test_an_odometry_publishing_faster_than_the_frames(tmp_path, eight):
+    """Messages at 20 Hz, each with the densities' covariance over its own 0.05 s, for a lidar of
+    10 Hz frames: each message's covariance divided by its interval, times the pair's 0.1 s, is
+    the densities' covariance of the pair (and not half of it)."""
+    rig = lidar_rig()
+    dr, dt_ = densities(rig)
+    half = lambda t: np.broadcast_to(np.diag([dt_ ** 2 * 0.05] * 3 + [dr ** 2 * 0.05] * 3),  # noqa: E731
+                                     (t.size, 6, 6)).copy()
+    path = write_bag(eight, tmp_path / "fast.bag", rate_hz=20.0, pose_covariance=half)
+    traj = read_bag_route(path, "/odom", odometry_topic="/odom")
+    assert np.allclose(traj.logs["lidar"].covariance[3], np.diag([dr ** 2] * 3 + [dt_ ** 2] * 3), rtol=1e-6)
+    base = sigmas(evaluate(read_bag_route(path, "/odom"), lidar_rig(reported=False)))
+    assert sigmas(evaluate(traj, rig)) == pytest.approx(base, rel=1e-6)
