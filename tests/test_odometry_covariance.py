@@ -171,6 +171,24 @@ def test_an_anisotropic_world_covariance_against_a_reference(eight, frames):
     assert got["lidar.trans_x"] > 1.05 * base["lidar.trans_x"]
 
 
+def test_a_drive_turned_in_the_world_turns_its_odometrys_covariance(eight, frames):
+    """Invariance: the drive and its world-frame covariance turned about the vertical and moved
+    score alike (each 3-block of the 6 × 6 covariance turns with the world)."""
+    from excite.core import so3
+
+    rig = lidar_rig()
+    dr, dt_ = densities(rig)
+    Q = per_second(rig, frames.size)
+    Q[40:120] = np.diag([dr ** 2, dr ** 2, 20 * dr ** 2, 60 * dt_ ** 2, dt_ ** 2, 3 * dt_ ** 2])
+    logged = eight.with_logs({"lidar": SensorLog(frames, Q)})
+    turned = logged.transformed(so3.rot_z(0.9), np.array([300.0, -40.0, 5.0]))
+    a, b = sigmas(evaluate(logged, rig)), sigmas(evaluate(turned, rig))
+    assert b == pytest.approx(a, rel=1e-6)
+    # not turning the covariance with the drive is another problem
+    unturned = turned.with_logs({"lidar": SensorLog(frames, Q)})
+    assert sigmas(evaluate(unturned, rig))["lidar.trans_x"] != pytest.approx(a["lidar.trans_x"], rel=1e-3)
+
+
 # --- from a bag -------------------------------------------------------------------------------
 
 
