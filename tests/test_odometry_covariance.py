@@ -260,6 +260,8 @@ def test_the_cli_needs_one_sensor_asking_for_it(tmp_path, eight):
                               "--rig", str(tmp_path / "rig.yaml"), "--json"])
     assert res.exit_code == 0, res.output
     assert "with a pose covariance, weigh the frame pairs of lidar" in res.stderr
+    res = runner.invoke(app, ["score", str(path), "--topic", "/odom", "--rig", str(tmp_path / "rig.yaml"), "--json"])
+    assert res.exit_code == 0 and "lidar sets noise.use_reported_covariance and the drive carries no" in res.stderr
 
 
 def test_an_odometry_publishing_faster_than_the_frames(tmp_path, eight):

@@ -131,6 +131,10 @@ def score(
                         antennas[0] if antennas else "gnss", odometry_topic,
                         reported[0] if reported else "lidar")
     traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
+    for s in r.config.sensors:
+        if s.kind in ("lidar", "camera") and s.noise.use_reported_covariance and s.name not in traj.logs:
+            typer.secho(f"warning: {s.name} sets noise.use_reported_covariance and the drive carries no covariance "
+                        "of its odometry (--odometry-topic): its densities hold", err=True, fg="yellow")
     if bag is not None:  # a bag was read (with --imu-topic: its measured IMU too)
         from ..io.bags import ImuTrajectory, imu_agreement
 
