@@ -236,7 +236,7 @@ def test_a_bag_round_trip(tmp_path, eight, suffix, msgtype):
     assert got["lidar.trans_x"] < sigmas(evaluate(plain, ten))["lidar.trans_x"]
 
 
-def test_clear_errors(tmp_path, eight):
+def test_clear_errors(tmp_path, eight, monkeypatch):
     zeros = write_bag(eight, tmp_path / "zeros.bag", rate_hz=RATE)
     with pytest.raises(BagError, match=r"/odom.*every message's pose covariance is zero.*use_reported_covariance"):
         read_bag_route(zeros, "/odom", odometry_topic="/odom")
@@ -247,6 +247,11 @@ def test_clear_errors(tmp_path, eight):
                     pose_covariance=lambda t: -np.broadcast_to(np.eye(6), (t.size, 6, 6)))
     with pytest.raises(BagError, match=r"message 0: its pose covariance is not positive definite"):
         read_bag_route(bad, "/odom", odometry_topic="/odom")
+    from excite.io.bags import covariance
+
+    monkeypatch.setattr(covariance.bounds, "MAX_SAMPLES", 100)  # refused from the bag's index, before reading
+    with pytest.raises(BagError, match=r"/odom.*200 messages, over the limit of 100 poses"):
+        read_pose_covariances(bad, "/odom")
 
 
 def test_the_cli_needs_one_sensor_asking_for_it(tmp_path, eight):

@@ -22,11 +22,13 @@ definite.
 from __future__ import annotations
 
 import struct
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ...core import bounds
 from ...errors import BagError
 from ...motion.trajectory import SensorLog
 from .decode import Cursor
@@ -64,25 +66,32 @@ def read_pose_covariances(path: str | Path, topic: str, *, start_s: float | None
     """The pose covariance of every ``nav_msgs/Odometry`` or ``PoseWithCovarianceStamped``
     message of ``topic`` within ``[start_s, end_s]`` (bag seconds), in stamp order."""
     path = Path(path)
-    rows = []
+    stamps, values, frame = array("q"), array("d"), ""
     with open_bag(path) as reader:
         cons = topic_connections(path, reader, topic)
         msgtype = cons[0].msgtype
         if msgtype not in COVARIANCE_TYPES:
             raise BagError(path, f"type {msgtype} carries no pose covariance (types that do: "
                                  f"{', '.join(t.split('/')[-1] for t in COVARIANCE_TYPES)})", topic)
+        n = sum(int(getattr(c, "msgcount", 0) or 0) for c in cons)
+        if n > bounds.MAX_SAMPLES:
+            raise BagError(path, f"{n:,} messages, over the limit of {bounds.MAX_SAMPLES:,} poses (crop the "
+                                 "drive with a window)", topic)
         read, ros2 = _fields(msgtype == ODOMETRY_TYPE), is_ros2(cons[0])
         for i, (_, raw) in enumerate(stream_messages(path, reader, cons, topic, *time_window(reader, start_s, end_s))):
             try:
-                rows.append(read(Cursor(raw, ros2)))
+                t, f, cov = read(Cursor(raw, ros2))
             except (struct.error, UnicodeDecodeError) as exc:
                 raise BagError(path, f"message {i} is malformed ({exc})", topic) from None
-    if not rows:
+            frame = frame or f
+            stamps.append(t)
+            values.extend(cov)
+    if not stamps:
         raise BagError(path, "no messages" + (" in the window" if (start_s, end_s) != (None, None) else ""), topic)
-    t = np.array([r[0] for r in rows], dtype=np.int64)
+    t = np.frombuffer(stamps, dtype=np.int64)
     order = np.argsort(t, kind="stable")
-    cov = np.array([rows[i][2] for i in order], dtype=float).reshape(-1, 6, 6)
-    return PoseCovariances(t[order], cov, rows[0][1])
+    cov = np.frombuffer(values, dtype=float).reshape(-1, 6, 6)[order]
+    return PoseCovariances(t[order], cov, frame)
 
 
 def odometry_log(cov: PoseCovariances, t0_ns: int, path: Path, topic: str) -> SensorLog:
