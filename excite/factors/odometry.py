@@ -28,7 +28,7 @@ tunnel, a featureless highway) shows in σ. The approximation, to first order: t
 message the covariance per second Q_k of the odometry's increment since its previous message (its
 reported covariance over that interval), in the world frame; the pair ``i → j`` (Δt apart) has
 
-    Σ_ij = Δt · Bᵀ Q_j B,   B = diag(R_S_i, R_S_i)
+    Σ_ij = Δt · Bᵀ Q_j B,   B = diag(R_W_S(t_i), R_W_S(t_i)),   R_W_S = R_W_B R_B_S
 
 the covariance of the message at frame j (the one that closes the pair) over the pair's
 interval, turned from the world into the frame S_i of the residual at the nominal orientation
