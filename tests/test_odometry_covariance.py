@@ -282,3 +282,7 @@ def test_an_odometry_publishing_faster_than_the_frames(tmp_path, eight):
     assert np.allclose(traj.logs["lidar"].covariance[3], np.diag([dr ** 2] * 3 + [dt_ ** 2] * 3), rtol=1e-6)
     base = sigmas(evaluate(read_bag_route(path, "/odom"), lidar_rig(reported=False)))
     assert sigmas(evaluate(traj, rig)) == pytest.approx(base, rel=1e-6)
+    # and the log is what weighs the pairs: taken per pair as is (not per interval), σ would be √½ of it
+    log = traj.logs["lidar"]
+    as_is = sigmas(evaluate(traj.with_logs({"lidar": SensorLog(log.t, 0.5 * log.covariance)}), rig))
+    assert as_is["lidar.trans_x"] < 0.9 * base["lidar.trans_x"]
