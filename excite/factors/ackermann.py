@@ -19,11 +19,11 @@ The steering-wheel reading is ``ratio·δ + offset`` with the road-wheel angle o
 ``δ = atan(wheelbase·κ)``, ``κ = Δψ/Δs`` the curvature of the rear axle's path
 (``steering.ratio``, ``steering.offset`` the reading when driving straight, positive to the left);
 its interval mean is weighted by distance (what :func:`interval_means` computes from the
-readings), and below ``steering.min_speed_mps`` its information falls as ``(v/v_min)⁴`` (at a
-standstill the wheel may point anywhere). The residual is the reading's difference with a weight independent of the reading:
-the calibrator linearises at the prediction, so a residual whose derivative depended on the
-reading (the kinematic form ``L·Δψ − Δs·tan((read − offset)/ratio)``) would give it a gradient
-off by a term of the noise's size and stall it.
+readings). Its residual is the kinematic relation itself, ``L·Δψ − Δs·tan((read − offset)/ratio)``
+[m]: at speed the reading's difference to first order (its σ the reading's), at a standstill the
+statement that the car does not yaw, and smooth in between (the reading's own form,
+``atan(L·Δψ/Δs)``, is singular there); below ``steering.min_speed_mps`` its σ in that form no
+longer shrinks with the travel (tyre scrub and compliance at walking pace).
 
 One CAN stream carries both: ``wheel.time_offset`` shifts every reading (stamped t, it describes
 the motion at ``t + t_d``), to first order through the change of each instantaneous reading over
@@ -305,21 +305,32 @@ class Ackermann(Kind):
         return ca.vertcat(*out)
 
     def residual(self, f, meas):
-        return self.measurement(f) - meas
+        """The speeds' ``predicted − read``; the steering's in the kinematic form
+        ``L·(Δψ + t_d·Δs·κ̇) − Δs·tan((read − offset)/ratio)`` [m], zero at its measurement like
+        the reading's difference and, unlike it, smooth at a standstill (where the reading says
+        only that the car does not yaw)."""
+        tr = axle_travel(f)
+        speeds = ca.vertcat(*self._speeds(f, tr)) - meas[0:4]
+        if f.entry.steering is None:
+            return speeds
+        _, rate = self._curvature(f, tr)
+        L = f.q["wheelbase"]
+        turn = L * (tr.dpsi * tr.ds * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2) + f.q["time_offset"] * tr.ds * rate)
+        return ca.vertcat(speeds, turn - tr.ds * ca.tan((meas[4] - f.q["offset"]) / f.q["ratio"]))
 
     def sqrt_information(self, f):
-        """The speeds' ``1/σ``; the steering's ``1/σ`` times ``Δs²/(Δs² + (v_min·ΔT)²)``: below
-        ``v_min`` a reading tells less and less, and nothing at a standstill, where the wheel may
-        point anywhere (a weight that fell only as Δs would leave ``ratio·L·Δψ/(v_min·ΔT·σ)``
-        there: a reading whose ``atan(L·Δψ/Δs)`` is far from linear in the states, on which the
-        calibrator stalled)."""
+        """The speeds' ``1/σ``; the steering row's ``ratio·cos²δ / (σ·√(Δs² + (v_min·ΔT)²))``: at
+        speed the reading's ``1/σ`` (the form's derivative in the reading is ``−Δs·sec²δ/ratio``),
+        below ``v_min`` a turn-per-interval whose σ no longer shrinks with the travel."""
         ac = f.entry
         w = [1.0 / speed_sigma(ac, f.dT)] * 4
         if ac.steering is None:
             return ca.DM(w)
-        ds = axle_travel(f).ds
+        tr = axle_travel(f)
+        kappa, _ = self._curvature(f, tr)
+        cos2 = 1.0 / (1.0 + (f.q["wheelbase"] * kappa) ** 2)
         floor = ac.steering.min_speed_mps * f.dT
-        return ca.vertcat(*w, ds * ds / (ds * ds + floor * floor) / steering_sigma_rad(ac, f.dT))
+        return ca.vertcat(*w, f.q["ratio"] * cos2 / (steering_sigma_rad(ac, f.dT) * ca.sqrt(tr.ds * tr.ds + floor * floor)))
 
     # --- simulation ---
 
@@ -349,7 +360,7 @@ class Ackermann(Kind):
             # there); drawing that noise would make a residual the calibrator can only shrink by
             # moving the weight (the travel): the draw is capped at 10 σ, the weight stays the model's
             base = steering_sigma_rad(ac, dT)
-            sig[:, 4] = np.minimum(base * (1.0 + (floor / np.maximum(np.abs(ds), 1e-9)) ** 2), 10.0 * base)
+            sig[:, 4] = np.minimum(base * np.sqrt(1.0 + (floor / np.maximum(np.abs(ds), 1e-9)) ** 2), 10.0 * base)
         return m + rng.normal(0.0, 1.0, m.shape) * sig
 
 
