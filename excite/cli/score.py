@@ -95,6 +95,10 @@ def score(
     gnss_topic: Annotated[Optional[str], typer.Option(
         help="Bags: a sensor_msgs/NavSatFix topic: the rig's GNSS antenna is scored with the fixes "
              "it holds (outages, and the reported covariance where the rig asks for it).")] = None,
+    odometry_topic: Annotated[Optional[str], typer.Option(
+        help="Bags: a nav_msgs/Odometry or PoseWithCovarianceStamped topic whose pose covariance "
+             "weighs the frame pairs of the rig's lidar or camera that sets "
+             "noise.use_reported_covariance (each message's: its increment since the last).")] = None,
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
     from ..score.evaluate import Options, evaluate, max_segments
@@ -109,16 +113,28 @@ def score(
                                  f"(parameters: {', '.join(c.name for c in r.scored)})",
                                  param_hint="--plot-parameter")
     bag = None
-    if any(x is not None for x in (topic, imu_topic, start, end, vehicle_frame, gnss_topic)) or axes != "vehicle":
+    if any(x is not None for x in (topic, imu_topic, start, end, vehicle_frame, gnss_topic,
+                                   odometry_topic)) or axes != "vehicle":
         from ..io.bags import BagSource
 
         antennas = [s.name for s in r.config.sensors if s.kind == "gnss"]
         if gnss_topic is not None and len(antennas) != 1:
             raise typer.BadParameter(f"rig {r.name} has {len(antennas)} GNSS antennas: --gnss-topic needs "
                                      "exactly one", param_hint="--gnss-topic")
+        reported = [s.name for s in r.config.sensors if s.kind in ("lidar", "camera")
+                    and s.noise.use_reported_covariance]
+        if odometry_topic is not None and len(reported) != 1:
+            raise typer.BadParameter(f"rig {r.name} has {len(reported)} lidars or cameras with "
+                                     "noise.use_reported_covariance: --odometry-topic needs exactly one",
+                                     param_hint="--odometry-topic")
         bag = BagSource(topic, imu_topic, start, end, vehicle_frame, axes, gnss_topic,
-                        antennas[0] if antennas else "gnss")
+                        antennas[0] if antennas else "gnss", odometry_topic,
+                        reported[0] if reported else "lidar")
     traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
+    for s in r.config.sensors:
+        if s.kind in ("lidar", "camera") and s.noise.use_reported_covariance and s.name not in traj.logs:
+            typer.secho(f"warning: {s.name} sets noise.use_reported_covariance and the drive carries no covariance "
+                        "of its odometry (--odometry-topic): its densities hold", err=True, fg="yellow")
     if bag is not None:  # a bag was read (with --imu-topic: its measured IMU too)
         from ..io.bags import ImuTrajectory, imu_agreement
 
@@ -131,6 +147,13 @@ def score(
             gap = max((b - a for a, b in zip(t[:-1], t[1:])), default=0.0)
             typer.echo(f"GNSS {gnss_topic}: {t.size} fixes over {t[-1] - t[0]:.1f} s for {bag.gnss_sensor} "
                        f"(longest gap {gap:.2f} s)", err=True)
+        if odometry_topic is not None:
+            import numpy as np
+
+            log = traj.logs[bag.odometry_sensor]
+            n = int(np.all(np.isfinite(log.covariance), axis=(1, 2)).sum())
+            typer.echo(f"odometry {odometry_topic}: {log.t.size} messages, {n} with a pose covariance, weigh "
+                       f"the frame pairs of {bag.odometry_sensor}", err=True)
     rep = evaluate(traj, r, Options(segments=segments))
     for w in rep.warnings:  # on stderr: the report (or its JSON) stays what stdout carries
         typer.secho(f"warning: {w}", err=True, fg="yellow")

@@ -234,6 +234,7 @@ class Ackermann(Kind):
               "rate_hz": Range(1.0, 10_000.0, "Hz"), "speed_noise_density": Range(1e-7, 10.0, "(m/s or rad/s)/√Hz"),
               "speed_quantum": Range(0.0, 1.0, "m/s or rad/s"), "steering.ratio": Range(1.0, 100.0),
               "steering.noise_density_deg": Range(1e-6, 90.0, "deg/√Hz"), "steering.quantum_deg": Range(0.0, 10.0, "deg"),
+              "steering.offset_deg": Range(-90.0, 90.0, "deg"),
               "steering.min_speed_mps": Range(0.01, 50.0, "m/s")}
     advice = _ADVICE
 

@@ -19,6 +19,23 @@ is told what a 10 Hz one is (with σ per frame pair, at the same σ a faster sen
 *worse*, its lever-arm signal per pair shrinking with Δt). No per-frame floor is kept: a white
 error of each frame's pose makes consecutive relative poses correlated (a moving average), not
 independent, and a white floor per pair would bring the rate dependence back.
+
+**Reported covariance.** With ``noise.use_reported_covariance``, where the drive carries a log of
+the sensor with the odometry's own covariance (``nav_msgs/Odometry``,
+``PoseWithCovarianceStamped``: :mod:`excite.io.bags.covariance`), each frame pair is whitened by
+it instead of by the densities, so that a stretch where the odometry reports itself worse (a
+tunnel, a featureless highway) shows in σ. The approximation, to first order: the log holds per
+message the covariance per second Q_k of the odometry's increment since its previous message (its
+reported covariance over that interval), in the world frame; the pair ``i → j`` (Δt apart) has
+
+    Σ_ij = Δt · Bᵀ Q_j B,   B = diag(R_W_S(t_i), R_W_S(t_i)),   R_W_S = R_W_B R_B_S
+
+the covariance of the message at frame j (the one that closes the pair) over the pair's
+interval, turned from the world into the frame S_i of the residual at the nominal orientation
+(small rotations within a pair); the pair's increments are taken as independent, as with the
+densities, so the pairs stay independent and σ does not depend on the frame rate. A pair whose
+closing frame has no message with a covariance keeps the densities. The compiled kernel reads
+it; the optimizer's planned drives and the simulator use the densities.
 """
 
 from __future__ import annotations
@@ -40,10 +57,13 @@ from .symbolic import exp, residual_log
 
 class OdometryNoise(Model):
     """Drift densities of the odometry: the σ of a relative pose over Δt is density·√Δt, per axis
-    (rotation [deg/√s], translation [m/√s]); see the module docstring."""
+    (rotation [deg/√s], translation [m/√s]); ``use_reported_covariance``: where a log carries the
+    odometry's own covariance, it replaces them for the frame pairs it covers (see the module
+    docstring)."""
 
     rotation_density_deg_per_sqrt_s: PositiveFloat
     translation_density_m_per_sqrt_s: PositiveFloat
+    use_reported_covariance: bool = False
 
 
 class OdometrySensor(SensorEntry):
@@ -144,10 +164,15 @@ class Odometry(Kind):
         names = [c.name for c in rig.coordinates if c.block == name]
         at = lambda key, on: names.index(f"{name}.{key}") if on else -1  # noqa: E731
         sig_r, sig_t = pair_sigmas(sensor)
+        W = _reported_whitening(nom, rig, sensor, N, stride)
+        if W is not None:
+            sig_r = sig_t = 1.0  # unwhitened rows, whitened by each pair's W below
         Jx, Jt = _jacobians(nom.R, nom.p, nom.v, nom.omega, stride, sensor.T_B_S.R, sensor.T_B_S.p,
                             at("rot_x", sensor.estimate.extrinsic), at("trans_x", sensor.estimate.extrinsic),
                             at("time_offset", sensor.estimate.time_offset), at("scale", sensor.monocular), len(names),
                             sig_r, sig_t)
+        if W is not None:
+            Jx, Jt = np.einsum("nij,njk->nik", W, Jx), np.einsum("nij,njk->nik", W, Jt)
         return FactorBlock(name, np.arange(N) * stride, stride, 2, Jx, Jt, theta_columns(rig, names))
 
     # --- simulation ---
@@ -174,6 +199,28 @@ class Odometry(Kind):
             R_rel = R_rel @ so3.exp(sim.rng.normal(0.0, sig_r, (F, 3)))
             t_rel = t_rel + sim.rng.normal(0.0, sig_t, (F, 3))
         return np.hstack([R_rel.reshape(-1, 9), t_rel])
+
+
+def _reported_whitening(nom: Nominal, rig: RigView, s: OdometrySensor, N: int, stride: int) -> np.ndarray | None:
+    """``W_n`` (N × 6 × 6, ``W_nᵀW_n = Σ_n⁻¹``) of every frame pair ``n`` where the rig asks for
+    the reported covariance and the drive's log of ``s`` carries one (the module docstring's
+    Σ_ij; the densities' diagonal elsewhere); None where it does not apply."""
+    log = nom.logs.get(s.name)
+    if not s.noise.use_reported_covariance or log is None or log.covariance is None:
+        return None
+    sig_r, sig_t = pair_sigmas(s)
+    W = np.broadcast_to(np.diag([1.0 / sig_r] * 3 + [1.0 / sig_t] * 3), (N, 6, 6)).copy()
+    i = np.arange(N) * stride
+    Q = log.covariance[i + stride]
+    ok = np.all(np.isfinite(Q), axis=(1, 2))
+    if ok.any():
+        dt = nom.t[i[ok] + stride] - nom.t[i[ok]]
+        R_S = nom.R[i[ok]] @ s.T_B_S.R  # R_W_S at frame i
+        B = np.zeros((R_S.shape[0], 6, 6))
+        B[:, :3, :3] = B[:, 3:, 3:] = R_S
+        Sigma = dt[:, None, None] * np.swapaxes(B, 1, 2) @ Q[ok] @ B
+        W[ok] = np.linalg.inv(np.linalg.cholesky(0.5 * (Sigma + np.swapaxes(Sigma, 1, 2))))
+    return W
 
 
 @nb.njit(cache=True, nogil=True)

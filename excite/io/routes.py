@@ -603,7 +603,8 @@ def read_route(source: Source, times: Source | None = None, limits: Limits = Lim
             return trajectory(read_comma2k19(path), cutoff_hz=cutoff_hz, rate_hz=rate_hz)
     if bag is not None:
         flags = {"topic": "--topic", "imu_topic": "--imu-topic", "start_s": "--start", "end_s": "--end",
-                 "vehicle_frame": "--vehicle-frame", "axes": "--axes"}
+                 "vehicle_frame": "--vehicle-frame", "axes": "--axes", "gnss_topic": "--gnss-topic",
+                 "odometry_topic": "--odometry-topic"}
         given = [flag for key, flag in flags.items() if getattr(bag, key) not in (None, "vehicle")]
         raise RouteError(f"bag options ({', '.join(given) or 'none given'}) apply to bags only (.bag, .mcap, "
                          "a ROS 2 bag folder)", source=label)

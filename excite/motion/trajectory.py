@@ -127,9 +127,12 @@ class BodySamples:
 class SensorLog:
     """What a log recorded of one of the rig's sensors: the times of its messages ``t`` [s, on
     the drive's clock, increasing] and, where the sensor reports one, each message's covariance
-    ``covariance`` (n × d × d) in its kind's measurement frame (a GNSS fix: world position, m²).
-    A drive that carries a sensor's log is scored with the measurements the log holds (a GNSS
-    outage: no fixes), and with the covariances where its rig asks for them."""
+    ``covariance`` (n × d × d) in its kind's measurement frame (a GNSS fix: world position, m²;
+    a lidar's or camera's odometry: the covariance per second of its increment ending at the
+    message, rotation then translation, rad²/s and m²/s, in the world frame:
+    :mod:`excite.io.bags.covariance`). A drive that carries a sensor's log is scored with the
+    measurements the log holds (a GNSS outage: no fixes), and with the covariances where its rig
+    asks for them."""
 
     t: np.ndarray
     covariance: np.ndarray | None = None
@@ -145,8 +148,13 @@ class SensorLog:
         return SensorLog(np.asarray(self.t) + dt_s, self.covariance)
 
     def rotated(self, R: np.ndarray) -> "SensorLog":
-        """The log of the same drive rotated by ``R`` in the world (a world-frame covariance rotates)."""
-        cov = None if self.covariance is None else R @ self.covariance @ R.T
+        """The log of the same drive rotated by ``R`` in the world (a world-frame covariance rotates,
+        each 3-block of a 6 × 6 one: rotation and translation)."""
+        if self.covariance is None:
+            return SensorLog(self.t, None)
+        C = np.asarray(self.covariance)
+        Rb = np.kron(np.eye(C.shape[-1] // 3), R)
+        return SensorLog(self.t, Rb @ C @ Rb.T)
         return SensorLog(self.t, cov)
 
 

@@ -33,6 +33,12 @@ by ``excite score``; a large mounting mismatch means the rig's ``T_V_B`` is not 
 times (a message without a fix, or no message, is an outage) and their reported covariance as the
 log of the rig's GNSS antenna (:mod:`.gnss`): it is scored with the fixes the log holds.
 
+**An odometry's own covariance.** With ``odometry_topic`` (``nav_msgs/Odometry`` or
+``PoseWithCovarianceStamped``) the drive carries each message's pose covariance, read as that of
+the odometry's increment since its previous message, as the log of the rig's lidar or camera
+``odometry_sensor`` (:mod:`.covariance`): with the sensor's ``noise.use_reported_covariance`` a
+stretch the odometry reports worse counts less.
+
 Decoding is streamed (one message at a time) and the fields excite needs are read straight from
 the serialized bytes (CDR for ROS 2, the ROS 1 wire format): a fraction of the cost of building
 full message objects. :func:`write_bag` writes a drive as a bag (ROS 1 ``.bag`` or a ROS 2
@@ -57,6 +63,7 @@ The package by concern: :mod:`.decode` (message types and decoding straight from
 :mod:`.stream` (opening a bag, streaming its messages under the decompression bounds),
 :mod:`.mcap` (excite's own MCAP reader and the bounded decompression), :mod:`.tf` (TF trees and
 chains), :mod:`.imu` (measured IMU and its agreement with the poses), :mod:`.gnss` (NavSatFix fixes),
+:mod:`.covariance` (an odometry's pose covariance),
 :mod:`.vehicle` (wheel speeds, steering, radar ego-velocity), :mod:`.reader` (the entry
 points: topics, poses, IMU, routes), :mod:`.writer` (writing and cropping bags).
 """
@@ -67,6 +74,7 @@ from __future__ import annotations
 from ...errors import BagError
 from ..sniff import is_bag
 from .decode import AXES, IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, TF_TYPES, PoseSeries, Series
+from .covariance import COVARIANCE_TYPES, PoseCovariances, odometry_log, read_pose_covariances
 from .gnss import NAVSAT_TYPE, FixAgreement, FixSeries, fix_agreement, fix_log, read_fixes
 from .imu import ImuAgreement, ImuSeries, ImuTrajectory, imu_agreement
 from .mcap import MAX_CHUNK_BYTES, MAX_RATIO, Budget, decompress
@@ -81,6 +89,7 @@ __all__ = [
     "is_bag", "bag_info", "read_poses", "read_imu", "read_static_tf", "read_bag_route",
     "imu_agreement", "write_bag", "POSE_TYPES", "TF_TYPES", "IMU_TYPE",
     "FixSeries", "FixAgreement", "read_fixes", "fix_log", "fix_agreement", "NAVSAT_TYPE",
+    "PoseCovariances", "read_pose_covariances", "odometry_log", "COVARIANCE_TYPES",
     # a car's own signals: wheel speeds (JointState), a radar's ego-velocity (Twist)
     "WheelSpeeds", "EgoVelocitySeries", "read_wheel_speeds", "read_ego_velocity", "can_recording",
     "ego_velocity_at", "ego_velocity_noise", "write_vehicle_bag", "JOINT_STATE_TYPE", "EGO_VELOCITY_TYPES",

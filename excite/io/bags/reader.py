@@ -16,6 +16,7 @@ from ...motion.trajectory import Trajectory
 from ..poses import DEFAULT_CUTOFF_HZ, MIN_POSES, R_CAM_VEH, trajectory_from_poses
 from .decode import (AXES, DECODERS, IMU_TYPE, POSE_TYPES, TF_STATIC_TOPIC, TF_TYPES, PoseSeries, Series,
                      decode_message, imu_fields)
+from .covariance import odometry_log, read_pose_covariances
 from .gnss import NAVSAT_TYPE, fix_log, read_fixes
 from .imu import ImuSeries, ImuTrajectory, imu_series
 from .mcap import mcap_files, mcap_read, verify_chunks
@@ -255,8 +256,11 @@ class BagSource:
     """What to read from a bag: the trajectory ``topic`` (or ``/tf:parent.child``), an optional
     ``imu_topic``, a window ``[start_s, end_s]`` in seconds from the start of the bag, the frame
     to take as V (``vehicle_frame``, via ``/tf_static``), the pose axes (``vehicle`` or
-    ``optical``), and an optional ``sensor_msgs/NavSatFix`` topic ``gnss_topic`` whose fixes
-    (times, outages, covariance) the drive carries as the log of the rig's sensor ``gnss_sensor``."""
+    ``optical``), an optional ``sensor_msgs/NavSatFix`` topic ``gnss_topic`` whose fixes
+    (times, outages, covariance) the drive carries as the log of the rig's sensor ``gnss_sensor``,
+    and an optional ``nav_msgs/Odometry`` or ``PoseWithCovarianceStamped`` topic
+    ``odometry_topic`` whose pose covariances it carries as the log of the rig's lidar or camera
+    ``odometry_sensor`` (:mod:`.covariance`)."""
 
     topic: str | None = None
     imu_topic: str | None = None
@@ -266,6 +270,8 @@ class BagSource:
     axes: str = "vehicle"
     gnss_topic: str | None = None
     gnss_sensor: str = "gnss"
+    odometry_topic: str | None = None
+    odometry_sensor: str = "lidar"
 
     @staticmethod
     def required(bag: "BagSource | None", path: Path) -> "BagSource":
@@ -281,6 +287,8 @@ class BagSource:
                "end_s": self.end_s, "vehicle_frame": self.vehicle_frame, "axes": self.axes}
         if self.gnss_topic is not None:
             out.update(gnss_topic=self.gnss_topic, gnss_sensor=self.gnss_sensor)
+        if self.odometry_topic is not None:
+            out.update(odometry_topic=self.odometry_topic, odometry_sensor=self.odometry_sensor)
         return out
 
 
@@ -288,19 +296,31 @@ def read_bag_route(path: str | Path, topic: str, *, imu_topic: str | None = None
                    start_s: float | None = None, end_s: float | None = None,
                    vehicle_frame: str | None = None, axes: str = "vehicle",
                    cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float | None = None,
-                   gnss_topic: str | None = None, gnss_sensor: str = "gnss") -> Trajectory:
+                   gnss_topic: str | None = None, gnss_sensor: str = "gnss",
+                   odometry_topic: str | None = None, odometry_sensor: str = "lidar") -> Trajectory:
     """A bag's trajectory source (and optional measured IMU) as a trajectory of V (see the
     module notes); with ``gnss_topic``, carrying that NavSatFix topic's fixes as the log of the
-    rig's sensor ``gnss_sensor`` (:func:`excite.io.bags.gnss.fix_log`)."""
-    traj, t0_ns = _bag_route(Path(path), topic, imu_topic, start_s, end_s, vehicle_frame, axes, cutoff_hz, rate_hz)
-    if gnss_topic is None:
-        return traj
-    log = fix_log(read_fixes(path, gnss_topic, start_s=start_s, end_s=end_s), t0_ns)
-    inside = (log.t >= traj.t_start) & (log.t <= traj.t_end)
-    if not inside.any():
-        raise BagError(Path(path), f"no fix within the {traj.duration:.1f} s of poses on {topic}: not the same "
-                                   "drive?", gnss_topic)
-    return traj.with_logs({gnss_sensor: log})
+    rig's sensor ``gnss_sensor`` (:func:`excite.io.bags.gnss.fix_log`); with ``odometry_topic``,
+    that topic's pose covariances as the log of the rig's lidar or camera ``odometry_sensor``
+    (:func:`excite.io.bags.covariance.odometry_log`)."""
+    path = Path(path)
+    traj, t0_ns = _bag_route(path, topic, imu_topic, start_s, end_s, vehicle_frame, axes, cutoff_hz, rate_hz)
+    logs = {}
+    if gnss_topic is not None:
+        log = fix_log(read_fixes(path, gnss_topic, start_s=start_s, end_s=end_s), t0_ns)
+        inside = (log.t >= traj.t_start) & (log.t <= traj.t_end)
+        if not inside.any():
+            raise BagError(path, f"no fix within the {traj.duration:.1f} s of poses on {topic}: not the same "
+                                 "drive?", gnss_topic)
+        logs[gnss_sensor] = log
+    if odometry_topic is not None:
+        log = odometry_log(read_pose_covariances(path, odometry_topic, start_s=start_s, end_s=end_s), t0_ns,
+                           path, odometry_topic)
+        if not np.any((log.t >= traj.t_start) & (log.t <= traj.t_end)):
+            raise BagError(path, f"no message within the {traj.duration:.1f} s of poses on {topic}: not the "
+                                 "same drive?", odometry_topic)
+        logs[odometry_sensor] = log
+    return traj.with_logs(logs) if logs else traj
 
 
 def _bag_route(path: Path, topic: str, imu_topic: str | None, start_s: float | None, end_s: float | None,

@@ -4,6 +4,7 @@ format has a round trip, and cropping a bag to a window."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -33,14 +34,18 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
               imu_rate_hz: float = 200.0, tf: bool = False, start_ns: int = 1_700_000_000 * 10**9,
               fix_topic: str | None = None, fix_rate_hz: float = 10.0,
               fix_sigma_m: tuple[float, float] = (0.02, 0.04), fix_origin: tuple[float, float, float] = (48.0, 11.0, 500.0),
-              fix_outages: tuple[tuple[float, float], ...] = ()) -> Path:
+              fix_outages: tuple[tuple[float, float], ...] = (),
+              pose_covariance: Callable[[np.ndarray], np.ndarray] | None = None) -> Path:
     """Write V's poses sampled at ``rate_hz`` as ``msgtype`` messages on ``topic`` (and, with
     ``tf``, as ``/tf`` ``frame → child`` plus a ``/tf_static`` ``child → imu_frame``), and with
     ``imu_topic`` a perfect IMU mounted at ``T_V_B`` (R, p) at ``imu_rate_hz``; with
     ``fix_topic``, ``sensor_msgs/NavSatFix`` fixes of V's origin at ``fix_rate_hz`` (the drive's
     x, y, z taken as east, north, up about the geodetic ``fix_origin``), their diagonal covariance
     from ``fix_sigma_m`` (horizontal, vertical; DIAGONAL_KNOWN), and messages without a fix
-    (``STATUS_NO_FIX``) within the ``fix_outages`` (seconds from the drive's start).
+    (``STATUS_NO_FIX``) within the ``fix_outages`` (seconds from the drive's start). With
+    ``pose_covariance`` (seconds from the drive's start → n × 6 × 6, ROS order x, y, z, rx, ry,
+    rz), the pose covariance of ``Odometry`` and ``PoseWithCovarianceStamped`` messages (zeros
+    otherwise).
 
     ``path`` ending in ``.bag`` is a ROS 1 bag; anything else a ROS 2 bag folder with MCAP
     storage (its ``.mcap`` file also reads on its own). Quaternions are written with w ≥ 0.
@@ -77,17 +82,17 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
             transform=M["geometry_msgs/msg/Transform"](
                 translation=vec(p), rotation=M["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
 
-    def message(t_ns, p, q, v_body, w_body):
+    def message(t_ns, p, q, v_body, w_body, cov):
         h = header(t_ns, frame)
         if msgtype.endswith("/PoseStamped"):
             return M[msgtype](header=h, pose=pose(p, q))
         if msgtype.endswith("/PoseWithCovarianceStamped"):
             return M[msgtype](header=h, pose=M["geometry_msgs/msg/PoseWithCovariance"](
-                pose=pose(p, q), covariance=np.zeros(36)))
+                pose=pose(p, q), covariance=cov))
         if msgtype.endswith("/TransformStamped"):
             return transform(t_ns, p, q, frame, child)
         return M[msgtype](header=h, child_frame_id=child,
-                          pose=M["geometry_msgs/msg/PoseWithCovariance"](pose=pose(p, q), covariance=np.zeros(36)),
+                          pose=M["geometry_msgs/msg/PoseWithCovariance"](pose=pose(p, q), covariance=cov),
                           twist=M["geometry_msgs/msg/TwistWithCovariance"](
                               twist=M["geometry_msgs/msg/Twist"](linear=vec(v_body), angular=vec(w_body)),
                               covariance=np.zeros(36)))
@@ -97,11 +102,13 @@ def write_bag(traj: Trajectory, path: str | Path, *, topic: str = "/odom",
     q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)
     v_body = np.einsum("nji,nj->ni", s.R_W_V, s.v_W)
     stamps = start_ns + np.round((s.t - s.t[0]) * 1e9).astype(np.int64)
+    covs = (np.zeros((s.t.size, 36)) if pose_covariance is None else
+            np.asarray(pose_covariance(s.t - s.t[0]), dtype=float).reshape(s.t.size, 36))
     records: list[tuple[int, str, bytes]] = []
     tf_type = "tf2_msgs/msg/TFMessage"
     for k in range(s.t.size):
         t_ns = int(stamps[k])
-        records.append((t_ns, topic, serialize(message(t_ns, s.p_W_V[k], q[k], v_body[k], s.omega_V[k]), msgtype)))
+        records.append((t_ns, topic, serialize(message(t_ns, s.p_W_V[k], q[k], v_body[k], s.omega_V[k], covs[k]), msgtype)))
         if tf:
             records.append((t_ns, TF_TOPIC, serialize(M[tf_type](transforms=[
                 transform(t_ns, s.p_W_V[k], q[k], frame, child)]), tf_type)))
