@@ -182,6 +182,9 @@ class JobRunner:
         if self.scheduler:
             env[SCHEDULER_ENV] = self.scheduler
         env[STORE_ENV] = self.store.url
+        # a job uses a compiled model the cache holds (the image's build step compiles one), but
+        # does not start the compiler: a background compile is detached and would outlive the job
+        env.setdefault("EXCITE_COMPILE", "0")
         return env
 
     def time_limit_s(self, request: dict[str, Any] | None) -> float:

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+# The optimizer's compiled model (excite.plan.compiled): a library the cache already holds is
+# used, but no test starts the C compiler in the background (minutes of both cores per problem
+# shape, in a detached process that would outlive the test); the test of compiling sets its own.
+os.environ.setdefault("EXCITE_COMPILE", "0")
 
 
 @pytest.fixture(scope="session")

@@ -13,12 +13,13 @@ key must name every input and every source module, or a stale entry would be tru
 
 On a miss, :func:`load` generates the C source and starts the compiler in the background (a
 detached process, one per key); this run uses the virtual machine and says so in one line, the
-next run of the same shape finds the library. ``wait=True`` (``excite optimize --compile-only``,
-the Docker image's build step) compiles before returning. Where no C compiler exists, or with
-``EXCITE_COMPILE=0``, the virtual machine is used with a one-line note.
+next run of the same shape finds the library. ``wait=True`` (``excite optimize --compile-only``)
+compiles before returning. Where no C compiler exists, or with ``EXCITE_COMPILE=0``, a library
+the cache holds is still used, and on a miss the virtual machine, with a one-line note; the
+service's jobs run so (a detached compile would outlive its job), and so do the tests.
 
 Environment: ``EXCITE_CACHE_DIR`` (default ``$XDG_CACHE_HOME/excite``, ``~/.cache/excite``),
-``CC`` (default ``cc``, else ``gcc``), ``EXCITE_COMPILE`` (``0`` disables compiling).
+``CC`` (default ``cc``, else ``gcc``), ``EXCITE_COMPILE`` (``0``: never start the compiler).
 """
 
 from __future__ import annotations
