@@ -185,3 +185,15 @@ def test_the_advice_of_a_radars_weak_modes():
     rep = evaluate(drive(profile(VARIED_SPEED, 0.0), Suspension.rigid()), rig)
     advice = " ".join(m.advice for m in rep.weak_modes if m.status == "unobservable").lower()
     assert "yaw rate" in advice or "turn" in advice
+
+
+def test_constant_velocity_hides_the_can_and_radar_time_offsets(radar3):
+    """Straight at constant speed every reading stays the same: a shift of the CAN stream's or the
+    radar's clock changes nothing (each enters through the change of its readings over an
+    interval). Speed changes bring both back."""
+    spec, _ = dense_analysis(drive(profile(8.0, 0.0), Suspension.rigid()), radar3)
+    w = null_weights(spec, radar3)
+    assert w["wheel.time_offset"] > 1 - 1e-6 and w["radar_front.time_offset"] > 1 - 1e-6, w
+    spec, _ = dense_analysis(drive(profile(VARIED_SPEED, 0.0), Suspension.rigid()), radar3)
+    w = null_weights(spec, radar3)
+    assert w["wheel.time_offset"] < 1e-6 and w["radar_front.time_offset"] < 1e-6, w
