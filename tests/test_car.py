@@ -300,7 +300,7 @@ def test_one_constant_curvature_leaves_four_combinations(car):
 
 def test_turns_one_way_determine_the_offset_by_extrapolation(car):
     """Turns one way only (0.05–0.07 1/m, never straight) leave nothing undetermined, but the
-    offset (the reading at κ = 0) is extrapolated from the curvatures driven: its σ is 2.7 × that
+    offset (the reading at κ = 0) is extrapolated from the curvatures driven: its σ is 2.5 × that
     of turns both ways over the same time; a straight stretch brings it back."""
     sig = {}
     for label, curv in (("both", BOTH_WAYS), ("one way", 0.06 + 0.01 * np.sin(KNOTS / 5)),
