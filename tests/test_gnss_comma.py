@@ -1,6 +1,5 @@
 """The comma2k19 minute scored with its u-blox GNSS (issue 27): examples/comma2k19_gnss.yaml on
-the recording read by the comma2k19 reader (``excite.io.comma2k19``, which lands with the car
-kinds; skipped until it has)."""
+the recording read by the comma2k19 reader (``excite.io.comma2k19``, the car kinds')."""
 
 from __future__ import annotations
 
@@ -18,8 +17,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 @pytest.fixture(scope="module")
 def minute(data_dir):
-    comma = pytest.importorskip("excite.io.comma2k19", reason="the comma2k19 reader (excite.io.comma2k19) lands "
-                                                              "with the car kinds")
+    from excite.io import comma2k19 as comma
+
     rec = comma.read_comma2k19(data_dir / "comma2k19_rav4_seg40")
     return rec, comma.trajectory(rec)
 
