@@ -9,6 +9,10 @@ iteration cap (``--rerun-iterations``) and the NEES with them.
 
     python benchmarks/bench_car_mc.py [--route examples/sedan_planned_60s_control.csv] [--rig sedan]
         [--runs 100] [--seed 0] [--imu-rate 100] [--rerun-iterations 200] [--json FILE]
+        [--set bias_random_walk=false ...]
+
+``--set KEY=VALUE`` changes one field of :class:`excite.validate.simulate.SimulationSettings` (the
+physical simulator's), to see which of its effects moves the NEES.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from excite.io.routes import read_route
 from excite.rig.config import load_rig
 from excite.validate.calibrate import SolverSettings
 from excite.validate.monte_carlo import MonteCarloSettings, monte_carlo, run_trial, statistics
+from excite.validate.simulate import SimulationSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -46,11 +51,22 @@ def main() -> int:
     ap.add_argument("--imu-rate", type=float, default=100.0)
     ap.add_argument("--rerun-iterations", type=int, default=200)
     ap.add_argument("--json", type=Path, default=None, help="write the per-trial figures here")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a SimulationSettings field (repeatable), e.g. bias_random_walk=false")
     args = ap.parse_args()
+    sim = SimulationSettings()
+    for spec in args.set:
+        key, sep, value = spec.partition("=")
+        if not sep or not hasattr(sim, key):
+            ap.error(f"--set needs KEY=VALUE with a SimulationSettings field, got {spec!r}")
+        old = getattr(sim, key)
+        new = value.lower() in ("1", "true", "yes") if isinstance(old, bool) else type(old)(value)
+        sim = replace(sim, **{key: new})
+    print(f"simulation: {sim}", flush=True)
     print(f"load at start {os.getloadavg()[0]:.2f} {time.strftime('%Y-%m-%d %H:%M:%S %Z')}", flush=True)
     rig = with_imu_rate(load_rig(args.rig), args.imu_rate)
     traj = read_route(args.route, suspension=rig.suspension)
-    settings = MonteCarloSettings(runs=args.runs, seed=args.seed)
+    settings = MonteCarloSettings(runs=args.runs, seed=args.seed, simulation=sim)
     t0 = time.perf_counter()
     res = monte_carlo(traj, rig, settings)
     print(f"{len(res.trials)} trials in {time.perf_counter() - t0:.0f} s, load {os.getloadavg()[0]:.2f}", flush=True)
