@@ -56,14 +56,19 @@ def test_every_numeric_rig_key_has_a_sane_range():
     (a sensor entry's, a section's)."""
     schema = RigConfig.model_json_schema()
     keys = [k for k in _numeric_keys(schema, schema) if not k.startswith(("targets", "priors"))]
+    sensor_keys = []  # a sensor kind's keys, resolved with that kind (robotaxi's sensor 0 is a lidar)
     for kind in registry.kinds():
         if kind.config is not None and (kind.sensor_kinds or kind.section):
             sub = kind.config.model_json_schema()
-            prefix = "sensors.0." if kind.sensor_kinds else f"{kind.section}."
-            keys += [prefix + k for k in _numeric_keys(sub, sub)]
-    assert len(keys) > 20
+            if kind.sensor_kinds:
+                sensor_keys += [(kind, k) for k in _numeric_keys(sub, sub)]
+            else:
+                keys += [f"{kind.section}." + k for k in _numeric_keys(sub, sub)]
+    assert len(keys) + len(sensor_keys) > 20
     cfg = load_rig("robotaxi").config
     missing = [k for k in set(keys) if rig_range(cfg, k) is None]
+    missing += [f"sensors.0.{k} ({kind.name})" for kind, k in sensor_keys
+                if k not in kind.ranges and bounds.rig_range(f"sensors.0.{k}") is None]
     assert not missing, f"add ranges for these rig keys (excite.core.bounds.RIG, or the kind's ranges): {missing}"
 
 

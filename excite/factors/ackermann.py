@@ -248,6 +248,7 @@ class Ackermann(Kind):
               **{f"radius_m.{i}": Range(0.05, 5.0, "m") for i in range(4)},
               "rate_hz": Range(1.0, 10_000.0, "Hz"), "speed_noise_density": Range(1e-7, 10.0, "(m/s or rad/s)/√Hz"),
               "speed_quantum": Range(0.0, 1.0, "m/s or rad/s"), "steering.ratio": Range(1.0, 100.0),
+              "steering.offset_deg": Range(-90.0, 90.0, "deg"),
               "steering.noise_density_deg": Range(1e-6, 90.0, "deg/√Hz"), "steering.quantum_deg": Range(0.0, 10.0, "deg"),
               "steering.min_speed_mps": Range(0.01, 50.0, "m/s"),
               "steering.rate_max_deg_per_s": Range(1.0, 3600.0, "deg/s")}
