@@ -300,7 +300,7 @@ def test_one_constant_curvature_leaves_four_combinations(car):
 
 def test_turns_one_way_determine_the_offset_by_extrapolation(car):
     """Turns one way only (0.05–0.07 1/m, never straight) leave nothing undetermined, but the
-    offset (the reading at κ = 0) is extrapolated from the curvatures driven: its σ is 2.7 × that
+    offset (the reading at κ = 0) is extrapolated from the curvatures driven: its σ is 2.5 × that
     of turns both ways over the same time; a straight stretch brings it back."""
     sig = {}
     for label, curv in (("both", BOTH_WAYS), ("one way", 0.06 + 0.01 * np.sin(KNOTS / 5)),
@@ -337,6 +337,28 @@ def test_sigma_of_every_new_parameter_is_the_dense_references():
     names = [c.name for c in rig.scored]
     new = [n for n in names if n.startswith(("wheel.", "steering.", "radar_front."))]
     assert len(new) == 10 + 7
+    for p in rep.parameters:
+        if p.name in new:
+            assert p.sigma == pytest.approx(spec.sigma[names.index(p.name)], rel=1e-7), p.name
+
+
+def test_sigma_of_the_radii_and_a_2d_radar_is_the_dense_references():
+    """The other two forms: wheel speeds as angular rates (``speeds: radps``, the four radii
+    estimated) and a 2-D radar (no elevation)."""
+    data = car_data(radar=True)
+    data["ackermann"].update(speeds="radps", radius_m=[0.33, 0.331, 0.332, 0.334], speed_noise_density=0.015,
+                             speed_quantum=0.0)
+    data["sensors"][0]["dimensions"] = 2
+    data["targets"]["wheel.radius_*"] = "0.3 mm"
+    del data["targets"]["wheel.scale_*"]
+    rig = build_rig(data)
+    traj = drive(profile(VARIED_SPEED, BOTH_WAYS, grade_rad=0.03 * np.sin(KNOTS / 7)), rig.suspension)
+    spec, _ = dense_analysis(traj, rig)
+    rep = evaluate(traj, rig)
+    assert rep.nullity == 0 == spec.nullity
+    names = [c.name for c in rig.scored]
+    new = [n for n in names if n.startswith(("wheel.", "steering.", "radar_front."))]
+    assert {f"wheel.radius_{w}" for w in ("fl", "fr", "rl", "rr")} <= set(new) and len(new) == 10 + 7
     for p in rep.parameters:
         if p.name in new:
             assert p.sigma == pytest.approx(spec.sigma[names.index(p.name)], rel=1e-7), p.name

@@ -151,6 +151,21 @@ def test_no_yaw_rate_leaves_the_lever_arm(radar3, radar2):
     assert w2["radar_front.rot_z"] < 1e-6 and w2["radar_front.time_offset"] < 1e-6
 
 
+def test_no_rotation_leaves_a_3d_radar_exactly_its_lever_arm_and_its_roll_about_the_travel(radar3):
+    """The 3-D radar (yawed 30° in B) on the straight drive: the null space is the car's six
+    (tracks, wheelbase, ratio, horizontal accelerometer bias) and four of the radar's: its lever
+    arm and the rotation about the travel direction, which is (cos 30°, −sin 30°, 0) in its frame."""
+    spec, _ = dense_analysis(drive(profile(VARIED_SPEED, 0.0), Suspension.rigid()), radar3)
+    assert spec.nullity == 6 + 4
+    names = [c.name for c in radar3.scored]
+    rot = spec.null_space[[names.index(f"radar_front.rot_{a}") for a in "xyz"]]
+    travel = np.array([np.cos(np.radians(30.0)), -np.sin(np.radians(30.0)), 0.0])
+    # the rotations' null part is one direction, along the travel
+    u, sv, _ = np.linalg.svd(rot)
+    assert sv[0] > 0.99 and sv[1] < 1e-6, sv
+    assert abs(abs(u[:, 0] @ travel) - 1.0) < 1e-6, u[:, 0]
+
+
 def test_planar_driving_leaves_a_3d_radars_height_and_a_2d_radars_pitch_roll_and_height(radar3, radar2):
     traj = drive(profile(VARIED_SPEED, BOTH_WAYS), Suspension.rigid())
     assert _radar_nulls(traj, radar3)[0] == {"radar_front.trans_z"}
@@ -185,3 +200,15 @@ def test_the_advice_of_a_radars_weak_modes():
     rep = evaluate(drive(profile(VARIED_SPEED, 0.0), Suspension.rigid()), rig)
     advice = " ".join(m.advice for m in rep.weak_modes if m.status == "unobservable").lower()
     assert "yaw rate" in advice or "turn" in advice
+
+
+def test_constant_velocity_hides_the_can_and_radar_time_offsets(radar3):
+    """Straight at constant speed every reading stays the same: a shift of the CAN stream's or the
+    radar's clock changes nothing (each enters through the change of its readings over an
+    interval). Speed changes bring both back."""
+    spec, _ = dense_analysis(drive(profile(8.0, 0.0), Suspension.rigid()), radar3)
+    w = null_weights(spec, radar3)
+    assert w["wheel.time_offset"] > 1 - 1e-6 and w["radar_front.time_offset"] > 1 - 1e-6, w
+    spec, _ = dense_analysis(drive(profile(VARIED_SPEED, 0.0), Suspension.rigid()), radar3)
+    w = null_weights(spec, radar3)
+    assert w["wheel.time_offset"] < 1e-6 and w["radar_front.time_offset"] < 1e-6, w

@@ -87,7 +87,7 @@ class Radar(Kind):
     rows = 3  # a 2-D radar's: 2
     sensor_kinds = ("radar",)
     config = RadarSensor
-    ranges = {"noise.doppler_sigma_mps": Range(1e-5, 10.0, "m/s"), "noise.stationary_targets": Range(0.01, 10_000.0),
+    ranges = {"dimensions": Range(2, 3), "noise.doppler_sigma_mps": Range(1e-5, 10.0, "m/s"), "noise.stationary_targets": Range(0.01, 10_000.0),
               "noise.azimuth_fov_deg": Range(0.1, 360.0, "deg"), "noise.elevation_fov_deg": Range(0.1, 180.0, "deg")}
     advice = {
         ("trans", 0): _LEVER,

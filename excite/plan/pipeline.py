@@ -169,6 +169,7 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
     drive so far is returned (``cancelled=True``).
     """
     t0 = time.perf_counter()
+    settings = settings.for_rig(rig)  # within the vehicle's own limits (a car's steering rate)
     budget = settings.time_budget_s
     stop = should_stop or (lambda: False)
     cores = _Cores()

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ..core import bounds
@@ -25,7 +25,8 @@ class OptimizeSettings:
     The path of the rear axle stays the site's margin (3 m) inside its edges, like the
     reference maneuvers and the random candidates it is compared with.
     ``limits``: every vehicle limit (speed, acceleration, deceleration, jerk, lateral
-    acceleration, curvature, curvature rate).
+    acceleration, curvature, curvature rate); the optimizer takes the tighter of these and the
+    rig's own (:meth:`for_rig`: a car's steering-wheel rate).
     ``seed``: random candidates and the start; the same seed gives the same result (up to
     the time budget cutting a run short at a different iteration).
     ``time_budget_s``: wall-clock budget of the whole run: the comparison candidates, COBYLA,
@@ -95,12 +96,31 @@ class OptimizeSettings:
         if self.site is not None and not isinstance(self.site, Site):
             raise OptimizeError(f"site must be an excite.plan.site.Site, got {type(self.site).__name__}")
 
+    def for_rig(self, rig) -> "OptimizeSettings":
+        """These settings within what the rig's vehicle allows (:func:`vehicle_limits`)."""
+        limits = vehicle_limits(rig, self.limits)
+        return self if limits == self.limits else replace(self, limits=limits)
+
     @property
     def lot(self):
         """The :class:`~excite.plan.site.Site` driven in (the rectangle unless ``site``)."""
         from .site import Site
 
         return self.site if self.site is not None else Site.rectangle(self.lot_x_m, self.lot_y_m)
+
+
+def vehicle_limits(rig, limits: Limits) -> Limits:
+    """``limits`` and the rig's vehicle's, the tighter of each: a car's steering wheel turns no
+    faster than ``ackermann.steering.rate_max_deg_per_s``, so the curvature (the optimizer's input,
+    which the steering reads) changes no faster than
+    :func:`excite.factors.ackermann.curvature_rate_max_1pms`."""
+    from ..factors.ackermann import curvature_rate_max_1pms
+
+    ac = getattr(rig.config, "ackermann", None)
+    vehicle = None if ac is None else curvature_rate_max_1pms(ac)
+    if vehicle is None or vehicle >= limits.curvature_rate_max_1pms:
+        return limits
+    return replace(limits, curvature_rate_max_1pms=vehicle)
 
 
 @dataclass(frozen=True)
