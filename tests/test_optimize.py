@@ -258,10 +258,13 @@ def test_optimized_maneuver_beats_every_baseline_and_is_feasible(rig):
     best_rand = max(r["score"] for r in res.comparison if r["kind"] == "random")
     assert score >= 1.5 * best_ref
     assert score >= 1.5 * best_rand
-    assert score > rows["cobyla"]["score"]
     for r in res.comparison:  # the criteria side by side, from the full evaluator's information
         if r.get("score"):
             assert r["worst_sigma_ratio"] > 0 and r["trace_inv"] > 0
+    if "cobyla" not in rows:  # COBYLA runs beside IPOPT on its share of the budget
+        pytest.skip(f"the machine is too loaded: COBYLA did not finish within its share of the "
+                    f"{s.time_budget_s:g} s budget")
+    assert score > rows["cobyla"]["score"]
 
 
 def test_kinematics_over_terrain_match_the_driven_profile(coarse):
