@@ -32,7 +32,7 @@ from ...core import bounds
 from ...errors import BagError
 from ...motion.trajectory import SensorLog
 from .decode import Cursor
-from .stream import is_ros2, open_bag, stream_messages, time_window, topic_connections
+from .stream import count_bound, is_ros2, open_bag, stream_messages, time_window, topic_connections
 
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 POSE_COVARIANCE_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -73,10 +73,7 @@ def read_pose_covariances(path: str | Path, topic: str, *, start_s: float | None
         if msgtype not in COVARIANCE_TYPES:
             raise BagError(path, f"type {msgtype} carries no pose covariance (types that do: "
                                  f"{', '.join(t.split('/')[-1] for t in COVARIANCE_TYPES)})", topic)
-        n = sum(int(getattr(c, "msgcount", 0) or 0) for c in cons)
-        if n > bounds.MAX_SAMPLES:
-            raise BagError(path, f"{n:,} messages, over the limit of {bounds.MAX_SAMPLES:,} poses (crop the "
-                                 "drive with a window)", topic)
+        count_bound(path, topic, cons, bounds.MAX_SAMPLES, "poses")
         read, ros2 = _fields(msgtype == ODOMETRY_TYPE), is_ros2(cons[0])
         for i, (_, raw) in enumerate(stream_messages(path, reader, cons, topic, *time_window(reader, start_s, end_s))):
             try:

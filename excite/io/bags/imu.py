@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from ...errors import BagError, RouteError
 from ...motion.trajectory import Trajectory
+from .stream import check_stamps
 
 
 @dataclass(frozen=True)
@@ -26,11 +27,7 @@ class ImuSeries:
 def imu_series(path: Path, topic: str, t_ns: np.ndarray, d: np.ndarray, frame: str) -> ImuSeries:
     if t_ns.size < 2:
         raise BagError(path, f"{t_ns.size} IMU messages: need at least 2", topic)
-    dt = np.diff(t_ns)
-    if np.any(dt <= 0):
-        k = int(np.argmax(dt <= 0)) + 1
-        raise BagError(path, f"stamps are not monotonic: message {k}'s stamp "
-                             f"{'repeats' if dt[k - 1] == 0 else 'goes backwards'}", topic)
+    check_stamps(path, topic, t_ns)
     omega, accel = d[:, :3], d[:, 3:]
     if not (np.all(np.isfinite(omega)) and np.all(np.isfinite(accel))):
         raise BagError(path, "an IMU sample is NaN or infinite", topic)

@@ -20,7 +20,7 @@ from .covariance import odometry_log, read_pose_covariances
 from .gnss import NAVSAT_TYPE, fix_log, read_fixes
 from .imu import ImuSeries, ImuTrajectory, imu_series
 from .mcap import mcap_files, mcap_read, verify_chunks
-from .stream import (budget, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
+from .stream import (budget, count_bound, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
                      topic_connections, topic_list)
 from .tf import static_edges, static_transform, tf_chain
 from .vehicle import VEHICLE_USES
@@ -90,10 +90,7 @@ def _count_bound(path: Path, topic: str, cons: list, imu: bool) -> None:
     """Refuse a topic with more messages than a route may have samples (IMU: IMU samples),
     from the bag's own index, before anything is read."""
     limit, what = (bounds.MAX_IMU_SAMPLES, "IMU samples") if imu else (bounds.MAX_SAMPLES, "poses")
-    n = sum(int(getattr(c, "msgcount", 0) or 0) for c in cons)
-    if n > limit:
-        raise BagError(path, f"{n:,} messages, over the limit of {limit:,} {what} (crop the "
-                             "drive with a window)", topic)
+    count_bound(path, topic, cons, limit, what)
 
 
 def read_series(path: Path, reader, wanted: dict[str, Callable], window) -> dict[str, Series]:

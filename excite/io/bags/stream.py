@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Iterator
 from weakref import WeakKeyDictionary
 
+import numpy as np
+
 from ...errors import BagError
 from ..sniff import is_bag
 from .mcap import Budget, bounded_decompressor, has_summary, mcap_files, verify_chunks
@@ -103,6 +105,24 @@ def topic_connections(path: Path, reader, topic: str) -> list:
     if not cons:
         raise BagError(path, f"no such topic in the bag (topics: {topic_list(reader)})", topic)
     return cons
+
+
+def count_bound(path: Path, topic: str, cons: list, limit: int, what: str = "") -> None:
+    """Refuse a topic with more than ``limit`` messages (``what`` they would be), from the bag's own
+    index, before anything is read."""
+    n = sum(int(getattr(c, "msgcount", 0) or 0) for c in cons)
+    if n > limit:
+        raise BagError(path, f"{n:,} messages, over the limit of {limit:,}{' ' + what if what else ''} (crop the "
+                             "drive with a window)", topic)
+
+
+def check_stamps(path: Path, topic: str, t_ns: np.ndarray) -> None:
+    """Refuse stamps that repeat or go backwards, naming the first such message."""
+    dt = np.diff(t_ns)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0)) + 1
+        raise BagError(path, f"stamps are not monotonic: message {k}'s stamp "
+                             f"{'repeats' if dt[k - 1] == 0 else 'goes backwards'}", topic)
 
 
 def topic_list(reader) -> str:

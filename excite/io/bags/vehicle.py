@@ -35,7 +35,7 @@ from ...core import bounds
 from ...errors import BagError
 from ...factors.ackermann import CanRecording
 from .decode import Cursor
-from .stream import listed, open_bag, stream_messages, time_window, topic_connections, is_ros2
+from .stream import check_stamps, count_bound, listed, open_bag, stream_messages, time_window, topic_connections, is_ros2
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 EGO_VELOCITY_TYPES = ("geometry_msgs/msg/TwistWithCovarianceStamped", "geometry_msgs/msg/TwistStamped")
@@ -91,10 +91,7 @@ def _messages(path: Path, topic: str, types: tuple[str, ...], start_s, end_s):
         if msgtype not in types:
             raise BagError(path, f"type {msgtype} is not supported here (supported: "
                                  f"{', '.join(t.replace('/msg/', '/') for t in types)})", topic)
-        n = sum(int(getattr(c, "msgcount", 0) or 0) for c in cons)
-        if n > bounds.MAX_IMU_SAMPLES:
-            raise BagError(path, f"{n:,} messages, over the limit of {bounds.MAX_IMU_SAMPLES:,} (crop the drive "
-                                 "with a window)", topic)
+        count_bound(path, topic, cons, bounds.MAX_IMU_SAMPLES)
         ros2 = is_ros2(cons[0])
         start, stop = time_window(reader, start_s, end_s)
         for i, (_, raw) in enumerate(stream_messages(path, reader, cons, topic, start, stop)):
@@ -175,11 +172,7 @@ def _check(path: Path, topic: str, t: np.ndarray, values: np.ndarray) -> None:
     bad = ~np.all(np.isfinite(values), axis=1)
     if bad.any():
         raise BagError(path, f"message {int(np.argmax(bad))} has a NaN or infinite value", topic)
-    dt = np.diff(t)
-    if np.any(dt <= 0):
-        k = int(np.argmax(dt <= 0)) + 1
-        raise BagError(path, f"stamps are not monotonic: message {k}'s stamp "
-                             f"{'repeats' if dt[k - 1] == 0 else 'goes backwards'}", topic)
+    check_stamps(path, topic, t)
 
 
 def can_recording(wheels: WheelSpeeds, t0_ns: int) -> CanRecording:
