@@ -12,6 +12,7 @@ import pytest
 from excite.motion.vehicle import ControlProfile, drive
 from excite.rig.config import load_rig
 from excite.score.evaluate import evaluate
+from test_optimize import model_samples
 
 
 @pytest.fixture(scope="module")
@@ -74,12 +75,7 @@ def test_the_optimizers_model(rig, traj):
 
     coarse = coarse_rig(rig, 2.0, 4)
     nom = Nominal.of(traj, coarse)
-    n = nom.imu_per_keyframe
-    t = traj.t_start + np.arange((nom.n_keyframes - 1) * n + 1) / coarse.config.imu.update_rate
-    smp = traj.sample(t)
-    b = smp.body(nom.R_V_B, nom.p_V_B)
-    colmajor = lambda R: np.swapaxes(R, 1, 2).reshape(-1, 9).T  # noqa: E731 (ca.vec of each matrix)
-    args = (colmajor(b.R_W_B), b.p_W_B.T, b.v_W.T, b.omega_B.T, b.specific_force_B.T, colmajor(smp.R_V_A))
+    _, args = model_samples(traj, coarse)
     Lam = np.array(build_model(coarse, nom.n_keyframes).marginal(*args))
     ref = elimination.marginal(problem.build(nom, coarse))
     assert np.abs(Lam - ref).max() <= 1e-6 * np.abs(ref).max()

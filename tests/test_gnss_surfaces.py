@@ -19,6 +19,7 @@ from excite.motion.trajectory import SensorLog
 from excite.motion.vehicle import drive
 from excite.score.evaluate import evaluate
 from test_gnss import gnss_rig, sigmas
+from test_optimize import model_samples
 
 
 def _sigma(Lam, rig, n_drives=1):
@@ -91,12 +92,7 @@ def test_the_optimizers_model_is_the_evaluators_information(rig, traj):
 
     coarse = coarse_rig(rig, 2.0, 4)
     nom = Nominal.of(traj, coarse)
-    n = nom.imu_per_keyframe
-    t = traj.t_start + np.arange((nom.n_keyframes - 1) * n + 1) / coarse.config.imu.update_rate
-    smp = traj.sample(t)
-    b = smp.body(nom.R_V_B, nom.p_V_B)
-    colmajor = lambda R: np.swapaxes(R, 1, 2).reshape(-1, 9).T  # noqa: E731
-    args = (colmajor(b.R_W_B), b.p_W_B.T, b.v_W.T, b.omega_B.T, b.specific_force_B.T, colmajor(smp.R_V_A))
+    _, args = model_samples(traj, coarse)
     model = build_model(coarse, nom.n_keyframes)
     got = np.array(model.marginal(*args))  # plain world states, over the rig's coordinates
     ref = elimination.marginal(problem.build(nom, coarse))  # the drive's origin among the nuisances

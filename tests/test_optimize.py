@@ -41,8 +41,9 @@ def _colmajor(R: np.ndarray) -> np.ndarray:
     return R.transpose(0, 2, 1).reshape(len(R), 9).T
 
 
-def _samples(traj, crig):
-    """The body samples Nominal.of takes for ``crig``, in the CasADi model's layout."""
+def model_samples(traj, crig):
+    """(keyframes, the body samples Nominal.of takes for ``crig``, in the CasADi model's layout);
+    the other surfaces' tests feed the optimizer's model with them too."""
     n = int(round(crig.config.imu.update_rate / crig.keyframe_rate_hz))
     K = Nominal.of(traj, crig).n_keyframes
     t = traj.t_start + np.arange((K - 1) * n + 1) / crig.config.imu.update_rate
@@ -99,7 +100,7 @@ def test_casadi_information_equals_the_evaluator(rig, coarse, kind):
         coarse = coarse_rig(rig, 2.0, 4)
         kind = "hilly, banked"
     traj = _contract_drive(kind, rig)
-    K, args = _samples(traj, coarse)
+    K, args = model_samples(traj, coarse)
     model = build_model(coarse, K)
     Lam = np.array(model.marginal(*args))
     ref = elimination.marginal(problem.build(Nominal.of(traj, coarse), coarse))
