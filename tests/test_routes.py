@@ -196,6 +196,17 @@ def test_waypoints_round_trip(tmp_path):
     assert back.length_m() == pytest.approx(traj.length_m(), rel=0.005)
 
 
+def test_waypoints_that_end_at_a_stop_read_back_whatever_the_last_speed(tmp_path):
+    # The last step decelerates to 0: kv + (0 - kv)/span·span rounds below zero for some kv,
+    # and the route was refused as reversing (seen on an optimized maneuver's CSV download).
+    rows = "\n".join(f"{2.0 * i:.1f},{0.3 * i * i:.2f},0,{v:.4f}"
+                      for i, v in enumerate([0.0, 1.0, 2.5, 3.7, 4.1, 2.2]))
+    for last in np.linspace(0.1, 9.9, 60):
+        path = _write(tmp_path, "w.csv", f"x,y,z,speed\n{rows}\n12,12,0,{last:.4f}\n14,13,0,0\n")
+        traj = routes.read_route(path)
+        assert traj.sample(traj.times(20.0)).speed.min() >= 0.0
+
+
 # ------------------------------------------------------------------------------------------
 # CLI
 

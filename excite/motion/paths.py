@@ -183,7 +183,9 @@ def _timed(s: np.ndarray, v: np.ndarray, step_s: float,
     span = kt[k + 1] - kt[k]
     a = np.where(span > 0, (kv[k + 1] - kv[k]) / np.where(span > 0, span, 1.0), 0.0)
     tau = grid - kt[k]
-    return SpeedPlan(grid, ks[k] + kv[k] * tau + 0.5 * a * tau**2, kv[k] + a * tau)
+    # Between two speeds ≥ 0 the speed is ≥ 0; at a stop, kv + a·span rounds to about -1e-15,
+    # which a control profile would refuse as reversing.
+    return SpeedPlan(grid, ks[k] + kv[k] * tau + 0.5 * a * tau**2, np.maximum(kv[k] + a * tau, 0.0))
 
 
 def plan_given_speed(path: PathGeometry, speed_mps: np.ndarray, step_s: float = 0.01) -> SpeedPlan:
