@@ -63,7 +63,6 @@ from .wheel import G_MPS2, axle_travel, lateral_g
 
 WHEELS = ("fl", "fr", "rl", "rr")  # the order of the readings, of the rows and of the coordinates
 _EPS_M = 1e-6  # regularises a front wheel's path and the curvature at a standstill [m]
-_EPS_MPS = 1e-5
 _EPS_SMOOTH = 1e-4  # [m per interval, or m/s]: the smooth |a| of a front wheel's path at a standstill
 
 
@@ -308,8 +307,13 @@ class Ackermann(Kind):
     @staticmethod
     def _curvature(f, tr):
         """The path's curvature the reading sees, ``Δψ/Δs`` moved by ``t_d`` along its change
-        (the instantaneous curvatures at the two keyframes), and that change per second."""
-        ends = [tr.yaw_rate[a] * tr.u[a] / (tr.u[a] * tr.u[a] + _EPS_MPS ** 2) for a in range(2)]
+        (the instantaneous curvatures at the two keyframes), and that change per second. The
+        instantaneous curvature ``ω·u/(u² + v_min²)`` fades below ``steering.min_speed_mps``:
+        ``ω/u`` of a crawling car is a ratio of two noises (an estimate at 1 cm/s off a
+        standstill made the time-offset term, and the calibrator's cost, swing by whole units
+        within a hundredth of its step)."""
+        v_min = f.entry.steering.min_speed_mps
+        ends = [tr.yaw_rate[a] * tr.u[a] / (tr.u[a] * tr.u[a] + v_min ** 2) for a in range(2)]
         rate = (ends[1] - ends[0]) / f.dT
         return tr.dpsi * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2) + f.q["time_offset"] * rate, rate
 

@@ -13,7 +13,8 @@ statement:
   as a :class:`~excite.factors.base.FactorBlock`: what the evaluator uses for a kind without a
   compiled kernel, and what the contract test holds every compiled kernel equal to.
 - :func:`residuals`: whitened residuals of recorded measurements at an estimate (the
-  calibrator's cost, :mod:`excite.validate.calibrate`).
+  calibrator's cost, :mod:`excite.validate.calibrate`), and :func:`recorded_linearisation` their
+  exact derivative (the calibrator's Gauss–Newton step).
 
 Everything is compiled once per entry and rig shape (an SX function, mapped over the factors).
 The inputs of one factor, flattened: per keyframe ``[vec R (9, row-major), p, v, ω, vec R_V_A]``
@@ -236,20 +237,25 @@ def symbols(lay: Layout):
             ca.SX.sym("q", lay.n_quantity_inputs))
 
 
-def linearised(kind: Kind, rig: RigView, entry: Any, lay: Layout, x, samples, qv):
+def linearised(kind: Kind, rig: RigView, entry: Any, lay: Layout, x, samples, qv, meas=None):
     """Whitened Jacobians ``(Jx, Jt)`` of one factor (SX: rows × 9·arity world states, rows ×
-    estimated coordinates) at the noise-free measurement of the inputs ``x, samples, qv``."""
+    estimated coordinates): at the noise-free measurement of the inputs ``x, samples, qv`` (the
+    Fisher information's factor), or at a recorded measurement ``meas`` (an SX symbol: the exact
+    derivative of the residual the calibrator minimises, whitening included)."""
     base = _inputs(kind, rig, entry, lay, x, samples, qv)
-    meas = kind.measurement(base)
     dx = ca.SX.sym("dx", 9 * lay.arity)
     dq = ca.SX.sym("dq", lay.n_theta)
     moved = _inputs(kind, rig, entry, lay, x, samples, qv, dx, dq)
-    token = _AT_ZERO_RESIDUAL.set(True)
-    try:
+    if meas is None:
+        token = _AT_ZERO_RESIDUAL.set(True)
+        try:
+            res = kind.residual(moved, kind.measurement(base))
+            r = whiten(kind.sqrt_information(base), res, res.numel())
+        finally:
+            _AT_ZERO_RESIDUAL.reset(token)
+    else:
         res = kind.residual(moved, meas)
-        r = whiten(kind.sqrt_information(base), res, res.numel())
-    finally:
-        _AT_ZERO_RESIDUAL.reset(token)
+        r = whiten(kind.sqrt_information(moved), res, res.numel())
     Jx = ca.substitute(ca.jacobian(r, dx), ca.vertcat(dx, dq), ca.DM.zeros(dx.numel() + dq.numel()))
     Jt = ca.substitute(ca.jacobian(r, dq), ca.vertcat(dx, dq), ca.DM.zeros(dx.numel() + dq.numel()))
     return Jx, Jt
@@ -288,6 +294,19 @@ def linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
         return ca.Function(f"lin_{kind.name}", [x, s, q], [Jx, Jt], {"cse": True})
 
     return _cached("lin", kind, rig, entry, build)
+
+
+def recorded_linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
+    """``(x, imu, q, meas) → (Jx, Jt)`` of one factor at a recorded measurement (:func:`linearised`),
+    compiled once per entry: the derivative of :func:`residual_function`."""
+    def build():
+        lay = layout(kind, rig, entry)
+        x, s, q = symbols(lay)
+        meas = ca.SX.sym("m", kind.measurement(_inputs(kind, rig, entry, lay, x, s, q)).numel())
+        Jx, Jt = linearised(kind, rig, entry, lay, x, s, q, meas)
+        return ca.Function(f"rlin_{kind.name}", [x, s, q, meas], [Jx, Jt], {"cse": True})
+
+    return _cached("rlin", kind, rig, entry, build)
 
 
 def residual_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
@@ -348,18 +367,22 @@ def coordinate_names(lay: Layout) -> list[str]:
     return [n for q in lay.estimated for n in q.coordinate_names()]
 
 
-def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str, Any] | None = None) -> FactorBlock | None:
+def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str, Any] | None = None,
+           meas: np.ndarray | None = None) -> FactorBlock | None:
     """The whitened Jacobians of every factor of ``entry`` on ``nom``, from the derivative of its
-    kind's residual at the noise-free measurement (see the module docstring), at the quantity
-    ``values`` (by name; the nominal ones otherwise)."""
+    kind's residual at the noise-free measurement (see the module docstring), or at the recorded
+    measurements ``meas`` (N × m, one row per factor) where given, at the quantity ``values`` (by
+    name; the nominal ones otherwise)."""
     first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
     if first.size == 0:
         return None
     lay = layout(kind, rig, entry)
-    lin = linearisation(kind, rig, entry)
-    F = lin.map(first.size, "serial")
-    Jx, Jt = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
-               np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1))
+    lin = linearisation(kind, rig, entry) if meas is None else recorded_linearisation(kind, rig, entry)
+    args = [keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
+            np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1)]
+    if meas is not None:
+        args.append(np.asarray(meas, dtype=float).T)
+    Jx, Jt = lin.map(first.size, "serial")(*args)
     N, r = first.size, lin.size1_out(0)  # the entry's rows (a kind's entries may differ: a 2-D radar)
     Jx = np.asarray(Jx).reshape(r, N, 9 * lay.arity).transpose(1, 0, 2)
     Jt = np.asarray(Jt).reshape(r, N, lay.n_theta).transpose(1, 0, 2)
