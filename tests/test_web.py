@@ -339,6 +339,59 @@ def test_plan_in_a_geojson_lot_with_a_hole_and_a_ramp(page, shots, server, tmp_p
     assert len(page.console.errors) == 1 and "status of 422" in page.console.errors[0], page.console.errors
 
 
+def test_a_car_rig_scores_and_plans_on_the_page(page, shots, server):
+    """The bundled sedan (four CAN wheel speeds, the steering angle, a radar) chosen on the page:
+    its sensors are listed, the planned car drive scores as the library scores it (the car's own
+    parameters in the table, with its σ), and a plan made with it keeps the car's steering-rate
+    limit (the rig's 540 deg/s at the wheel, ratio 15, wheelbase 2.70 m: dκ/dt ≤ rate/(ratio·L))."""
+    import httpx
+    import yaml
+
+    from excite.io import routes
+    from excite.rig.config import RIGS_DIR, load_rig
+    from excite.score.evaluate import evaluate
+
+    drive = REPO / "examples" / "sedan_planned_60s_control.csv"
+    page.select_option("#rig-select", "sedan")
+    info = page.inner_text("#rig-info")
+    assert "ackermann" in info and "radar_front" in info, info
+    page.set_input_files("#route-file", str(drive))
+    page.click("#score-button")
+    page.wait_for_selector("#score-value, .error:not(:empty)")
+    assert page.locator("#score-value").count(), page.locator(".error").all_inner_texts()
+    rig = load_rig("sedan")
+    lib = evaluate(routes.read_route(drive, suspension=rig.suspension), rig)
+    assert float(page.inner_text("#score-value")) == pytest.approx(lib.score, rel=1e-3)
+    assert page.locator("#params tbody tr").count() == len(lib.parameters)
+    for name in ("wheel.scale_fl", "wheel.wheelbase", "steering.ratio", "steering.offset", "radar_front.rot_z",
+                 "wheel.time_offset"):
+        row = page.locator(f'#params tr[data-name="{name}"]')
+        sigma = next(p for p in lib.parameters if p.name == name).sigma
+        assert float(row.locator("td").nth(0).inner_text()) == pytest.approx(sigma, rel=1e-2), name
+    save_shot(page, shots, "web-score-sedan.png")
+
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    for field, value in {"duration_s": "20", "time_budget_s": "2", "n_random": "2",
+                         "lot_x_m": "60", "lot_y_m": "40", "lon_deg": "11.5", "lat_deg": "48.1"}.items():
+        page.fill(f"#plan-{field}", value)
+    page.click("#plan-button")
+    page.wait_for_selector("#job-id:not(:empty)")
+    job_id = page.inner_text("#job-id")
+    page.wait_for_selector("#plan-score", timeout=180_000)
+    assert page.inner_text("#job-status") == "succeeded"
+    job = httpx.get(f"{server.url}/v1/jobs/{job_id}").json()
+    assert job["result"]["report"]["rig"] == "sedan"
+    control = httpx.get(f"{server.url}/v1/jobs/{job_id}/maneuver", params={"format": "control"}).text
+    rows = np.array([[float(v) for v in r.split(",")[:3]] for r in control.splitlines()
+                     if r and not r.startswith("#") and r[0] not in "t"])
+    car = yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())["ackermann"]
+    limit = np.radians(car["steering"]["rate_max_deg_per_s"]) / (car["steering"]["ratio"] * car["wheelbase_m"])
+    rate = np.abs(np.diff(rows[:, 2]) / np.diff(rows[:, 0]))
+    assert 0.2 * limit < rate.max() <= 1.05 * limit, (rate.max(), limit)
+    assert page.console.errors == []
+
+
 def test_cancel_a_running_job(page):
     """A job with a long budget, cancelled from the page once it runs, ends `cancelled`."""
     page.click("#tab-plan")

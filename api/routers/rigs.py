@@ -9,6 +9,7 @@ from typing import Any
 import yaml
 from fastapi import APIRouter
 
+from excite.factors import base as registry
 from excite.rig.config import Rig, bundled_rigs
 
 from ..auth import Anyone
@@ -25,6 +26,8 @@ def _summary(name: str, rig: Rig) -> dict[str, Any]:
             "keyframe_rate_hz": rig.keyframe_rate_hz,
             "sensors": [{"name": s.name, "kind": s.kind, "rate_hz": s.rate_hz}
                         for s in rig.config.sensors],
+            # everything the rig measures, the sections too (imu, wheels, ackermann, …)
+            "measurements": [{"name": i.name, "kind": i.kind.name} for i in registry.instances(rig)],
             "parameters": [{"name": c.name, "unit": c.unit, "target": c.target}
                            for c in rig.scored]}
 

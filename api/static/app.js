@@ -156,7 +156,7 @@ function onRigChange() {
   $("#rig-upload").hidden = !upload;
   $("#rig-error").textContent = "";
   const rig = upload ? state.uploadedRig && state.uploadedRig.summary : state.rigs.find((r) => r.name === $("#rig-select").value);
-  $("#rig-info").textContent = rig ? `${rig.parameters.length} parameters; sensors: ${rig.sensors.map((s) => s.name).join(", ")}` : "choose a YAML file";
+  $("#rig-info").textContent = rig ? `${rig.parameters.length} parameters; measures: ${rig.measurements.map((m) => m.name).join(", ")}` : "choose a YAML file";
 }
 
 async function onRigFile() {
@@ -187,10 +187,15 @@ function detectFormat(name, text) {
   const lower = name.toLowerCase();
   if (lower.endsWith(".tum")) return "tum";
   if (lower.endsWith(".geojson") || lower.endsWith(".json")) return "geojson";
-  const first = text.split("\n").find((l) => l.trim()) || "";
+  const lines = text.split("\n").map((l) => l.trim()).filter((l) => l);
+  const first = lines[0] || "";
   if (lower.endsWith(".csv")) {
-    if (/^#\s*start:/i.test(first) || /curvature/i.test(first)) return "control_csv";
-    if (/^#\s*timestamp/i.test(first) || /p_RS_R/.test(first)) return "euroc";
+    // as the service reads a CSV file: comments first (excite's control files open with two),
+    // then the header or the first row decides
+    const comments = lines.filter((l) => l.startsWith("#"));
+    const row = lines.find((l) => !l.startsWith("#")) || "";
+    if (comments.some((l) => /^#\s*timestamp/i.test(l)) || /p_RS_R/.test(row)) return "euroc";
+    if (comments.some((l) => /^#\s*start:/i.test(l)) || /curvature/i.test(row)) return "control_csv";
     return "waypoints_csv";
   }
   const cols = first.trim().split(/\s+/).length;
