@@ -237,6 +237,28 @@ def test_route_info_subprocess(tmp_path):
     assert "30.0 s" in done.stdout and "within all limits" in done.stdout
 
 
+def test_route_info_checks_a_car_rigs_steering_rate(tmp_path, capsys):
+    """A curvature ramp of 0.24 1/(m·s): within the generic limit (0.25), beyond the sedan's
+    steering wheel (540 deg/s at ratio 15 and a 2.70 m wheelbase: 0.2327 1/(m·s))."""
+    import yaml
+
+    from excite.motion.vehicle import ControlProfile
+    from excite.rig.config import RIGS_DIR
+
+    car = yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())["ackermann"]
+    limit = np.radians(car["steering"]["rate_max_deg_per_s"]) / (car["steering"]["ratio"] * car["wheelbase_m"])
+    assert limit < 0.24 < Limits().curvature_rate_max_1pms
+    t = np.linspace(0.0, 10.0, 201)
+    ramp = 0.12 * np.pi / (2 * 0.24)  # a smooth step of 0.12 1/m whose steepest rate is 0.24
+    kappa = 0.06 * (1 - np.cos(np.pi * np.clip((t - 4.0) / ramp, 0.0, 1.0)))
+    path = routes.write_control_csv(ControlProfile(t, np.full(t.size, 3.0), kappa, name="ramp"), tmp_path / "ramp.csv")
+    assert main(["route", "info", str(path)]) == 0
+    assert "within all limits" in capsys.readouterr().out
+    assert main(["route", "info", str(path), "--rig", "sedan"]) == 0
+    out = capsys.readouterr().out
+    assert "limit violation" in out and "curvature_rate_max_1pms" in out, out
+
+
 @pytest.mark.parametrize("lam", [1e-5, 6e-3, 2.0])
 def test_smoothing_spline_is_scipys_without_the_per_point_loop(lam):
     """The banded Reinsch solve gives scipy's make_smoothing_spline (the reference it replaces

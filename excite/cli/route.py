@@ -66,9 +66,12 @@ def bag_table(file: Path) -> None:
 def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .geojson, or a bag "
                                                "(.bag, .mcap, ROS 2 folder)"),
          times: Optional[Path] = typer.Option(None, "--times", help="KITTI times file"),
+         rig: Optional[str] = typer.Option(None, "--rig", help="Bundled rig name or rig YAML path: "
+                                           "its vehicle's limits too (a car's steering rate)"),
          ) -> None:
     """Duration, length, ranges of speed, acceleration, yaw rate, pitch and roll, and every
-    limit violation (default limits). For a bag: its topics, types, counts, rates and spans,
+    limit violation (default limits; with ``--rig``, the tighter of those and the rig's vehicle's,
+    as ``excite optimize`` plans within). For a bag: its topics, types, counts, rates and spans,
     and which can be scored (pose topics, TF chains) or give the IMU."""
     from rich.table import Table
     from rich.text import Text
@@ -81,7 +84,14 @@ def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .g
         return bag_table(file)
 
     limits = Limits()
-    traj = read_route(file, times=times, limits=limits)
+    suspension = None
+    if rig is not None:
+        from ..plan.settings import vehicle_limits
+        from ..rig.config import load_rig
+
+        r = load_rig(rig)
+        limits, suspension = vehicle_limits(r, limits), r.suspension
+    traj = read_route(file, times=times, limits=limits, **({} if suspension is None else {"suspension": suspension}))
     summary = route_summary(traj, limits)
     out_console = console()
     table = Table(title=Text(f"{file.name}: {summary['duration_s']:.1f} s, {summary['length_m']:.1f} m"))
