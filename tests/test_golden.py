@@ -7,10 +7,10 @@ redesign must reproduce it: σ, score, rank and the three spectra of every route
 rig with random-walk biases and with constant biases. Numbers are compared to 1e-7 relative:
 σ and the score each to its own size; a spectrum as a whole, to its largest eigenvalue (its
 exactly-null entries are rounding noise of ~1e-13 of it, which no reordering of a sum keeps to
-nine digits of their own). 1e-7, not 1e-9: the file was written on an AMD EPYC, where every
-entry reproduces to 1e-9; on an Intel Xeon (other BLAS and LLVM kernels) the circles' entries,
-the worst-conditioned (a track σ of 43 m), differ by up to 4.6e-8 and every other entry by less
-than 1e-9. A change of the model moves an entry by far more (the scrub: 31 of 36 by ≥ 1e-4).
+nine digits of their own). 1e-7, not 1e-9: every entry reproduced to 1e-9 on the machines of
+the sessions that wrote and kept the file (CI included), but on the machine of 2026-12-02 (an
+"Intel(R) Xeon(R) Processor", other BLAS and LLVM kernels) the circles' entries, the
+worst-conditioned (a track σ of 43 m), differ by up to 4.6e-8, every other entry by less than 1e-9. A change of the model moves an entry by far more (the scrub: 31 of 36 by ≥ 1e-4).
 
 Regenerate only on purpose (a model change, stated in the commit): ``EXCITE_UPDATE_GOLDEN=1
 python3 -m pytest tests/test_golden.py``.
