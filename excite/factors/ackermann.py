@@ -27,7 +27,8 @@ longer shrinks with the travel (tyre scrub and compliance at walking pace).
 
 One CAN stream carries both: ``wheel.time_offset`` shifts every reading (stamped t, it describes
 the motion at ``t + t_d``), to first order through the change of each instantaneous reading over
-the interval (its speed and yaw rate at the two keyframes). With ``vehicle.slip`` estimated the
+the interval (its speed and yaw rate at the two keyframes; the steering's instantaneous curvature
+``ω·u/(u² + v_min²)``, which fades below ``steering.min_speed_mps``). With ``vehicle.slip`` estimated the
 speeds are multiplied by ``1 + slip·ā/g + scrub·(a_y/g)²``: ``wheel.slip`` as the encoders' (the
 driven or braking tyre's slip ratio at 1 g of the interval's mean longitudinal acceleration ā)
 and ``wheel.scrub``, the loaded tyres' shorter rolling radius in a turn, at 1 g of lateral
