@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextvars
 import json
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -275,14 +276,22 @@ def _key(kind: Kind, rig: RigView, entry: Any) -> tuple:
 
 _CACHE: dict[tuple, Any] = {}
 
+# CasADi's symbolics are not thread-safe, and neither is a call of a Function on numpy arrays (it
+# makes DM matrices and their sparsity patterns): the evaluator linearises a drive's pieces in a
+# thread pool, and two threads building their entry's functions at once crashed the process
+# (a segmentation fault in ca.jacobian). Every use of CasADi here holds this lock; the compiled
+# kernels of the other kinds run in parallel still.
+_LOCK = threading.RLock()
+
 
 def _cached(what: str, kind: Kind, rig: RigView, entry: Any, build):
     key = (what,) + _key(kind, rig, entry)
-    if key not in _CACHE:
-        if len(_CACHE) > 256:
-            _CACHE.clear()
-        _CACHE[key] = build()
-    return _CACHE[key]
+    with _LOCK:
+        if key not in _CACHE:
+            if len(_CACHE) > 256:
+                _CACHE.clear()
+            _CACHE[key] = build()
+        return _CACHE[key]
 
 
 def linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
@@ -373,22 +382,23 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
     kind's residual at the noise-free measurement (see the module docstring), or at the recorded
     measurements ``meas`` (N × m, one row per factor) where given, at the quantity ``values`` (by
     name; the nominal ones otherwise)."""
-    first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
-    if first.size == 0:
-        return None
-    lay = layout(kind, rig, entry)
-    lin = linearisation(kind, rig, entry) if meas is None else recorded_linearisation(kind, rig, entry)
-    args = [keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
-            np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1)]
-    if meas is not None:
-        args.append(np.asarray(meas, dtype=float).T)
-    Jx, Jt = lin.map(first.size, "serial")(*args)
-    N, r = first.size, lin.size1_out(0)  # the entry's rows (a kind's entries may differ: a 2-D radar)
-    Jx = np.asarray(Jx).reshape(r, N, 9 * lay.arity).transpose(1, 0, 2)
-    Jt = np.asarray(Jt).reshape(r, N, lay.n_theta).transpose(1, 0, 2)
-    cols = theta_columns(rig, coordinate_names(lay))
-    return FactorBlock(kind.block_name(entry), first, kind.stride(rig, entry), lay.arity,
-                       np.ascontiguousarray(Jx), np.ascontiguousarray(Jt), cols)
+    with _LOCK:
+        first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
+        if first.size == 0:
+            return None
+        lay = layout(kind, rig, entry)
+        lin = linearisation(kind, rig, entry) if meas is None else recorded_linearisation(kind, rig, entry)
+        args = [keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
+                np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1)]
+        if meas is not None:
+            args.append(np.asarray(meas, dtype=float).T)
+        Jx, Jt = lin.map(first.size, "serial")(*args)
+        N, r = first.size, lin.size1_out(0)  # the entry's rows (a kind's entries may differ: a 2-D radar)
+        Jx = np.asarray(Jx).reshape(r, N, 9 * lay.arity).transpose(1, 0, 2)
+        Jt = np.asarray(Jt).reshape(r, N, lay.n_theta).transpose(1, 0, 2)
+        cols = theta_columns(rig, coordinate_names(lay))
+        return FactorBlock(kind.block_name(entry), first, kind.stride(rig, entry), lay.arity,
+                           np.ascontiguousarray(Jx), np.ascontiguousarray(Jt), cols)
 
 
 def jacobians(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
@@ -403,24 +413,26 @@ def residuals(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndar
     """Whitened residuals (N × rows) of the measurements ``meas`` (N × m) of the factors starting at
     keyframes ``first``, at the states and samples of ``nom`` and the quantity ``values`` (by name;
     the nominal ones otherwise)."""
-    G = residual_function(kind, rig, entry)
-    if first.size == 0:
-        return np.zeros((0, G.size1_out(0)))
-    lay = layout(kind, rig, entry)
-    F = G.map(first.size, "serial")
-    r = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
-          np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1), np.asarray(meas, dtype=float).T)
-    return np.asarray(r).T
+    with _LOCK:
+        G = residual_function(kind, rig, entry)
+        if first.size == 0:
+            return np.zeros((0, G.size1_out(0)))
+        lay = layout(kind, rig, entry)
+        F = G.map(first.size, "serial")
+        r = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
+              np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1), np.asarray(meas, dtype=float).T)
+        return np.asarray(r).T
 
 
 def measurements(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndarray,
                  values: dict[str, Any] | None = None) -> np.ndarray:
     """The noise-free measurements (N × m) of the factors starting at keyframes ``first``."""
-    lay = layout(kind, rig, entry)
-    G = measurement_function(kind, rig, entry)
-    if first.size == 0:
-        return np.zeros((0, G.size1_out(0)))
-    m = G.map(first.size, "serial")(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
-          np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1))
-    return np.asarray(m).T
+    with _LOCK:
+        lay = layout(kind, rig, entry)
+        G = measurement_function(kind, rig, entry)
+        if first.size == 0:
+            return np.zeros((0, G.size1_out(0)))
+        m = G.map(first.size, "serial")(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
+              np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1))
+        return np.asarray(m).T
 
