@@ -98,3 +98,19 @@ def test_a_steering_rate_out_of_range_is_a_clear_error(sedan):
     with pytest.raises(RigError) as e:
         build_rig(data)
     assert "ackermann.steering.rate_max_deg_per_s: 50000" in str(e.value) and "sane range" in str(e.value)
+
+
+def test_a_steering_too_slow_to_plan_with_names_the_rigs_setting(sedan):
+    """1 deg/s at the wheel, ratio 100, a 20 m wheelbase (each within its own range): the curvature
+    may change by 8.7e-6 1/(m·s), below what a plan needs; the error names the rig's setting, not
+    the planner's derived limit."""
+    from excite.errors import OptimizeError
+
+    ac = sedan.config.ackermann
+    slow = sedan.with_config(ackermann=dict(ac.model_dump(), wheelbase_m=20.0,
+                                            steering=dict(ac.steering.model_dump(), ratio=100.0, rate_max_deg_per_s=1.0)))
+    with pytest.raises(OptimizeError) as e:
+        vehicle_limits(slow, Limits())
+    msg = str(e.value)
+    assert msg.startswith("ackermann.steering.rate_max_deg_per_s: 1 deg/s at ratio 100 and wheelbase 20 m"), msg
+    assert "8.73e-06" in msg

@@ -120,6 +120,12 @@ def vehicle_limits(rig, limits: Limits) -> Limits:
     vehicle = None if ac is None else curvature_rate_max_1pms(ac)
     if vehicle is None or vehicle >= limits.curvature_rate_max_1pms:
         return limits
+    floor = bounds.LIMITS["curvature_rate_max_1pms"].lo
+    if vehicle < floor:
+        st = ac.steering
+        raise OptimizeError(f"ackermann.steering.rate_max_deg_per_s: {st.rate_max_deg_per_s:g} deg/s at ratio "
+                            f"{st.ratio:g} and wheelbase {ac.wheelbase_m:g} m lets the curvature change by "
+                            f"{vehicle:.3g} 1/(m·s) at most, below the {floor:g} a plan needs to turn at all")
     return replace(limits, curvature_rate_max_1pms=vehicle)
 
 
