@@ -249,18 +249,23 @@ def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
     assert page.console.errors and all("status of 422" in e for e in page.console.errors), page.console.errors
 
 
+def plan_short(page, time_budget_s: float) -> str:
+    """Ask the plan form for a 20 s maneuver in a 60 × 40 m lot; the job's id once it shows."""
+    for field, value in {"duration_s": "20", "time_budget_s": f"{time_budget_s:g}", "n_random": "2",
+                         "lot_x_m": "60", "lot_y_m": "40", "lon_deg": "11.5", "lat_deg": "48.1"}.items():
+        page.fill(f"#plan-{field}", value)
+    page.click("#plan-button")
+    page.wait_for_selector("#job-id:not(:empty)")
+    return page.inner_text("#job-id")
+
+
 def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
     """Plan a 20 s maneuver with a 1 s optimizer budget: the job's progress is shown while it
     runs, then the maneuver in the lot, the comparison and working downloads."""
     page.click("#tab-plan")
     page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
     assert page.input_value("#plan-duration_s") == "90"  # the API's default, read from its schema
-    for field, value in {"duration_s": "20", "time_budget_s": "1", "n_random": "2",
-                         "lot_x_m": "60", "lot_y_m": "40", "lon_deg": "11.5", "lat_deg": "48.1"}.items():
-        page.fill(f"#plan-{field}", value)
-    page.click("#plan-button")
-    page.wait_for_selector("#job-id:not(:empty)")
-    job_id = page.inner_text("#job-id")
+    job_id = plan_short(page, time_budget_s=1)
     assert page.locator("#job-status").inner_text() in ("queued", "running", "succeeded")
     page.wait_for_selector("#plan-score", timeout=120_000)
     assert page.inner_text("#job-status") == "succeeded"
@@ -372,12 +377,7 @@ def test_a_car_rig_scores_and_plans_on_the_page(page, shots, server):
 
     page.click("#tab-plan")
     page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
-    for field, value in {"duration_s": "20", "time_budget_s": "2", "n_random": "2",
-                         "lot_x_m": "60", "lot_y_m": "40", "lon_deg": "11.5", "lat_deg": "48.1"}.items():
-        page.fill(f"#plan-{field}", value)
-    page.click("#plan-button")
-    page.wait_for_selector("#job-id:not(:empty)")
-    job_id = page.inner_text("#job-id")
+    job_id = plan_short(page, time_budget_s=2)
     page.wait_for_selector("#plan-score", timeout=180_000)
     assert page.inner_text("#job-status") == "succeeded"
     job = httpx.get(f"{server.url}/v1/jobs/{job_id}").json()
