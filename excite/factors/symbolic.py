@@ -294,6 +294,12 @@ def _cached(what: str, kind: Kind, rig: RigView, entry: Any, build):
         return _CACHE[key]
 
 
+def _mapped(what: str, kind: Kind, rig: RigView, entry: Any, function, n: int) -> ca.Function:
+    """``function`` (one of this module's per-factor functions) mapped over ``n`` factors, made once
+    per entry and count (making a map costs a fifth of evaluating one)."""
+    return _cached(f"{what}@{n}", kind, rig, entry, lambda: function(kind, rig, entry).map(n, "serial"))
+
+
 def linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
     """``(x, imu, q) → (Jx, Jt)`` of one factor (:func:`linearised`), compiled once per entry."""
     def build():
@@ -387,12 +393,13 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
         if first.size == 0:
             return None
         lay = layout(kind, rig, entry)
-        lin = linearisation(kind, rig, entry) if meas is None else recorded_linearisation(kind, rig, entry)
+        fn = linearisation if meas is None else recorded_linearisation
+        lin = fn(kind, rig, entry)
         args = [keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
                 np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1)]
         if meas is not None:
             args.append(np.asarray(meas, dtype=float).T)
-        Jx, Jt = lin.map(first.size, "serial")(*args)
+        Jx, Jt = _mapped(fn.__name__, kind, rig, entry, fn, first.size)(*args)
         N, r = first.size, lin.size1_out(0)  # the entry's rows (a kind's entries may differ: a 2-D radar)
         Jx = np.asarray(Jx).reshape(r, N, 9 * lay.arity).transpose(1, 0, 2)
         Jt = np.asarray(Jt).reshape(r, N, lay.n_theta).transpose(1, 0, 2)
@@ -418,7 +425,7 @@ def residuals(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndar
         if first.size == 0:
             return np.zeros((0, G.size1_out(0)))
         lay = layout(kind, rig, entry)
-        F = G.map(first.size, "serial")
+        F = _mapped("res", kind, rig, entry, residual_function, first.size)
         r = F(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
               np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1), np.asarray(meas, dtype=float).T)
         return np.asarray(r).T
@@ -432,7 +439,7 @@ def measurements(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.n
         G = measurement_function(kind, rig, entry)
         if first.size == 0:
             return np.zeros((0, G.size1_out(0)))
-        m = G.map(first.size, "serial")(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
+        m = _mapped("meas", kind, rig, entry, measurement_function, first.size)(keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)), sample_inputs(nom, first, lay),
               np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1))
         return np.asarray(m).T
 
