@@ -39,7 +39,7 @@ class SolverOptions:
     (issue 29, ``benchmarks/bench_ipopt.py``, robotaxi 90 s from ``random_0_0``): BFGS with 6, 20
     or 50 pairs gave the same 495 iterations (identical iterates to iteration 471, so its memory
     apparently never held more than 6 pairs: BFGS skips an update whose curvature is not positive,
-    and IPOPT resets the memory after 2 skips in a row — raising ``limited_memory_max_skipping``
+    and IPOPT resets the memory after more than 2 in a row — raising ``limited_memory_max_skipping``
     did change the iterates); SR1 needs no positive curvature and converged in 240 iterations
     (10, 20 and 50 pairs alike; 313 with 6) to a better optimum (full score 2.142e-3 against
     1.994e-3). From 4 starts (``random_0_0/1/5/7``): 1136 iterations against BFGS's 2243, the
