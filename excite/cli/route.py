@@ -78,20 +78,19 @@ def info(file: Path = typer.Argument(..., help="Route file: .csv, .tum, .txt, .g
 
     from ..io.bags import is_bag
     from ..io.routes import read_route
-    from ..motion.vehicle import Limits
+    from ..motion.vehicle import Limits, Suspension
 
     if is_bag(file):
         return bag_table(file)
 
-    limits = Limits()
-    suspension = None
+    limits, suspension = Limits(), Suspension()
     if rig is not None:
         from ..plan.settings import vehicle_limits
         from ..rig.config import load_rig
 
         r = load_rig(rig)
         limits, suspension = vehicle_limits(r, limits), r.suspension
-    traj = read_route(file, times=times, limits=limits, **({} if suspension is None else {"suspension": suspension}))
+    traj = read_route(file, times=times, limits=limits, suspension=suspension)
     summary = route_summary(traj, limits)
     out_console = console()
     table = Table(title=Text(f"{file.name}: {summary['duration_s']:.1f} s, {summary['length_m']:.1f} m"))

@@ -399,19 +399,15 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
             fac0 = nrm.factor(0.0)
             fisher = _Normal(lin.predicted, r, prob.n_x, scale)
             info0 = fisher.factor(0.0)[3]
+            # spurious information of an estimate's error grows with it, as its excess cost does
+            excess = max(1.0, 2.0 * cost / max(r.size - lin.recorded.shape[1], 1))
+            basis, tol, cond_t = fisher.rank(info0, settings.rank_rtol * excess)
+            y0 = nrm.step(fac0, basis)  # the undamped Gauss–Newton step
         except FactorisationError as e:
             status, reason = "failed", f"the normal equations are singular at {names[e.column]}"
             _emit(log, dict(event="step", iteration=it, failure=reason, failed_variable=names[e.column]))
             break
-        # spurious information of an estimate's error grows with it, as its excess cost does
-        excess = max(1.0, 2.0 * cost / max(r.size - lin.recorded.shape[1], 1))
-        basis, tol, cond_t = fisher.rank(info0, settings.rank_rtol * excess)
         info = info0 / np.outer(scale, scale)
-        try:
-            y0 = nrm.step(fac0, basis)  # the undamped Gauss–Newton step
-        except FactorisationError as e:
-            status, reason = "failed", f"the normal equations are singular at {names[e.column]}"
-            break
         decrement = float(np.sqrt(max(-float(nrm.g @ y0), 0.0)))
         d = np.abs(fac0[0][0])
         base = dict(event="step", iteration=it, variables=len(names), residuals=int(r.size),
