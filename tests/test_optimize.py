@@ -450,3 +450,29 @@ def test_a_warm_start_continues_where_a_capped_run_stopped():
     warm = solve(tr, capped.z_final, time.perf_counter() + 20, criterion="D", warm=capped)
     assert warm.status == "converged" and warm.z == pytest.approx([1.5, 0.75], abs=1e-3)
     assert warm.iterations < cold.iterations
+
+
+def test_compile_only_scores_the_references_once_for_that_problem(rig, tmp_path, monkeypatch, capsys):
+    """``excite optimize --compile-only`` (a Docker image's build step) also scores the reference
+    maneuvers of its problem into the cache: the rows read back are the full evaluator's scores
+    of those maneuvers (scored again here, independently of the cache), a second call finds
+    them, and another lot does not."""
+    from excite.cli.app import main
+    from excite.plan import candidates as cand
+
+    monkeypatch.setenv("EXCITE_CACHE_DIR", str(tmp_path))
+    args = ["optimize", "--compile-only", "--duration", "12", "--lot", "40x30", "-o", str(tmp_path / "out")]
+    assert main(args) == 0
+    assert "reference maneuvers scored" in capsys.readouterr().out
+    s = opt.OptimizeSettings(duration_s=12.0, lot_x_m=40.0, lot_y_m=30.0).for_rig(rig)
+    rows = {c.name: c for c in cand.cached_references(rig, s, s.lot)}
+    assert set(rows) == {c.name for c in cand.reference_profiles(rig, s, s.lot)}
+    for c in cand.reference_profiles(rig, s, s.lot):
+        traj, bad = check(c.profile, rig, s, s.lot)
+        assert rows[c.name].violations == bad
+        if not bad:
+            assert rows[c.name].row["score"] == pytest.approx(evaluate(traj, rig).score, rel=1e-9)
+    assert main(args) == 0
+    assert "reference maneuvers cached" in capsys.readouterr().out
+    other = opt.OptimizeSettings(duration_s=12.0, lot_x_m=45.0, lot_y_m=30.0).for_rig(rig)
+    assert cand.cached_references(rig, other, other.lot) is None

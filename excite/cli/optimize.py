@@ -104,8 +104,9 @@ def optimize(
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler for the starts (default: "
                                                        "$EXCITE_DASK_SCHEDULER, else local processes).")] = None,
     compile_only: Annotated[bool, typer.Option("--compile-only", help="Compile the optimizer's model for this "
-                                               "rig and duration with the C compiler into the cache "
-                                               "($EXCITE_CACHE_DIR) and exit (a Docker image's build step).")] = False,
+                                               "rig and duration with the C compiler, score the "
+                                               "reference maneuvers for this lot, both into the cache "
+                                               "($EXCITE_CACHE_DIR), and exit (a Docker image's build step).")] = False,
 ) -> None:
     """Plan the drive that determines the worst-determined calibration direction best.
 
@@ -125,12 +126,13 @@ def optimize(
     OptimizeSettings(time_budget_s=time_budget, starts=starts)  # validate the budget as given
     if compile_only:
         from ..plan.compiled import cache_dir
-        from ..plan.transcription import prepare
+        from ..plan.pipeline import prepare
 
         r = load_rig(rig)
-        mode, seconds = prepare(r, OptimizeSettings(duration_s=duration, site=site, closed=closed))
-        console().print(f"the optimizer's model for {r.name}, {duration:g} s: {mode} "
-                        f"({', '.join(f'{k} {v:.1f} s' for k, v in seconds.items()) or 'cached'}) in {cache_dir()}")
+        done = prepare(r, OptimizeSettings(duration_s=duration, site=site, closed=closed, criterion=criterion))
+        console().print(f"the optimizer's model for {r.name}, {duration:g} s: {done['mode']} "
+                        f"({', '.join(f'{k} {v:.1f} s' for k, v in done['seconds'].items()) or 'cached'}), "
+                        f"the reference maneuvers {done['references']}, in {cache_dir()}")
         return
     # the budget bounds the whole command: start-up so far and writing the files come off it
     left = time_budget - _process_age_s() - _WRITE_S

@@ -79,7 +79,7 @@ def run_start(task: StartTask) -> StartResult:
     def should_stop() -> bool:
         return stop_file is not None and os.path.exists(stop_file)
 
-    def progress(it: int, s: float, v: float, el: float) -> None:
+    def progress(it: int, s: float, v: float, el: float, best: float) -> None:
         if progress_file is not None:
             tmp = progress_file + ".tmp"
             with open(tmp, "w") as f:

@@ -190,6 +190,24 @@ def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
             w.close()
 
 
+def prepare(rig: Rig, settings: OptimizeSettings) -> dict[str, Any]:
+    """The start-up work that does not depend on the seed or the budget, done now and cached
+    (``excite optimize --compile-only``, a Docker image's build step): the optimizer's model
+    compiled (:func:`.transcription.prepare`) and the reference maneuvers scored by the full
+    evaluator (:func:`.candidates.references`), unless the cache has them. Returns what was
+    done: ``{"mode", "seconds": {step: s}, "references": "cached" | "scored"}``."""
+    from .transcription import prepare as compile_model
+
+    settings = settings.for_rig(rig)
+    mode, seconds = compile_model(rig, settings)
+    generated = cand.reference_profiles(rig, settings, settings.lot)
+    if cand.cached_references(rig, settings, settings.lot, generated) is not None:
+        return {"mode": mode, "seconds": seconds, "references": "cached"}
+    t0 = time.perf_counter()
+    cand.store_references(rig, settings, settings.lot, cand.references(rig, settings, settings.lot))
+    return {"mode": mode, "seconds": {**seconds, "references": time.perf_counter() - t0}, "references": "scored"}
+
+
 def _starts(tr, settings, site, crit, report, generated: list[Candidate]) -> tuple[list, list[list[ControlProfile]]]:
     """The candidates IPOPT may start from, best first: ``(near, score or −violation, z,
     profile)``, and the first chunks of random profiles drawn for it."""

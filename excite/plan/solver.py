@@ -359,11 +359,13 @@ def model_value(tr: Transcription, z: np.ndarray, criterion: str = "E") -> float
 
 def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "E",
           max_iterations: int | None = None, should_stop: Callable[[], bool] | None = None,
-          progress: Callable[[int, float, float, float], None] | None = None,
+          progress: Callable[[int, float, float, float, float], None] | None = None,
           t_start: float | None = None, options: SolverOptions = DEFAULT,
           warm: Outcome | None = None, mu: float | None = None) -> Outcome:
     """Maximise ``criterion`` of the model with one IPOPT run from ``z0`` (until converged,
     ``deadline``, ``max_iterations`` or ``should_stop()``), keeping every feasible iterate.
+    ``progress(iteration, model value, violation, elapsed, best value within the limits so
+    far)`` after every iteration, just before ``should_stop()``.
 
     ``warm``: a previous outcome on the same transcription whose multipliers start IPOPT (its
     barrier small: the warm start keeps the active set; e.g. to continue a run the budget cut
@@ -376,7 +378,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         mu = max(abs(w0[0]), 1e-8 * abs(w0[-1]), 1e-12)  # the scale of the weakest eigenvalue
     obj = Objective(tr.info, tr.n_z, criterion, mu, options.softmin_beta, deadline + DEADLINE_GRACE_S)
     z = ca.MX.sym("z", tr.n_z)
-    state = {"it": 0, "stop": False, "calls": 0}
+    state = {"it": 0, "stop": False, "calls": 0, "best": -np.inf}
     feasible: list[tuple[float, np.ndarray]] = []
     hist: list[tuple[int, float, float, float]] = []
 
@@ -385,6 +387,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         s = criteria.value(obj.M(x), criterion)
         if violation(tr, x, g, within_limits=True) <= FEASIBLE_TOL and np.isfinite(s):
             feasible.append((s, x.copy()))
+            state["best"] = max(state["best"], s)
         return s, violation(tr, x, g)
 
     def on_iter(x, f, g):
@@ -394,7 +397,7 @@ def solve(tr: Transcription, z0: np.ndarray, deadline: float, criterion: str = "
         el = time.perf_counter() - t_start
         hist.append((state["it"], s, viol, el))
         if progress is not None:
-            progress(state["it"], s, viol, el)
+            progress(state["it"], s, viol, el, state["best"])
         if should_stop is not None and should_stop():
             state["stop"] = True
         return state["stop"] or time.perf_counter() > deadline

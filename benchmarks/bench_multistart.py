@@ -1,0 +1,116 @@
+"""Could ``excite optimize`` stop a start that cannot win? Every start run to convergence with its
+history, then early-stop rules replayed on the histories.
+
+    python benchmarks/bench_multistart.py [--seeds 0 1 2 3 4] [--top 4] [--out benchmarks/out/multistart.json]
+
+The command waits for every IPOPT start (:mod:`excite.plan.multistart`), so its wall time is the
+slowest start's. A rule that stops a start once another has converged would end it sooner, if it
+never stopped the start that would have won. The rules replayed: start B is stopped at
+iteration ``k·N_A`` — ``N_A`` the iterations start A needed to converge to model value ``S_A`` —
+when B's best value within the limits so far is below ``(1 − m)·S_A``; *wrong* when B, left to
+run, ends above ``S_A`` (the plan would have been worse by ``B/S_A − 1``). IPOPT's iterations are
+deterministic, so the replay is what the rule would have done (up to when a start past ``k·N_A``
+sees the other's end).
+
+Problems (robotaxi): the default (90 s, 80 × 50 m, the model compiled) from each seed's ``--top``
+best starts by the model, as the pipeline ranks them; and 12 s in 40 × 30 m and 30 s in 60 × 40 m
+from every reference maneuver and 8 random candidates (seed 0). Every ordered pair of starts of
+one problem is a case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from excite.plan import OptimizeSettings, candidates as cand
+from excite.plan.kinematics import z_from_profile
+from excite.plan.pipeline import TRANSCRIPTION, _starts
+from excite.plan.problem import Problem
+from excite.plan.solver import solve
+from excite.plan.transcription import cached
+from excite.rig.config import load_rig
+
+SHORT = {"12 s": dict(duration_s=12.0, lot_x_m=40.0, lot_y_m=30.0), "30 s": dict(duration_s=30.0, lot_x_m=60.0, lot_y_m=40.0)}
+RULES = [(k, m) for k in (1.0, 1.25, 1.5, 2.0) for m in (0.0, 0.1, 0.2, 0.3)]
+
+
+def _z0s(problem: str, seed: int, top: int):
+    rig = load_rig("robotaxi")
+    if problem == "90 s":
+        s = OptimizeSettings(seed=seed).for_rig(rig)
+        tr = cached(Problem.of(rig, s, s.lot), TRANSCRIPTION)
+        ranked, _ = _starts(tr, s, s.lot, s.criterion, lambda *a: None, cand.reference_profiles(rig, s, s.lot))
+        return tr, [(r[4].name, r[3]) for r in ranked if r[0]][:top]
+    s = OptimizeSettings(**SHORT[problem]).for_rig(rig)
+    tr = cached(Problem.of(rig, s, s.lot), TRANSCRIPTION)
+    profs = [c.profile for c in cand.reference_profiles(rig, s, s.lot) if c.name != "highway_run"]
+    profs += cand.random_profiles(rig, s, s.lot, 0, 5, 0) + cand.random_profiles(rig, s, s.lot, 1, 3, 5)
+    return tr, [(p.name, z_from_profile(tr.grid, tr.scales, p, terrain=s.lot.terrain)) for p in profs]
+
+
+def one(job: tuple[str, int, int, int]) -> dict:
+    problem, seed, top, k = job
+    tr, z0s = _z0s(problem, seed, top)
+    name, z0 = z0s[k]
+    rows: list[tuple[int, float]] = []
+    t0 = time.perf_counter()
+    out = solve(tr, z0, time.perf_counter() + 900, progress=lambda it, s, v, el, best: rows.append((it, best)))
+    return {"problem": problem, "seed": seed, "start": name, "status": out.status, "iterations": out.iterations,
+            "value": out.score, "seconds": time.perf_counter() - t0, "best_by_iteration": rows}
+
+
+def replay(runs: list[dict]) -> None:
+    groups: dict[tuple, list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["problem"], r["seed"]), []).append(r)
+    print(f"\n{'k':>5} {'m':>4}  {'cases':>5} {'stopped':>7} {'wrong':>5}  {'largest loss':>12}  iterations saved  wrong on")
+    for k, m in RULES:
+        cases = stopped = wrong = saved = 0
+        losses, where = [], []
+        for (problem, seed), rs in groups.items():
+            for a, b in itertools.permutations(rs, 2):
+                if a["status"] != "converged":
+                    continue
+                n = int(k * a["iterations"])
+                if b["iterations"] <= n:  # B ends by itself first: nothing to decide
+                    continue
+                cases += 1
+                best = max((v for it, v in b["best_by_iteration"] if it <= n), default=float("-inf"))
+                if best < (1 - m) * a["value"]:
+                    stopped += 1
+                    saved += b["iterations"] - n
+                    if b["value"] > a["value"]:
+                        wrong += 1
+                        losses.append(b["value"] / a["value"] - 1)
+                        where.append(f"{problem}{'' if problem != '90 s' else f' seed {seed}'}: {b['start']} for {a['start']}")
+        print(f"{k:5.2f} {m:4.1f}  {cases:5d} {stopped:7d} {wrong:5d}  {max(losses, default=0.0):12.1%}  {saved:16d}  "
+              + "; ".join(where[:3]) + (" …" if len(where) > 3 else ""))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--top", type=int, default=4)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "out" / "multistart.json")
+    args = ap.parse_args()
+    jobs = [("90 s", seed, args.top, k) for seed in args.seeds for k in range(args.top)]
+    for problem in SHORT:
+        jobs += [(problem, 0, 0, k) for k in range(len(_z0s(problem, 0, 0)[1]))]
+    runs = []
+    with ProcessPoolExecutor(2) as ex:
+        for r in ex.map(one, jobs):
+            print(f"{r['problem']:<5} seed {r['seed']} {r['start']:<12} {r['status']:<10} {r['iterations']:4d} iterations "
+                  f"{r['seconds']:5.1f} s  model {r['value']:.4g}", flush=True)
+            runs.append(r)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(runs))
+    replay(runs)
+
+
+if __name__ == "__main__":
+    main()
