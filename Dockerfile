@@ -1,6 +1,6 @@
 # syntax=docker/dockerfile:1
-# excite HTTP service: one installed copy of the code, numba kernels compiled at build time,
-# non-root, health-checked.
+# excite HTTP service: one installed copy of the code, numba kernels and the optimizer's model
+# compiled at build time, non-root, health-checked.
 #
 #   podman build --format docker -t excite -f Dockerfile \
 #       --secret id=ca,src=/etc/ssl/certs/ca-certificates.crt .      # the CA only where pip needs it
@@ -9,10 +9,14 @@
 # BASE: a Debian 12 image with python3.11 + python3-venv, useradd and libstdc++6; where no
 # registry is reachable, container/mkbase.sh bootstraps one with mmdebstrap
 # (localhost/debian-python:bookworm). python:3.11-slim-bookworm should do too (not tried here).
+# BUILD_BASE: the same with a C compiler (gcc, libc6-dev) for the build stage
+# (localhost/debian-python-build:bookworm: `container/mkbase.sh essential OUT TAG gcc,libc6-dev`;
+# python:3.11-bookworm has one).
 ARG BASE=localhost/debian-python:bookworm
+ARG BUILD_BASE=localhost/debian-python-build:bookworm
 
 # ---- build: a venv with excite and its dependencies ----------------------------------------
-FROM ${BASE} AS build
+FROM ${BUILD_BASE} AS build
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore \
     PYTHONDONTWRITEBYTECODE=1
 RUN python3 -m venv /opt/excite
@@ -38,6 +42,12 @@ RUN --mount=type=secret,id=ca,target=/run/secrets/ca \
 # the layer can change it (numba's cache index keys each kernel by its source's path and mtime),
 # and bytecode checked by hash, not by mtime (pip wrote timestamp .pyc files; after the touch
 # they would be stale and every start would compile ~1100 modules from source again).
+# The optimizer's model and kinematics for the service's default problem (robotaxi, 90 s,
+# 80 × 50 m) compiled to C (excite.plan.compiled: ~2.5 min on 2 idle cores); the cache is keyed
+# by the installed sources, so the runtime finds it. Other shapes run in CasADi's virtual machine.
+RUN EXCITE_CACHE_DIR=/opt/excite-cache /opt/excite/bin/python -c "from excite.plan import OptimizeSettings; \
+from excite.plan.transcription import prepare; from excite.rig.config import load_rig; \
+rig = load_rig('robotaxi'); print('the optimizer for robotaxi, 90 s:', *prepare(rig, OptimizeSettings().for_rig(rig)))"
 
 # ---- runtime ---------------------------------------------------------------------------------
 FROM ${BASE}
@@ -47,12 +57,14 @@ ENV PATH=/opt/excite/bin:$PATH \
     HOME=/var/lib/excite \
     NUMBA_CACHE_DIR=/var/cache/excite/numba \
     MPLCONFIGDIR=/var/cache/excite/matplotlib \
+    EXCITE_CACHE_DIR=/var/cache/excite/excite \
     EXCITE_DB_PATH=/data/excite-jobs.sqlite3
 RUN useradd --system --uid 10001 --user-group --home-dir /var/lib/excite --create-home \
         --shell /usr/sbin/nologin excite \
     && install -d -o excite -g excite /data /var/cache/excite /var/cache/excite/numba \
         /var/cache/excite/matplotlib
 COPY --from=build /opt/excite /opt/excite
+COPY --from=build --chown=excite:excite /opt/excite-cache /var/cache/excite/excite
 COPY container/warm.py /usr/local/lib/excite-warm.py
 COPY container/dask.yaml /opt/excite/etc/dask/excite.yaml
 USER excite

@@ -6,10 +6,13 @@
 #   EXCITE_IMAGE   tag to build (default localhost/excite:ci)
 #   BASE_IMAGE     Debian + python3.11 base, bootstrapped with mmdebstrap when missing
 #                  (default localhost/debian-python:bookworm)
+#   BUILD_BASE_IMAGE  the same with gcc, the build stage's (default
+#                  localhost/debian-python-build:bookworm)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 image=${EXCITE_IMAGE:-localhost/excite:ci}
 base=${BASE_IMAGE:-localhost/debian-python:bookworm}
+build_base=${BUILD_BASE_IMAGE:-localhost/debian-python-build:bookworm}
 t0=$SECONDS
 phase() { echo "ci-image: $1 (${SECONDS}s since start, +$((SECONDS - t0))s)"; t0=$SECONDS; }
 
@@ -30,11 +33,16 @@ if ! podman image exists "$base"; then
   container/mkbase.sh essential "$(mktemp -d)/debian-python.tar" "$base"
 fi
 phase "base image $base ($(podman image inspect --format '{{.Size}}' "$base") bytes)"
+if ! podman image exists "$build_base"; then
+  container/mkbase.sh essential "$(mktemp -d)/debian-python-build.tar" "$build_base" gcc,libc6-dev
+fi
+phase "build stage's base image $build_base ($(podman image inspect --format '{{.Size}}' "$build_base") bytes)"
 
 secret=()
 ca=${PIP_CERT:-/etc/ssl/certs/ca-certificates.crt}  # the host's CA bundle (a TLS-inspecting proxy)
 [ -s "$ca" ] && secret=(--secret "id=ca,src=$ca")
-podman build --format docker "${secret[@]}" --build-arg BASE="$base" -t "$image" -f Dockerfile .
+podman build --format docker "${secret[@]}" --build-arg BASE="$base" --build-arg BUILD_BASE="$build_base" \
+  -t "$image" -f Dockerfile .
 phase "image $image built ($(podman image inspect --format '{{.Size}}' "$image") bytes)"
 
 EXCITE_IMAGE=$image python3 -m pytest -q -p no:cacheprovider --noconftest -rA tests/test_container.py

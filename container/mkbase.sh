@@ -1,16 +1,19 @@
 #!/bin/bash
 # Bootstrap a minimal Debian 12 (bookworm) root filesystem with Debian's python3.11 (+venv) and
 # import it into podman as a local image (no registry needed).
-# usage: mkbase.sh [VARIANT] [OUT.tar] [TAG]     VARIANT: essential (default, no apt) | minbase
+# usage: mkbase.sh [VARIANT] [OUT.tar] [TAG] [EXTRA]   VARIANT: essential (default, no apt) | minbase
+#   EXTRA: further packages, comma-separated (the Dockerfile's build stage: gcc,libc6-dev, the C
+#   compiler for the optimizer's model)
 set -euo pipefail
 variant=${1:-essential}; out=${2:-debian-python.tar}; tag=${3:-localhost/debian-python:bookworm}
+extra=${4:-}
 # apt sources: this machine's own (deb822 file, pasted into the chroot as it is: the mirror and
 # suites apt uses here, bookworm + updates + security), else mmdebstrap's default mirror
 sources=${DEBIAN_SOURCES:-/etc/apt/sources.list.d/debian.sources}
 [ -s "$sources" ] || sources=
 # passwd: useradd (minbase has it, essential not); libstdc++6: the manylinux wheels (casadi,
 # pyproj, ...) link the system's C++ runtime (minbase has it through apt, essential not)
-include=python3,python3-venv,ca-certificates,passwd,libstdc++6
+include=python3,python3-venv,ca-certificates,passwd,libstdc++6${extra:+,$extra}
 # merged-usr hook: /bin -> usr/bin symlinks + the real usr-is-merged package; without it apt
 # satisfies init-system-helpers' "usrmerge | usr-is-merged" with usrmerge, which drags in perl
 # (perl-modules + libperl: ~48 MB)

@@ -1,7 +1,8 @@
 """Build-time warm-up (the Dockerfile runs it as the runtime user, with the runtime environment):
-compile and cache the numba kernels that the service's scoring workers use, and build
-matplotlib's font cache, so that a new container loads them instead of compiling (~100 s of CPU
-in each of its processes here, 189 s from `podman run` to /healthz).
+compile and cache the numba kernels that the service's scoring workers use, score the reference
+maneuvers of the default optimization problem, and build matplotlib's font cache, so that a new
+container loads them instead of compiling (~100 s of CPU in each of its processes here, 189 s
+from `podman run` to /healthz).
 
 It runs the very function the app hands its worker pool (``api.app.warm``: bundled rigs, a short
 drive scored), so it follows the code wherever that function lives, and streams a short drive
@@ -31,4 +32,12 @@ s = drive(figure_eight(duration_s=30.0), rig.suspension).sample(t)
 stream = PoseStream(rig)
 stream.add(t, s.p_W_V, s.R_W_V)
 stream.finish()
-print(f"warm-up: kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
+# the optimizer's start-up for the service's default problem (robotaxi, 90 s, 80 × 50 m): the
+# model compiled in the build stage is found by its key, the reference maneuvers are scored now
+# and cached ($EXCITE_CACHE_DIR), so a job of that shape starts at once
+from excite.plan import OptimizeSettings  # noqa: E402
+from excite.plan.pipeline import prepare  # noqa: E402
+
+done = prepare(rig, OptimizeSettings())
+print(f"warm-up: kernels compiled and cached, the optimizer's model {done['mode']}, the reference maneuvers "
+      f"{done['references']}, in {time.perf_counter() - t0:.1f} s")

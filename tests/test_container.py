@@ -1,6 +1,7 @@
 """The container image: a fresh container (given an API keys file) is healthy within 30 s of its
 start and scores the figure-eight with a key; the kernels were compiled at build time (nothing
-compiled or cached at start), one copy of the code, no matplotlib warning; without keys the
+compiled or cached at start), and so were the optimizer's model and reference maneuvers for the
+default problem; one copy of the code, no matplotlib warning; without keys the
 image refuses to serve its 0.0.0.0 with a one-line reason.
 
 Runs when ``EXCITE_IMAGE`` names a built image (``.ci/run`` builds it with podman and sets it);
@@ -103,6 +104,15 @@ def test_fresh_container_healthy_within_30s_and_scores(container):
     copies = podman("exec", name, "find", "/", "-xdev", "-path", "*/excite/score/evaluate.py",
                     check=False).stdout.split()
     assert copies == ["/opt/excite/lib/python3.11/site-packages/excite/score/evaluate.py"], copies
+    # the optimizer's model for the default problem compiled at build, its reference maneuvers
+    # scored at build: a job of that shape (EXCITE_COMPILE=0, as the service's jobs run) starts
+    # compiled, with nothing to score first
+    probe = ("from excite.plan import OptimizeSettings; from excite.plan.problem import Problem; "
+             "from excite.plan.transcription import cached; from excite.plan import candidates as c; "
+             "from excite.rig.config import load_rig; r = load_rig('robotaxi'); s = OptimizeSettings().for_rig(r); "
+             "print(cached(Problem.of(r, s)).info.mode, '|', c.cached_references(r, s, s.lot) is not None)")
+    out = podman("exec", "-e", "EXCITE_COMPILE=0", name, "python", "-c", probe, check=False)
+    assert out.stdout.strip() == "compiled | True", out.stdout + out.stderr
     # the key is needed: without one, 401
     req = urllib.request.Request(f"{url}/v1/score", json.dumps(body).encode(), {"content-type": "application/json"})
     with pytest.raises(urllib.error.HTTPError) as denied:
