@@ -476,3 +476,23 @@ def test_compile_only_scores_the_references_once_for_that_problem(rig, tmp_path,
     assert "reference maneuvers cached" in capsys.readouterr().out
     other = opt.OptimizeSettings(duration_s=12.0, lot_x_m=45.0, lot_y_m=30.0).for_rig(rig)
     assert cand.cached_references(rig, other, other.lot) is None
+
+
+def test_random_starts_are_drawn_only_while_the_start_share_lasts(rig):
+    """Drawing feasible random drives is the start phase's cost (several times longer on a
+    loaded machine): past ``until`` no chunk is drawn and the references alone are the starts;
+    with time, the first START_RANDOM random candidates are ranked with them."""
+    from excite.plan import candidates as cand
+    from excite.plan.pipeline import CHUNK, START_RANDOM, _starts
+    from excite.plan.problem import Problem
+    from excite.plan.transcription import cached
+
+    s = opt.OptimizeSettings(duration_s=12.0, lot_x_m=40.0, lot_y_m=30.0).for_rig(rig)
+    tr = cached(Problem.of(rig, s, s.lot))
+    refs = cand.reference_profiles(rig, s, s.lot)
+    n_refs = sum(c.name != "highway_run" for c in refs)
+    late, drawn = _starts(tr, s, s.lot, s.criterion, lambda *a: None, refs, until=time.perf_counter() - 1.0)
+    assert drawn == [] and len(late) == n_refs
+    full, drawn = _starts(tr, s, s.lot, s.criterion, lambda *a: None, refs)
+    n_random = sum(len(c) for c in drawn)
+    assert len(drawn) == START_RANDOM // CHUNK and n_random > 0 and len(full) == n_refs + n_random

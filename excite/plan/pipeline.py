@@ -4,9 +4,10 @@ Within ``time_budget_s`` of wall time, all of it:
 
 1. **start** (this process): the problem statement (:mod:`.problem`) and its transcription
    (:mod:`.transcription`; the information model compiled, :mod:`.compiled`); the reference
-   maneuvers and the first random candidates, each fitted to the splines and ranked by the
-   optimizer's model; the :data:`~.settings.OptimizeSettings.starts` best of them are IPOPT's
-   starts. How many cores are free is measured over this phase (:class:`_Cores`).
+   maneuvers and the first random candidates (drawn while :data:`START_SHARE` of the budget
+   lasts), each fitted to the splines and ranked by the optimizer's model; the
+   :data:`~.settings.OptimizeSettings.starts` best of them are IPOPT's starts. How many cores
+   are free is measured over this phase (:class:`_Cores`).
 2. **optimize**: IPOPT from every start on the engine (:mod:`.multistart`: as many local
    processes as cores are free, or the Dask cluster), until each converges or the budget less
    the time kept for the checks (:func:`finish_reserve_s`) runs out.
@@ -53,6 +54,7 @@ from .transcription import TranscriptionOptions, cached, violation
 
 NEAR_FEASIBLE = 1.0  # largest violation of the optimizer's constraints of a start used as it is
 START_RANDOM = 10  # random candidates (the first chunks) IPOPT's starts are chosen among, with the references
+START_SHARE = 0.15  # of the budget, at most, for drawing them (a chunk is drawn only while it lasts)
 CHUNK = 5  # random candidates per worker task (a finished chunk counts, an unfinished one not)
 COBYLA_SHARE = 0.15  # of the budget, for the derivative-free baseline (in the worker)
 CHECK_ITERATES = 15  # IPOPT iterates checked at most, best model value first ...
@@ -208,13 +210,19 @@ def prepare(rig: Rig, settings: OptimizeSettings) -> dict[str, Any]:
     return {"mode": mode, "seconds": {**seconds, "references": time.perf_counter() - t0}, "references": "scored"}
 
 
-def _starts(tr, settings, site, crit, report, generated: list[Candidate]) -> tuple[list, list[list[ControlProfile]]]:
+def _starts(tr, settings, site, crit, report, generated: list[Candidate],
+            until: float = np.inf) -> tuple[list, list[list[ControlProfile]]]:
     """The candidates IPOPT may start from, best first: ``(near, score or −violation, z,
-    profile)``, and the first chunks of random profiles drawn for it."""
+    profile)``, and the first chunks of random profiles drawn for it — each chunk only while
+    ``time.perf_counter() < until`` (drawing a feasible random drive takes ~0.1 s, several times
+    that on a loaded machine: under a tight budget the references alone are the starts)."""
     lay = layout(tr.grid)
     refs = [c.profile for c in generated if c.name != "highway_run"]
-    drawn = [cand.random_profiles(tr.problem.rig, settings, site, c, size, first)
-             for c, (first, size) in enumerate(_chunks(settings.n_random)) if first < START_RANDOM]
+    drawn = []
+    for c, (first, size) in enumerate(_chunks(settings.n_random)):
+        if first >= START_RANDOM or (time.perf_counter() >= until and (refs or any(drawn))):
+            break
+        drawn.append(cand.random_profiles(tr.problem.rig, settings, site, c, size, first))
     ranked = []
     for i, c in enumerate(refs + [p for chunk in drawn for p in chunk]):
         z = z_from_profile(tr.grid, tr.scales, c, terrain=site.terrain)
@@ -245,7 +253,7 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
     timings["transcription"] = time.perf_counter() - t0
     generated = cand.reference_profiles(rig, settings, site)
     cached_refs = cand.cached_references(rig, settings, site, generated)
-    ranked, drawn = _starts(tr, settings, site, crit, report, generated)
+    ranked, drawn = _starts(tr, settings, site, crit, report, generated, until=t0 + START_SHARE * budget)
     if not ranked:
         raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits "
                             "to start from")
@@ -327,12 +335,14 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
         refs = cand.references(rig, settings, site)
         cand.store_references(rig, settings, site, refs)
     if not randoms:  # the random starts were screened by the model here: check them for the comparison
-        randoms = [Candidate(p.name, "random", p, [],
-                             model=model_value(tr, z_from_profile(tr.grid, tr.scales, p, terrain=site.terrain), crit))
-                   for chunk in drawn for p in chunk]
-        for c in randoms:
+        for p in (p for chunk in drawn for p in chunk):  # (while the budget lasts)
+            if remaining() <= 0:
+                break
+            c = Candidate(p.name, "random", p, [],
+                          model=model_value(tr, z_from_profile(tr.grid, tr.scales, p, terrain=site.terrain), crit))
             traj, c.violations = check(c.profile, rig, settings, site)
             c.rotation = cand.rotation_min(traj)
+            randoms.append(c)
 
     # --- score by the full evaluator what can win (most important first, while time lasts)
     pool: list[Candidate] = [cand.full(c, rig, crit) for c in passed]
