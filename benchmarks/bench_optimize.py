@@ -3,7 +3,7 @@ candidates, 2 IPOPT starts) as a user runs it: the command in a subprocess, its 
 start to exit.
 
     python benchmarks/bench_optimize.py [--seeds 0 1 2 3 4] [--budget 60] [--short-budget 10]
-        [--when-idle 120] [--out benchmarks/out]
+        [--when-idle 120] [--busy 4] [--out benchmarks/out]
 
 First ``excite optimize --compile-only`` (the compiled model in the cache, as the Docker image
 has it; said when it was already there). Then per seed, with ``--budget``: the wall time, the
@@ -14,7 +14,8 @@ best random candidate (full evaluator). Then seed 0 again with ``--short-budget`
 against seed 0's. The summary: converged within 20 s, the spread of the converged seeds' scores,
 the short budget's fraction, the ratio to the best reference. ``--when-idle N`` waits up to N
 seconds before each run for the 1-minute load average to fall below 0.5 (and says when it did
-not). Saves a plot of seed 0's maneuver.
+not). Saves a plot of seed 0's maneuver. ``--busy N``: then seed 0 with ``--short-budget`` twice beside N busy
+loops (a loaded machine: does the command keep to its budget?).
 """
 
 from __future__ import annotations
@@ -121,6 +122,7 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=60.0)
     ap.add_argument("--short-budget", type=float, default=10.0, help="seed 0 again with this budget (0: not)")
     ap.add_argument("--when-idle", type=float, default=0.0, help="wait up to this many seconds for an idle machine")
+    ap.add_argument("--busy", type=int, default=0, help="then the short budget twice beside this many busy loops")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "out")
     args = ap.parse_args()
     rig = load_rig("robotaxi")
@@ -158,6 +160,17 @@ def main() -> None:
     if short and full:
         print(f"- budget {args.short_budget:g} s: score {short[0]['score']:.4g} = {short[0]['score'] / full[0]['score']:.1%} "
               f"of seed {full[0]['seed']}'s with {args.budget:g} s ({short[0]['status']}, wall {short[0]['wall_s']:.1f} s)")
+    if args.busy and args.short_budget:
+        hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
+        try:
+            time.sleep(5.0)
+            for k in range(2):
+                r = run(args.seeds[0], args.short_budget, args.out / f"busy{k}", rig, settings)
+                print(f"- beside {args.busy} busy loops: {describe(r, settings.n_random)}", flush=True)
+                results.append({**r, "busy": args.busy})
+        finally:
+            for h in hogs:
+                h.kill()
     print(f"- load average at the end: {load():.2f}")
     (args.out / "bench_optimize.json").write_text(json.dumps([{k: v for k, v in r.items() if k != "traj"}
                                                               for r in results], indent=2))
