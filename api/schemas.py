@@ -370,6 +370,10 @@ class JobResult(Out):
     ipopt_status: str = ""
     source: str = "optimized"
     criterion: str = "E"
+    starts: int = Field(1, description="IPOPT starts that ran.")
+    starts_converged: int = Field(0, description="Of them, how many converged.")
+    compiled: bool = Field(False, description="Whether the optimizer's model ran compiled (else CasADi's "
+                                              "virtual machine: several times slower; the message says why).")
     lot: dict[str, Any] | None = Field(None, description=(
         "The lot planned in, in local metres: polygon and holes ([x, y] rings), entry [x, y, heading] "
         "or null, terrain [{role, polygon}], margin_m."))

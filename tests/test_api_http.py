@@ -195,6 +195,9 @@ def test_optimization_job_runs_to_completion_and_downloads(client):
     res = job["result"]
     assert res["report"]["route"] == "lot_a" and res["report"]["score"] > 0
     assert res["comparison"] and all("score" in row for row in res["comparison"])
+    # how the optimizer ran, as the CLI's report.json says it: its starts and whether it was compiled
+    assert 1 <= res["starts"] and 0 <= res["starts_converged"] <= res["starts"]
+    assert res["compiled"] in (True, False) and (res["compiled"] or "virtual machine" in res["message"])
     with tempfile.TemporaryDirectory() as tmp:
         for fmt, suffix in (("tum", ".tum"), ("csv", ".csv"), ("control", ".csv"), ("geojson", ".geojson")):
             d = client.get(f"{loc}/maneuver", params={"format": fmt})

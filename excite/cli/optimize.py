@@ -71,8 +71,6 @@ def write_outputs(result: OptimizeResult, out: Path, origin: tuple[float, float]
              write_waypoints_csv(result.trajectory, out / "waypoints.csv")]
     rep = result.report.to_dict()
     rep["optimization"] = {k: v for k, v in result.to_dict().items() if k not in ("report", "comparison")}
-    rep["optimization"].update(starts=result.starts, starts_converged=result.starts_converged,
-                               compiled=result.compiled)
     (out / "report.json").write_text(json.dumps(rep, indent=2))
     (out / "comparison.json").write_text(json.dumps(result.comparison, indent=2))
     paths += [out / "report.json", out / "comparison.json"]

@@ -192,5 +192,6 @@ class OptimizeResult:
             "cancelled": self.cancelled, "model_score": self.model_score, "score": self.report.score,
             "ipopt_status": self.ipopt_status, "source": self.source, "criterion": self.criterion,
             "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison, "lot": self.lot,
+            "starts": self.starts, "starts_converged": self.starts_converged, "compiled": self.compiled,
             "report": self.report.to_dict(),
         }
