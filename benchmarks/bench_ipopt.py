@@ -21,7 +21,8 @@ checks them), and the first iterations within 10 / 1 / 0.1 % of the best model v
 - ``single``: the same without multiple shooting (every position depends on every earlier control);
 - ``hull``: the limits by the B-spline convex hull (knot intervals split 4×) instead of samples;
 - ``history20``: 20 L-BFGS pairs (``bfgs6`` with 20);
-- ``vm``: the model and the kinematics in CasADi's virtual machine instead of compiled.
+- ``vm``: the model and the kinematics in CasADi's virtual machine instead of compiled;
+- ``mumps_scaled``: MUMPS with IPOPT's default scaling of the KKT system (77, 7) instead of none.
 
 ``--exact-duration``: the exact Hessian of the Lagrangian against L-BFGS on a shorter problem
 (the same lot, both to convergence from the best reference), and the time of one exact
@@ -52,8 +53,9 @@ VARIANTS = {
     "hull": (dataclasses.replace(SHIPPED, hull_refine=4), solver.DEFAULT),
     "history20": (SHIPPED, dataclasses.replace(solver.DEFAULT, history=20, update="bfgs")),
     "vm": (dataclasses.replace(SHIPPED, compile="never"), solver.DEFAULT),
+    "mumps_scaled": (SHIPPED, dataclasses.replace(solver.DEFAULT, mumps_scaling=True)),
 }
-_D = dataclasses.replace(solver.DEFAULT, history=6, update="bfgs")  # the options before issue 29's tuning
+_D = dataclasses.replace(solver.DEFAULT, history=6, update="bfgs", mumps_scaling=True)  # the options before issue 29's tuning
 
 
 def _x(**extra) -> solver.SolverOptions:
