@@ -29,7 +29,7 @@ from pathlib import Path
 
 from excite.plan import OptimizeSettings, candidates as cand
 from excite.plan.kinematics import z_from_profile
-from excite.plan.pipeline import TRANSCRIPTION, _starts
+from excite.plan.pipeline import TRANSCRIPTION, rank_starts
 from excite.plan.problem import Problem
 from excite.plan.solver import solve
 from excite.plan.transcription import cached
@@ -44,7 +44,7 @@ def _z0s(problem: str, seed: int, top: int):
     if problem == "90 s":
         s = OptimizeSettings(seed=seed).for_rig(rig)
         tr = cached(Problem.of(rig, s, s.lot), TRANSCRIPTION)
-        ranked, _ = _starts(tr, s, s.lot, s.criterion, lambda *a: None, cand.reference_profiles(rig, s, s.lot))
+        ranked, _ = rank_starts(tr, s, s.lot, s.criterion, lambda *a: None, cand.reference_profiles(rig, s, s.lot))
         return tr, [(r[4].name, r[3]) for r in ranked if r[0]][:top]
     s = OptimizeSettings(**SHORT[problem]).for_rig(rig)
     tr = cached(Problem.of(rig, s, s.lot), TRANSCRIPTION)

@@ -486,7 +486,7 @@ def test_random_starts_are_drawn_only_while_the_start_share_lasts(rig):
     loaded machine): past ``until`` no chunk is drawn and the references alone are the starts;
     with time, the first START_RANDOM random candidates are ranked with them."""
     from excite.plan import candidates as cand
-    from excite.plan.pipeline import CHUNK, START_RANDOM, _starts
+    from excite.plan.pipeline import CHUNK, START_RANDOM, rank_starts
     from excite.plan.problem import Problem
     from excite.plan.transcription import cached
 
@@ -494,8 +494,8 @@ def test_random_starts_are_drawn_only_while_the_start_share_lasts(rig):
     tr = cached(Problem.of(rig, s, s.lot))
     refs = cand.reference_profiles(rig, s, s.lot)
     n_refs = sum(c.name != "highway_run" for c in refs)
-    late, drawn = _starts(tr, s, s.lot, s.criterion, lambda *a: None, refs, until=time.perf_counter() - 1.0)
+    late, drawn = rank_starts(tr, s, s.lot, s.criterion, lambda *a: None, refs, until=time.perf_counter() - 1.0)
     assert drawn == [] and len(late) == n_refs
-    full, drawn = _starts(tr, s, s.lot, s.criterion, lambda *a: None, refs)
+    full, drawn = rank_starts(tr, s, s.lot, s.criterion, lambda *a: None, refs)
     n_random = sum(len(c) for c in drawn)
     assert len(drawn) == START_RANDOM // CHUNK and n_random > 0 and len(full) == n_refs + n_random

@@ -210,7 +210,7 @@ def prepare(rig: Rig, settings: OptimizeSettings) -> dict[str, Any]:
     return {"mode": mode, "seconds": {**seconds, "references": time.perf_counter() - t0}, "references": "scored"}
 
 
-def _starts(tr, settings, site, crit, report, generated: list[Candidate],
+def rank_starts(tr, settings, site, crit, report, generated: list[Candidate],
             until: float = np.inf) -> tuple[list, list[list[ControlProfile]]]:
     """The candidates IPOPT may start from, best first: ``(near, score or −violation, z,
     profile)``, and the first chunks of random profiles drawn for it — each chunk only while
@@ -253,7 +253,7 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
     timings["transcription"] = time.perf_counter() - t0
     generated = cand.reference_profiles(rig, settings, site)
     cached_refs = cand.cached_references(rig, settings, site, generated)
-    ranked, drawn = _starts(tr, settings, site, crit, report, generated, until=t0 + START_SHARE * budget)
+    ranked, drawn = rank_starts(tr, settings, site, crit, report, generated, until=t0 + START_SHARE * budget)
     if not ranked:
         raise OptimizeError("no reference maneuver or random candidate fits this lot and these limits "
                             "to start from")
