@@ -1,12 +1,14 @@
 """What makes IPOPT fast on the maneuver NLP? Transcriptions and Hessians side by side, from
 one start, each run to convergence.
 
-    python benchmarks/bench_ipopt.py [--start random_0_0] [--variants shipped single hull ...]
+    python benchmarks/bench_ipopt.py [--start random_0_0 [4:random_4_0 ...]] [--variants shipped single hull ...]
         [--exact-duration 15] [--max-iterations 1500]
 
 The default problem (robotaxi, 90 s, 80 × 50 m, seed 0) from ``--start`` (``random_0_0``:
 the start today's optimizer chose for seed 0, whose converged plan scored 2.05e-3 by the full
-evaluator, issue 29), IPOPT until it converges (or ``--max-iterations``). Per variant: IPOPT's
+evaluator, issue 29; ``SEED:NAME`` names another seed's random start; with several starts every
+variant runs from each, and a table of iterations and full scores ends the output), IPOPT until
+it converges (or ``--max-iterations``). Per variant: IPOPT's
 status, iterations, wall time and its split (objective, gradient, constraint Jacobian, IPOPT's
 own linear algebra), the model's λ_min and the full evaluator's score of the best iterate that
 passes the limit and lot check (rounded as written; best model value first, as the pipeline
@@ -22,7 +24,9 @@ checks them), and the first iterations within 10 / 1 / 0.1 % of the best model v
 - ``hull``: the limits by the B-spline convex hull (knot intervals split 4×) instead of samples;
 - ``history20``: 20 L-BFGS pairs (``bfgs6`` with 20);
 - ``vm``: the model and the kinematics in CasADi's virtual machine instead of compiled;
-- ``mumps_scaled``: MUMPS with IPOPT's default scaling of the KKT system (77, 7) instead of none.
+- ``mumps_scaled``: MUMPS with IPOPT's default scaling of the KKT system (77, 7) instead of none;
+- ``restored``: shipped, from the start first moved to the nearest point within the optimizer's
+  constraints (:func:`excite.plan.solver.restore`; the pipeline starts near-feasible starts as they are).
 
 ``--exact-duration``: the exact Hessian of the Lagrangian against L-BFGS on a shorter problem
 (the same lot, both to convergence from the best reference), and the time of one exact
@@ -42,7 +46,7 @@ from excite.plan import OptimizeSettings, candidates as cand, solver
 from excite.plan.pipeline import CHECK_ITERATES
 from excite.plan.kinematics import profile_from_z, z_from_profile
 from excite.plan.problem import Problem
-from excite.plan.transcription import TranscriptionOptions, transcribe
+from excite.plan.transcription import TranscriptionOptions, transcribe, violation
 from excite.rig.config import load_rig
 from excite.score.evaluate import evaluate
 
@@ -54,6 +58,7 @@ VARIANTS = {
     "history20": (SHIPPED, dataclasses.replace(solver.DEFAULT, history=20, update="bfgs")),
     "vm": (dataclasses.replace(SHIPPED, compile="never"), solver.DEFAULT),
     "mumps_scaled": (SHIPPED, dataclasses.replace(solver.DEFAULT, mumps_scaling=True)),
+    "restored": (SHIPPED, solver.DEFAULT),  # from the start moved to the constraints first (solver.restore)
 }
 _D = dataclasses.replace(solver.DEFAULT, history=6, update="bfgs", mumps_scaling=True)  # the options before issue 29's tuning
 
@@ -111,9 +116,20 @@ VARIANTS.update({  # issue 29: IPOPT's own options, one or two changes each from
 
 
 def starts(rig, s):
+    """The references and the seed's first 10 random candidates (the pipeline's possible starts)."""
     site = s.lot
     out = [c.profile for c in cand.reference_profiles(rig, s, site) if c.name != "highway_run"]
     return out + cand.random_profiles(rig, s, site, 0, 5, 0) + cand.random_profiles(rig, s, site, 1, 5, 5)
+
+
+def start_of(rig, spec: str):
+    """``NAME`` (among seed 0's possible starts) or ``SEED:NAME``: ``(settings, profile)``."""
+    seed, _, name = spec.rpartition(":")
+    s = OptimizeSettings(seed=int(seed) if seed else 0)
+    prof = next((p for p in starts(rig, s) if p.name == name), None)
+    if prof is None:
+        raise SystemExit(f"--start {spec}: no such start (the references and random_{s.seed}_0 … random_{s.seed}_9)")
+    return s, prof
 
 
 def run(name: str, rig, s: OptimizeSettings, start, tr_opts, sol_opts, max_iterations: int,
@@ -123,6 +139,12 @@ def run(name: str, rig, s: OptimizeSettings, start, tr_opts, sol_opts, max_itera
     tr = transcribe(Problem.of(rig, s), tr_opts)
     t_tr = time.perf_counter() - t0
     z0 = z_from_profile(tr.grid, tr.scales, start, terrain=site.terrain)
+    if name.split(":")[0] == "restored":
+        t1 = time.perf_counter()
+        v0 = violation(tr, z0)
+        z0, how = solver.restore(tr, z0, t1 + 120)
+        print(f"{name:<10} restored: violation {v0:.3g} → {violation(tr, z0):.3g} ({how}, {time.perf_counter() - t1:.1f} s)",
+              flush=True)
     load0 = os.getloadavg()[0]
     if print_level:
         sol_opts = dataclasses.replace(sol_opts, extra={**sol_opts.extra, "print_level": print_level})
@@ -192,7 +214,8 @@ def hessian_cost(rig) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--start", default="random_0_0")
+    ap.add_argument("--start", nargs="*", default=["random_0_0"],
+                    help="NAME (seed 0's) or SEED:NAME; several: each variant from each, and a table")
     ap.add_argument("--variants", nargs="*", default=["shipped", "bfgs6", "single", "hull", "history20", "vm"],
                     choices=list(VARIANTS))
     ap.add_argument("--max-iterations", type=int, default=1500)
@@ -201,11 +224,19 @@ def main() -> None:
     ap.add_argument("--hessian-cost", action="store_true", help="time one exact Hessian on the 90 s problem (minutes)")
     args = ap.parse_args()
     rig = load_rig("robotaxi")
-    s = OptimizeSettings()
-    start = next(p for p in starts(rig, s) if p.name == args.start)
+    chosen = [(spec, *start_of(rig, spec)) for spec in args.start]
+    rows = {}
     for name in args.variants:
         tr_opts, sol_opts = VARIANTS[name]
-        run(name, rig, s, start, tr_opts, sol_opts, args.max_iterations, args.print_level)
+        for spec, s, start in chosen:
+            label = name if len(chosen) == 1 else f"{name}:{spec}"
+            rows[name, spec] = run(label, rig, s, start, tr_opts, sol_opts, args.max_iterations, args.print_level)
+    if len(chosen) > 1:  # iterations and the full score of every variant from every start
+        print(f"\n{'iterations / full score':<24}" + "".join(f"{spec:>20}" for spec, _, _ in chosen) + f"{'largest':>9}")
+        for name in args.variants:
+            r = [rows[name, spec] for spec, _, _ in chosen]
+            print(f"{name:<24}" + "".join(f"{x['iterations']:>9} {x['full']:10.4g}" for x in r)
+                  + f"{max(x['iterations'] for x in r):>9}")
     if args.exact_duration:
         exact_vs_lbfgs(rig, args.exact_duration, args.max_iterations)
     if args.hessian_cost:
