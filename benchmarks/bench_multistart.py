@@ -15,7 +15,9 @@ sees the other's end).
 Problems (robotaxi): the default (90 s, 80 × 50 m, the model compiled) from each seed's ``--top``
 best starts by the model, as the pipeline ranks them; and 12 s in 40 × 30 m and 30 s in 60 × 40 m
 from every reference maneuver and 8 random candidates (seed 0). Every ordered pair of starts of
-one problem is a case.
+one problem is a case. Then, per problem, what ``--starts k`` would have found: the best model
+value of the k best-ranked starts (ranked as the pipeline ranks them) against the best of all,
+and the slowest of those k starts.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from pathlib import Path
 
 from excite.plan import OptimizeSettings, candidates as cand
 from excite.plan.kinematics import z_from_profile
-from excite.plan.pipeline import TRANSCRIPTION, rank_starts
+from excite.plan.pipeline import TRANSCRIPTION, rank, rank_starts
 from excite.plan.problem import Problem
 from excite.plan.solver import solve
 from excite.plan.transcription import cached
@@ -50,7 +52,7 @@ def _z0s(problem: str, seed: int, top: int):
     tr = cached(Problem.of(rig, s, s.lot), TRANSCRIPTION)
     profs = [c.profile for c in cand.reference_profiles(rig, s, s.lot) if c.name != "highway_run"]
     profs += cand.random_profiles(rig, s, s.lot, 0, 5, 0) + cand.random_profiles(rig, s, s.lot, 1, 3, 5)
-    return tr, [(p.name, z_from_profile(tr.grid, tr.scales, p, terrain=s.lot.terrain)) for p in profs]
+    return tr, [(r[4].name, r[3]) for r in rank(tr, s.lot, s.criterion, profs)]  # as the pipeline ranks them
 
 
 def one(job: tuple[str, int, int, int]) -> dict:
@@ -60,7 +62,8 @@ def one(job: tuple[str, int, int, int]) -> dict:
     rows: list[tuple[int, float]] = []
     t0 = time.perf_counter()
     out = solve(tr, z0, time.perf_counter() + 900, progress=lambda it, s, v, el, best: rows.append((it, best)))
-    return {"problem": problem, "seed": seed, "start": name, "status": out.status, "iterations": out.iterations,
+    return {"problem": problem, "seed": seed, "start": name, "rank": k + 1, "status": out.status,
+            "iterations": out.iterations,
             "value": out.score, "seconds": time.perf_counter() - t0, "best_by_iteration": rows}
 
 
@@ -92,6 +95,25 @@ def replay(runs: list[dict]) -> None:
               + "; ".join(where[:3]) + (" …" if len(where) > 3 else ""))
 
 
+def top_k(runs: list[dict]) -> None:
+    """What the command's ``--starts k`` would have found: the best of the k best-ranked starts
+    against the best of all, per problem (and seed), and where the best start ranked."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["problem"], r["seed"]), []).append(r)
+    ks = (1, 2, 4)
+    print(f"\n{'problem':<12} {'starts':>6}  {'winner (rank)':<22}" + "".join(f"{f'top {k}':>9}" for k in ks)
+          + "   slowest of the top 1 / 2 / 4 [iterations]")
+    for (problem, seed), rs in groups.items():
+        rs = sorted(rs, key=lambda r: r["rank"])
+        best = max(rs, key=lambda r: r["value"])
+        label = problem if problem != "90 s" else f"90 s seed {seed}"
+        winner = f"{best['start']} ({best['rank']})"
+        print(f"{label:<12} {len(rs):>6}  {winner:<22}"
+              + "".join(f"{max(r['value'] for r in rs[:k]) / best['value']:9.1%}" for k in ks)
+              + "   " + " / ".join(str(max(r["iterations"] for r in rs[:k])) for k in ks))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
@@ -110,6 +132,7 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(runs))
     replay(runs)
+    top_k(runs)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """Benchmark: ``excite optimize`` with default settings (robotaxi, 90 s, 80 × 50 m, 200 random
-candidates, 2 IPOPT starts) as a user runs it: the command in a subprocess, its wall time from
+candidates, 1 IPOPT start) as a user runs it: the command in a subprocess, its wall time from
 start to exit.
 
     python benchmarks/bench_optimize.py [--seeds 0 1 2 3 4] [--budget 60] [--short-budget 10]
@@ -16,7 +16,7 @@ the short budget's fraction, the ratio to the best reference. ``--when-idle N`` 
 seconds before each run for the 1-minute load average to fall below 0.5 (and says when it did
 not). Saves a plot of seed 0's maneuver. ``--busy N``: then seed 0 with ``--short-budget`` twice beside N busy
 loops (a loaded machine: does the command keep to its budget?). ``--starts N``: the command's
-``--starts`` (default: its own default, 2).
+``--starts`` (default: its own default, 1).
 """
 
 from __future__ import annotations

@@ -97,8 +97,8 @@ def optimize(
     criterion: Annotated[str, typer.Option(help="What to maximise: E (λ_min, the score), D (log det), "
                                                 "A (−trace of the inverse).")] = "E",
     starts: Annotated[int, typer.Option(help="IPOPT starts (the best candidates by the model), run at once on the "
-                                             "free cores or the Dask cluster; the best checked plan wins; "
-                                             "range [1, 64].")] = 2,
+                                             "free cores or the Dask cluster; the best checked plan wins, "
+                                             "after the slowest has finished; range [1, 64].")] = 1,
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler for the starts (default: "
                                                        "$EXCITE_DASK_SCHEDULER, else local processes).")] = None,
     compile_only: Annotated[bool, typer.Option("--compile-only", help="Compile the optimizer's model for this "

@@ -211,20 +211,26 @@ def prepare(rig: Rig, settings: OptimizeSettings) -> dict[str, Any]:
 
 
 def rank_starts(tr, settings, site, crit, report, generated: list[Candidate],
-            until: float = np.inf) -> tuple[list, list[list[ControlProfile]]]:
-    """The candidates IPOPT may start from, best first: ``(near, score or −violation, z,
-    profile)``, and the first chunks of random profiles drawn for it — each chunk only while
+                until: float = np.inf) -> tuple[list, list[list[ControlProfile]]]:
+    """The candidates IPOPT may start from, best first (:func:`rank`), and the first chunks of
+    random profiles drawn for it — each chunk only while
     ``time.perf_counter() < until`` (drawing a feasible random drive takes ~0.1 s, several times
     that on a loaded machine: under a tight budget the references alone are the starts)."""
-    lay = layout(tr.grid)
     refs = [c.profile for c in generated if c.name != "highway_run"]
     drawn = []
     for c, (first, size) in enumerate(_chunks(settings.n_random)):
         if first >= START_RANDOM or (time.perf_counter() >= until and (refs or any(drawn))):
             break
         drawn.append(cand.random_profiles(tr.problem.rig, settings, site, c, size, first))
+    return rank(tr, site, crit, refs + [p for chunk in drawn for p in chunk], report), drawn
+
+
+def rank(tr, site, crit, profiles: list[ControlProfile], report=lambda *a: None) -> list:
+    """``profiles`` as IPOPT's starts, best first: ``(near, score or −violation, −index, z,
+    profile)`` — those that nearly satisfy the optimizer's constraints first, by the model."""
+    lay = layout(tr.grid)
     ranked = []
-    for i, c in enumerate(refs + [p for chunk in drawn for p in chunk]):
+    for i, c in enumerate(profiles):
         z = z_from_profile(tr.grid, tr.scales, c, terrain=site.terrain)
         if site.entry is not None:
             z[lay.pose] = [site.entry[0] / tr.scales.position_m, site.entry[1] / tr.scales.position_m,
@@ -239,7 +245,7 @@ def rank_starts(tr, settings, site, crit, report, generated: list[Candidate],
     # (with the small monotone barrier IPOPT regains feasibility within a few iterations and keeps
     # the excitation; a better start counts more than a feasible one: benchmarks/bench_ipopt.py)
     ranked.sort(key=lambda r: (r[0], r[1], r[2]), reverse=True)
-    return ranked, drawn
+    return ranked
 
 
 def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker) -> OptimizeResult:
