@@ -133,13 +133,13 @@ def start_of(rig, spec: str):
 
 
 def run(name: str, rig, s: OptimizeSettings, start, tr_opts, sol_opts, max_iterations: int,
-        print_level: int = 0) -> dict:
+        print_level: int = 0, restored: bool = False) -> dict:
     site = s.lot
     t0 = time.perf_counter()
     tr = transcribe(Problem.of(rig, s), tr_opts)
     t_tr = time.perf_counter() - t0
     z0 = z_from_profile(tr.grid, tr.scales, start, terrain=site.terrain)
-    if name.split(":")[0] == "restored":
+    if restored:
         t1 = time.perf_counter()
         v0 = violation(tr, z0)
         z0, how = solver.restore(tr, z0, t1 + 120)
@@ -230,7 +230,8 @@ def main() -> None:
         tr_opts, sol_opts = VARIANTS[name]
         for spec, s, start in chosen:
             label = name if len(chosen) == 1 else f"{name}:{spec}"
-            rows[name, spec] = run(label, rig, s, start, tr_opts, sol_opts, args.max_iterations, args.print_level)
+            rows[name, spec] = run(label, rig, s, start, tr_opts, sol_opts, args.max_iterations, args.print_level,
+                                   restored=name == "restored")
     if len(chosen) > 1:  # iterations and the full score of every variant from every start
         print(f"\n{'iterations / full score':<24}" + "".join(f"{spec:>20}" for spec, _, _ in chosen) + f"{'largest':>9}")
         for name in args.variants:

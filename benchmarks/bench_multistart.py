@@ -30,7 +30,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from excite.plan import OptimizeSettings, candidates as cand
-from excite.plan.kinematics import z_from_profile
 from excite.plan.pipeline import TRANSCRIPTION, rank, rank_starts
 from excite.plan.problem import Problem
 from excite.plan.solver import solve
@@ -67,10 +66,16 @@ def one(job: tuple[str, int, int, int]) -> dict:
             "value": out.score, "seconds": time.perf_counter() - t0, "best_by_iteration": rows}
 
 
-def replay(runs: list[dict]) -> None:
+def by_problem(runs: list[dict]) -> dict[tuple, list[dict]]:
+    """The runs grouped by (problem, seed)."""
     groups: dict[tuple, list[dict]] = {}
     for r in runs:
         groups.setdefault((r["problem"], r["seed"]), []).append(r)
+    return groups
+
+
+def replay(runs: list[dict]) -> None:
+    groups = by_problem(runs)
     print(f"\n{'k':>5} {'m':>4}  {'cases':>5} {'stopped':>7} {'wrong':>5}  {'largest loss':>12}  iterations saved  wrong on")
     for k, m in RULES:
         cases = stopped = wrong = saved = 0
@@ -98,9 +103,7 @@ def replay(runs: list[dict]) -> None:
 def top_k(runs: list[dict]) -> None:
     """What the command's ``--starts k`` would have found: the best of the k best-ranked starts
     against the best of all, per problem (and seed), and where the best start ranked."""
-    groups: dict[tuple, list[dict]] = {}
-    for r in runs:
-        groups.setdefault((r["problem"], r["seed"]), []).append(r)
+    groups = by_problem(runs)
     ks = (1, 2, 4)
     print(f"\n{'problem':<12} {'starts':>6}  {'winner (rank)':<22}" + "".join(f"{f'top {k}':>9}" for k in ks)
           + "   slowest of the top 1 / 2 / 4 [iterations]")
