@@ -22,7 +22,7 @@ import time
 import uuid
 from typing import Any, Callable
 
-from excite.fleet import engine
+from excite.core import engine
 
 from .errors import WorkerDied, WorkTimeout
 

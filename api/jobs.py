@@ -31,7 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from excite.fleet.engine import SCHEDULER_ENV
+from excite.core.engine import SCHEDULER_ENV
 
 from .errors import StoreError
 from .store import JobStore, replica_id

@@ -126,7 +126,7 @@ class Settings(BaseSettings):
     @classmethod
     def _scheduler(cls, v: str | None) -> str | None:
         from excite.errors import EngineError
-        from excite.fleet.engine import scheduler_address
+        from excite.core.engine import scheduler_address
 
         if not v:
             return None

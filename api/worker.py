@@ -108,7 +108,7 @@ def _reap_all() -> list[tuple[int, int]]:
 
 def run(store_url: str, job_id: str, attempt: int, function: str, parent: int) -> int:
     from excite.errors import ExciteError
-    from excite.fleet.engine import scheduler_address
+    from excite.core.engine import scheduler_address
 
     from .cluster import load_function, run_remote
     from .store import open_store

@@ -10,7 +10,7 @@ window of each log confirmed by the exact evaluator):
 
 - the local engine (one process per core);
 - a two-worker ``distributed.LocalCluster`` started by this script with excite's worker settings
-  (:data:`excite.fleet.engine.WORKER_CONFIG`; ``--dask-default-env``: Dask's) (its start-up not timed; one
+  (:data:`excite.core.engine.WORKER_CONFIG`; ``--dask-default-env``: Dask's) (its start-up not timed; one
   untimed warm-up on a short log, so the workers have imported excite and loaded the compiled
   kernels).
 
@@ -131,7 +131,7 @@ def main() -> None:
         import dask
         from distributed import Client, LocalCluster
 
-        from excite.fleet import engine
+        from excite.core import engine
 
         config = {} if args.dask_default_env else engine.WORKER_CONFIG
         with dask.config.set(config):  # the workers' environment is set as they spawn

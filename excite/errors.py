@@ -11,7 +11,7 @@
     │   ├── ValidateError           a Monte Carlo validation request is invalid (excite.validate)
     │   ├── PlotError               a figure cannot be drawn as asked (excite.score.plots)
     │   ├── ManifestError           a routes manifest is malformed (excite.fleet.batch)
-    │   └── EngineError             the Dask cluster cannot be reached or used (excite.fleet.engine)
+    │   └── EngineError             the Dask cluster cannot be reached or used (excite.core.engine)
     ├── FactorisationError          internal: a pivot of the calibrator's banded Cholesky failed
     └── OutOfTime                   internal: a baseline optimizer's time budget ran out
 

@@ -27,7 +27,7 @@ def free_port() -> int:
 
 SERVE_WITH_JOB = """
 from api import Settings, create_app, serving
-from excite.cli.serve import log_service
+from api.command import log_service
 log_service("info")
 serving.run(create_app(job_function={job_function!r}), Settings().header_timeout_s, "127.0.0.1", {port},
             "warning")

@@ -23,7 +23,8 @@ from excite.io.bags import BagSource, ImuTrajectory, imu_agreement, read_bag_rou
 from excite.cli.app import main
 from excite.score.evaluate import evaluate
 from excite.rig.config import build_rig, load_rig
-from excite.rig.importers import rig_from_tf
+from excite.io.bags.reader import rig_from_tf
+from excite.rig.frames import Edge, chain_edges
 from excite.io.poses import trajectory_from_poses
 from excite.io.routes import read_route
 from helpers import weave_drive
@@ -337,10 +338,10 @@ def test_type_without_a_pose_and_tf_without_chain(tmp_path, drive, capsys):
 def test_tf_chain_that_does_not_connect_names_the_missing_link(tmp_path, data_dir, capsys):
     err = _cli_error(capsys, data_dir / "tf_example_ros2", "--topic", "/tf:odom.lidar")
     assert "'lidar'" in err and "base_footprint" in err  # the unknown frame, with the known ones
-    edges = {"base_link": bags.Edge("odom", "base_link"),
-             "camera": bags.Edge("camera_mount", "camera", p=[(0, 0, 0)], q=[(0, 0, 0, 1)])}
+    edges = {"base_link": Edge("odom", "base_link"),
+             "camera": Edge("camera_mount", "camera", p=[(0, 0, 0)], q=[(0, 0, 0, 1)])}
     with pytest.raises(BagError, match="'odom' and 'camera_mount'"):
-        bags.chain_edges(Path("x.bag"), "/tf:odom.camera", "odom", "camera", edges)
+        chain_edges(Path("x.bag"), "/tf:odom.camera", "odom", "camera", edges)
 
 
 def _write_poses(path: Path, stamps_ns: list[int], topic: str = "/pose") -> Path:

@@ -15,7 +15,8 @@ distributed = pytest.importorskip("distributed")
 import dask  # noqa: E402
 
 from excite.fleet import batch as gate
-from excite.fleet import engine, mine
+from excite.core import engine
+from excite.fleet import mine
 from excite.cli.app import main
 
 

@@ -152,7 +152,7 @@ def test_autoware_places_the_gnss_frame_it_finds(tmp_path):
 
 def test_tf_import_places_a_named_antenna(data_dir):
     from excite.io.bags import read_static_tf
-    from excite.rig.importers import rig_from_tf
+    from excite.io.bags.reader import rig_from_tf
 
     path = data_dir / "nav2_turtlebot.mcap"
     static = read_static_tf(path)

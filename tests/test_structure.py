@@ -141,3 +141,34 @@ def test_every_exception_is_in_its_packages_errors_module():
 def test_no_module_is_over_900_lines(mod):
     n = len(MODULES[mod].read_text().splitlines())
     assert n <= MAX_LINES, f"{MODULES[mod].relative_to(ROOT)}: {n} lines"
+
+
+# The layers of excite, bottom to top: a package imports only packages below it (``excite.errors``
+# and the package's own ``excite/__init__`` are below every one; ``api`` sits on top of them all).
+LAYERS = ("core", "motion", "factors", "rig", "io", "scene", "information", "score", "validate", "plan", "fleet",
+          "cli")
+
+
+def _layer(mod: str) -> int | None:
+    """The layer of an excite or api module (None: ``excite.errors``, ``excite`` itself)."""
+    parts = mod.split(".")
+    if parts[0] == "api":
+        return len(LAYERS)
+    if len(parts) < 2 or parts[1] not in LAYERS:
+        return None
+    return LAYERS.index(parts[1])
+
+
+def test_each_package_imports_only_packages_below_it():
+    top = {p.name for p in (ROOT / "excite").iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    assert top <= set(LAYERS), f"packages missing from the layering: {sorted(top - set(LAYERS))}"
+    bad = []
+    for mod, path in MODULES.items():
+        own = _layer(mod)
+        if own is None:
+            continue
+        for target, _, line in _imports(mod, path):
+            other = _layer(target)
+            if other is not None and other > own:
+                bad.append(f"{path.relative_to(ROOT)}:{line}: {mod} imports {target} (above it)")
+    assert not bad, "\n".join(bad)

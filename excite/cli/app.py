@@ -56,9 +56,9 @@ def console(stderr: bool = False) -> Any:
 def register(argv: list[str]) -> None:
     """Import the module of the command being run (all of them for the overview help)."""
     command = command_of(argv)
-    wanted = [COMMANDS[command]] if command in COMMANDS else sorted(set(COMMANDS.values()))
+    wanted = [COMMANDS[command]] if command in COMMANDS else [COMMANDS[c] for c in sorted(COMMANDS)]
     for module in wanted:
-        importlib.import_module(f".{module}", __package__)
+        importlib.import_module(module)
 
 
 def _click_exceptions() -> tuple[type[Exception], ...]:

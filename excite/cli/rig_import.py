@@ -47,10 +47,10 @@ def from_tf(
     output: Output = None,
 ) -> None:
     """A rig YAML from a bag's /tf_static: T_V_B and every sensor's T_B_S composed over the tree."""
-    from ..rig import importers as rig_import
+    from ..io.bags import rig_from_tf
 
-    _write(rig_import.rig_from_tf(bag, imu=imu, base=base, lidar=lidar, camera=camera,
-                                  gnss=[] if no_gnss else (gnss or None), name=name), output)
+    _write(rig_from_tf(bag, imu=imu, base=base, lidar=lidar, camera=camera,
+                       gnss=[] if no_gnss else (gnss or None), name=name), output)
 
 
 @rig_app.command("from-kalibr")

@@ -1,4 +1,4 @@
-"""How SI values are shown to people: the one table of display units."""
+"""How values are shown to people: the one table of display units, and lists of names in messages."""
 
 from __future__ import annotations
 
@@ -20,3 +20,13 @@ def human(value: float | None, unit: str) -> str:
         return "unobservable"
     f, u = display_unit(unit)
     return f"{value * f:.3g} {u}".strip()
+
+
+MAX_LISTED = 40  # names a message lists (a bag may hold 20 000 topics)
+
+
+def listed(names, limit: int = MAX_LISTED) -> str:
+    """``a, b, c`` — at most ``limit`` names, then how many more."""
+    names = list(names)
+    head = ", ".join(names[:limit])
+    return head + (f", … and {len(names) - limit:,} more" if len(names) > limit else "")

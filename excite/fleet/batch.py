@@ -59,7 +59,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import yaml
 
-from . import engine
+from ..core import engine
 from ..io import remote
 from ..errors import ExciteError, ManifestError, RigError
 from ..score.evaluate import Report, evaluate
@@ -522,7 +522,7 @@ def run(specs: Sequence[RouteSpec], jobs: int | None = None, keep_reports: bool 
         on_progress: Callable[[engine.Progress], None] | None = None) -> list[RouteResult]:
     """Evaluate every route, on the Dask cluster at ``scheduler`` (or :data:`engine.SCHEDULER_ENV`)
     when there is one, else ``jobs`` local processes at a time (default: one per core; 1 runs in
-    this process): :func:`excite.fleet.engine.run`. Results come back in the order of ``specs``;
+    this process): :func:`excite.core.engine.run`. Results come back in the order of ``specs``;
     ``on_result`` and ``on_progress`` are called as each one finishes (a progress bar)."""
     if jobs is not None and jobs < 1:
         raise ManifestError(f"--jobs must be ≥ 1, got {jobs}")

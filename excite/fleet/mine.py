@@ -441,8 +441,8 @@ def _lost(task: Task, exc: BaseException) -> LogResult:
 
 def mine_logs(tasks: list[Task], jobs: int | None = None, scheduler: str | None = None,
               on_result: Callable[[LogResult, Any], None] | None = None) -> list[LogResult]:
-    """Mine every log on the engine (:func:`excite.fleet.engine.run`); results in the order of ``tasks``."""
-    from . import engine
+    """Mine every log on the engine (:func:`excite.core.engine.run`); results in the order of ``tasks``."""
+    from ..core import engine
 
     return engine.run(mine_task, tasks, failed=_lost, jobs=jobs, scheduler=scheduler,
                       on_result=None if on_result is None else (lambda i, r, pr: on_result(r, pr)))

@@ -1,4 +1,4 @@
-"""Several IPOPT starts on the engine (:mod:`excite.fleet.engine`: local processes or Dask).
+"""Several IPOPT starts on the engine (:mod:`excite.core.engine`: local processes or Dask).
 
 Each start is a task (:class:`StartTask`, plain picklable data) that :func:`run_start` runs
 anywhere excite is installed: it builds (or, in a process forked from the caller, finds) the
@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..fleet import engine
+from ..core import engine
 from .problem import Problem
 from .solver import Outcome, SolverOptions, solve
 from .transcription import TranscriptionOptions, cached

@@ -1,6 +1,7 @@
 """Rigs from the calibration files users already have.
 
-- **TF tree** of a bag's ``/tf_static`` (:func:`rig_from_tf`): the IMU frame is the body frame B,
+- **TF tree** of a bag's ``/tf_static`` (:func:`from_tree`; the bag is read by
+  :func:`excite.io.bags.tf.rig_from_tf`): the IMU frame is the body frame B,
   ``T_V_B`` is the IMU in the base frame (V) and each sensor's ``T_B_S`` is its frame in the IMU
   frame, both composed over every hop of the tree. A frame named like a GNSS antenna (``gnss``,
   ``gps``, ``gnss_link``, ``gps/antenna`` …) becomes a ``kind: gnss`` sensor at its position (an
@@ -30,12 +31,12 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from ..io import bags
+from .frames import Edge, static_transform
 from ..errors import BagError, RigError
 from ..factors.gnss import PRESETS
 from .config import read_yaml, build_rig
 
-__all__ = ["ImportedRig", "rig_from_tf", "rig_from_kalibr", "rig_from_autoware", "rig_yaml",
+__all__ = ["ImportedRig", "from_tree", "rig_from_kalibr", "rig_from_autoware", "rig_yaml",
            "DEFAULT_IMU", "DEFAULT_TARGETS"]
 
 # A consumer MEMS IMU (datasheet class of a BMI088 / ICM-42688), Kalibr keys and units.
@@ -50,7 +51,6 @@ DEFAULT_SENSOR = {"lidar": {"rate_hz": 10.0, "noise": dict(_ODOMETRY_NOISE)},
 _GNSS_FRAME = re.compile(r"(^|[/_])(gnss|gps)([/_]|$)", re.IGNORECASE)
 DEFAULT_TARGETS = {"*.rot_*": "0.1 deg", "*.trans_*": "1 cm", "*.time_offset": "2 ms",
                    "imu.gyro_bias_*": "0.01 deg/s", "imu.accel_bias_*": "0.02 m/s^2"}
-_NAME = re.compile(r"[^a-z0-9_]+")
 
 
 @dataclass
@@ -72,7 +72,7 @@ def _sensor_name(kind: str, i: int, n: int) -> str:
     return kind if n == 1 else f"{kind}_{i + 1}"
 
 
-def _finish(cfg: dict[str, Any], defaults: set[str], notes: list[str]) -> ImportedRig:
+def finish(cfg: dict[str, Any], defaults: set[str], notes: list[str]) -> ImportedRig:
     try:
         build_rig(cfg)
     except RigError as exc:
@@ -86,16 +86,16 @@ def gnss_frames(edges: dict[str, Any], exclude: set[str]) -> list[str]:
     return sorted(f for f in frames - exclude if _GNSS_FRAME.search(f))
 
 
-def _from_tree(edges: dict[str, Any], source: Path, topic: str, imu: str, base: str,
+def from_tree(edges: dict[str, Any], source: Path, topic: str, imu: str, base: str,
                lidars: list[str], cameras: list[str], name: str,
                antennas: list[str] | None = None) -> tuple[dict, set[str], list[str]]:
-    R_V_B, p_V_B = bags.static_transform(source, edges, base, imu, topic)
+    R_V_B, p_V_B = static_transform(source, edges, base, imu, topic)
     if antennas is None:
         antennas = gnss_frames(edges, {imu, base, *lidars, *cameras})
     sensors, defaults = [], {"imu"}
     for kind, frames in (("lidar", lidars), ("camera", cameras), ("gnss", antennas)):
         for i, frame in enumerate(frames):
-            R, p = bags.static_transform(source, edges, imu, frame, topic)
+            R, p = static_transform(source, edges, imu, frame, topic)
             k = len(sensors)
             pose = {"translation_m": _pose(R, p)["translation_m"]} if kind == "gnss" else _pose(R, p)
             sensors.append({"name": _sensor_name(kind, i, len(frames)), "kind": kind,
@@ -108,21 +108,6 @@ def _from_tree(edges: dict[str, Any], source: Path, topic: str, imu: str, base: 
            "vehicle": {"T_V_B": _pose(R_V_B, p_V_B)}, "sensors": sensors, "targets": targets}
     defaults.add("targets")
     return cfg, defaults, list(lidars) + list(cameras) + list(antennas)
-
-
-def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (), camera: list[str] = (),
-                gnss: list[str] | None = None, name: str | None = None) -> ImportedRig:
-    """A rig from a bag's ``/tf_static``: B is the ``imu`` frame, V the ``base`` frame; GNSS
-    antennas at the ``gnss`` frames (default: every frame named like one)."""
-    path = Path(path)
-    static = bags.read_static_tf(path)
-    edges = {c: bags.Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
-    cfg, defaults, frames = _from_tree(edges, path, bags.TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
-                                       name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig",
-                                       None if gnss is None else list(gnss))
-    notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
-    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], frames)]
-    return _finish(cfg, defaults, notes)
 
 
 def _matrix(value: Any, key: str) -> np.ndarray:
@@ -179,7 +164,7 @@ def rig_from_kalibr(camchain: str | Path, imu_yaml: str | Path, *, name: str | N
             notes.append(f"{cam}: {topic}")
     cfg = {"name": name or "kalibr", "imu": imu_cfg, "vehicle": {"T_V_B": _pose(np.eye(3), np.zeros(3))},
            "sensors": sensors, "targets": dict(DEFAULT_TARGETS)}
-    return _finish(cfg, defaults, notes)
+    return finish(cfg, defaults, notes)
 
 
 _AUTOWARE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -206,7 +191,7 @@ def _autoware_edges(path: Path, edges: dict[str, Any]) -> None:
                     raise RigError(f"{path}: {key}.{k}: expected a finite number, got {v!r}")
                 vals.append(float(v))
             q = Rotation.from_euler("ZYX", vals[5:2:-1]).as_quat()  # yaw, pitch, roll
-            edges[child] = bags.Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
+            edges[child] = Edge(str(parent), str(child), p=[tuple(vals[:3])], q=[tuple(q)])
 
 
 def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: list[str] = (),
@@ -221,14 +206,14 @@ def rig_from_autoware(sensor_kit: str | Path, *, imu: str, base: str, lidar: lis
     for f in files:
         _autoware_edges(f, edges)
     try:
-        cfg, defaults, frames = _from_tree(edges, sensor_kit, "calibration", imu, base, list(lidar),
+        cfg, defaults, frames = from_tree(edges, sensor_kit, "calibration", imu, base, list(lidar),
                                            list(camera), name or "autoware", None if gnss is None else list(gnss))
     except BagError as exc:
         problem = exc.problem.removeprefix(f"topic {exc.topic}: ") if exc.topic else exc.problem
         raise RigError(f"{sensor_kit}: {problem.replace('on /tf or /tf_static', 'in the calibration files')}") from None
     notes = [f"from Autoware {', '.join(f.name for f in files)}: B = {imu}, V = {base}"]
     notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], frames)]
-    return _finish(cfg, defaults, notes)
+    return finish(cfg, defaults, notes)
 
 
 def _flow(value: Any) -> str:

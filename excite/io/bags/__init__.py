@@ -78,8 +78,8 @@ from .covariance import COVARIANCE_TYPES, PoseCovariances, odometry_log, read_po
 from .gnss import NAVSAT_TYPE, FixAgreement, FixSeries, fix_agreement, fix_log, read_fixes
 from .imu import ImuAgreement, ImuSeries, ImuTrajectory, imu_agreement
 from .mcap import MAX_CHUNK_BYTES, MAX_RATIO, Budget, decompress
-from .reader import BagSource, TopicInfo, bag_info, read_bag_route, read_imu, read_poses, read_static_tf
-from .tf import Edge, chain_edges, static_transform
+from .reader import (BagSource, TopicInfo, bag_info, read_bag_route, read_imu, read_poses, read_static_tf,
+                     rig_from_tf)
 from .vehicle import (EGO_VELOCITY_TYPES, JOINT_STATE_TYPE, EgoVelocitySeries, WheelSpeeds, can_recording,
                       ego_velocity_at, ego_velocity_noise, read_ego_velocity, read_wheel_speeds, write_vehicle_bag)
 from .writer import crop_bag, write_bag
@@ -93,7 +93,7 @@ __all__ = [
     # a car's own signals: wheel speeds (JointState), a radar's ego-velocity (Twist)
     "WheelSpeeds", "EgoVelocitySeries", "read_wheel_speeds", "read_ego_velocity", "can_recording",
     "ego_velocity_at", "ego_velocity_noise", "write_vehicle_bag", "JOINT_STATE_TYPE", "EGO_VELOCITY_TYPES",
-    # used by excite's other packages: TF edges for rig import, cropping for mining, the bounds
-    "Edge", "Series", "chain_edges", "static_transform", "crop_bag", "Budget", "decompress",
+    # a rig from a bag's /tf_static; used by excite's other packages: cropping for mining, the bounds
+    "Series", "rig_from_tf", "crop_bag", "Budget", "decompress",
     "MAX_CHUNK_BYTES", "MAX_RATIO", "TF_TOPIC", "TF_STATIC_TOPIC", "AXES",
 ]

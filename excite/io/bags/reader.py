@@ -3,6 +3,7 @@ transforms, and a bag's drive as a trajectory."""
 
 from __future__ import annotations
 
+import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,9 @@ from .imu import ImuSeries, ImuTrajectory, imu_series
 from .mcap import mcap_files, mcap_read, verify_chunks
 from .stream import (budget, count_bound, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
                      topic_connections, topic_list)
-from .tf import static_edges, static_transform, tf_chain
+from ...rig import importers
+from ...rig.frames import Edge, static_transform
+from .tf import static_edges, tf_chain
 from .vehicle import VEHICLE_USES
 
 
@@ -357,3 +360,22 @@ def _bag_route(path: Path, topic: str, imu_topic: str | None, start_s: float | N
         raise BagError(path, f"the IMU covers {max(hi - lo, 0):.1f} s of the {traj.duration:.1f} s "
                              f"of poses on {topic}: not the same drive?", imu_topic)
     return ImuTrajectory.of(traj, t_imu, imu.omega, imu.accel, imu.frame), int(s.t_ns[0])
+
+
+_NAME = re.compile(r"[^a-z0-9_]+")
+
+
+def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (), camera: list[str] = (),
+                gnss: list[str] | None = None, name: str | None = None) -> importers.ImportedRig:
+    """A rig from a bag's ``/tf_static`` (:func:`excite.rig.importers.from_tree`): B is the ``imu``
+    frame, V the ``base`` frame; GNSS antennas at the ``gnss`` frames (default: every frame named
+    like one)."""
+    path = Path(path)
+    static = read_static_tf(path)
+    edges = {c: Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
+    cfg, defaults, frames = importers.from_tree(edges, path, TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
+                                                name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig",
+                                                None if gnss is None else list(gnss))
+    notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
+    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], frames)]
+    return importers.finish(cfg, defaults, notes)

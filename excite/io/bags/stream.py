@@ -12,19 +12,12 @@ from weakref import WeakKeyDictionary
 
 import numpy as np
 
+from ...core.units import listed
 from ...errors import BagError
 from ..sniff import is_bag
 from .mcap import Budget, bounded_decompressor, has_summary, mcap_files, verify_chunks
 
-MAX_LISTED = 40  # names an error message lists (a bag may hold 20 000 topics)
 _budgets: WeakKeyDictionary = WeakKeyDictionary()  # an open reader → what it may still decompress
-
-
-def listed(names, limit: int = MAX_LISTED) -> str:
-    """``a, b, c`` — at most ``limit`` names, then how many more."""
-    names = list(names)
-    head = ", ".join(names[:limit])
-    return head + (f", … and {len(names) - limit:,} more" if len(names) > limit else "")
 
 
 def budget(reader) -> Budget:

@@ -35,7 +35,8 @@ from ...core import bounds
 from ...errors import BagError
 from ...factors.ackermann import CanRecording
 from .decode import Cursor
-from .stream import check_stamps, count_bound, listed, open_bag, stream_messages, time_window, topic_connections, is_ros2
+from ...core.units import listed
+from .stream import check_stamps, count_bound, open_bag, stream_messages, time_window, topic_connections, is_ros2
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 EGO_VELOCITY_TYPES = ("geometry_msgs/msg/TwistWithCovarianceStamped", "geometry_msgs/msg/TwistStamped")

@@ -1,5 +1,6 @@
 """``excite serve``: run the HTTP service with uvicorn, settings from the ``EXCITE_*``
-environment (validated before the server starts)."""
+environment (validated before the server starts). The service's own command: the command line
+(:mod:`excite.cli.app`) loads this module by name when it runs ``serve``."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from .app import app
+from excite.cli.app import app
 
 # uvicorn's levels (its "trace" is below debug) → logging's numbers
 LOG_LEVELS = {"critical": 50, "error": 40, "warning": 30, "info": 20, "debug": 10, "trace": 5}
@@ -24,13 +25,13 @@ def serve(
     EXCITE_REQUEST_TIMEOUT_S, … (see api/settings.py)."""
     from pydantic import ValidationError
 
-    from ..errors import ExciteError
+    from excite.errors import ExciteError
 
     if log_level.lower() not in LOG_LEVELS:
         raise ExciteError(f"--log-level: {log_level!r} is not one of {', '.join(LOG_LEVELS)}")
     log_level = log_level.lower()
 
-    from api import Settings, create_app, serving
+    from . import Settings, create_app, serving
 
     try:
         settings = Settings()

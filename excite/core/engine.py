@@ -160,7 +160,7 @@ def check_workers(c: Any) -> None:
     except Exception:  # a worker that cannot answer is not a reason to fail the work
         return
     if message:
-        logging.getLogger("excite.fleet.engine").warning(message)
+        logging.getLogger("excite.core.engine").warning(message)
 
 
 def _run_dask(fn: Callable[[I], R], items: Sequence[I], failed: Callable[[I, BaseException], R],
