@@ -6,7 +6,7 @@ import json
 import os
 import signal
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
@@ -101,6 +101,17 @@ def optimize(
                                              "after the slowest has finished; range [1, 64].")] = 1,
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler for the starts (default: "
                                                        "$EXCITE_DASK_SCHEDULER, else local processes).")] = None,
+    drivable: Annotated[bool, typer.Option("--drivable", help="Plan what a person drives from cones and a sheet: "
+                                           "elements (figure-eights, circles, slaloms, straight runs) placed in the "
+                                           "lot, chosen by the 10th percentile of their score over the driver "
+                                           "model's drives; writes plan.json, cones.geojson, sheet.pdf/png too.")] = False,
+    plan: Annotated[Optional[Path], typer.Option("--plan", help="With --drivable: drive this plan.json (as written "
+                                                 "or edited) instead of searching: its sheet, cones and scores.")] = None,
+    speed_max: Annotated[Optional[float], typer.Option("--speed-max", help="With --drivable: the fastest speed the "
+                                                       "instructions may ask for [m/s] (at most the lot's safe "
+                                                       "speed).")] = None,
+    draws: Annotated[int, typer.Option(help="With --drivable: drives of the driver model per plan in the robust "
+                                            "choice; range [5, 1000].")] = 30,
     compile_only: Annotated[bool, typer.Option("--compile-only", help="Compile the optimizer's model for this "
                                                "rig and duration with the C compiler, score the "
                                                "reference maneuvers for this lot, both into the cache "
@@ -121,6 +132,12 @@ def optimize(
     if out.exists() and not out.is_dir():
         raise ExciteError(f"-o/--out: {out} exists and is not a folder")
     site = parse_lot(lot)
+    if drivable or plan is not None:
+        from .drivable import run_drivable
+
+        run_drivable(out, rig, duration, site, seed, time_budget - _process_age_s() - _WRITE_S, plan, speed_max,
+                     draws)
+        return
     OptimizeSettings(time_budget_s=time_budget, starts=starts)  # validate the budget as given
     if compile_only:
         from ..plan.compiled import cache_dir

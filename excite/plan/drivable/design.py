@@ -60,7 +60,7 @@ class Candidate:
 
 
 def repeat_param(name: str) -> str:
-    return "laps" if name in ("figure_eight", "circles") else "passes"
+    return "laps"
 
 
 def _grid(name: str, limits: Limits, extent: tuple[float, float]) -> list[dict[str, float]]:
@@ -90,24 +90,33 @@ def _grid(name: str, limits: Limits, extent: tuple[float, float]) -> list[dict[s
     elif name == "slalom":
         for A in (MIN_OFFSET_M, 2.5):
             d0 = Slalom.min_spacing_m(A, limits)
-            for f in (1.0, 1.3, 1.7):
+            for f in (1.0, 1.15, 1.3, 1.5, 1.7):
                 d = round(d0 * f + 0.05, 2)
-                n = int(min(7, (long_ - 2 * (d + 4.0)) // d + 1))
-                if n < 3:
+                n = int(min(7, (long_ - 22.0) // d - 1))  # as many as fit, with the U-turns
+                if n < 2:
                     continue
-                for cones in sorted({3, n}):
-                    out.append(dict(spacing_m=d, cones=cones, offset_m=A, speed_mps=v, passes=1))
+                for cones in sorted({2, 3, n} & set(range(2, n + 1))):
+                    for stops in (0, 1):
+                        out.append(dict(spacing_m=d, cones=cones, offset_m=A, speed_mps=v, laps=1, mirror=0,
+                                        stops_per_lap=stops))
     elif name == "straight_run":
         for L in (20.0, 35.0, 50.0, long_):
             if L + 2 > long_:
                 continue
-            out.append(dict(length_m=L, speed_mps=v, passes=1))
+            out.append(dict(length_m=L, speed_mps=v, laps=1, mirror=0))
     return out
 
 
 def half_extent(g: Geometry) -> tuple[float, float]:
     pts = np.vstack([footprint(g), [[c.x, c.y] for c in g.cones]])
     return float(np.abs(pts[:, 0]).max()), float(np.abs(pts[:, 1]).max())
+
+
+def _fits(g: Geometry, site, pose) -> bool:
+    """Whether the element's path, centred at ``pose``, stays inside the lot's margin."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    pts = footprint(g) @ np.array([[c, s], [-s, c]]) + pose[:2]
+    return bool(site.lot.contains(pts, site.margin_m + 0.3).all())
 
 
 def element_drive(name: str, params: dict[str, float], limits: Limits, rig: Rig,
@@ -145,6 +154,8 @@ def library(rig: Rig, limits: Limits, site, kinds: tuple[str, ...] = tuple(KINDS
         except OptimizeError:
             continue
         ext = half_extent(g)
+        if not _fits(g, site, (float(centre[0]), float(centre[1]), heading)):
+            continue
         poses = placements(g) if placements is not None else [(float(centre[0]), float(centre[1]), heading)]
         for pose in poses:
             _, timed, traj = element_drive(name, p, limits, rig, pose)

@@ -12,8 +12,11 @@ the plan through its cones checks).
 |---|---|---|
 | ``figure_eight`` | radius around each cone, cone spacing, speed, laps, direction, stops per lap | figure-eight around two cones, one clockwise, one counter-clockwise |
 | ``circles`` | radius, speed, laps, direction, stops per lap | circles around one cone |
-| ``slalom`` | cone spacing, cones, offset beside each cone, speed, passes | weave through a line of cones, back through at the end |
-| ``straight_run`` | length, top speed, passes | accelerate hard from one cone, brake hard to stop at the next, turn and back |
+| ``slalom`` | cone spacing, cones per line, offset beside each cone, speed, laps, direction, stops | weave through a line of cones, U-turn, weave back through a second line beside it |
+| ``straight_run`` | length, top speed, laps, direction | accelerate hard from one cone, brake hard to stop at the next; U-turn, the same back |
+
+Every element ends where it began, so its laps repeat it and the plan around it does not change
+with their number.
 
 The clothoids are as sharp as the curvature rate allows at the element's speed; the speed
 planner (:func:`excite.motion.paths.plan_speed`) slows the car wherever the lateral acceleration
@@ -31,13 +34,13 @@ import numpy as np
 from scipy.optimize import brentq
 
 from ...errors import OptimizeError
-from ...motion.course import Piece, Pose, bulb, end_pose, length_of, straight, trace, turn
+from ...motion.course import Piece, Pose, end_pose, length_of, straight, trace, turn
 from ...motion.vehicle import Limits
 
 MARGIN = 0.9  # instructions ask for at most this fraction of every limit
 MIN_OFFSET_M = 1.5  # a slalom passes its cones at least this far (rear axle to cone): half a car and room
 CONE_OFFSET_M = 2.5  # marker cones (start, stop) stand this far to the side of the path
-RUN_M = 4.0  # straight run-in and run-out of a slalom beyond its ramps
+RUN_M = 2.0  # straight run-in and run-out of a slalom beyond its ramps
 
 
 @dataclass(frozen=True)
@@ -163,7 +166,7 @@ class Kind:
 
 def _radius_check(what: str, radius_m: float, limits: Limits) -> None:
     r = turning_radius_m(limits)
-    if radius_m < r - 1e-9:
+    if radius_m < r * (1 - 1e-6):
         raise OptimizeError(f"{what}: {radius_m:.2f} m is below the vehicle's turning radius for the plan, "
                             f"{r:.2f} m (1 / ({MARGIN:g} × curvature_max {limits.curvature_max_1pm:g} 1/m))")
 
@@ -230,7 +233,7 @@ class FigureEight(Kind):
         _speed_check("figure_eight: speed_mps", p["speed_mps"], limits)
         _count(p, "laps", 1, 20, "figure_eight")
         _count(p, "stops_per_lap", 0, 2, "figure_eight")
-        if p["spacing_m"] < 2 * turning_radius_m(limits):
+        if p["spacing_m"] < 2 * turning_radius_m(limits) * (1 - 1e-6):
             raise OptimizeError(f"figure_eight: the cone spacing {p['spacing_m']:.2f} m is below twice the "
                                 f"vehicle's turning radius, {2 * turning_radius_m(limits):.2f} m")
 
@@ -334,10 +337,26 @@ class Circles(Kind):
         return text
 
 
+def u_turn_radius_m(limits: Limits) -> float:
+    """The radius of the U-turns that bring a slalom or a straight run back to its start: 1.25 ×
+    the turning radius (a turn a driver takes without thinking)."""
+    return 1.25 * turning_radius_m(limits)
+
+
+def _return_lane(limits: Limits, length_m: float, speed_mps: float) -> tuple[tuple[Piece, ...], tuple[Piece, ...], float]:
+    """A left U-turn, the straight back and a left U-turn onto the start line: the pieces of the
+    first U-turn, of the straight and second U-turn, and the return lane's offset."""
+    R = u_turn_radius_m(limits)
+    sh = sharpness(limits, held_speed(speed_mps, 1.0 / R, limits))
+    u = turn(math.pi, 1.0 / R, sh)
+    return u, straight(length_m) + u, end_pose(u)[1]
+
+
 class Slalom(Kind):
     """``cones`` cones on a line ``spacing_m`` apart; the car enters on the line, weaves to pass
-    each cone ``offset_m`` beside it, alternately on its right and left, and leaves on the line;
-    ``passes`` > 1: it turns around beyond the last cone and weaves back."""
+    each cone ``offset_m`` beside it, alternately on its right and left (``mirror``: left first),
+    leaves on the line; a U-turn onto a second line of cones beside it, the same back, a U-turn
+    to the start (``stops_per_lap`` 1: a hard stop at the end of each line); ``laps`` laps."""
 
     name = "slalom"
     title = "slalom"
@@ -345,7 +364,8 @@ class Slalom(Kind):
     def space(self, limits, extent_m):
         return [Param("spacing_m", "m", self.min_spacing_m(MIN_OFFSET_M, limits), 30.0),
                 Param("cones", "", 3, 8, True), Param("offset_m", "m", MIN_OFFSET_M, 3.0),
-                Param("speed_mps", "m/s", 3.0, MARGIN * limits.speed_max_mps), Param("passes", "", 1, 3, True)]
+                Param("speed_mps", "m/s", 3.0, MARGIN * limits.speed_max_mps), Param("laps", "", 1, 8, True),
+                Param("mirror", "", 0, 1, True), Param("stops_per_lap", "", 0, 1, True)]
 
     @staticmethod
     def min_spacing_m(offset_m: float, limits: Limits) -> float:
@@ -355,14 +375,14 @@ class Slalom(Kind):
 
     def check(self, p, limits):
         _speed_check("slalom: speed_mps", p["speed_mps"], limits)
-        n = _count(p, "cones", 2, 30, "slalom")
-        _count(p, "passes", 1, 10, "slalom")
-        del n
+        _count(p, "cones", 2, 30, "slalom")
+        _count(p, "laps", 1, 20, "slalom")
+        _count(p, "stops_per_lap", 0, 1, "slalom")
         if p["offset_m"] < MIN_OFFSET_M:
             raise OptimizeError(f"slalom: offset_m {p['offset_m']:.2f} m passes the cones closer than "
                                 f"{MIN_OFFSET_M:g} m (half a car and room)")
         d_min = self.min_spacing_m(p["offset_m"], limits)
-        if p["spacing_m"] < d_min - 1e-9:
+        if p["spacing_m"] < d_min * (1 - 1e-6):
             raise OptimizeError(f"slalom: the cone spacing {p['spacing_m']:.2f} m is below {d_min:.2f} m, the "
                                 f"closest a weave of {p['offset_m']:.2f} m allows within the vehicle's turning "
                                 f"radius {turning_radius_m(limits):.2f} m")
@@ -382,12 +402,10 @@ class Slalom(Kind):
             return u ** 3 * (10 - 15 * u + 6 * u * u)
 
         def dramp(u):
-            inside = (u > 0) & (u < 1)
-            return np.where(inside, 30 * u ** 2 * (1 - u) ** 2, 0.0)
+            return np.where((u > 0) & (u < 1), 30 * u ** 2 * (1 - u) ** 2, 0.0)
 
         def ddramp(u):
-            inside = (u > 0) & (u < 1)
-            return np.where(inside, 60 * u * (1 - u) * (1 - 2 * u), 0.0)
+            return np.where((u > 0) & (u < 1), 60 * u * (1 - u) * (1 - 2 * u), 0.0)
 
         xl = x0 + (n - 1) * d
         u1, u2 = (x - (x0 - d)) / d, (xl + d - x) / d
@@ -410,98 +428,110 @@ class Slalom(Kind):
     def geometry(self, p, limits):
         self.check(p, limits)
         d, n, A = float(p["spacing_m"]), int(p["cones"]), float(p["offset_m"])
-        passes = int(p.get("passes", 1))
+        laps = int(p["laps"])
         one, x0 = self._pass(d, n, A)
         v = held_speed(p["speed_mps"], max(abs(q.kappa1_1pm) for q in one), limits)
-        L1 = length_of(one)
         x_end = end_pose(one)[0]
+        R = u_turn_radius_m(limits)
+        u = turn(math.pi, 1.0 / R, sharpness(limits, held_speed(v, 1.0 / R, limits)))
+        lane = end_pose(u)[1]
+        # lane 1 along +x, U-turn, lane 2 (its own cones) back along −x, U-turn to the start
+        lap = one + u + one + u
+        L = length_of(lap)
+        stops = []
+        if int(p.get("stops_per_lap", 0)):  # a full stop at the end of each lane, before its U-turn
+            lane_len, u_len = length_of(one), length_of(u)
+            stops = [k * L + e for k in range(laps) for e in (lane_len, 2 * lane_len + u_len)]
         cones = [LocalCone(x0 + i * d, 0.0, "slalom", "right" if i % 2 == 0 else "left") for i in range(n)]
-        sh = sharpness(limits, min(v, 6.0))
-        back = bulb(MARGIN * limits.curvature_max_1pm * 0.8, sh, left=True)
-        pieces: tuple[Piece, ...] = one
-        spans = [(0.0, L1)]
-        stops: list[float] = []
-        for k in range(1, passes):
-            s0 = length_of(pieces) + length_of(back)
-            pieces = pieces + back + one
-            spans.append((s0, s0 + L1))
-        del x_end, stops
-        return _recentred(Geometry((0.0, 0.0, 0.0), pieces, _constant(v), cones, spans), x0 + 0.5 * (n - 1) * d, 0.0)
+        cones += [LocalCone(x_end - x0 - i * d, lane, "slalom", "right" if i % 2 == 0 else "left") for i in range(n)]
+        turns = [(k * L + length_of(one), k * L + length_of(one + u)) for k in range(laps)] + \
+            [(k * L + length_of(one + u + one), (k + 1) * L) for k in range(laps)]
+        v_turn = held_speed(v, 1.0 / R, limits)
+
+        def speed(s: np.ndarray) -> np.ndarray:
+            out = _constant(v, stops)(s)
+            for a, b in turns:
+                out[(s > a) & (s < b)] = v_turn
+            return out
+
+        g = Geometry((0.0, 0.0, 0.0), lap * laps, speed, cones, [(0.0, laps * L)])
+        return _mirror(_recentred(g, 0.5 * x_end, 0.5 * lane), bool(p.get("mirror", 0)))
 
     def passings(self, p):
+        swap = _swap if p.get("mirror") else (lambda side: side)
         n = int(p["cones"])
-        out = []
-        for k in range(int(p.get("passes", 1))):
-            order = range(n) if k % 2 == 0 else range(n - 1, -1, -1)
-            out.append([(i, "right" if j % 2 == 0 else "left") for j, i in enumerate(order)])
-        return out
+        return [[(i, swap("right" if i % 2 == 0 else "left")) for i in range(n)]
+                + [(n + i, swap("right" if i % 2 == 0 else "left")) for i in range(n)]]
 
     def instruction(self, p, labels, speed_kmh):
-        passes = int(p.get("passes", 1))
-        text = (f"Slalom through cones {labels[0]}–{labels[-1]} ({p['spacing_m']:.0f} m apart), "
-                f"{p['offset_m']:.1f} m beside each, cone {labels[0]} on your right first, at {speed_kmh:.0f} km/h")
-        if passes > 1:
-            text += f"; loop round beyond cone {labels[-1]} and weave back, {passes} passes in all"
-        return text
+        laps = int(p["laps"])
+        first = "left" if p.get("mirror") else "right"
+        turn_way = "right" if p.get("mirror") else "left"
+        n = int(p["cones"])
+        stop = int(p.get("stops_per_lap", 0))
+        text = (f"Slalom through cones {labels[0]}–{labels[n - 1]} ({p['spacing_m']:.0f} m apart), "
+                f"{p['offset_m']:.1f} m beside each, first cone on your {first}, at {speed_kmh:.0f} km/h"
+                + ("; brake hard to a stop after the last" if stop else "")
+                + f"; U-turn {turn_way}, the same through cones {labels[n]}–{labels[2 * n - 1]}"
+                + (", stop" if stop else "") + f", U-turn {turn_way} to the start")
+        return text + f"; {laps} lap{'s' if laps != 1 else ''}"
 
 
 class StraightRun(Kind):
-    """Accelerate hard from rest at a start cone up to ``speed_mps`` and brake hard to stop at
-    the stop cone ``length_m`` further; ``passes`` > 1: loop round and run back (stopping at the
-    far cone again, facing back)."""
+    """Accelerate hard from rest at a start cone up to ``speed_mps``, brake hard to stop at the
+    stop cone ``length_m`` further; U-turn, the same back along the return lane, U-turn to the
+    start; ``laps`` laps (``mirror``: the U-turns to the right)."""
 
     name = "straight_run"
     title = "straight run"
 
     def space(self, limits, extent_m):
         return [Param("length_m", "m", 15.0, max(15.0, extent_m)),
-                Param("speed_mps", "m/s", 4.0, MARGIN * limits.speed_max_mps), Param("passes", "", 1, 4, True)]
+                Param("speed_mps", "m/s", 4.0, MARGIN * limits.speed_max_mps), Param("laps", "", 1, 6, True),
+                Param("mirror", "", 0, 1, True)]
 
     def check(self, p, limits):
         _speed_check("straight_run: speed_mps", p["speed_mps"], limits)
-        _count(p, "passes", 1, 20, "straight_run")
+        _count(p, "laps", 1, 20, "straight_run")
         if p["length_m"] < 5.0:
             raise OptimizeError(f"straight_run: length_m {p['length_m']:.2f} m is under 5 m")
 
     def geometry(self, p, limits):
         self.check(p, limits)
-        L, v, passes = float(p["length_m"]), float(p["speed_mps"]), int(p["passes"])
-        back = bulb(MARGIN * limits.curvature_max_1pm * 0.8, sharpness(limits, 5.0), left=True)
-        run = straight(L)
-        pieces: tuple[Piece, ...] = run
-        stops = [L]
-        spans = [(0.0, L)]
-        for _ in range(1, passes):
-            stops.append(length_of(pieces) + length_of(back))
-            pieces = pieces + back + run
-            spans.append((length_of(pieces) - L, length_of(pieces)))
-            stops.append(length_of(pieces))
-        back_cap = 5.0
+        L, v, laps = float(p["length_m"]), float(p["speed_mps"]), int(p["laps"])
+        u1, back, lane = _return_lane(limits, L, 5.0)
+        lap = straight(L) + u1 + back
+        lap_len = length_of(lap)
+        ends = [L, L + length_of(u1), L + length_of(u1) + L, lap_len]  # stops: end of each run, each U-turn
+        stops = [k * lap_len + e for k in range(laps) for e in ends]
+        turns = [(k * lap_len + L, k * lap_len + L + length_of(u1)) for k in range(laps)] + \
+            [(k * lap_len + 2 * L + length_of(u1), (k + 1) * lap_len) for k in range(laps)]
+        v_turn = held_speed(v, 1.0 / u_turn_radius_m(limits), limits)
 
         def speed(s: np.ndarray) -> np.ndarray:
             out = np.full(np.shape(s), v)
-            for k in range(1, passes):  # the loop between runs, at a turning speed
-                a, b = spans[k - 1][1], spans[k][0]
-                out[(s > a) & (s < b)] = min(v, back_cap)
+            for a, b in turns:
+                out[(s > a) & (s < b)] = v_turn
             ds = float(s[1] - s[0]) if len(s) > 1 else 0.1
             idx = np.clip(np.round((np.asarray(stops) - s[0]) / ds).astype(int), 0, len(s) - 1)
             out[idx] = 0.0
             return out
 
-        cones = [LocalCone(0.0, -CONE_OFFSET_M, "start", "right"), LocalCone(L, -CONE_OFFSET_M, "stop", "right")]
-        return _recentred(Geometry((0.0, 0.0, 0.0), pieces, speed, cones, spans), 0.5 * L, 0.0)
+        cones = [LocalCone(0.0, -CONE_OFFSET_M, "start", "right"), LocalCone(L, -CONE_OFFSET_M, "stop", "right"),
+                 LocalCone(0.0, lane + CONE_OFFSET_M, "stop", "right")]
+        g = Geometry((0.0, 0.0, 0.0), lap * laps, speed, cones, [(0.0, laps * lap_len)])
+        return _mirror(_recentred(g, 0.5 * L, 0.5 * lane), bool(p.get("mirror", 0)))
 
     def passings(self, p):
-        return [[(0, side), (1, side)] for k in range(int(p.get("passes", 1)))
-                for side in ("right" if k % 2 == 0 else "left",)]
+        swap = _swap if p.get("mirror") else (lambda side: side)
+        return [[(0, swap("right")), (1, swap("right")), (2, swap("right"))]]
 
     def instruction(self, p, labels, speed_kmh):
-        passes = int(p.get("passes", 1))
-        text = (f"From rest at cone {labels[0]}, accelerate hard to {speed_kmh:.0f} km/h and brake hard to stop "
-                f"at cone {labels[1]} ({p['length_m']:.0f} m)")
-        if passes > 1:
-            text += f"; loop round, stop facing back, run back the same way; {passes} runs in all"
-        return text
+        laps = int(p["laps"])
+        way = "right" if p.get("mirror") else "left"
+        return (f"From rest at cone {labels[0]}, accelerate hard to {speed_kmh:.0f} km/h, brake hard to stop at "
+                f"cone {labels[1]} ({p['length_m']:.0f} m); U-turn {way}, stop, the same back to stop at cone "
+                f"{labels[2]}; U-turn {way} to cone {labels[0]} and stop; {laps} lap{'s' if laps != 1 else ''}")
 
 
 KINDS: dict[str, Kind] = {k.name: k for k in (FigureEight(), Circles(), Slalom(), StraightRun())}

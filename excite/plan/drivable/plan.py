@@ -75,7 +75,7 @@ class DrivablePlan:
 
 
 def _plain(v: float) -> float | int:
-    return int(v) if float(v).is_integer() else round(float(v), 4)
+    return int(v) if float(v).is_integer() else round(float(v), 6)
 
 
 def _number(d: dict, key: str, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
