@@ -13,7 +13,8 @@ already (zero for a new plan; the drive so far for live guidance's re-plan). λ_
 n; with time fractions ``ξₑ = nₑdₑ/T`` on the simplex it is maximised by Frank–Wolfe on a smooth
 lower bound of λ_min (the log-sum-exp of −β·eigenvalues, β tied to the current λ_min), each step
 moving time to the element whose information lies most along the weak directions
-(:func:`e_design`). The result is sparse — a few elements — and is rounded to whole repetitions
+(:func:`e_design`; with away steps, which take time off the least useful element in use, so that
+it converges where plain Frank–Wolfe zigzags). The result is sparse — a few elements — and is rounded to whole repetitions
 (:func:`repetitions`).
 
 :func:`library` builds the candidate elements (a grid over each kind's parameters within the
@@ -203,56 +204,60 @@ def e_design(rates: list[np.ndarray], time_s: float, prior: np.ndarray | None = 
     def info(x):
         return M0 + time_s * np.tensordot(x, R, axes=1)
 
-    cur = lambda_min(info(xi))
-    hist = [cur]
+    best_xi, best = xi.copy(), lambda_min(info(xi))
+    hist = [best]
     it = 0
     for it in range(1, iterations + 1):
         M = info(xi)
         w, V = np.linalg.eigh(0.5 * (M + M.T))
-        scale = max(abs(w[0]), 1e-300)
-        beta = 8.0 / scale
+        # the smooth lower bound's sharpness grows over the iterations: early steps see every
+        # weak direction, late ones the smallest
+        beta = (8.0 + 400.0 * it / iterations) / max(abs(w[0]), 1e-300)
+
+        def smooth(x):
+            lam = np.linalg.eigvalsh(0.5 * (info(x) + info(x).T))
+            return float(lam[0] - np.log(np.sum(np.exp(-beta * (lam - lam[0])))) / beta)
+
         a = np.exp(-beta * (w - w[0]))
         a /= a.sum()
         P = (V * a) @ V.T
         grad = time_s * np.einsum("eij,ij->e", R, P)
         e = int(np.argmax(grad))
-        d = -xi.copy()
-        d[e] += 1.0
-
-        def f(g):
-            return lambda_min(info(xi + g * d))
-
-        lo, hi = 0.0, 1.0
+        gap = grad[e] - grad @ xi
+        if gap <= tol * abs(w[0]) * 1e-3:
+            break  # the duality gap of the smooth bound: nothing to gain
+        active = np.flatnonzero(xi > 0)
+        a_ = int(active[np.argmin(grad[active])])
+        if grad @ xi - grad[a_] > gap and xi[a_] < 1.0:  # an away step: time off the least useful
+            d = xi.copy()
+            d[a_] -= 1.0
+            g_max = xi[a_] / (1.0 - xi[a_])
+        else:  # a Frank–Wolfe step: time to the most useful
+            d = -xi.copy()
+            d[e] += 1.0
+            g_max = 1.0
+        lo, hi = 0.0, g_max
         phi = 0.5 * (math.sqrt(5) - 1)
         c1, c2 = hi - phi * (hi - lo), lo + phi * (hi - lo)
-        f1, f2 = f(c1), f(c2)
-        for _ in range(30):
+        f1, f2 = smooth(xi + c1 * d), smooth(xi + c2 * d)
+        for _ in range(25):
             if f1 < f2:
                 lo, c1, f1 = c1, c2, f2
                 c2 = lo + phi * (hi - lo)
-                f2 = f(c2)
+                f2 = smooth(xi + c2 * d)
             else:
                 hi, c2, f2 = c2, c1, f1
                 c1 = hi - phi * (hi - lo)
-                f1 = f(c1)
+                f1 = smooth(xi + c1 * d)
         g = 0.5 * (lo + hi)
-        new = f(g)
-        if new <= cur * (1 + 1e-9):
-            # the smoothed direction did not pay on the exact λ_min: a smaller step or stop
-            if it > 20 and new <= cur:
-                break
-            g = 2.0 / (it + 2)
-            new = f(g)
-            if new <= cur:
-                continue
         xi = xi + g * d
-        xi[xi < 1e-9] = 0.0
+        xi[xi < 1e-12] = 0.0
         xi /= xi.sum()
-        improvement = (new - cur) / max(abs(cur), 1e-300)
-        cur = new
+        cur = lambda_min(info(xi))
         hist.append(cur)
-        if it > 30 and improvement < tol * 1e-2:
-            break
+        if cur > best:
+            best_xi, best = xi.copy(), cur
+    xi, cur = best_xi, best
     return Design(xi, cur, it, hist)
 
 

@@ -15,8 +15,9 @@ the plan through its cones checks).
 | ``slalom`` | cone spacing, cones per line, offset beside each cone, speed, laps, direction, stops | weave through a line of cones, U-turn, weave back through a second line beside it |
 | ``straight_run`` | length, top speed, laps, direction | accelerate hard from one cone, brake hard to stop at the next; U-turn, the same back |
 
-Every element ends where it began, so its laps repeat it and the plan around it does not change
-with their number.
+Every element leaves where and as it left after one lap (the figure-eight, slalom and straight run
+where they began, circles a clothoid's shift further along the tangent), so its laps repeat it
+and the plan around it does not change with their number.
 
 The clothoids are as sharp as the curvature rate allows at the element's speed; the speed
 planner (:func:`excite.motion.paths.plan_speed`) slows the car wherever the lateral acceleration
@@ -180,7 +181,7 @@ def _speed_check(what: str, v: float, limits: Limits) -> None:
 
 
 def _count(p: dict[str, float], name: str, lo: int, hi: int, what: str) -> int:
-    n = p.get(name)
+    n = p.get(name, 0 if name in ("stops_per_lap", "mirror") else None)
     if n is None or not float(n).is_integer() or not lo <= int(n) <= hi:
         raise OptimizeError(f"{what}: {name} must be a whole number from {lo} to {hi}, got {n!r}")
     return int(n)
@@ -421,6 +422,10 @@ class Slalom(Kind):
         s_arc = np.concatenate([[0.0], np.cumsum(0.5 * (ds[1:] + ds[:-1]))])
         knots = np.linspace(0.0, s_arc[-1], int(math.ceil(s_arc[-1] / 0.25)) + 1)
         kk = np.interp(knots, s_arc, kappa)
+        # the sampled weave turns by a little: take it off the inner knots so that a pass leaves
+        # exactly as it came in (laps would drift)
+        h = np.diff(knots)
+        kk[1:-1] -= float(np.sum(0.5 * h * (kk[1:] + kk[:-1]))) / (knots[-1] - 0.5 * h[0] - 0.5 * h[-1])
         pieces = tuple(Piece(float(knots[i + 1] - knots[i]), float(kk[i]), float(kk[i + 1]))
                        for i in range(knots.size - 1))
         return pieces, x0

@@ -47,7 +47,8 @@ from .robust import QUANTILE, Robust, robust_scores
 
 CONE_CLEARANCE_M = 1.2  # a path keeps this far from every cone but its own element's (half a car and room)
 SCREEN_RATE_HZ = 25.0
-SHARES = {"library": 0.08, "refine": 0.66}  # of the budget; the rest for the robust choice and the result
+SHARES = {"library": 0.08, "refine": 0.55}  # of the budget; the rest for the robust choice and the result
+RESULT_S = 3.0  # kept at the end for the result's own drive and report
 
 
 @dataclass(frozen=True)
@@ -591,6 +592,8 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
         if len(picked) >= 4:
             break
     report("robust", f"{len(picked)} plans × {settings.draws} drives")
+    # best nominal first; a plan whose drives are not in by the deadline is not chosen
+    deadline = t0 + budget - RESULT_S
     robust: list[Robust | None] = [None] * len(picked)
     args = [(i, p.to_dict(), rig, limits_plan, settings, sc) for i, (p, sc) in enumerate(picked)]
     if workers > 1 and len(picked) > 1:
@@ -598,12 +601,25 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
             with hidden_main():
                 futs = [pool.submit(_robust_task, a) for a in args]
             for f in futs:
-                i, r = f.result()
+                try:
+                    i, r = f.result(timeout=max(deadline - time.monotonic(), 0.0) if robust[0] is not None else None)
+                except cf.TimeoutError:
+                    break
                 robust[i] = r
+            for f in futs:
+                f.cancel()
+            for proc in list((pool._processes or {}).values()):  # noqa: SLF001 — cut a late plan's drives short
+                if proc.is_alive():
+                    proc.terminate()
     else:
         for a in args:
+            if robust[0] is not None and time.monotonic() > deadline:
+                break
             i, r = _robust_task(a)
             robust[i] = r
+    done = [i for i, r in enumerate(robust) if r is not None]
+    picked = [picked[i] for i in done]
+    robust = [robust[i] for i in done]
     timings["robust"] = time.monotonic() - t0 - sum(timings.values())
     k = int(np.argmax([r.low for r in robust]))
     plan = picked[k][0]
