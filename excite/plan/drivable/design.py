@@ -124,10 +124,10 @@ def element_drive(name: str, params: dict[str, float], limits: Limits, rig: Rig,
                   pose: tuple[float, float, float] = (0.0, 0.0, 0.0), rate_hz: float = SCREEN_RATE_HZ):
     """One element alone from rest to rest at ``pose`` (its centre and heading): its geometry,
     course and drive."""
-    from .plan import _pose_to_lot
+    from .plan import pose_to_lot
 
     g = kind(name).geometry(params, limits)
-    start = _pose_to_lot(pose, g.start)
+    start = pose_to_lot(pose, g.start)
     path = trace(g.pieces, start)
     leg = Leg(path, g.speed(path.s_m), 0.0, 0)
     timed = Course((leg,), name).timed(limits, MARGIN)

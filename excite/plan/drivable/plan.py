@@ -156,13 +156,13 @@ def read_plan(path: str | Path) -> DrivablePlan:
 # Building a plan
 
 
-def _to_lot(pose: Pose, x: float, y: float) -> tuple[float, float]:
+def to_lot(pose: Pose, x: float, y: float) -> tuple[float, float]:
     c, s = math.cos(pose[2]), math.sin(pose[2])
     return pose[0] + c * x - s * y, pose[1] + s * x + c * y
 
 
-def _pose_to_lot(pose: Pose, local: Pose) -> Pose:
-    x, y = _to_lot(pose, local[0], local[1])
+def pose_to_lot(pose: Pose, local: Pose) -> Pose:
+    x, y = to_lot(pose, local[0], local[1])
     return x, y, local[2] + pose[2]
 
 
@@ -230,7 +230,7 @@ def build(plan: DrivablePlan, limits: Limits) -> Built:
     for i, e in enumerate(plan.elements):
         k = kind(e.kind)
         g = e.local(limits)
-        start = _pose_to_lot(e.pose, g.start)
+        start = pose_to_lot(e.pose, g.start)
         if here is not None and math.hypot(start[0] - here[0], start[1] - here[1]) + \
                 abs(math.remainder(start[2] - here[2], 2 * math.pi)) > 1e-6:
             pieces = connect(here, start, km, sh)
@@ -246,7 +246,7 @@ def build(plan: DrivablePlan, limits: Limits) -> Built:
         sides = k.passings(e.params)
         for j, c in enumerate(g.cones):
             number += 1
-            x, y = _to_lot(e.pose, c.x, c.y)
+            x, y = to_lot(e.pose, c.x, c.y)
             per_pass = [dict(p).get(j) for p in sides]
             cones.append(Cone(str(number), x, y, c.role, i, per_pass))
             labels.append(str(number))

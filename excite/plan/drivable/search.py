@@ -290,7 +290,7 @@ def _placements(g, site: Site, step_m: float = 2.5, headings: int = 8) -> list[t
 
 def _clear(g1, pose1, g2, pose2) -> bool:
     """Whether each element's path keeps clear of the other's cones."""
-    from .plan import _to_lot
+    from .plan import to_lot
 
     def world(g, pose):
         pts = footprint(g, 1.0)
@@ -298,7 +298,7 @@ def _clear(g1, pose1, g2, pose2) -> bool:
         return pts @ np.array([[c, s], [-s, c]]) + pose[:2]
 
     def cones(g, pose):
-        return np.array([_to_lot(pose, c.x, c.y) for c in g.cones])
+        return np.array([to_lot(pose, c.x, c.y) for c in g.cones])
 
     for (ga, pa), (gb, pb) in (((g1, pose1), (g2, pose2)), ((g2, pose2), (g1, pose1))):
         d = np.linalg.norm(world(ga, pa)[:, None] - cones(gb, pb)[None], axis=2)
@@ -312,7 +312,7 @@ def layout(elements: list[Element], limits: Limits, site: Site, rng: np.random.G
     """The elements placed in the lot (see the module docstring) and ordered for the shortest
     transits (straight-line distances from one's end to the next's start); None when they do not
     fit together."""
-    from .plan import _pose_to_lot
+    from .plan import pose_to_lot
 
     geos = [e.local(limits) for e in elements]
     options = [_placements(g, site) for g in geos]
@@ -340,8 +340,8 @@ def layout(elements: list[Element], limits: Limits, site: Site, rng: np.random.G
         if not ok:
             continue
         # order: the permutation with the shortest straight-line transits
-        starts = [_pose_to_lot(p, g.start) for g, p in zip(geos, poses)]
-        ends = [_pose_to_lot(p, g.end) for g, p in zip(geos, poses)]
+        starts = [pose_to_lot(p, g.start) for g, p in zip(geos, poses)]
+        ends = [pose_to_lot(p, g.end) for g, p in zip(geos, poses)]
         for perm in itertools.permutations(range(len(elements))):
             cost = sum(math.hypot(starts[b][0] - ends[a][0], starts[b][1] - ends[a][1]) for a, b in zip(perm, perm[1:]))
             if cost < best_cost:
