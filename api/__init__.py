@@ -1,8 +1,7 @@
 """The excite HTTP service: a thin FastAPI layer over the :mod:`excite` library.
 
 ``create_app(Settings())`` builds the app; ``excite serve`` runs it with uvicorn. The names load
-on first use, so that a job's supervisor process (``python -m api.worker``) imports none of
-the web stack.
+on first use, so that a job's or a worker's process imports none of the web stack it does not use.
 """
 
 from __future__ import annotations

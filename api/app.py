@@ -3,6 +3,16 @@
 Start-up opens the job store (SQLite or PostgreSQL, migrated), reads the API keys, re-queues
 the jobs of servers that are gone, starts the job dispatcher and the scoring processes;
 shutdown stops them and puts this server's running jobs back in the queue.
+
+**Adding a resource**: a module in ``api/routers/`` with an ``APIRouter`` (listed in
+:data:`ROUTERS`); its routes take the body as a schema of :mod:`api.schemas`, the caller as
+``Scorer``/``Planner``/``Anyone`` (:mod:`api.auth`) and the context as ``Ctx``; work that is not
+trivial is a function of :mod:`api.scoring` run by ``ctx.run(request, who, fn, *args)`` in a
+scoring worker (bounded by the request's deadline and the key's share); errors are raised as
+:class:`~api.errors.Problem` or the library's own errors (:func:`api.problems.of` maps them).
+**Adding a job kind**: a function ``(request, progress, should_stop) → result`` like
+:func:`api.jobs.run_optimization`, created by a route with ``ctx.store.create(kind, …)`` inside
+``deadline(request).commit()``; the dispatcher runs it in a supervised process.
 """
 
 from __future__ import annotations
@@ -14,24 +24,26 @@ from typing import Any, AsyncIterator
 
 import anyio
 from fastapi import FastAPI, Security
-from fastapi.openapi.docs import get_swagger_ui_html
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse
 from prometheus_client import CollectorRegistry, Gauge
 
-from . import problems
-from .auth import Limits, authorize, load_keys
+from excite.core import processes
+
+from . import auth, problems
+from .auth import Authenticate, Limits, authorize, load_keys
 from .cluster import ClusterScoring
 from .context import Context
 from .jobs import JobRunner
 from .middleware import BodyLimit, Guard, Metrics, TimeLimit
-from .routers import batch, health, jobs, live, maneuvers, page, rigs, score
 from .pool import WorkerPool
+from .routers import batch, health, jobs, live, maneuvers, page, rigs, score
 from .scoring import warm
 from .settings import Settings
 from .store import open_store
 
 log = logging.getLogger("excite.api")
 
+ROUTERS = (score, batch, maneuvers, jobs, rigs, health, page, live)
 DESCRIPTION = """\
 Score planned or logged drives for how well they determine every sensor calibration parameter
 of a rig, plan calibration maneuvers, and gate routes in CI. Errors are
@@ -51,7 +63,8 @@ def create_app(settings: Settings | None = None, *,
     keys = None
     if settings.api_keys_file is not None:
         keys = load_keys(settings.api_keys_file, Limits(settings.quota_jobs, settings.quota_live_sessions,
-                                                        settings.quota_rate_per_s, settings.quota_burst))
+                                                        settings.quota_rate_per_s, settings.quota_burst,
+                                                        settings.quota_storage_mb))
     registry = CollectorRegistry()
     ctx = Context(
         settings=settings, store=store,
@@ -59,15 +72,23 @@ def create_app(settings: Settings | None = None, *,
                          settings.worker_memory_mb, scheduler=settings.dask_scheduler,
                          lease_s=settings.job_lease_s, time_reserve_s=settings.job_time_reserve_s,
                          max_time_budget_s=settings.max_job_time_budget_s,
-                         retention_s=settings.retention_days * 86400.0,
-                         retention_bytes=settings.retention_max_mb * 2**20),
+                         retention_s=settings.retention_days * 86400.0),
         cluster=ClusterScoring(settings.dask_scheduler) if settings.dask_scheduler else None,
-        pool=WorkerPool(settings.score_workers, settings.worker_memory_mb,
-                        settings.worker_recycle_mb, warm=warm, max_queued=settings.max_queued_tasks),
+        pool=WorkerPool(settings.score_workers, settings.worker_memory_mb, settings.worker_recycle_mb,
+                        warm=warm, max_queued=settings.max_queued_tasks,
+                        share=settings.score_share if keys is not None else 1.0),
         registry=registry,
         jobs_gauge=Gauge("excite_jobs", "Jobs in the store by status", ["status"], registry=registry),
         store_up=Gauge("excite_store_up", "Whether the job store answered the last scrape", registry=registry),
         started_at=time.time(), keys=keys)
+    ctx.runner.storage_bytes = ctx.storage_bytes
+    secret = store.secret("ticket")
+
+    def redeem(ticket: str) -> str | None:
+        claims = auth.ticket_claims(secret, ticket)
+        if claims is None or not store.redeem(claims[2], claims[1]):
+            return None
+        return claims[0]
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -80,27 +101,29 @@ def create_app(settings: Settings | None = None, *,
         finally:
             ctx.runner.stop()
             ctx.pool.close()
-            live.close_all()
+            processes.stop_all()  # the live sessions' processes
             if ctx.cluster is not None:
                 ctx.cluster.close()
 
     app = FastAPI(title="excite", version="1", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None, openapi_url=None)
     app.state.ctx = ctx
+    app.state.ticket_secret = secret
     app.openapi = _openapi_with_settings(app, settings, open_server=keys is None)
     problems.install(app)
     _docs_routes(app, settings, open_server=keys is None)
-    app.include_router(score.bag_router)  # multipart POST /v1/score: before the JSON route
-    for module in (score, batch, maneuvers, jobs, rigs, health, page, live):
+    for module in ROUTERS:
         app.include_router(module.router)
     health.add_metrics(app, "public" if keys is None else settings.metrics)
     app.mount("/static", page.static_files(), name="static")
-    # added last = outermost: metrics see every answer, the body limit comes before the clock;
-    # the guard (browser safety, security headers, HEAD, the last word on errors) is outermost
+    # added last = outermost: the guard (hosts, browser safety, security headers, the last word
+    # on errors), then the key from the headers (before any body is read), metrics, the body limit,
+    # the clock
     app.add_middleware(TimeLimit, timeout_s=settings.request_timeout_s)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
     app.add_middleware(Metrics, registry=registry)
-    app.add_middleware(Guard, origins=settings.origins)
+    app.add_middleware(Authenticate, ring=keys, rates=ctx.rates, redeem=redeem)
+    app.add_middleware(Guard, hosts=settings.hosts(open_server=keys is None), origins=settings.origins)
     return app
 
 
@@ -114,11 +137,12 @@ def _docs_routes(app: FastAPI, settings: Settings, open_server: bool) -> None:
     async def openapi_json() -> JSONResponse:
         return JSONResponse(app.openapi())
 
-    async def swagger() -> HTMLResponse:
-        return get_swagger_ui_html(openapi_url="/openapi.json", title="excite — API")
+    async def swagger() -> FileResponse:
+        return FileResponse(page.STATIC_DIR / "docs.html", media_type="text/html; charset=utf-8")
 
     app.add_api_route("/openapi.json", openapi_json, include_in_schema=False, dependencies=deps)
     app.add_api_route("/docs", swagger, include_in_schema=False, dependencies=deps)
+    app.mount("/docs/static", page.docs_files(), name="docs-static")
 
 
 def _openapi_with_settings(app: FastAPI, settings: Settings, open_server: bool):

@@ -1,5 +1,5 @@
-"""Who may do what: API keys with scopes and an owner, checked by FastAPI's security
-dependencies, and each key's quotas.
+"""Who may do what: API keys with scopes and an owner, checked from the request's headers before
+its body is read, and each key's quotas.
 
 The operator lists the keys in a file (``EXCITE_API_KEYS_FILE``, YAML or JSON) holding only
 their SHA-256 hashes (``python -m api.keys new`` makes a key and prints its entry)::
@@ -9,22 +9,23 @@ their SHA-256 hashes (``python -m api.keys new`` makes a key and prints its entr
         owner: calibration   # who holds it
         scopes: [score]      # score, plan, admin
         sha256: 9f2c…        # of the secret; the secret itself is never stored
-        quota: {jobs: 50, live_sessions: 2, rate_per_s: 5, burst: 10}   # optional overrides
+        quota: {jobs: 50, live_sessions: 2, rate_per_s: 5, burst: 10, storage_mb: 64}   # optional
 
-A client sends its key as ``X-API-Key: <key>`` or ``Authorization: Bearer <key>``
-(:class:`fastapi.security.APIKeyHeader`, :class:`fastapi.security.HTTPBearer`); a browser's
-WebSocket, which cannot set headers, sends a short-lived ticket as ``?ticket=`` (from
-``POST /v1/live/tickets``; :class:`fastapi.security.APIKeyQuery`), signed with a secret every
-replica derives from the same keys file.
+A client sends its key as ``X-API-Key: <key>`` or ``Authorization: Bearer <key>``. A browser's
+WebSocket, which cannot set headers, offers a single-use ticket from ``POST /v1/live/tickets`` as
+the subprotocol ``excite-ticket.<ticket>`` (never in the URL, so no log holds it). Tickets are
+signed with a random secret the replicas share through the job store, expire within
+:data:`TICKET_TTL_S` and are redeemed once (:mod:`api.store`).
 
-Scopes: ``score`` (score, plot, batch, live), ``plan`` (maneuver jobs: create, read, cancel,
-download), ``admin`` (everything, every key's jobs, metrics). A job belongs to the key that
-made it: another key gets 404 for it, ``admin`` sees it. No key or an unknown one: 401; a key
-without the scope: 403; over its request rate: 429 with ``Retry-After``.
+:class:`Authenticate` (ASGI, before the body limit and the app) resolves the key from the
+headers: an unknown key is 401, a key over its request rate 429, and a request with a body but
+no key 401, all before a byte of the body is read. The routes' dependencies then check scopes:
+``score`` (score, plot, batch, live), ``plan`` (maneuver jobs), ``admin`` (everything, every
+key's jobs, metrics). A job belongs to the key that made it: another key gets 404 for it.
 
-Without a keys file the server is **open**: everyone is admin and no quota applies (the
-embedded default: one user on their own machine). :func:`check_exposure` refuses to serve open
-on an address other than loopback unless ``EXCITE_OPEN=true`` says so.
+Without a keys file the server is **open**: everyone is admin and no quota applies (one user on
+their own machine). :func:`check_exposure` refuses to serve open on an address other than
+loopback unless ``EXCITE_OPEN=true`` says so.
 """
 
 from __future__ import annotations
@@ -41,25 +42,27 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, Callable
 
 from fastapi import Depends, Security
-from fastapi.security import APIKeyHeader, APIKeyQuery, HTTPAuthorizationCredentials, HTTPBearer, SecurityScopes
+from fastapi.security import APIKeyHeader, HTTPBearer, SecurityScopes
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.requests import HTTPConnection
 
-from .errors import Exposed, KeysError, ProblemError
-from .store import OPEN_KEY
+from . import problems
+from .errors import Exposed, KeysError, Problem
 
 SCOPES = ("score", "plan", "admin")
 KEY_PREFIX = "exk_"
 TICKET_TTL_S = 60.0
+TICKET_PROTOCOL = "excite-ticket."  # a WebSocket subprotocol carrying a ticket
+LIVE_PROTOCOL = "excite-live"  # the subprotocol the server answers with
+OPEN_KEY = ""  # the key id of an open server's requests and jobs
 
+# declared so that the OpenAPI document states the credentials; the keys are read by Authenticate
 key_header = APIKeyHeader(name="X-API-Key", auto_error=False, scheme_name="APIKey",
-                          description="An API key the operator issued (see README, HTTP service).")
+                          description="An API key the operator issued.")
 bearer = HTTPBearer(auto_error=False, scheme_name="Bearer", description="The same API key as a bearer token.")
-ticket_query = APIKeyQuery(name="ticket", auto_error=False, scheme_name="LiveTicket",
-                           description="/v1/live only: a ticket from POST /v1/live/tickets (60 s).")
 
 
 class Quota(BaseModel):
@@ -70,6 +73,8 @@ class Quota(BaseModel):
     live_sessions: int | None = Field(None, ge=0, le=1000, description="/v1/live sessions at once.")
     rate_per_s: float | None = Field(None, gt=0, le=100_000, description="Requests per second on average.")
     burst: int | None = Field(None, ge=1, le=100_000, description="Requests at once above the rate.")
+    storage_mb: int | None = Field(None, ge=1, le=1_048_576, description="Stored jobs (requests and "
+                                                                         "results) of the key [MiB].")
 
 
 class KeyEntry(BaseModel):
@@ -92,6 +97,7 @@ class Limits:
     live_sessions: int
     rate_per_s: float
     burst: int
+    storage_mb: int
 
 
 @dataclass(frozen=True)
@@ -132,11 +138,9 @@ def new_key() -> str:
 
 @dataclass
 class KeyRing:
-    """The keys of one file, by hash; ``secret`` signs live tickets (the same on every replica
-    that reads the same file)."""
+    """The keys of one file, by hash, with the server's default limits."""
 
     entries: dict[str, KeyEntry]
-    secret: bytes
     defaults: Limits
 
     def lookup(self, key: str) -> Principal | None:
@@ -149,28 +153,9 @@ class KeyRing:
 
     def principal(self, entry: KeyEntry) -> Principal:
         q, d = entry.quota, self.defaults
-        limits = Limits(d.jobs if q.jobs is None else q.jobs,
-                        d.live_sessions if q.live_sessions is None else q.live_sessions,
-                        d.rate_per_s if q.rate_per_s is None else q.rate_per_s,
-                        d.burst if q.burst is None else q.burst)
+        limits = Limits(*(getattr(d, f) if getattr(q, f) is None else getattr(q, f)
+                          for f in ("jobs", "live_sessions", "rate_per_s", "burst", "storage_mb")))
         return Principal(entry.id, entry.owner, frozenset(entry.scopes), limits)
-
-    # live tickets: key id, expiry, HMAC of both
-    def ticket(self, principal: Principal, ttl_s: float = TICKET_TTL_S) -> str:
-        body = f"{principal.key_id}.{int(time.time() + ttl_s)}"
-        sig = hmac.new(self.secret, body.encode(), hashlib.sha256).digest()
-        return body + "." + base64.urlsafe_b64encode(sig).decode().rstrip("=")
-
-    def redeem(self, ticket: str) -> Principal | None:
-        try:
-            key_id, expiry, sig = ticket.rsplit(".", 2)
-            good = base64.urlsafe_b64encode(hmac.new(self.secret, f"{key_id}.{expiry}".encode(),
-                                                     hashlib.sha256).digest()).decode().rstrip("=")
-            if not hmac.compare_digest(good, sig) or int(expiry) < time.time():
-                return None
-        except ValueError:
-            return None
-        return self.by_id(key_id)
 
 
 def load_keys(path: Path, defaults: Limits) -> KeyRing:
@@ -201,12 +186,38 @@ def load_keys(path: Path, defaults: Limits) -> KeyRing:
             raise KeysError(f"API keys file {path}: key {e.id} is listed twice")
         ids.add(e.id)
         entries[e.sha256] = e
-    secret = hashlib.sha256(b"excite-live-ticket\0" + raw).digest()
-    return KeyRing(entries, secret, defaults)
+    return KeyRing(entries, defaults)
 
 
 # --------------------------------------------------------------------------------------------
-# Request rates
+# Tickets: key id, expiry and a nonce, signed with the store's shared secret
+
+
+def ticket(secret: bytes, key_id: str, ttl_s: float = TICKET_TTL_S) -> str:
+    body = f"{key_id}.{int(time.time() + ttl_s)}.{secrets.token_urlsafe(12)}"
+    sig = hmac.new(secret, body.encode(), hashlib.sha256).digest()
+    return body + "." + base64.urlsafe_b64encode(sig).decode().rstrip("=")
+
+
+def ticket_claims(secret: bytes, text: str) -> tuple[str, float, str] | None:
+    """(key id, expiry, nonce) of a ticket signed with ``secret`` that has not expired and
+    expires within :data:`TICKET_TTL_S` (a signed ticket of longer life is refused too), or None."""
+    try:
+        key_id, expiry, nonce, sig = text.rsplit(".", 3)
+        good = base64.urlsafe_b64encode(hmac.new(secret, f"{key_id}.{expiry}.{nonce}".encode(),
+                                                 hashlib.sha256).digest()).decode().rstrip("=")
+        if not hmac.compare_digest(good, sig):
+            return None
+        left = int(expiry) - time.time()
+    except ValueError:
+        return None
+    if not 0 <= left <= TICKET_TTL_S + 1:
+        return None
+    return key_id, float(expiry), nonce
+
+
+# --------------------------------------------------------------------------------------------
+# Rates
 
 
 @dataclass
@@ -217,89 +228,148 @@ class _Bucket:
 
 @dataclass
 class RateLimiter:
-    """A token bucket per key (in this replica: N replicas behind a balancer allow up to N
-    times the rate); at most ``max_keys`` buckets are kept (least recently used dropped)."""
+    """The service's one token bucket: ``take(name, rate, burst)`` per name (a key; a live
+    session), at most ``max_names`` kept (least recently used dropped). Per replica: N replicas
+    behind a balancer allow up to N times the rate."""
 
-    max_keys: int = 10_000
+    max_names: int = 10_000
     _buckets: OrderedDict = field(default_factory=OrderedDict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def take(self, key: str, rate: float, burst: int) -> float:
-        """0 when the request may go, else the seconds until it may."""
+    def take(self, name: str, rate: float, burst: int) -> float:
+        """0 when one more may go now, else the seconds until it may."""
         now = time.monotonic()
         with self._lock:
-            b = self._buckets.pop(key, None) or _Bucket(float(burst), now)
+            b = self._buckets.pop(name, None) or _Bucket(float(burst), now)
             b.tokens = min(float(burst), b.tokens + (now - b.at) * rate)
             b.at = now
-            self._buckets[key] = b
-            while len(self._buckets) > self.max_keys:
+            self._buckets[name] = b
+            while len(self._buckets) > self.max_names:
                 self._buckets.popitem(last=False)
             if b.tokens >= 1.0:
                 b.tokens -= 1.0
                 return 0.0
             return (1.0 - b.tokens) / rate
 
+    def forget(self, name: str) -> None:
+        with self._lock:
+            self._buckets.pop(name, None)
+
 
 # --------------------------------------------------------------------------------------------
-# The dependencies
+# Authentication from the headers (ASGI), scopes in the routes' dependencies
 
 
-def _unauthorized(detail: str) -> ProblemError:
-    return ProblemError(401, detail, type_="unauthorized", title="Unauthorized",
-                        errors=[{"field": "X-API-Key", "message": detail}],
-                        headers={"WWW-Authenticate": 'APIKey, Bearer realm="excite"'})
+def unauthorized(detail: str) -> Problem:
+    return Problem(401, detail, errors=[{"field": "X-API-Key", "message": detail}],
+                   headers={"WWW-Authenticate": 'APIKey, Bearer realm="excite"'})
+
+
+def _header(scope: dict, name: bytes) -> str | None:
+    for k, v in scope.get("headers", []):
+        if k == name:
+            return v.decode("latin-1")
+    return None
+
+
+def offered_ticket(scope: dict) -> str | None:
+    """The ticket a WebSocket offers among its subprotocols, if any."""
+    for proto in (_header(scope, b"sec-websocket-protocol") or "").split(","):
+        proto = proto.strip()
+        if proto.startswith(TICKET_PROTOCOL):
+            return proto[len(TICKET_PROTOCOL):]
+    return None
+
+
+class Authenticate:
+    """Resolves the request's key from its headers before anything reads its body (see the module
+    docstring) and leaves the :class:`Principal` (or None) in ``scope["state"]["principal"]``.
+    ``ring`` None: an open server, everyone is :data:`OPEN`. ``redeem(ticket)`` → key id or None
+    (a store call: run in a thread)."""
+
+    def __init__(self, app: Any, ring: KeyRing | None, rates: RateLimiter,
+                 redeem: Callable[[str], str | None]):
+        self.app, self.ring, self.rates, self.redeem = app, ring, rates, redeem
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] not in ("http", "websocket"):
+            return await self.app(scope, receive, send)
+        try:
+            who = await self._principal(scope)
+        except Problem as exc:
+            if scope["type"] == "websocket":
+                scope.setdefault("state", {})["refusal"] = exc
+                return await self.app(scope, receive, send)
+            return await problems.send(send, exc, scope.get("path", ""), close=_has_body(scope))
+        scope.setdefault("state", {})["principal"] = who
+        await self.app(scope, receive, send)
+
+    async def _principal(self, scope: dict) -> Principal | None:
+        if self.ring is None:
+            return OPEN
+        secret = _header(scope, b"x-api-key")
+        auth = _header(scope, b"authorization")
+        if not secret and auth and auth[:7].lower() == "bearer ":
+            secret = auth[7:].strip()
+        if secret:
+            who = self.ring.lookup(secret)
+            if who is None:
+                raise unauthorized("the API key is not one of this server's")
+        elif scope["type"] == "websocket" and offered_ticket(scope):
+            import anyio
+
+            key_id = await anyio.to_thread.run_sync(self.redeem, offered_ticket(scope))
+            who = None if key_id is None else self.ring.by_id(key_id)
+            if who is None:
+                raise unauthorized("the live ticket is not valid, was used already or has expired "
+                                   f"(tickets last {TICKET_TTL_S:g} s and open one session)")
+        elif _has_body(scope):
+            raise unauthorized("this server needs an API key: send it as X-API-Key or Authorization: Bearer")
+        else:
+            return None  # a read without a key: the route says whether it needs one
+        if who.limits is not None and scope["type"] == "http":
+            wait = self.rates.take(who.key_id, who.limits.rate_per_s, who.limits.burst)
+            if wait > 0:
+                retry = max(1, int(wait + 0.999))
+                raise Problem(429, f"the key {who.key_id} is over its rate of {who.limits.rate_per_s:g} "
+                                   f"requests per second (burst {who.limits.burst}); retry in {retry} s",
+                              type_="rate-limited", headers={"Retry-After": str(retry)})
+        return who
+
+
+def _has_body(scope: dict) -> bool:
+    if scope.get("method") in ("POST", "PUT", "PATCH", "DELETE"):
+        return True
+    length = _header(scope, b"content-length")
+    return bool(length and length.strip() not in ("", "0")) or _header(scope, b"transfer-encoding") is not None
 
 
 async def authorize(security_scopes: SecurityScopes, conn: HTTPConnection,
-              key: Annotated[str | None, Depends(key_header)],
-              credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
-              ticket: Annotated[str | None, Depends(ticket_query)]) -> Principal:
-    """The request's principal, with every scope of ``security_scopes``, within its rate (a few
-    microseconds: run in the event loop, no thread hop)."""
-    ctx = getattr(conn.app.state, "ctx", None)
-    ring: KeyRing | None = None if ctx is None else ctx.keys
-    if ring is None:  # an open server (or the routers alone, without the service's context)
-        return OPEN
-    principal = None
-    secret = key or (credentials.credentials if credentials is not None else None)
-    if secret:
-        principal = ring.lookup(secret)
-        if principal is None:
-            raise _unauthorized("the API key is not one of this server's")
-    elif ticket and conn.scope["type"] == "websocket":
-        principal = ring.redeem(ticket)
-        if principal is None:
-            raise _unauthorized("the live ticket is not valid or has expired (tickets last "
-                                f"{TICKET_TTL_S:g} s)")
-    if principal is None:
-        raise _unauthorized("this server needs an API key: send it as X-API-Key or "
-                            "Authorization: Bearer")
-    missing = [s for s in security_scopes.scopes if not principal.allows(s)]
+                    _key: Annotated[str | None, Depends(key_header)],
+                    _bearer: Annotated[Any, Depends(bearer)]) -> Principal:
+    """The request's principal (resolved by :class:`Authenticate`), with every scope of
+    ``security_scopes``. (The two header dependencies only declare the credentials in the
+    OpenAPI document.)"""
+    state = conn.scope.get("state", {})
+    if "refusal" in state:
+        raise state["refusal"]
+    who = state.get("principal", OPEN if getattr(conn.app.state, "ctx", None) is None else None)
+    if who is None:
+        raise unauthorized("this server needs an API key: send it as X-API-Key or Authorization: Bearer")
+    missing = [s for s in security_scopes.scopes if not who.allows(s)]
     if missing:
-        raise ProblemError(403, f"the key {principal.key_id} lacks the scope {missing[0]!r} "
-                                f"(it has: {', '.join(sorted(principal.scopes))})",
-                           type_="forbidden", title="Forbidden",
-                           errors=[{"field": "X-API-Key", "message": f"needs scope {missing[0]}"}])
-    limits = principal.limits
-    if limits is not None and conn.scope["type"] == "http":
-        wait = ctx.rates.take(principal.key_id, limits.rate_per_s, limits.burst)
-        if wait > 0:
-            retry = max(1, int(wait + 0.999))
-            raise ProblemError(429, f"the key {principal.key_id} is over its rate of "
-                                    f"{limits.rate_per_s:g} requests per second (burst {limits.burst}); "
-                                    f"retry in {retry} s", type_="rate-limited",
-                               headers={"Retry-After": str(retry)})
-    return principal
+        raise Problem(403, f"the key {who.key_id} lacks the scope {missing[0]!r} "
+                           f"(it has: {', '.join(sorted(who.scopes))})",
+                      errors=[{"field": "X-API-Key", "message": f"needs scope {missing[0]}"}])
+    return who
 
 
-async def problem_or_principal(security_scopes: SecurityScopes, conn: HTTPConnection,
-                         key: Annotated[str | None, Depends(key_header)],
-                         credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
-                         ticket: Annotated[str | None, Depends(ticket_query)]) -> Principal | ProblemError:
-    """:func:`authorize` for a WebSocket, whose refusal is a problem frame after the accept."""
+async def problem_or_principal(security_scopes: SecurityScopes, conn: HTTPConnection) -> Principal | Problem:
+    """:func:`authorize` for a WebSocket (a ticket or a key), whose refusal is a problem frame
+    after the accept. Declares no credential of its own: the OpenAPI document lists none."""
     try:
-        return await authorize(security_scopes, conn, key, credentials, ticket)
-    except ProblemError as exc:
+        return await authorize(security_scopes, conn, None, None)
+    except Problem as exc:
         return exc
 
 
@@ -307,11 +377,13 @@ Anyone = Annotated[Principal, Security(authorize)]  # any valid key
 Scorer = Annotated[Principal, Security(authorize, scopes=["score"])]
 Planner = Annotated[Principal, Security(authorize, scopes=["plan"])]
 Admin = Annotated[Principal, Security(authorize, scopes=["admin"])]
-LiveClient = Annotated[Principal | ProblemError, Security(problem_or_principal, scopes=["score"])]
+LiveClient = Annotated[Principal | Problem, Security(problem_or_principal, scopes=["score"])]
 
 
 # --------------------------------------------------------------------------------------------
-# Exposure
+# Exposure and hosts
+
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
 
 
 def is_loopback(host: str) -> bool:
@@ -336,5 +408,3 @@ def check_exposure(host: str, has_keys: bool, open_access: bool) -> None:
     raise Exposed(f"refusing to serve {host} without API keys: anyone who reaches it could use it; "
                   "set EXCITE_API_KEYS_FILE (python -m api.keys new), or EXCITE_OPEN=true to serve it "
                   "open on purpose")
-
-

@@ -3,9 +3,9 @@
 - Batch routes (``POST /v1/batch``): each route is sent to the cluster as the request's own data
   (small inputs travel as bytes), scored by :func:`api.scoring.score_task` on a Dask worker;
   :class:`ClusterScoring` gives back standard futures that fail with
-  :class:`~api.errors.WorkTimeout` at the request's deadline (the cluster task is cancelled then),
+  :class:`~excite.errors.WorkTimeout` at the request's deadline (the cluster task is cancelled then),
   like the local scoring pool's.
-- Optimization jobs: the job's worker process (:mod:`api.worker`, started per job by the server)
+- Optimization jobs: the job's process (:func:`api.jobs.job_main`, started per job by the server)
   stays the job's owner and the durable job record its truth; it submits the job function to
   the cluster (:func:`run_remote`) and relays progress (a Dask queue) and cancellation (a Dask
   variable) between the task and the store. A Dask worker lost mid-job: the scheduler re-runs
@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 from excite.core import engine
 
-from .errors import WorkerDied, WorkTimeout
+from excite.errors import WorkerDied, WorkTimeout
 
 POLL_S = 0.2
 

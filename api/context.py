@@ -1,22 +1,29 @@
-"""What the routers need, carried by dependencies: settings, the job store and runner, the
-scoring pool, the API keys and request rates, and the metrics registry."""
+"""What the routes need, carried by dependencies: settings, the job store and runner, the scoring
+pool, the API keys and request rates, the metrics registry; and the request's own deadline.
+
+A route that needs work done calls :meth:`Context.run` (or :meth:`Context.run_all`): the work
+goes to a scoring worker by the request's deadline and under its key's share, and every failure
+comes back as an exception that :func:`api.problems.of` maps (a 429 when it cannot be done in
+time, a 503 past the deadline, the task's own problem).
+"""
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import time
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable
 
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry, Gauge
 
-from .auth import KeyRing, RateLimiter
+from excite.errors import WorkTimeout
+
+from . import problems
+from .auth import KeyRing, Principal, RateLimiter
 from .cluster import ClusterScoring
 from .jobs import JobRunner
-from .errors import Overloaded, ProblemError, Unsendable, WorkerDied, WorkTimeout
+from .middleware import Deadline
 from .pool import WorkerPool
-from .scoring import Bounds, plot_task, score_task
+from .scoring import Bounds
 from .settings import Settings
 from .store import JobStore
 
@@ -29,8 +36,8 @@ class Context:
     pool: WorkerPool
     registry: CollectorRegistry
     jobs_gauge: Gauge
-    started_at: float
     store_up: Gauge
+    started_at: float
     cluster: ClusterScoring | None = None  # batch routes go to the Dask cluster when configured
     keys: KeyRing | None = None  # None: an open server
     rates: RateLimiter = field(default_factory=RateLimiter)
@@ -41,64 +48,44 @@ class Context:
         s = self.settings
         return Bounds(s.max_samples, s.max_route_duration_s, s.max_route_length_m)
 
-    def submit(self, fn: Callable[..., Any], calls: list[tuple], deadline: float) -> list[cf.Future]:
-        """``fn(*args)`` for each ``args`` in a scoring worker, or a 429 with Retry-After when
-        the workers are too busy to finish them by ``deadline`` (honest back-pressure: the
-        client learns at once, instead of a 503 after the whole time limit)."""
+    def storage_bytes(self, key_id: str) -> int:
+        """The key's storage quota [bytes] (an open server: the default)."""
+        who = self.keys.by_id(key_id) if self.keys is not None else None
+        mb = who.limits.storage_mb if who is not None and who.limits is not None else self.settings.quota_storage_mb
+        return mb * 2**20
+
+    def run_all(self, request: Request, who: Principal, fn: Callable[..., Any], calls: list[tuple],
+                sizes: list[float] | None = None, cluster: bool = False) -> list[Any]:
+        """``fn(*args)`` for each ``args`` of ``calls`` in scoring workers (on the Dask cluster
+        with ``cluster`` when one is configured), all admitted or none, by the request's deadline."""
+        until = deadline(request).work_until()
+        if cluster and self.cluster is not None:
+            futures = [self.cluster.submit(fn, *args, deadline=until) for args in calls]
+        else:
+            futures = self.pool.submit(fn, calls, until, key=who.key_id, sizes=sizes)
         try:
-            return self.pool.submit_all(fn, calls, deadline)
-        except Overloaded as exc:
-            raise ProblemError(429, f"the service is busy: {exc.detail}; retry in "
-                                    f"{exc.retry_after_s} s", type_="overloaded",
-                               headers={"Retry-After": str(exc.retry_after_s)}) from None
+            return [f.result() for f in futures]
+        except BaseException as exc:
+            for f in futures:
+                f.cancel()
+            if isinstance(exc, (WorkTimeout, MemoryError)):
+                raise problems.of(exc, timeout_s=self.settings.request_timeout_s,
+                                  memory_mb=self.settings.worker_memory_mb) from None
+            raise
 
-    def submit_scores(self, routes: list[tuple[dict[str, Any], str]], rig: Any, segments: int,
-                      limits: dict[str, float] | None, deadline: float,
-                      track_points: int = 0) -> list[cf.Future]:
-        """Score each ``(route, field)`` (all admitted or none)."""
-        return self.submit(score_task, [(route, rig, segments, limits, self.bounds, field, "rig",
-                                         track_points) for route, field in routes], deadline)
-
-    def submit_batch_scores(self, routes: list[tuple[dict[str, Any], str]], rig: Any, segments: int,
-                            limits: dict[str, float] | None, deadline: float) -> list[cf.Future]:
-        """Batch routes: on the Dask cluster when one is configured, else as :meth:`submit_scores`."""
-        if self.cluster is None:
-            return self.submit_scores(routes, rig, segments, limits, deadline)
-        return [self.cluster.submit(score_task, route, rig, segments, limits, self.bounds, field, "rig", 0,
-                                    deadline=deadline) for route, field in routes]
-
-    def submit_plot(self, route: dict[str, Any], rig: Any, segments: int,
-                    limits: dict[str, float] | None, parameter: str | None, deadline: float) -> cf.Future:
-        (fut,) = self.submit(plot_task, [(route, rig, segments, limits, self.bounds, parameter)], deadline)
-        return fut
-
-    def wait(self, futures: list[cf.Future]) -> list[dict[str, Any]]:
-        """The results of ``futures``; 503 when the deadline they were submitted with passed
-        (their workers were killed then: the work ends with the request)."""
-        out = []
-        for f in futures:
-            try:
-                out.append(f.result())
-            except WorkTimeout:
-                for g in futures:
-                    g.cancel()
-                raise ProblemError(503, "the request exceeded the time limit of "
-                                        f"{self.settings.request_timeout_s:g} s",
-                                   type_="timeout", headers={"Retry-After": "10"}) from None
-            except Unsendable:
-                raise ProblemError(422, "the request is nested too deeply to process",
-                                   errors=[{"field": "body", "message": "nested too deeply"}]) from None
-            except WorkerDied:
-                raise ProblemError(503, "a scoring worker died; retry the request",
-                                   type_="unavailable", headers={"Retry-After": "1"}) from None
-            except MemoryError:
-                raise ProblemError(413, "the route needs more memory than a worker may use "
-                                        f"({self.settings.worker_memory_mb} MiB)") from None
+    def run(self, request: Request, who: Principal, fn: Callable[..., Any], *args: Any, size: float = 1.0) -> Any:
+        (out,) = self.run_all(request, who, fn, [args], [size])
         return out
 
-    def deadline(self) -> float:
-        # a little under the middleware's limit, so the router answers first
-        return time.monotonic() + 0.95 * self.settings.request_timeout_s
+
+def deadline(request: Request) -> Deadline:
+    """The request's :class:`~api.middleware.Deadline` (one of the settings' limit when the app
+    runs without the middleware)."""
+    state = request.scope.setdefault("state", {})
+    if "deadline" not in state:
+        ctx = getattr(request.app.state, "ctx", None)
+        state["deadline"] = Deadline(ctx.settings.request_timeout_s if ctx is not None else 60.0)
+    return state["deadline"]
 
 
 def get_context(request: Request) -> Context:
@@ -106,11 +93,3 @@ def get_context(request: Request) -> Context:
 
 
 Ctx = Annotated[Context, Depends(get_context)]
-
-
-def raise_problem(result: dict[str, Any]) -> None:
-    """Raise the problem a score task returned."""
-    status = result["status"]
-    if status >= 500:
-        raise ProblemError(500, "The server failed to score this route; the error is logged.")
-    raise ProblemError(status, result["detail"], errors=result["errors"])

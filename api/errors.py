@@ -1,22 +1,22 @@
 """The exception tree of the service, every class of it in this one module.
 
     Exception
-    ├── ProblemError          an error answered with a problem document (raised by routers)
-    ├── Rejected              input a scoring request is refused for: (status, field, message)
-    ├── Overloaded            every worker busy: refused now with a Retry-After (503/429)
-    ├── WorkTimeout           a task did not finish by its deadline (its worker was killed)
-    ├── WorkerDied            a worker ended while running a task
+    ├── Problem               an error answered with a problem document: raised by routers and
+    │                         by tasks in workers (it pickles), sent as a /v1/live error frame
+    ├── Overloaded            the work cannot be done by its deadline: refused now (429, Retry-After)
+    ├── OverQuota             a key's quota of jobs or storage would be exceeded (429)
+    ├── WorkTimeout           a task did not finish by its deadline (its process was ended)
+    ├── WorkerDied            a worker process ended while running a task
     ├── Unsendable            a task's arguments cannot be sent to a worker
-    ├── Refused               a /v1/live message or session refused: closes the socket with a problem frame
     └── excite.errors.ExciteError
         ├── StoreError        the job database cannot be opened or used (names it and why:
         │                     full, read-only, corrupt, unreachable); answered 503
         ├── KeysError         the API keys file cannot be read or is invalid (names the entry)
         └── Exposed           the server would serve without keys on a non-loopback address
 
-:mod:`api.problems` maps each to its HTTP status and problem+json body in one place; excite's own
-errors (:mod:`excite.errors`) map to 4xx there too. Anything else is a 500 without a traceback
-in the body (and with one in the log).
+:func:`api.problems.of` maps each of them, and excite's own errors (:mod:`excite.errors`), to its
+problem in one place. Anything else is a 500 without a traceback in the body (and with one in
+the log).
 """
 
 from __future__ import annotations
@@ -27,49 +27,81 @@ from excite.errors import ExciteError
 
 TITLES = {400: "Bad request", 401: "Unauthorized", 403: "Forbidden", 404: "Not found",
           405: "Method not allowed", 406: "Not acceptable", 408: "Request timeout", 409: "Conflict",
-          413: "Content too large", 415: "Unsupported media type", 422: "Unprocessable content",
-          429: "Too many requests", 500: "Internal server error", 503: "Service unavailable"}
+          413: "Content too large", 415: "Unsupported media type", 421: "Misdirected request",
+          422: "Unprocessable content", 429: "Too many requests", 500: "Internal server error",
+          503: "Service unavailable"}
+TYPES = {401: "unauthorized", 403: "forbidden", 404: "not-found", 408: "timeout", 409: "conflict",
+         413: "too-large", 422: "validation", 429: "too-many-requests", 500: "internal",
+         503: "unavailable"}
+TYPE_BASE = "https://excite.dev/problems/"
+# every body is bounded, whatever the input it talks about (a bag of 50 000 frames, a rig of
+# 20 000 topics): a long detail or message is cut, and at most MAX_ERRORS are listed
+MAX_DETAIL_CHARS = 2000
+MAX_MESSAGE_CHARS = 500
+MAX_ERRORS = 20
 
 
-def default_type(status: int) -> str:
-    return {401: "unauthorized", 403: "forbidden", 404: "not-found", 409: "conflict", 413: "too-large", 422: "validation",
-            500: "internal", 503: "unavailable"}.get(status, "http-error")
+def cut(text: str, limit: int) -> str:
+    """``text`` of at most ``limit`` characters, saying how much was left out."""
+    if len(text) <= limit:
+        return text
+    note = f" … ({len(text) - limit + 40:,} characters more)"
+    return text[:limit - len(note)] + note
 
 
-class ProblemError(Exception):
-    """An error the service answers with a problem document (raised by routers)."""
+class Problem(Exception):
+    """An RFC 9457 problem: ``status``, ``detail``, the ``errors`` naming the offending fields,
+    the response ``headers`` (``Retry-After``). :meth:`body` is the document."""
 
     def __init__(self, status: int, detail: str, *, type_: str | None = None,
                  title: str | None = None, errors: list[dict[str, Any]] | None = None,
                  headers: dict[str, str] | None = None):
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-        self.type_ = type_ or default_type(status)
+        super().__init__(status, detail)
+        self.status, self.detail = status, detail
+        self.type_ = type_ or TYPES.get(status, "http-error")
         self.title = title or TITLES.get(status, "Error")
-        self.errors = errors
-        self.headers = headers
+        self.errors, self.headers = errors, headers
+
+    @classmethod
+    def at(cls, field: str, message: str, status: int = 422, **kw: Any) -> "Problem":
+        """The problem of one field: ``"field: message"``, with the field named in ``errors``."""
+        return cls(status, f"{field}: {message}", errors=[{"field": field, "message": message}], **kw)
+
+    def __reduce__(self) -> tuple:  # keyword arguments survive the pipe from a worker
+        return (_rebuild, (self.status, self.detail, self.type_, self.title, self.errors, self.headers))
+
+    def body(self, instance: str = "") -> dict[str, Any]:
+        """The problem document, within the bounds above."""
+        out: dict[str, Any] = {"type": TYPE_BASE + self.type_, "title": self.title, "status": self.status,
+                               "detail": cut(self.detail, MAX_DETAIL_CHARS), "instance": instance}
+        if self.errors is not None:
+            out["errors"] = [{"field": cut(str(e.get("field", "")), 200),
+                              "message": cut(str(e.get("message", "")), MAX_MESSAGE_CHARS)}
+                             for e in self.errors[:MAX_ERRORS]]
+            if len(self.errors) > MAX_ERRORS:
+                out["errors"].append({"field": "", "message": f"… and {len(self.errors) - MAX_ERRORS} more errors"})
+        return out
 
 
-class Rejected(Exception):
-    """Input the service refuses: (status, field, message)."""
-
-    def __init__(self, status: int, field: str, message: str):
-        super().__init__(message)
-        self.status, self.field, self.message = status, field, message
+def _rebuild(status: int, detail: str, type_: str, title: str, errors: Any, headers: Any) -> Problem:
+    return Problem(status, detail, type_=type_, title=title, errors=errors, headers=headers)
 
 
 class Overloaded(Exception):
-    """Every worker is busy and the task would wait past its deadline or over the queue bound:
-    refused now (the client retries after ``retry_after_s``) instead of timing out later."""
+    """The work cannot be done by its deadline (the workers' queue, or this key's share of them,
+    holds more than that): refused now, retry after ``retry_after_s``."""
 
     def __init__(self, detail: str, retry_after_s: int):
         super().__init__(detail)
         self.detail, self.retry_after_s = detail, retry_after_s
 
 
+class OverQuota(Exception):
+    """A key's quota of jobs or of storage would be exceeded by this job (429)."""
+
+
 class WorkTimeout(Exception):
-    """The task did not finish by its deadline (its worker, if it had one, was killed)."""
+    """The task did not finish by its deadline (its process, if it had one, was ended)."""
 
 
 class WorkerDied(Exception):
@@ -78,12 +110,6 @@ class WorkerDied(Exception):
 
 class Unsendable(Exception):
     """The task's arguments cannot be sent to a worker (e.g. nested too deeply to pickle)."""
-
-
-class Refused(Exception):
-    def __init__(self, status: int, field: str, message: str, close_code: int = 1008):
-        super().__init__(message)
-        self.status, self.field, self.message, self.close_code = status, field, message, close_code
 
 
 class StoreError(ExciteError):

@@ -1,16 +1,23 @@
-"""Optimization jobs: the dispatcher that runs them in worker processes, and the job itself.
+"""Optimization jobs: the dispatcher that runs them in supervised processes, and the job itself.
 
-:class:`JobRunner` lives in each server (replica). A thread claims queued jobs from the
-:class:`~api.store.JobStore` (fairly across keys, each with a lease) and starts one
-``python -m api.worker`` process tree per job, at most ``workers`` at once; it renews the leases
-of its jobs (a heartbeat), re-queues the jobs of replicas whose leases expired, reaps its job
-processes, stops a cancelled job that outstays ``cancel_grace_s`` and a job past its hard time
-limit (the process tree with it), purges finished jobs by the retention policy, and on shutdown
-stops its job processes and puts their jobs back in the queue. Progress and results travel
-through the store only, so a job is visible from any replica and survives the server.
+:class:`JobRunner` lives in each server (replica). Its thread claims queued jobs from the
+:class:`~api.store.JobStore` (fairly across keys, each with a lease) and runs each in a
+:class:`~excite.core.processes.Supervised` process (:func:`job_main`, at most ``workers`` at
+once), whose tree ends with it. The job process never touches the store: it sends its progress
+and, at the end, its outcome over its pipe, and reads "stop" from it. The dispatcher
 
-A fault of the store is logged once when it starts and once when it ends (not at every poll),
-and :attr:`JobRunner.fault` names it for ``/readyz``.
+- writes progress (best effort) and the **outcome before it forgets the run**: while the store
+  fails (an outage of tens of seconds, a full disk) it keeps the outcome and retries the write
+  on every pass; a run whose process died without one is recorded failed, one past its hard
+  time limit (its time budget plus the reserve) is ended and recorded failed, naming the limit;
+- renews the leases of exactly the runs it has (:meth:`~api.store.JobStore.heartbeat`) and ends
+  a run whose lease it lost (another replica runs the job now: it ends once, there);
+- re-queues the jobs of replicas whose leases expired, stops a cancelled job (asked over the
+  pipe; ended after ``cancel_grace_s``), purges finished jobs by the retention policy, and on
+  shutdown ends its job processes and puts their jobs back in the queue.
+
+A fault of the store is logged once when it starts and once when it ends, and
+:attr:`JobRunner.fault` names it for ``/readyz``.
 
 :func:`run_optimization` is the default job: :func:`excite.plan.optimize` on the request,
 returning plain JSON data (the report, the comparison and the control profile for downloads).
@@ -21,21 +28,19 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import os
-import signal
-import subprocess
-import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 
-from excite.core.engine import SCHEDULER_ENV
+from excite.core.processes import Supervised
+from excite.errors import ExciteError
 
-from .errors import StoreError
+from . import problems
+from .errors import Problem, StoreError
 from .store import JobStore, replica_id
-from .worker import STORE_ENV
 
 log = logging.getLogger("excite.api")
 
@@ -71,15 +76,9 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
     from excite.plan.site import read_site
     from excite.motion.vehicle import Limits
 
-    from .errors import Rejected
     from .scoring import resolve_rig
 
-    try:
-        rig = resolve_rig(request["rig"])
-    except Rejected as exc:
-        from excite.errors import RigError
-
-        raise RigError(f"{exc.field}: {exc.message}") from None
+    rig = resolve_rig(request["rig"])
     settings = OptimizeSettings(
         duration_s=request["duration_s"], lot_x_m=request["lot_x_m"],
         lot_y_m=request["lot_y_m"], limits=Limits(**request["limits"]),
@@ -96,32 +95,110 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
 
 
 
-class JobRunner:
-    """Runs queued jobs in worker process trees (see the module docstring)."""
+# --------------------------------------------------------------------------------------------
+# The job's process
 
-    def __init__(self, store: JobStore, workers: int, function: str, cancel_grace_s: float,
-                 memory_mb: int, poll_s: float = 0.2, scheduler: str | None = None,
-                 lease_s: float = 30.0, time_reserve_s: float = 60.0, max_time_budget_s: float = 900.0,
-                 retention_s: float = 7 * 86400.0, retention_bytes: int = 1 << 30,
-                 purge_every_s: float = 60.0):
-        self.store, self.workers, self.function = store, workers, function
-        self.scheduler = scheduler  # a Dask scheduler the job processes submit to (api.cluster)
-        self.cancel_grace_s, self.memory_mb, self.poll_s = cancel_grace_s, memory_mb, poll_s
-        self.lease_s, self.time_reserve_s, self.max_time_budget_s = lease_s, time_reserve_s, max_time_budget_s
-        self.retention_s, self.retention_bytes, self.purge_every_s = retention_s, retention_bytes, purge_every_s
-        self.replica = replica_id()
-        self._procs: dict[tuple[str, int], subprocess.Popen] = {}
-        self._limits: dict[tuple[str, int], float] = {}  # monotonic deadline of each run
-        self._cancel_seen: dict[tuple[str, int], float] = {}
-        self._termed: dict[tuple[str, int], float] = {}  # SIGTERM sent to the supervisor at
+PROGRESS_EVERY_S = 0.5
+
+
+def job_main(conn: Any, function: str, request: dict[str, Any], instance: str, scheduler: str | None) -> None:
+    """A job's process: ``function(request, progress, should_stop)``, its progress and outcome
+    sent as ``("progress", p)`` and ``("done", status, result, error)``; ``("stop",)`` received
+    makes ``should_stop()`` true."""
+    last = {"sent": 0.0, "stopped": False, "latest": None}
+
+    def progress(p: dict[str, Any]) -> None:
+        last["latest"] = p
+        now = time.monotonic()
+        if now - last["sent"] >= PROGRESS_EVERY_S:
+            last["sent"] = now
+            conn.send(("progress", p))
+
+    def should_stop() -> bool:
+        while not last["stopped"] and conn.poll(0):
+            last["stopped"] = conn.recv()[0] == "stop"
+        return last["stopped"]
+
+    from .cluster import load_function, run_remote
+
+    try:
+        if scheduler is None:
+            result = load_function(function)(request, progress, should_stop)
+        else:
+            log.info("job %s runs on the Dask cluster at %s", instance, scheduler)
+            result = run_remote(scheduler, function, request, progress, should_stop)
+    except (ExciteError, MemoryError, Problem) as exc:
+        conn.send(("done", "failed", None, problems.of(exc, "request").body(instance), last["latest"]))
+        return
+    except Exception:  # a bug: logged here, a bare 500 in the job
+        log.exception("job %s failed", instance)
+        conn.send(("done", "failed", None, Problem(500, "The job failed; the error is logged.").body(instance),
+                   last["latest"]))
+        return
+    status = "cancelled" if result.get("cancelled") else "succeeded"
+    conn.send(("done", status, result, None, last["latest"]))
+
+
+def _time_limit(job_id: str, limit_s: float) -> dict[str, Any]:
+    return Problem(422, f"the job ran past its hard time limit of {limit_s:g} s (its time_budget_s plus "
+                        "EXCITE_JOB_TIME_RESERVE_S) and was stopped; a smaller lot or a larger budget may fit",
+                   type_="time-limit", title="Job time limit",
+                   errors=[{"field": "time_budget_s", "message": f"the job outran it (hard limit {limit_s:g} s)"}]
+                   ).body(f"/v1/jobs/{job_id}")
+
+
+# --------------------------------------------------------------------------------------------
+# The dispatcher
+
+
+@dataclass(eq=False)
+class Run:
+    """A run of a job in this server: its process, and what it said."""
+
+    job_id: str
+    attempt: int
+    proc: Supervised
+    until: float  # monotonic: the hard time limit
+    limit_s: float
+    progress: dict[str, Any] | None = None
+    progress_written: dict[str, Any] | None = None
+    outcome: tuple | None = None  # (status, result, error, progress): written before the run is forgotten
+    cancel_at: float | None = None  # when the stop was sent
+    lost: bool = False
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return self.job_id, self.attempt
+
+
+@dataclass
+class JobRunner:
+    """Runs queued jobs in supervised processes (see the module docstring)."""
+
+    store: JobStore
+    workers: int
+    function: str
+    cancel_grace_s: float
+    memory_mb: int
+    poll_s: float = 0.2
+    scheduler: str | None = None
+    lease_s: float = 30.0
+    time_reserve_s: float = 60.0
+    max_time_budget_s: float = 900.0
+    retention_s: float = 7 * 86400.0
+    storage_bytes: Callable[[str], int] = lambda key_id: 1 << 30
+    purge_every_s: float = 60.0
+    replica: str = field(default_factory=replica_id)
+    fault: str | None = None  # the store's current fault, for /readyz
+    requeued_at_start: int = 0
+    purged: int = 0
+
+    def __post_init__(self) -> None:
+        self.runs: dict[tuple[str, int], Run] = {}
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
-        self._last_beat = 0.0
-        self._last_purge = 0.0
-        self.fault: str | None = None  # the store's current fault, for /readyz
-        self.requeued_at_start = 0
-        self.purged = 0
+        self._last_beat = self._last_purge = 0.0
 
     @property
     def alive(self) -> bool:
@@ -129,22 +206,20 @@ class JobRunner:
 
     @property
     def running(self) -> int:
-        return len(self._procs)
+        return len(self.runs)
 
     def pids(self) -> list[int]:
-        """The supervisors of the jobs running here (each leads its job's process group)."""
-        return [p.pid for p in self._procs.values()]
+        return [r.proc.pid for r in list(self.runs.values())]
 
     def start(self) -> None:
         try:
             requeued = self.store.reclaim(self.replica)
         except StoreError as exc:
-            self._store_failed(exc)
+            self._failed(exc)
             requeued = []
         self.requeued_at_start = len(requeued)
         if requeued:
-            log.warning("re-queued %d job(s) left running by a previous server: %s",
-                        len(requeued), ", ".join(requeued))
+            log.warning("re-queued %d job(s) left running by a previous server: %s", len(requeued), ", ".join(requeued))
         self._thread = threading.Thread(target=self._loop, name="excite-jobs", daemon=True)
         self._thread.start()
 
@@ -153,39 +228,23 @@ class JobRunner:
         self._wake.set()
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop dispatching, end every job process tree here and put the jobs back in the queue."""
+        """Stop dispatching; write the outcomes already known, end every job process here and
+        put the unfinished jobs back in the queue."""
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout_s + 5)
-        procs = list(self._procs.items())
-        for _, proc in procs:
-            _signal(proc, signal.SIGTERM)  # the supervisor kills its tree and exits
-        deadline = time.monotonic() + timeout_s
-        for key, proc in procs:
+        for run in list(self.runs.values()):
+            self._listen(run)
+            run.proc.stop()
             try:
-                proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                _kill_group(proc)
-                proc.wait()
-            try:
-                self.store.release(*key)
+                if run.outcome is not None:
+                    self._write(run)
+                else:
+                    self.store.release(*run.key)
             except StoreError as exc:
-                log.error("job %s not released at shutdown (its lease will expire): %s", key[0], exc)
-        self._procs.clear()
-
-    def _env(self) -> dict[str, str]:
-        env = dict(os.environ)
-        paths = [p for p in sys.path if p and os.path.isdir(p)]
-        env["PYTHONPATH"] = os.pathsep.join(paths + [env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-        env.pop(SCHEDULER_ENV, None)
-        if self.scheduler:
-            env[SCHEDULER_ENV] = self.scheduler
-        env[STORE_ENV] = self.store.url
-        # a job uses a compiled model the cache holds (the image's build step compiles one), but
-        # does not start the compiler: a background compile is detached and would outlive the job
-        env.setdefault("EXCITE_COMPILE", "0")
-        return env
+                log.error("job %s not recorded at shutdown (its lease will expire): %s", run.job_id, exc)
+        self.runs.clear()
 
     def time_limit_s(self, request: dict[str, Any] | None) -> float:
         """A run's hard wall-clock limit: its time budget plus the reserve."""
@@ -197,132 +256,130 @@ class JobRunner:
         return budget + self.time_reserve_s
 
     def _launch(self, job_id: str, attempt: int) -> None:
-        limit = self.time_limit_s(self.store.running_request(job_id, attempt))
-        cmd = [sys.executable, "-m", "api.worker", job_id, str(attempt), self.function,
-               str(os.getpid()), str(self.memory_mb), repr(limit)]
-        key = (job_id, attempt)
-        self._procs[key] = subprocess.Popen(cmd, env=self._env(), stdin=subprocess.DEVNULL,
-                                            start_new_session=True)
-        self._limits[key] = time.monotonic() + limit
-        log.info("job %s attempt %d started (pid %d)", job_id, attempt, self._procs[key].pid)
+        request = self.store.request_of(job_id, attempt)
+        if request is None:
+            return
+        limit = self.time_limit_s(request)
+        proc = Supervised(job_main, self.function, request, f"/v1/jobs/{job_id}", self.scheduler,
+                          context="spawn", memory_mb=self.memory_mb, name="excite-job")
+        self.runs[(job_id, attempt)] = Run(job_id, attempt, proc, time.monotonic() + limit, limit)
+        log.info("job %s attempt %d started (pid %d)", job_id, attempt, proc.pid)
 
-    def _forget(self, key: tuple[str, int]) -> None:
-        self._procs.pop(key, None)
-        self._limits.pop(key, None)
-        self._termed.pop(key, None)
+    def _listen(self, run: Run) -> None:
+        """Read what the run's process sent; note its outcome when it ended without one."""
+        if run.outcome is not None:
+            return
+        try:
+            while run.proc.conn.poll(0):
+                message = run.proc.conn.recv()
+                if message[0] == "progress":
+                    run.progress = message[1]
+                elif message[0] == "done":
+                    run.outcome = tuple(message[1:5])
+                    return
+        except (EOFError, OSError):
+            pass
+        if not run.proc.proc.is_alive() and not run.proc.conn.poll(0):
+            code = run.proc.proc.exitcode
+            if run.cancel_at is not None:
+                run.outcome = ("cancelled", None, None, run.progress)
+            else:
+                log.error("job %s attempt %d: its process ended with code %s", run.job_id, run.attempt, code)
+                run.outcome = ("failed", None, Problem(500, f"the job's process ended unexpectedly (exit code {code})")
+                               .body(f"/v1/jobs/{run.job_id}"), run.progress)
 
-    def _reap(self) -> None:
-        for key, proc in list(self._procs.items()):
-            code = proc.poll()
-            if code is None:
-                continue
-            _kill_group(proc)  # anything left in the job's group ends with it
-            self._forget(key)
-            killed_for_cancel = self._cancel_seen.pop(key, None) is not None
-            job = self.store.get(key[0])
-            if job is None or job["status"] != "running" or job["attempt"] != key[1]:
-                continue
-            if killed_for_cancel and code != 0:
-                self.store.finish(*key, "cancelled")
-            else:  # the worker died without writing its result (crash, memory, signal)
-                log.error("job %s attempt %d: worker exited with code %s", key[0], key[1], code)
-                self.store.finish(*key, "failed", error={
-                    "type": "https://excite.dev/problems/internal", "title": "Internal server error",
-                    "status": 500, "detail": f"the worker process ended unexpectedly (exit code {code})",
-                    "instance": f"/v1/jobs/{key[0]}"})
+    def _write(self, run: Run) -> None:
+        status, result, error, progress = run.outcome
+        if not self.store.finish(run.job_id, run.attempt, status, result=result, error=error, progress=progress):
+            log.warning("job %s attempt %d: no longer its current run; its outcome is dropped", *run.key)
 
-    def _enforce(self) -> None:
-        """Cancelled jobs past their grace and runs past their hard limit (with a margin: the
-        supervisor enforces the limit itself) are stopped, their whole process tree with them."""
-        flagged = self.store.cancel_requested_running(self.replica) if self._procs else set()
+    def _tend(self, cancelled: set[tuple[str, int]]) -> None:
+        """Each run: listen, enforce its limits, write its outcome (forgotten only once written)."""
         now = time.monotonic()
-        for key in flagged:
-            if key in self._procs:
-                first = self._cancel_seen.setdefault(key, now)
-                if now - first > self.cancel_grace_s and key not in self._termed:
-                    log.warning("job %s did not stop %.0f s after cancel: killing it", key[0],
-                                self.cancel_grace_s)
-                    self._terminate(key)
-        for key, deadline in list(self._limits.items()):
-            if now > deadline + 30 and key not in self._termed:
-                log.warning("job %s attempt %d outran its time limit: killing it", *key)
-                self._terminate(key)
-        for key, at in list(self._termed.items()):  # the supervisor did not end: the group goes
-            if now - at > 5 and key in self._procs:
-                _kill_group(self._procs[key])
-
-    def _terminate(self, key: tuple[str, int]) -> None:
-        self._termed[key] = time.monotonic()
-        _signal(self._procs[key], signal.SIGTERM)
+        fault: StoreError | None = None
+        for key, run in list(self.runs.items()):
+            self._listen(run)
+            if run.outcome is None and now > run.until:
+                log.warning("job %s attempt %d: past its time limit of %g s, stopped", *key, run.limit_s)
+                run.proc.stop()
+                run.outcome = ("failed", None, _time_limit(run.job_id, run.limit_s), run.progress)
+            if run.outcome is None and key in cancelled:
+                if run.cancel_at is None:
+                    run.cancel_at = now
+                    try:
+                        run.proc.send(("stop",))
+                    except Exception:  # noqa: BLE001 — it is ending anyway
+                        pass
+                elif now - run.cancel_at > self.cancel_grace_s:
+                    log.warning("job %s did not stop %.0f s after cancel: ending it", run.job_id, self.cancel_grace_s)
+                    run.proc.stop()
+                    run.outcome = ("cancelled", None, None, run.progress)
+            try:
+                if run.outcome is not None:
+                    run.proc.stop()
+                    self._write(run)
+                    del self.runs[key]
+                elif run.progress is not None and run.progress is not run.progress_written:
+                    self.store.progress(run.job_id, run.attempt, run.progress)
+                    run.progress_written = run.progress
+            except StoreError as exc:  # the outcome is kept and written on a later pass
+                fault = fault or exc
+        if fault is not None:
+            raise fault
 
     def _beat(self) -> None:
         now = time.monotonic()
         if now - self._last_beat < self.lease_s / 3:
             return
+        held = {k for k, r in self.runs.items() if r.outcome is None}
+        still = self.store.heartbeat(self.replica, self.lease_s, held)
         self._last_beat = now
-        held = self.store.heartbeat(self.replica, self.lease_s)
-        for key in list(self._procs):
-            if key not in held and key not in self._termed:
-                # the lease was lost (this replica lost the database longer than the lease, or the
-                # job finished): another replica may run it now
-                job = self.store.get(key[0])
-                if job is not None and job["status"] == "running":
-                    log.warning("job %s attempt %d: lease lost, stopping its run here", *key)
-                    self._terminate(key)
+        for key in held - still:  # lost (this replica lost the database longer than the lease)
+            run = self.runs.pop(key)
+            log.warning("job %s attempt %d: lease lost, its run here is ended (the job runs elsewhere)", *key)
+            run.proc.stop()
         requeued = self.store.reclaim(self.replica)
         if requeued:
-            log.warning("re-queued %d job(s) whose replica's lease expired: %s", len(requeued),
-                        ", ".join(requeued))
+            log.warning("re-queued %d job(s) whose replica's lease expired: %s", len(requeued), ", ".join(requeued))
         if now - self._last_purge >= self.purge_every_s:
             self._last_purge = now
-            n = self.store.purge(self.retention_s, self.retention_bytes)
+            n = self.store.purge(self.retention_s, self.storage_bytes)
             self.purged += n
             if n:
                 log.info("retention: deleted %d finished job(s)", n)
 
-    def _store_failed(self, exc: Exception) -> None:
+    def _failed(self, exc: Exception) -> None:
         text = str(exc)
         if text != self.fault:
             if isinstance(exc, StoreError):
                 log.error("job store fault: %s", text)
             else:
-                log.exception("job dispatcher")
+                log.exception("job dispatcher", exc_info=exc)
         self.fault = text
 
     def _loop(self) -> None:
         delay = self.poll_s
         while not self._stop.is_set():
-            try:
-                self._reap()
-                self._enforce()
-                self._beat()
-                while len(self._procs) < self.workers and not self._stop.is_set():
-                    claimed = self.store.claim(self.replica, self.lease_s)
-                    if claimed is None:
-                        break
-                    self._launch(*claimed)
-                if self.fault is not None:
-                    log.warning("job store answers again")
-                    self.fault = None
-                delay = self.poll_s
-            except Exception as exc:  # keep dispatching; back off while the store is faulty
-                self._store_failed(exc)
-                delay = min(5.0, max(delay * 2, 0.5))
+            ok = True
+            cancelled: set[tuple[str, int]] = set()
+            steps = [("cancels", lambda: cancelled.update(self.store.cancel_requested(self.replica)) if self.runs else None),
+                     ("runs", lambda: self._tend(cancelled)), ("leases", self._beat), ("claims", self._claim)]
+            for _, step in steps:  # each on its own: a fault in one does not hold the others back
+                try:
+                    step()
+                except Exception as exc:  # noqa: BLE001 — keep dispatching; back off while the store is faulty
+                    ok = False
+                    self._failed(exc)
+            if ok and self.fault is not None:
+                log.warning("job store answers again")
+                self.fault = None
+            delay = self.poll_s if ok else min(2.0, max(delay * 2, 0.5))
             self._wake.wait(delay)
             self._wake.clear()
 
-
-def _signal(proc: subprocess.Popen, sig: int) -> None:
-    if proc.poll() is None:
-        try:
-            proc.send_signal(sig)
-        except ProcessLookupError:
-            pass
-
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    """SIGKILL the job's process group (the supervisor leads it)."""
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        pass
+    def _claim(self) -> None:
+        while len(self.runs) < self.workers and not self._stop.is_set():
+            claimed = self.store.claim(self.replica, self.lease_s)
+            if claimed is None:
+                return
+            self._launch(*claimed)

@@ -1,41 +1,43 @@
-"""ASGI middleware: browser safety and the last word on errors, bounded bodies, a time limit
-per request, request metrics.
+"""ASGI middleware: hosts, browser safety and the last word on errors; bounded bodies; a time limit
+per request whose lasting effects are all-or-nothing; request metrics.
 
 Plain ASGI (not ``BaseHTTPMiddleware``) so that the body limit also counts a streamed body
-without buffering it, and so that a timed-out request still gets a problem document.
+without buffering it, and so that a timed-out request still gets a problem document. Every
+answer given here is a :class:`~api.errors.Problem` sent by :func:`api.problems.send`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
+import threading
 import time
-from typing import Any, Awaitable, Callable
+from contextlib import contextmanager
+from typing import Any, Awaitable, Callable, Iterator
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 
-from .problems import PROBLEM_JSON, TYPE_BASE, capped
+from . import problems
+from .errors import Problem
 
 log = logging.getLogger("excite.api")
 
 ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
 
 
-async def send_problem(send: Callable, status: int, title: str, type_: str, detail: str,
-                       instance: str, headers: list[tuple[bytes, bytes]] | None = None) -> None:
-    body = json.dumps(capped({"type": TYPE_BASE + type_, "title": title, "status": status,
-                              "detail": detail, "instance": instance})).encode()
-    await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", PROBLEM_JSON.encode()),
-                            (b"content-length", str(len(body)).encode()), *(headers or [])]})
-    await send({"type": "http.response.body", "body": body})
+def _header(scope: dict, name: bytes) -> str | None:
+    for k, v in scope.get("headers", []):
+        if k == name:
+            return v.decode("latin-1")
+    return None
 
 
 class BodyLimit:
     """413 when Content-Length or the streamed body exceeds ``max_bytes``; 408 when the body
     has not arrived within ``timeout_s`` (a client that announces a body and sends it slowly
-    would otherwise hold a connection and a request slot forever)."""
+    would otherwise hold a connection and a request slot forever). The body is read here (at
+    most ``max_bytes`` held) and replayed to the app, so the app never sees more; a multipart
+    upload is counted as it streams through instead."""
 
     def __init__(self, app: ASGIApp, max_bytes: int, timeout_s: float = 30.0):
         self.app, self.max_bytes, self.timeout_s = app, max_bytes, timeout_s
@@ -43,39 +45,31 @@ class BodyLimit:
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        detail = f"the request body exceeds the limit of {self.max_bytes} bytes"
-        for name, value in scope.get("headers", []):
-            if name == b"content-length":
-                try:
-                    too_big = int(value) > self.max_bytes
-                except ValueError:
-                    too_big = False
-                if too_big:
-                    return await send_problem(send, 413, "Content too large", "too-large", detail,
-                                              scope.get("path", ""), [(b"connection", b"close")])
-        if _is_multipart(scope):
-            # Uploads (bags) stream through to the endpoint, which spools them to disk; the
-            # limit is counted on the way (ProblemError → 413 problem+json from the app).
-            return await self.app(scope, self._counted(receive, detail), send)
-        # Read the body here (at most max_bytes are held), then replay it: an exception raised
-        # from inside a streamed receive would surface as a parse error, not a 413.
+        path = scope.get("path", "")
+        too_large = Problem(413, f"the request body exceeds the limit of {self.max_bytes} bytes")
+        length = _header(scope, b"content-length")
+        if length is not None and length.strip().isdigit() and int(length) > self.max_bytes:
+            return await problems.send(send, too_large, path, close=True)
+        if (_header(scope, b"content-type") or "").lower().startswith("multipart/form-data"):
+            # uploads (bags) stream through to the form parser, which spools them to disk; the
+            # limit is counted on the way (the Problem surfaces from the route: 413)
+            return await self.app(scope, self._counted(receive, too_large), send)
         body = bytearray()
-        deadline = asyncio.get_running_loop().time() + self.timeout_s
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.timeout_s
         while True:
             try:
-                message = await asyncio.wait_for(receive(), deadline - asyncio.get_running_loop().time())
+                message = await asyncio.wait_for(receive(), deadline - loop.time())
             except asyncio.TimeoutError:
-                log.warning("%s %s: body not received within %g s", scope.get("method"),
-                            scope.get("path"), self.timeout_s)
-                return await send_problem(send, 408, "Request timeout", "body-timeout",
-                                          f"the request body did not arrive within {self.timeout_s:g} s",
-                                          scope.get("path", ""), [(b"connection", b"close")])
+                log.warning("%s %s: body not received within %g s", scope.get("method"), path, self.timeout_s)
+                return await problems.send(send, Problem(408, f"the request body did not arrive within "
+                                                              f"{self.timeout_s:g} s", type_="body-timeout"),
+                                           path, close=True)
             if message["type"] != "http.request":
                 return  # the client went away
             body += message.get("body", b"")
             if len(body) > self.max_bytes:
-                return await send_problem(send, 413, "Content too large", "too-large", detail,
-                                          scope.get("path", ""), [(b"connection", b"close")])
+                return await problems.send(send, too_large, path, close=True)
             if not message.get("more_body", False):
                 break
         replayed = False
@@ -89,8 +83,7 @@ class BodyLimit:
 
         await self.app(scope, replay, send)
 
-
-    def _counted(self, receive: Callable, detail: str) -> Callable:
+    def _counted(self, receive: Callable, too_large: Problem) -> Callable:
         seen = 0
 
         async def counted() -> dict:
@@ -98,22 +91,51 @@ class BodyLimit:
             message = await receive()
             seen += len(message.get("body", b""))
             if seen > self.max_bytes:
-                from .errors import ProblemError
-
-                raise ProblemError(413, detail, headers={"Connection": "close"})
+                raise too_large
             return message
 
         return counted
 
 
-def _is_multipart(scope: dict) -> bool:
-    return any(name == b"content-type" and value.lower().startswith(b"multipart/form-data")
-               for name, value in scope.get("headers", []))
+class Deadline:
+    """A request's time limit, shared by :class:`TimeLimit` and the route (``scope["state"]``).
+
+    A request's lasting effect (a job created) happens inside :meth:`commit`: only while the
+    request has not been answered 503, and the 503 waits while it is under way. So a request is
+    either answered with what it did, or answered 503 and did nothing lasting."""
+
+    def __init__(self, timeout_s: float):
+        self.timeout_s = timeout_s
+        self.at = time.monotonic() + timeout_s
+        self._lock = threading.Lock()
+        self._state = "open"  # → "committing" | "expired"
+
+    def work_until(self) -> float:
+        """When work for the request must be done (monotonic), a little before the limit so that
+        the route answers first."""
+        return self.at - min(1.0, 0.05 * self.timeout_s)
+
+    @contextmanager
+    def commit(self) -> Iterator[None]:
+        with self._lock:
+            if self._state == "expired":
+                raise Problem(503, f"the request exceeded the time limit of {self.timeout_s:g} s",
+                              type_="timeout", headers={"Retry-After": "10"})
+            self._state = "committing"
+        yield
+
+    def expire(self) -> bool:
+        """The limit passed: True when the request may be answered 503 (nothing was committed)."""
+        with self._lock:
+            if self._state == "committing":
+                return False
+            self._state = "expired"
+            return True
 
 
 class TimeLimit:
-    """503 when a request takes longer than ``timeout_s`` (the work itself is bounded by the
-    input limits; this bounds the client's wait)."""
+    """503 when a request takes longer than ``timeout_s``, unless its lasting effect is already
+    under way (:class:`Deadline`)."""
 
     def __init__(self, app: ASGIApp, timeout_s: float):
         self.app, self.timeout_s = app, timeout_s
@@ -121,6 +143,8 @@ class TimeLimit:
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        deadline = Deadline(self.timeout_s)
+        scope.setdefault("state", {})["deadline"] = deadline
         state = {"started": False, "timed_out": False}
 
         async def tracked(message: dict) -> None:
@@ -134,15 +158,14 @@ class TimeLimit:
         done, _ = await asyncio.wait({task}, timeout=self.timeout_s)
         if done:
             return task.result()
-        if state["started"]:
-            return await task  # an answer is already on its way: let it finish
+        if state["started"] or not deadline.expire():
+            return await task  # an answer is on its way, or the request's effect is: let it finish
         state["timed_out"] = True
         task.cancel()
-        log.warning("%s %s exceeded the time limit of %g s", scope.get("method"),
-                    scope.get("path"), self.timeout_s)
-        await send_problem(send, 503, "Service unavailable", "timeout",
-                           f"the request exceeded the time limit of {self.timeout_s:g} s",
-                           scope.get("path", ""), [(b"retry-after", b"10")])
+        log.warning("%s %s exceeded the time limit of %g s", scope.get("method"), scope.get("path"),
+                    self.timeout_s)
+        await problems.send(send, Problem(503, f"the request exceeded the time limit of {self.timeout_s:g} s",
+                                          type_="timeout", headers={"Retry-After": "10"}), scope.get("path", ""))
 
 
 class Metrics:
@@ -154,8 +177,7 @@ class Metrics:
                                 ["method", "route", "status"], registry=registry)
         self.latency = Histogram("excite_http_request_duration_seconds", "HTTP request latency",
                                  ["method", "route"], registry=registry,
-                                 buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10,
-                                          30, 60))
+                                 buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60))
 
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] != "http":
@@ -185,46 +207,67 @@ UNSAFE = ("POST", "PUT", "PATCH", "DELETE")
 CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; "
        "connect-src 'self'; font-src 'self'; object-src 'none'; base-uri 'none'; "
        "form-action 'self'; frame-ancestors 'none'")
-# Swagger UI (/docs) loads its script and style from a CDN and starts with an inline script
-DOCS_CSP = ("default-src 'self'; script-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
-            "style-src 'self' https://cdn.jsdelivr.net; img-src 'self' data: https://fastapi.tiangolo.com; "
-            "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'")
 
 
-def own_origin(scope: dict) -> str | None:
-    """``http://host:port`` of the server as the client addressed it (its Host header)."""
-    host = next((v for k, v in scope.get("headers", []) if k == b"host"), None)
-    if host is None:
-        return None
-    scheme = {"ws": "http", "wss": "https"}.get(scope.get("scheme", "http"), scope.get("scheme", "http"))
-    return f"{scheme}://{host.decode('latin-1').lower()}"
+def host_name(host: str) -> str:
+    """``"[::1]:8000"`` → ``"::1"``, ``"Example.org:80"`` → ``"example.org"``."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        return host[1:host.find("]")] if "]" in host else host
+    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
 
 
 class Guard:
     """What keeps a browser from being used against the service, and the last word on errors:
 
-    - a WebSocket whose ``Origin`` is neither the server's own nor in ``origins`` is refused
-      before the handshake completes (HTTP 403);
-    - a state-changing request (POST, PUT, PATCH, DELETE) is refused (403 problem+json) when its
-      ``Origin`` is foreign, when the browser says it is cross-site (``Sec-Fetch-Site``), or when
-      it is one a cross-site HTML form could send (multipart, urlencoded or text/plain) and
-      carries none of the headers such a form cannot set (``X-Excite-Client``, ``X-API-Key``,
+    - a request whose ``Host`` is not in ``hosts`` (``"*"``: any) is refused (421) before
+      anything else: a page of another site whose name was rebound to this server's address
+      names that site in ``Host``;
+    - the server's own origins are ``scheme://Host`` for a Host whose name is listed *by name*
+      in ``hosts``, and the configured ``origins``: never built from a Host that only passed a
+      wildcard;
+    - a WebSocket whose ``Origin`` is not one of them is refused before the handshake completes;
+    - a state-changing request (POST, PUT, PATCH, DELETE) is refused (403) when its ``Origin``
+      is foreign, when the browser says it is cross-site (``Sec-Fetch-Site``), or when it is one
+      a cross-site HTML form could send (multipart, urlencoded or text/plain) and carries none
+      of the headers such a form cannot set (``X-Excite-Client``, ``X-API-Key``,
       ``Authorization``);
-    - every response carries a Content-Security-Policy (``frame-ancestors 'none'``),
-      ``X-Frame-Options: DENY``, ``X-Content-Type-Options: nosniff`` and ``Referrer-Policy``;
+    - every response carries a Content-Security-Policy without ``'unsafe-inline'``
+      (``frame-ancestors 'none'``), ``X-Frame-Options: DENY``, ``X-Content-Type-Options:
+      nosniff`` and ``Referrer-Policy``;
     - ``HEAD`` is answered wherever ``GET`` is (the GET's headers, no body);
     - an exception nothing else handled becomes a 500 problem here, so it never reaches the
       server (which would reset the connection and with it the client's next request).
     """
 
-    def __init__(self, app: ASGIApp, origins: tuple[str, ...] = ()):
-        self.app, self.origins = app, tuple(origins)
+    def __init__(self, app: ASGIApp, hosts: tuple[str, ...] = ("*",), origins: tuple[str, ...] = ()):
+        self.app = app
+        self.any_host = "*" in hosts
+        self.hosts = frozenset(h.lower() for h in hosts if h != "*")
+        self.origins = tuple(origins)
 
     def _allowed(self, origin: str, scope: dict) -> bool:
         origin = origin.rstrip("/").lower()
-        return origin == own_origin(scope) or origin in self.origins
+        if origin in self.origins:
+            return True
+        host = _header(scope, b"host")
+        if host is None or host_name(host) not in self.hosts:
+            return False
+        scheme = {"ws": "http", "wss": "https"}.get(scope.get("scheme", "http"), scope.get("scheme", "http"))
+        return origin == f"{scheme}://{host.lower()}"
 
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] not in ("http", "websocket"):
+            return await self.app(scope, receive, send)
+        host = _header(scope, b"host") or ""
+        if not self.any_host and host_name(host) not in self.hosts:
+            log.warning("%s: Host %r is not an allowed host: refused", scope.get("path"), host[:200])
+            if scope["type"] == "websocket":
+                await receive()  # websocket.connect
+                return await send({"type": "websocket.close", "code": 1008})
+            return await problems.send(send, Problem(421, f"this server does not answer to the host {host[:200]!r} "
+                                                          "(EXCITE_ALLOWED_HOSTS)", type_="host"),
+                                       scope.get("path", ""), close=True)
         if scope["type"] == "websocket":
             origin = _header(scope, b"origin")
             if origin is not None and not self._allowed(origin, scope):
@@ -232,15 +275,12 @@ class Guard:
                 await receive()  # websocket.connect
                 return await send({"type": "websocket.close", "code": 1008})
             return await self.app(scope, receive, send)
-        if scope["type"] != "http":
-            return await self.app(scope, receive, send)
         refusal = self._cross_site(scope)
         if refusal is not None:
-            return await send_problem(send, 403, "Forbidden", "cross-site", refusal, scope.get("path", ""))
+            return await problems.send(send, Problem(403, refusal, type_="cross-site"), scope.get("path", ""))
         head = scope["method"] == "HEAD"
         if head:
             scope = dict(scope, method="GET")
-        csp = (DOCS_CSP if scope.get("path") == "/docs" else CSP).encode()
         state = {"started": False}
 
         async def guarded(message: dict) -> None:
@@ -248,7 +288,7 @@ class Guard:
                 state["started"] = True
                 headers = [h for h in message.get("headers", [])
                            if h[0].lower() not in (b"content-security-policy", b"x-frame-options")]
-                headers += [(b"content-security-policy", csp), (b"x-frame-options", b"DENY"),
+                headers += [(b"content-security-policy", CSP.encode()), (b"x-frame-options", b"DENY"),
                             (b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer")]
                 message = dict(message, headers=headers)
             elif head and message["type"] == "http.response.body":
@@ -260,9 +300,7 @@ class Guard:
         except Exception:
             log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"))
             if not state["started"]:
-                await send_problem(guarded, 500, "Internal server error", "internal",
-                                   "The server failed to handle this request; the error is logged.",
-                                   scope.get("path", ""))
+                await problems.send(guarded, Problem(500, problems.INTERNAL), scope.get("path", ""))
 
     def _cross_site(self, scope: dict) -> str | None:
         if scope["method"] not in UNSAFE:
@@ -277,16 +315,9 @@ class Guard:
         if site in ("cross-site", "same-site"):
             return f"a {site} {scope['method']} from a browser is refused"
         ctype = (_header(scope, b"content-type") or "").lower().encode("latin-1")
-        simple = ctype.startswith(SIMPLE_TYPES)  # a form always has one
         names = {k for k, _ in scope.get("headers", [])}
-        if scope["method"] == "POST" and simple and not names & {CLIENT_HEADER, b"x-api-key", b"authorization"}:
+        if (scope["method"] == "POST" and ctype.startswith(SIMPLE_TYPES)
+                and not names & {CLIENT_HEADER, b"x-api-key", b"authorization"}):
             return ("a POST a cross-site HTML form could send is refused: send the header "
                     "X-Excite-Client (any value) or an API key with it")
         return None
-
-
-def _header(scope: dict, name: bytes) -> str | None:
-    for k, v in scope.get("headers", []):
-        if k == name:
-            return v.decode("latin-1")
-    return None

@@ -1,67 +1,96 @@
-"""RFC 9457 problem details: every error response of the service is one of these.
+"""The one mapping from exceptions to RFC 9457 problems, and the one way each is sent.
 
-Domain errors are mapped to HTTP statuses here, in one place; nothing in the library raises
-HTTP exceptions. A response never carries a traceback: unexpected exceptions are logged
-server-side and answered with a bare 500.
+:func:`of` maps every exception the service meets, the library's (:mod:`excite.errors`) and its
+own (:mod:`api.errors`), to a :class:`~api.errors.Problem`; nothing in the library raises HTTP
+exceptions. The problem then leaves as a response (:func:`response`, the app's handlers), from
+ASGI middleware before the app (:func:`send`), as a /v1/live error frame
+(:meth:`~api.errors.Problem.body`) or as a failed job's ``error``. A response never carries a
+traceback: unexpected exceptions are logged server-side and answered with a bare 500.
+
+This module imports no web framework at load time: the workers import it too.
 """
 
 from __future__ import annotations
 
+import errno
+import json
 import logging
-from typing import Any
+from typing import Any, Callable
 
-from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
-from starlette.exceptions import HTTPException as StarletteHTTPException
+from excite.errors import BagError, EvaluationError, ExciteError, LimitError, RigError, RouteError
 
-from excite.errors import EvaluationError, ExciteError, LimitError, RigError, RouteError
-from .errors import TITLES, ProblemError, StoreError, default_type
+from .errors import (TITLES, Overloaded, OverQuota, Problem, StoreError, Unsendable, WorkerDied,
+                     WorkTimeout)
 
 log = logging.getLogger("excite.api")
 
 PROBLEM_JSON = "application/problem+json"
-TYPE_BASE = "https://excite.dev/problems/"
-# every error body is bounded, whatever the input it talks about (a bag of 50 000 frames, a
-# rig of 20 000 topics): a long detail or message is cut, and at most MAX_ERRORS are listed
-MAX_DETAIL_CHARS = 2000
-MAX_MESSAGE_CHARS = 500
-MAX_ERRORS = 20
+INTERNAL = "The server failed to handle this request; the error is logged."
+# the field a library error is reported against, by its class (the first that matches)
+FIELDS: tuple[tuple[type[ExciteError], str], ...] = (
+    (BagError, "bag"), (RouteError, "route"), (RigError, "rig"), (LimitError, "limits"),
+    (EvaluationError, "evaluation"))
 
 
-def cut(text: str, limit: int) -> str:
-    """``text`` of at most ``limit`` characters, saying how much was left out."""
-    if len(text) <= limit:
-        return text
-    note = f" … ({len(text) - limit + 40:,} characters more)"
-    return text[:limit - len(note)] + note
+def of(exc: BaseException, field: str | None = None, *, timeout_s: float | None = None,
+       memory_mb: int | None = None) -> Problem:
+    """The problem ``exc`` is answered with; ``field`` names the request field a library error is
+    about (default: by its class). ``timeout_s`` and ``memory_mb`` are quoted by the 503 of a
+    task past its deadline and the 413 of one out of memory."""
+    if isinstance(exc, Problem):
+        return exc
+    if isinstance(exc, StoreError):
+        log.error("job store fault: %s", exc)
+        return Problem(503, "the job store is unavailable; retry later (the fault is logged)",
+                       type_="store-unavailable", headers={"Retry-After": "5"})
+    if isinstance(exc, ExciteError):
+        name = field or next((f for cls, f in FIELDS if isinstance(exc, cls)), "body")
+        message = exc.problem if isinstance(exc, RouteError) and exc.line is None else str(exc)
+        return Problem(422, str(exc), errors=[{"field": name, "message": message}])
+    if isinstance(exc, Overloaded):
+        return Problem(429, f"the service is busy: {exc.detail}; retry in {exc.retry_after_s} s",
+                       type_="overloaded", headers={"Retry-After": str(exc.retry_after_s)})
+    if isinstance(exc, OverQuota):
+        return Problem(429, str(exc), type_="quota", headers={"Retry-After": "30"})
+    if isinstance(exc, WorkTimeout):
+        limit = f" of {timeout_s:g} s" if timeout_s is not None else ""
+        return Problem(503, f"the request exceeded the time limit{limit}", type_="timeout",
+                       headers={"Retry-After": "10"})
+    if isinstance(exc, WorkerDied):
+        return Problem(503, "a worker process died; retry the request", headers={"Retry-After": "1"})
+    if isinstance(exc, Unsendable):
+        return Problem.at(field or "body", "nested too deeply to process")
+    if isinstance(exc, MemoryError):
+        limit = f" ({memory_mb} MiB)" if memory_mb else ""
+        return Problem.at(field or "body", f"needs more memory than a worker may use{limit}; "
+                                           "make it shorter or sparser", status=413)
+    if isinstance(exc, RecursionError):
+        return Problem.at(field or "body", "nested too deeply to process")
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        log.error("no space left on the server's disk: %s", exc)
+        return Problem(503, "the server's disk is full; retry later (logged)", type_="disk-full",
+                       headers={"Retry-After": "30"})
+    log.error("unhandled error", exc_info=exc)
+    return Problem(500, INTERNAL)
 
 
-def capped(body: dict[str, Any]) -> dict[str, Any]:
-    """A problem document within the bounds above."""
-    out = dict(body)
-    if isinstance(out.get("detail"), str):
-        out["detail"] = cut(out["detail"], MAX_DETAIL_CHARS)
-    errors = out.get("errors")
-    if isinstance(errors, list):
-        kept = [{**e, "field": cut(str(e.get("field", "")), 200),
-                 "message": cut(str(e.get("message", "")), MAX_MESSAGE_CHARS)} for e in errors[:MAX_ERRORS]]
-        if len(errors) > MAX_ERRORS:
-            kept.append({"field": "", "message": f"… and {len(errors) - MAX_ERRORS} more errors"})
-        out["errors"] = kept
-    return out
+def response(problem: Problem, instance: str) -> Any:
+    from fastapi.responses import JSONResponse
+
+    return JSONResponse(problem.body(instance), status_code=problem.status, media_type=PROBLEM_JSON,
+                        headers=problem.headers)
 
 
-def problem(status: int, detail: str, *, instance: str = "", type_: str | None = None,
-            title: str | None = None, errors: list[dict[str, Any]] | None = None,
-            headers: dict[str, str] | None = None) -> JSONResponse:
-    """A problem+json response."""
-    body: dict[str, Any] = {"type": TYPE_BASE + (type_ or default_type(status)),
-                            "title": title or TITLES.get(status, "Error"), "status": status,
-                            "detail": detail, "instance": instance}
-    if errors is not None:
-        body["errors"] = errors
-    return JSONResponse(capped(body), status_code=status, media_type=PROBLEM_JSON, headers=headers)
+async def send(send_: Callable, problem: Problem, instance: str, close: bool = False) -> None:
+    """``problem`` as the whole answer of an ASGI request (middleware that answers before the
+    app); ``close``: the connection is closed after it (a body left unread)."""
+    body = json.dumps(problem.body(instance)).encode()
+    headers = [(b"content-type", PROBLEM_JSON.encode()), (b"content-length", str(len(body)).encode())]
+    headers += [(k.lower().encode("latin-1"), v.encode("latin-1")) for k, v in (problem.headers or {}).items()]
+    if close:
+        headers.append((b"connection", b"close"))
+    await send_({"type": "http.response.start", "status": problem.status, "headers": headers})
+    await send_({"type": "http.response.body", "body": body})
 
 
 def field_name(loc: tuple[Any, ...] | list[Any]) -> str:
@@ -79,18 +108,21 @@ def field_name(loc: tuple[Any, ...] | list[Any]) -> str:
     return out or "body"
 
 
-def excite_problem(exc: ExciteError, field: str | None = None) -> tuple[int, str, list[dict[str, Any]]]:
-    """(status, detail, errors) of a domain error: every ExciteError is the client's input."""
-    kind = {RouteError: "route", RigError: "rig", LimitError: "limits",
-            EvaluationError: "evaluation"}
-    default = next((v for k, v in kind.items() if isinstance(exc, k)), "body")
-    name = field or default
-    return 422, str(exc), [{"field": name, "message": str(exc)}]
+def validation(errors: list[dict[str, Any]]) -> Problem:
+    """The 422 of a body that does not match its schema (pydantic's errors, every one named)."""
+    named = []
+    for e in errors:
+        msg = e.get("msg", "invalid")
+        if e.get("type") == "finite_number":
+            msg = "must be a finite number (NaN and infinity are rejected)"
+        named.append({"field": field_name(e.get("loc", ())), "message": msg})
+    first = named[0] if named else {"field": "body", "message": "invalid request"}
+    more = f" (and {len(named) - 1} more)" if len(named) > 1 else ""
+    return Problem(422, f"{first['field']}: {first['message']}{more}", errors=named)
 
 
-def _methods(request: Request) -> list[str]:
-    """The methods the API documents for this request's path (all its routes, not only the
-    first one the router tried)."""
+def _methods(request: Any) -> list[str]:
+    """The methods the API documents for this request's path (all its routes)."""
     import re
 
     out: set[str] = set()
@@ -101,60 +133,29 @@ def _methods(request: Request) -> list[str]:
     return sorted(out)
 
 
-def install(app: FastAPI) -> None:
-    """Map every exception the app can raise to a problem document."""
+def install(app: Any) -> None:
+    """Every exception the app can raise answered with its problem."""
+    from fastapi.exceptions import RequestValidationError
+    from starlette.exceptions import HTTPException
 
-    @app.exception_handler(ProblemError)
-    async def _problem(request: Request, exc: ProblemError) -> JSONResponse:
-        return problem(exc.status, exc.detail, instance=request.url.path, type_=exc.type_,
-                       title=exc.title, errors=exc.errors, headers=exc.headers)
+    async def mapped(request: Any, exc: Exception) -> Any:
+        if not isinstance(exc, (Problem, ExciteError, Overloaded, OverQuota, WorkTimeout, WorkerDied, OSError)):
+            log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+            return response(Problem(500, INTERNAL), request.url.path)
+        return response(of(exc), request.url.path)
 
-    @app.exception_handler(RequestValidationError)
-    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = []
-        for e in exc.errors():
-            msg = e.get("msg", "invalid")
-            if e.get("type") == "finite_number":
-                msg = "must be a finite number (NaN and infinity are rejected)"
-            errors.append({"field": field_name(e.get("loc", ())), "message": msg})
-        first = errors[0] if errors else {"field": "body", "message": "invalid request"}
-        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        return problem(422, f"{first['field']}: {first['message']}{more}",
-                       instance=request.url.path, errors=errors)
+    async def invalid(request: Any, exc: RequestValidationError) -> Any:
+        return response(validation(exc.errors()), request.url.path)
 
-    @app.exception_handler(StoreError)
-    async def _store(request: Request, exc: StoreError) -> JSONResponse:
-        log.error("job store fault on %s %s: %s", request.method, request.url.path, exc)
-        return problem(503, "the job store is unavailable; retry later (the fault is logged)",
-                       instance=request.url.path, type_="store-unavailable", headers={"Retry-After": "5"})
-
-    @app.exception_handler(OSError)
-    async def _os(request: Request, exc: OSError) -> JSONResponse:
-        import errno
-
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            log.error("%s %s: no space left on the server's disk (%s)", request.method, request.url.path, exc)
-            return problem(503, "the server's disk is full; retry later (logged)", instance=request.url.path,
-                           type_="disk-full", headers={"Retry-After": "30"})
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return problem(500, "The server failed to handle this request; the error is logged.",
-                       instance=request.url.path)
-
-    @app.exception_handler(ExciteError)
-    async def _domain(request: Request, exc: ExciteError) -> JSONResponse:
-        status, detail, errors = excite_problem(exc)
-        return problem(status, detail, instance=request.url.path, errors=errors)
-
-    @app.exception_handler(StarletteHTTPException)
-    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def http(request: Any, exc: HTTPException) -> Any:
         detail = exc.detail if isinstance(exc.detail, str) else TITLES.get(exc.status_code, "Error")
-        headers = getattr(exc, "headers", None)
+        headers = dict(getattr(exc, "headers", None) or {})
         if exc.status_code == 405:  # every method of the path, not only the first route's
-            headers = {**(headers or {}), "Allow": ", ".join(_methods(request))}
-        return problem(exc.status_code, detail, instance=request.url.path, headers=headers)
+            headers["Allow"] = ", ".join(_methods(request))
+        return response(Problem(exc.status_code, detail, headers=headers or None), request.url.path)
 
-    @app.exception_handler(Exception)
-    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return problem(500, "The server failed to handle this request; the error is logged.",
-                       instance=request.url.path)
+    app.add_exception_handler(RequestValidationError, invalid)
+    app.add_exception_handler(HTTPException, http)
+    app.add_exception_handler(Exception, mapped)
+    for cls in (Problem, ExciteError, Overloaded, OverQuota, WorkTimeout, WorkerDied, OSError):
+        app.add_exception_handler(cls, mapped)

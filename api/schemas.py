@@ -121,9 +121,12 @@ class LimitsIn(In):
 
 
 def _shallow(rig: dict[str, Any]) -> dict[str, Any]:
-    # before the rig is handed to a worker: a deep document would exhaust the recursion limit
+    # before the rig is handed to a worker: a deep document would exhaust the recursion limit,
+    # and a large one costs the worker time before it is refused
     if bounds.nesting(rig) > bounds.MAX_NESTING:
         raise ValueError(f"nested more than {bounds.MAX_NESTING} levels deep (a rig is at most 6)")
+    if bounds.size(rig) > bounds.MAX_RIG_NODES:
+        raise ValueError(f"more than {bounds.MAX_RIG_NODES} keys and list items (a rig holds a few hundred)")
     return rig
 
 
@@ -177,7 +180,7 @@ class PlotRequest(RouteScoring):
 
 
 class RigYaml(In):
-    yaml: str = Field(max_length=1_000_000, description="The text of a rig YAML file (IMU block inline).")
+    yaml: str = Field(max_length=200_000, description="The text of a rig YAML file (IMU block inline).")
 
 
 class BatchRequest(In):

@@ -1,11 +1,12 @@
-"""Scoring in worker processes: a request's route and rig → the evaluator's JSON report.
+"""The work a request gives the scoring workers: a route and a rig → the evaluator's JSON report,
+a figure, a bag's report, a client's rig, lot or rig YAML checked, a maneuver file.
 
-Everything here runs inside a :class:`ScorePool` process and returns plain data (a report or a
-problem), never raises to the caller: the parent turns problems into responses. Route text is
-written to a temporary file and read by :mod:`excite.io.routes`; JSON routes are written in the
-matching file format first, so every route passes the same readers and the same checks.
-Reader errors name the request field (``route.waypoints[3]``, ``route.text`` line N), never a
-server path.
+Every task here runs inside a worker process (:mod:`api.pool`), with the request's deadline and
+the worker's memory limit, and returns plain data or raises a :class:`~api.errors.Problem`
+naming the request field (``route.waypoints[3]``, ``route.text`` line N), never a server path
+(:func:`task` maps every other exception in the worker, :func:`api.problems.of`). JSON routes are
+written in the matching file format first, so every route passes the same readers and checks.
+:func:`work_size` tells the pool how large a route's work is before it is admitted.
 """
 
 from __future__ import annotations
@@ -20,13 +21,14 @@ from typing import Any, Callable
 import numpy as np
 
 from excite.io import routes
-from excite.core.bounds import tightened
+from excite.core.bounds import MAX_NESTING, MAX_RIG_NODES, nesting, size as doc_size, tightened
 from excite.errors import ExciteError, RigError, RouteError
 from excite.score.evaluate import Options, evaluate
 from excite.rig.config import Rig, build_rig, bundled_rigs, load_rig
 from excite.motion.trajectory import Trajectory
 from excite.motion.vehicle import Limits
-from .errors import Rejected
+from . import problems
+from .errors import Problem
 
 log = logging.getLogger("excite.api")
 
@@ -41,11 +43,6 @@ class Bounds:
     max_samples: int
     max_route_duration_s: float
     max_route_length_m: float
-
-
-def problem_data(status: int, field: str, message: str) -> dict[str, Any]:
-    return {"ok": False, "status": status, "detail": f"{field}: {message}",
-            "errors": [{"field": field, "message": message}]}
 
 
 # --------------------------------------------------------------------------------------------
@@ -71,13 +68,16 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
     """A bundled rig by name or an inline rig config; never reads a path the client names."""
     if isinstance(rig, str):
         if rig not in bundled_rigs():
-            raise Rejected(422, field, f"no bundled rig named {rig!r} (bundled: {', '.join(bundled_rigs())})")
+            raise Problem.at(field, f"no bundled rig named {rig!r} (bundled: {', '.join(bundled_rigs())})")
         return _bundled(rig)
     if not isinstance(rig.get("imu"), dict):
-        raise Rejected(422, f"{field}.imu", "give the IMU block inline as an object (the service "
+        raise Problem.at(f"{field}.imu", "give the IMU block inline as an object (the service "
                                             "reads no files)")
+    if nesting(rig) > MAX_NESTING or doc_size(rig) > MAX_RIG_NODES:
+        raise Problem.at(field, f"nested more than {MAX_NESTING} levels or more than "
+                                f"{MAX_RIG_NODES} keys and items (a rig holds a few hundred)")
     if _has_non_finite(rig):
-        raise Rejected(422, field, "contains NaN or infinity")
+        raise Problem.at(field, "contains NaN or infinity")
     try:
         return build_rig(rig)
     except RigError as exc:
@@ -86,8 +86,8 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
         key = msg.split(":", 1)[0] if ":" in msg else ""
         named = key and " " not in key and key != "rig"
         if named:
-            raise Rejected(422, f"{field}.{key}", msg.split(":", 1)[1].strip()) from None
-        raise Rejected(422, field, msg) from None
+            raise Problem.at(f"{field}.{key}", msg.split(":", 1)[1].strip()) from None
+        raise Problem.at(field, msg) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -98,7 +98,7 @@ def _count_bound(n: int, bounds: Bounds, field: str, what: str, status: int = 42
     """More rows than ``max_samples``: 422 for JSON arrays (the schema states the bound as
     ``maxItems``), 413 for the lines of a text (a size the schema cannot state)."""
     if n > bounds.max_samples:
-        raise Rejected(status, field, f"{n} {what} exceed the limit of {bounds.max_samples}")
+        raise Problem.at(field, f"{n} {what} exceed the limit of {bounds.max_samples}", status)
 
 
 def _where(exc: RouteError, field: str, line_to_index: Callable[[int], str] | None) -> tuple[str, str]:
@@ -122,10 +122,10 @@ def route_trajectory(route: dict[str, Any], rig: Rig, limits: Limits, bounds: Bo
         if route.get("poses") is not None:
             return _from_poses(route["poses"], name, bounds, field)
         return _from_control(route["control"], name, rig, bounds, field)
-    except Rejected:
+    except Problem:
         raise
     except ExciteError as exc:  # a reader's error without a line: the text is the request's
-        raise Rejected(422, field, exc.problem if isinstance(exc, RouteError) else str(exc)) from None
+        raise Problem.at(field, exc.problem if isinstance(exc, RouteError) else str(exc)) from None
 
 
 def _text_of(write: Callable[[io.StringIO], None]) -> str:
@@ -153,7 +153,7 @@ def _from_text(route: dict[str, Any], name: str, rig: Rig, limits: Limits, bound
                 return routes.read_kitti(path, times)
             except RouteError as exc:
                 if exc.source == times.name:
-                    raise Rejected(422, *_where(exc, f"{field}.times_text", None)) from None
+                    raise Problem.at(*_where(exc, f"{field}.times_text", None)) from None
                 raise
         if fmt == "waypoints_csv":
             return routes.read_waypoints_csv(path, limits=limits, suspension=rig.suspension)
@@ -161,7 +161,7 @@ def _from_text(route: dict[str, Any], name: str, rig: Rig, limits: Limits, bound
             return routes.read_geojson(path, limits=limits, suspension=rig.suspension)
         return routes.read_control_csv(path, suspension=rig.suspension)
     except RouteError as exc:
-        raise Rejected(422, *_where(exc, f"{field}.text", None)) from None
+        raise Problem.at(*_where(exc, f"{field}.text", None)) from None
 
 
 def _from_waypoints(rows: list[list[float]], name: str, rig: Rig, limits: Limits, bounds: Bounds,
@@ -171,20 +171,20 @@ def _from_waypoints(rows: list[list[float]], name: str, rig: Rig, limits: Limits
     width = len(rows[0])
     for i, r in enumerate(rows):
         if len(r) != width:
-            raise Rejected(422, f"{f}[{i}]", f"has {len(r)} numbers, the first waypoint {width}: "
+            raise Problem.at(f"{f}[{i}]", f"has {len(r)} numbers, the first waypoint {width}: "
                                              "all rows must be alike")
     pts = np.asarray(rows, dtype=float)
     xyz = pts[:, :3] if width >= 3 else pts[:, :2]
     length = float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum())
     if length > bounds.max_route_length_m:
-        raise Rejected(422, f, f"the route is {length:.0f} m long, over the limit of "
+        raise Problem.at(f, f"the route is {length:.0f} m long, over the limit of "
                                f"{bounds.max_route_length_m:g} m")
     cols = ["x", "y", "z", "speed"][:width]
     text = _text_of(lambda f: np.savetxt(f, pts, fmt="%.17g", delimiter=",", header=",".join(cols), comments=""))
     try:
         return routes.read_waypoints_csv(routes.Text(text, f"{name}.csv"), limits=limits, suspension=rig.suspension)
     except RouteError as exc:
-        raise Rejected(422, *_where(exc, f, lambda line: f"[{line - 2}]")) from None
+        raise Problem.at(*_where(exc, f, lambda line: f"[{line - 2}]")) from None
 
 
 def _from_poses(poses: list[dict[str, Any]], name: str, bounds: Bounds, field: str) -> Trajectory:
@@ -192,13 +192,13 @@ def _from_poses(poses: list[dict[str, Any]], name: str, bounds: Bounds, field: s
     _count_bound(len(poses), bounds, f, "poses")
     t = [p["t"] for p in poses]
     if t[-1] - t[0] > bounds.max_route_duration_s:
-        raise Rejected(422, f, f"the poses span {t[-1] - t[0]:.1f} s, over the limit of "
+        raise Problem.at(f, f"the poses span {t[-1] - t[0]:.1f} s, over the limit of "
                                f"{bounds.max_route_duration_s:g} s")
     data = np.array([[p["t"], *p["position"], *p["quaternion_xyzw"]] for p in poses], dtype=float)
     try:
         return routes.read_tum(routes.Text(_text_of(lambda f: np.savetxt(f, data, fmt="%.17g")), f"{name}.tum"))
     except RouteError as exc:
-        raise Rejected(422, *_where(exc, f, lambda line: f"[{line - 1}]")) from None
+        raise Problem.at(*_where(exc, f, lambda line: f"[{line - 1}]")) from None
 
 
 def _from_control(control: dict[str, Any], name: str, rig: Rig, bounds: Bounds, field: str) -> Trajectory:
@@ -208,9 +208,9 @@ def _from_control(control: dict[str, Any], name: str, rig: Rig, bounds: Bounds, 
     for key in ("speed_mps", "curvature_1pm", "grade_rad", "bank_rad"):
         v = control.get(key)
         if v is not None and len(v) != len(t):
-            raise Rejected(422, f"{f}.{key}", f"has {len(v)} values for {len(t)} knots (t_s)")
+            raise Problem.at(f"{f}.{key}", f"has {len(v)} values for {len(t)} knots (t_s)")
     if t[-1] - t[0] > bounds.max_route_duration_s:
-        raise Rejected(422, f"{f}.t_s", f"the profile spans {t[-1] - t[0]:.1f} s, over the limit "
+        raise Problem.at(f"{f}.t_s", f"the profile spans {t[-1] - t[0]:.1f} s, over the limit "
                                         f"of {bounds.max_route_duration_s:g} s")
     zeros = [0.0] * len(t)
     data = np.column_stack([t, control["speed_mps"], control["curvature_1pm"],
@@ -225,7 +225,7 @@ def _from_control(control: dict[str, Any], name: str, rig: Rig, bounds: Bounds, 
     try:
         return routes.read_control_csv(routes.Text(_text_of(write), f"{name}.csv"), suspension=rig.suspension)
     except RouteError as exc:
-        raise Rejected(422, *_where(exc, f, lambda line: f" (knot {line - 3})")) from None
+        raise Problem.at(*_where(exc, f, lambda line: f" (knot {line - 3})")) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -252,28 +252,23 @@ def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
     with tightened(duration_s=bounds.max_route_duration_s, length_m=bounds.max_route_length_m):
         traj = route_trajectory(route, r, lim, bounds, field)
         if traj.duration > bounds.max_route_duration_s:
-            raise Rejected(422, field, f"the route lasts {traj.duration:.1f} s, over the limit of "
+            raise Problem.at(field, f"the route lasts {traj.duration:.1f} s, over the limit of "
                                        f"{bounds.max_route_duration_s:g} s")
         return r, traj, evaluate(traj, r, Options(segments=segments))
 
 
-def _as_problem(fn: Callable[[], dict[str, Any]], field: str) -> dict[str, Any]:
-    """``fn()``, with every refusal and failure turned into a problem as data."""
+def task(fn: Callable[..., Any], *args: Any, field: str = "route") -> Any:
+    """``fn(*args)`` with every failure as a :class:`Problem` about ``field`` (in the worker: a
+    bug is logged here, and the client gets a bare 500)."""
     try:
-        return fn()
-    except Rejected as exc:
-        return problem_data(exc.status, exc.field, exc.message)
-    except RouteError as exc:
-        return problem_data(422, field, exc.problem)
-    except ExciteError as exc:
-        kind = "rig" if isinstance(exc, RigError) else field
-        return problem_data(422, kind, str(exc))
-    except MemoryError:
-        return problem_data(413, field, "the route needs more memory than a worker may use "
-                                        "(make it shorter or sparser)")
-    except Exception:  # a bug: logged here, a bare 500 for the client
-        log.exception("scoring failed")
-        return {"ok": False, "status": 500, "detail": "internal error", "errors": []}
+        return fn(*args)
+    except Problem:
+        raise
+    except (ExciteError, MemoryError, RecursionError) as exc:
+        raise problems.of(exc, "rig" if isinstance(exc, RigError) else field) from None
+    except Exception:
+        log.exception("a scoring task failed")
+        raise Problem(500, problems.INTERNAL) from None
 
 
 def track(traj: Trajectory, n: int) -> dict[str, list[float]]:
@@ -286,16 +281,26 @@ def track(traj: Trajectory, n: int) -> dict[str, list[float]]:
 def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
                limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
                rig_field: str = "rig", track_points: int = 0) -> dict[str, Any]:
-    """``{"ok": True, "report": …}`` (with ``"track"`` when ``track_points`` > 0) or a problem
-    as data (status, detail, errors)."""
+    """``{"report": …}`` (with ``"track"`` when ``track_points`` > 0)."""
     def run() -> dict[str, Any]:
         _, traj, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field)
-        out = {"ok": True, "report": _finite(report.to_dict())}
+        out = {"report": _finite(report.to_dict())}
         if track_points:
             out["track"] = _finite(track(traj, track_points))
         return out
 
-    return _as_problem(run, field)
+    return task(run, field=field)
+
+
+def batch_item_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
+                    limits: dict[str, float] | None, bounds: Bounds, index: int) -> dict[str, Any]:
+    """One route of a batch: ``{"report": …}`` or ``{"error": problem document}`` (one bad route
+    does not fail the others)."""
+    field = f"routes[{index}]"
+    try:
+        return score_task(route, rig, segments, limits, bounds, field)
+    except Problem as exc:
+        return {"error": exc.body(f"/v1/batch#{field}")}
 
 
 def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | dict[str, Any],
@@ -309,40 +314,140 @@ def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | 
         traj = read_bag_route(path, **BagSource(**source).options())
         traj.name = f"{filename}:{source['topic']}"
         if traj.duration > bounds.max_route_duration_s:
-            raise Rejected(422, "bag", f"the drive lasts {traj.duration:.1f} s, over the limit of "
-                                       f"{bounds.max_route_duration_s:g} s")
-        return {"ok": True, "report": _finite(evaluate(traj, r, Options(segments=segments)).to_dict())}
+            raise Problem.at("bag", f"the drive lasts {traj.duration:.1f} s, over the limit of "
+                                    f"{bounds.max_route_duration_s:g} s")
+        return _finite(evaluate(traj, r, Options(segments=segments)).to_dict())
 
-    return _as_problem(run, "bag")
+    return task(run, field="bag")
 
 
 def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-              limits: dict[str, float] | None, bounds: Bounds, parameter: str | None) -> dict[str, Any]:
-    """``{"ok": True, "png": bytes}``: the figure of ``excite score --plot`` for this route."""
+              limits: dict[str, float] | None, bounds: Bounds, parameter: str | None) -> bytes:
+    """The PNG of ``excite score --plot`` for this route."""
     from excite.score import plots
 
-    def run() -> dict[str, Any]:
+    def run() -> bytes:
         r, traj, report = _evaluated(route, rig, segments, limits, bounds, "route", "rig")
         if parameter is not None and parameter not in [c.name for c in r.scored]:
-            raise Rejected(422, "parameter", f"{parameter!r} is not a parameter of rig {r.name} "
-                                             f"(parameters: {', '.join(c.name for c in r.scored)})")
-        return {"ok": True, "png": plots.report_figure(report, traj, parameter)}
+            raise Problem.at("parameter", f"{parameter!r} is not a parameter of rig {r.name} "
+                                          f"(parameters: {', '.join(c.name for c in r.scored)})")
+        return plots.report_figure(report, traj, parameter)
 
-    return _as_problem(run, "route")
+    return task(run)
 
 
-def lot_task(lot: dict[str, Any], max_vertices: int) -> str | None:
-    """Why a GeoJSON lot cannot be planned in (the message), or None: in a worker, where the
-    memory limit applies to the shape tests (bounded by ``max_vertices`` before they start)."""
+def rig_task(rig: str | dict[str, Any], field: str = "rig") -> dict[str, Any]:
+    """A client's rig checked (in a worker: a rig's globs are matched against every parameter):
+    its summary as ``GET /v1/rigs`` lists it."""
+    return task(lambda: rig_summary(resolve_rig(rig, field)), field=field)
+
+
+def rig_summary(rig: Rig) -> dict[str, Any]:
+    from excite.factors import base as registry
+
+    return {"name": rig.name, "description": rig.config.description,
+            "keyframe_rate_hz": rig.keyframe_rate_hz,
+            "sensors": [{"name": s.name, "kind": s.kind, "rate_hz": s.rate_hz} for s in rig.config.sensors],
+            # everything the rig measures, the sections too (imu, wheels, ackermann, …)
+            "measurements": [{"name": i.name, "kind": i.kind.name} for i in registry.instances(rig)],
+            "parameters": [{"name": c.name, "unit": c.unit, "target": c.target} for c in rig.scored]}
+
+
+MAX_YAML_EVENTS = 20_000  # a rig file has a few hundred
+
+
+def rig_yaml_task(text: str) -> dict[str, Any]:
+    """A rig YAML file → ``{"rig": its mapping, "summary": …}``. Anchors and aliases are refused
+    (a few nested aliases expand to gigabytes), so are documents nested deeper or larger than a
+    rig can be: checked on the parser's events before anything is built."""
+    import json
+
+    import yaml
+
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+    def bad(message: str) -> Problem:
+        return Problem.at("yaml", message)
+
+    def run() -> dict[str, Any]:
+        try:
+            depth = events = 0
+            for ev in yaml.parse(text, Loader=loader):
+                events += 1
+                if isinstance(ev, yaml.AliasEvent):
+                    raise bad("anchors and aliases (*name) are not accepted; write the values out")
+                if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+                    depth += 1
+                    if depth > MAX_NESTING:
+                        raise bad(f"nested more than {MAX_NESTING} levels deep (a rig is at most 6)")
+                elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+                    depth -= 1
+                if events > MAX_YAML_EVENTS:
+                    raise bad(f"more than {MAX_YAML_EVENTS} values (a rig file holds a few hundred)")
+            data = yaml.load(text, Loader=loader)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f"line {mark.line + 1}: " if mark is not None else ""
+            raise bad(f"{where}{getattr(exc, 'problem', None) or exc}") from None
+        if not isinstance(data, dict):
+            raise bad("a rig file is a mapping (name:, imu:, sensors:, …)")
+        try:
+            json.dumps(data, allow_nan=False)
+        except (TypeError, ValueError):
+            raise bad("holds values JSON cannot carry (dates, binary, NaN or infinity)") from None
+        return {"rig": data, "summary": rig_summary(resolve_rig(data))}
+
+    return task(run, field="yaml")
+
+
+def lot_task(lot: dict[str, Any] | None, max_vertices: int, rig: str | dict[str, Any]) -> list[dict[str, str]]:
+    """What a maneuver request's lot and rig are refused for, as ``errors`` (field, message):
+    in a worker, where the memory limit applies to the shape tests (bounded by ``max_vertices``
+    before they start) and the deadline to the rig's globs."""
     from excite.plan.site import read_site
 
+    errors = []
+    if lot is not None:
+        try:
+            read_site(lot, max_vertices=max_vertices)
+        except ExciteError as exc:
+            errors.append({"field": "lot", "message": str(exc)})
+        except MemoryError:
+            errors.append({"field": "lot", "message": "the lot needs more memory to check than a worker may use"})
     try:
-        read_site(lot, max_vertices=max_vertices)
-    except ExciteError as exc:
-        return str(exc)
-    except MemoryError:
-        return "lot: the lot needs more memory to check than a worker may use"
-    return None
+        task(resolve_rig, rig, field="rig")
+    except Problem as exc:
+        if exc.status != 422:
+            raise
+        errors += exc.errors or []
+    return errors
+
+
+def maneuver_task(profile: dict[str, Any], rig: str | dict[str, Any], fmt: str, name: str,
+                  origin: tuple[float, float] | None) -> str:
+    """A finished job's maneuver as a file's text (:func:`api.export.maneuver_file`)."""
+    from .export import maneuver_file
+
+    return task(lambda: maneuver_file(profile, resolve_rig(rig), fmt, name, origin))
+
+
+def work_size(route: dict[str, Any]) -> float:
+    """The seconds of drive a route holds, estimated without reading it (what admission weighs):
+    the span of its times, or its length at 5 m/s, or one keyframe per line of text."""
+    try:
+        if route.get("control") is not None:
+            t = route["control"]["t_s"]
+            return max(1.0, float(t[-1]) - float(t[0]))
+        if route.get("poses") is not None:
+            return max(1.0, float(route["poses"][-1]["t"]) - float(route["poses"][0]["t"]))
+        if route.get("waypoints") is not None:
+            p = np.asarray(route["waypoints"], dtype=float)[:, :2]
+            return max(1.0, float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) / 5.0)
+        if route.get("text") is not None:
+            return max(1.0, 0.1 * route["text"].count("\n"))
+    except (KeyError, IndexError, TypeError, ValueError):
+        pass
+    return 1.0
 
 
 def warm() -> bool:
@@ -352,7 +457,8 @@ def warm() -> bool:
         _bundled(n)
     route = {"control": {"t_s": [0.0, 5.0, 10.0], "speed_mps": [0.0, 4.0, 0.0],
                          "curvature_1pm": [0.0, 0.1, 0.0]}}
-    out = score_task(route, bundled_rigs()[0], 0, None, Bounds(1000, 60.0, 1000.0))
-    if not out["ok"]:
-        log.warning("warm-up scoring failed: %s", out.get("detail"))
+    try:
+        score_task(route, bundled_rigs()[0], 0, None, Bounds(1000, 60.0, 1000.0))
+    except Problem as exc:
+        log.warning("warm-up scoring failed: %s", exc.detail)
     return True

@@ -20,7 +20,8 @@ from typing import Any
 
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from .problems import PROBLEM_JSON, TYPE_BASE
+from .errors import Problem
+from .problems import PROBLEM_JSON
 
 log = logging.getLogger("excite.api")
 
@@ -79,10 +80,8 @@ def header_timeout_protocol(timeout_s: float) -> type[H11Protocol]:
                 return
             log.warning("%s: request headers not received within %g s; connection closed",
                         "%s:%d" % self.client if self.client else "a client", timeout_s)
-            body = json.dumps({"type": TYPE_BASE + "header-timeout", "title": "Request timeout",
-                               "status": 408, "detail": f"the request headers did not arrive "
-                                                        f"within {timeout_s:g} s",
-                               "instance": ""}).encode()
+            body = json.dumps(Problem(408, f"the request headers did not arrive within {timeout_s:g} s",
+                                      type_="header-timeout").body()).encode()
             self.transport.write(b"HTTP/1.1 408 Request Timeout\r\ncontent-type: " + PROBLEM_JSON.encode()
                                  + b"\r\ncontent-length: " + str(len(body)).encode()
                                  + b"\r\nconnection: close\r\n\r\n" + body)

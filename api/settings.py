@@ -79,14 +79,26 @@ class Settings(BaseSettings):
         "authenticated", description="Who gets /docs and /openapi.json when keys are configured.")
     metrics: Literal["public", "admin", "off"] = Field(
         "admin", description="Who gets /metrics when keys are configured.")
+    allowed_hosts: str = Field(
+        "", max_length=10_000, description="Comma-separated host names the server answers to (the Host "
+                                           "header; * for any). Default: the loopback names (localhost, "
+                                           "127.0.0.1, ::1) for an open server, any for one with API keys.")
     allowed_origins: str = Field(
         "", max_length=10_000, description="Comma-separated origins (https://host:port) besides the "
-                                           "server's own that may open /v1/live and post to it from a browser.")
+                                           "server's own (scheme://host of a host named in "
+                                           "EXCITE_ALLOWED_HOSTS) that may open /v1/live and post to it from a browser.")
     quota_jobs: int = Field(20, ge=0, le=100_000, description="Queued and running jobs per key.")
     quota_live_sessions: int = Field(4, ge=0, le=1000, description="/v1/live sessions per key at once.")
     quota_rate_per_s: float = Field(20.0, gt=0, le=100_000, allow_inf_nan=False,
                                     description="Requests per second per key, on average (per replica).")
     quota_burst: int = Field(40, ge=1, le=100_000, description="Requests per key at once above the rate.")
+    quota_storage_mb: int = Field(256, ge=1, le=1_048_576,
+                                  description="Stored jobs per key (requests and results) [MiB]: beyond it "
+                                              "the key's own oldest finished jobs are deleted, and a new job "
+                                              "that its unfinished ones leave no room for is refused (429).")
+    score_share: float = Field(0.5, gt=0, le=1, allow_inf_nan=False,
+                               description="Share of the scoring workers one key may hold at once while "
+                                           "other keys wait (at least one worker).")
 
     # -- the job store (api.store) -------------------------------------------------------------
     database_url: str | None = Field(
@@ -100,8 +112,6 @@ class Settings(BaseSettings):
                                                   "this, whatever it is doing [s].")
     retention_days: float = Field(7.0, gt=0, le=3650, allow_inf_nan=False,
                                   description="Finished jobs older than this are deleted [days].")
-    retention_max_mb: int = Field(1024, ge=1, le=1_048_576,
-                                  description="Beyond this total the oldest finished jobs are deleted [MiB].")
     min_free_mb: int = Field(64, ge=0, le=1_048_576,
                              description="Below this free space on the job database's or the temporary "
                                          "folder's disk, /readyz fails and bag uploads get 503 [MiB].")
@@ -158,6 +168,11 @@ class Settings(BaseSettings):
     def store_url(self) -> str:
         """Where the jobs are: the PostgreSQL URL, else the SQLite file."""
         return self.database_url or str(self.db_path)
+
+    def hosts(self, open_server: bool) -> tuple[str, ...]:
+        """The host names the server answers to (see ``allowed_hosts``)."""
+        named = tuple(h.strip().lower().strip("[]") for h in self.allowed_hosts.split(",") if h.strip())
+        return named or (("localhost", "127.0.0.1", "::1") if open_server else ("*",))
 
     @property
     def origins(self) -> tuple[str, ...]:

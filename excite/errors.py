@@ -12,6 +12,8 @@
     │   ├── PlotError               a figure cannot be drawn as asked (excite.score.plots)
     │   ├── ManifestError           a routes manifest is malformed (excite.fleet.batch)
     │   └── EngineError             the Dask cluster cannot be reached or used (excite.core.engine)
+    ├── WorkerDied                  a helper process ended while running a task (excite.core.processes)
+    ├── WorkTimeout                 a task did not finish by its deadline (its process was ended)
     ├── FactorisationError          internal: a pivot of the calibrator's banded Cholesky failed
     └── OutOfTime                   internal: a baseline optimizer's time budget ran out
 
@@ -84,6 +86,14 @@ class ValidateError(ExciteError, ValueError):
 
 class OptimizeError(ExciteError, ValueError):
     """The optimization cannot be set up (bad settings, a lot too small for the limits)."""
+
+
+class WorkerDied(Exception):
+    """A helper process ended while running a task (killed, out of memory, crashed)."""
+
+
+class WorkTimeout(Exception):
+    """A task did not finish by its deadline; its process was ended."""
 
 
 class FactorisationError(Exception):

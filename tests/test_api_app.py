@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 import api
 from api import Settings, create_app
-from api.store import SqliteStore
+from api.store import open_store as SqliteStore
 
 
 def test_public_names():
@@ -46,7 +46,7 @@ def test_store_re_queues_jobs_of_a_dead_server_and_ignores_stale_workers(tmp_pat
     assert store.get(a)["status"] == "queued" and store.get(a)["progress"] == {"iteration": 3}
     assert store.claim("me", 30) == (a, 2)
     # the first run's straggler can neither write nor finish
-    assert store.should_stop(a, 1) and not store.should_stop(a, 2)
+    assert store.request_of(a, 1) is None and store.request_of(a, 2) == {"x": 1}
     assert not store.finish(a, 1, "succeeded", result={"stale": True})
     assert store.finish(a, 2, "succeeded", result={"ok": True})
     assert store.get(a)["result"] == {"ok": True}
@@ -59,7 +59,7 @@ def test_time_limit_and_no_traceback(tmp_path):
 
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1,
                               request_timeout_s=0.05))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         r = c.post("/v1/score", json={"route": {"waypoints": [[0, 0], [300, 0], [300, 200], [0, 200]]}})
         assert r.status_code == 503 and "0.05 s" in r.json()["detail"], r.text
         assert r.headers["content-type"].startswith("application/problem+json")
@@ -70,7 +70,7 @@ def test_time_limit_and_no_traceback(tmp_path):
     def boom():
         raise RuntimeError("secret internals")
 
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         r = c.get("/boom")
         assert r.status_code == 500 and "secret" not in r.text and "Traceback" not in r.text
         assert r.json()["title"] == "Internal server error"

@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from api import Settings, create_app
-from api.store import SqliteStore
+from api.store import open_store as SqliteStore
 from test_api_support import LiveServer, job_result_file, write_keys
 
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
@@ -29,7 +29,7 @@ def keyed(tmp_path_factory):
     secrets = write_keys(tmp / "keys.yaml", KEYS)
     app = create_app(Settings(db_path=tmp / "jobs.sqlite3", workers=0, score_workers=1,
                               api_keys_file=tmp / "keys.yaml"))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         yield c, secrets
 
 
@@ -100,22 +100,54 @@ def test_request_rate_is_429_with_retry_after(keyed):
 
 def test_live_sessions_are_per_key_and_need_a_key(keyed):
     c, s = keyed
-    with c.websocket_connect("/v1/live") as ws:  # no key: refused in a problem frame
+    with c.websocket_connect("ws://localhost/v1/live") as ws:  # no key: refused in a problem frame
         frame = ws.receive_json()
         assert frame["type"] == "error" and frame["problem"]["status"] == 401
-    with c.websocket_connect("/v1/live", headers=_h(s, "slow")) as first:
+    with c.websocket_connect("ws://localhost/v1/live", headers=_h(s, "slow")) as first:
         first.send_json({"type": "start", "rig": "robotaxi"})
         assert first.receive_json()["type"] == "started"
-        with c.websocket_connect("/v1/live", headers=_h(s, "slow")) as second:  # quota: 1 session
+        with c.websocket_connect("ws://localhost/v1/live", headers=_h(s, "slow")) as second:  # quota: 1 session
             frame = second.receive_json()
             assert frame["problem"]["status"] == 429 and "quota" in frame["problem"]["detail"]
-    # a browser's ticket (its WebSocket cannot send a header)
+    # a browser's ticket (its WebSocket cannot send a header), offered as a subprotocol: it
+    # opens one session, once
     ticket = c.post("/v1/live/tickets", headers=_h(s, "scorer")).json()["ticket"]
-    with c.websocket_connect(f"/v1/live?ticket={ticket}") as ws:
+    offer = ["excite-live", f"excite-ticket.{ticket}"]
+    with c.websocket_connect("ws://localhost/v1/live", subprotocols=offer) as ws:
+        assert ws.accepted_subprotocol == "excite-live"
         ws.send_json({"type": "start", "rig": "robotaxi"})
         assert ws.receive_json()["type"] == "started"
-    with c.websocket_connect("/v1/live?ticket=scorer.1.forged") as ws:
+    with c.websocket_connect("ws://localhost/v1/live", subprotocols=offer) as ws:  # used already
         assert ws.receive_json()["problem"]["status"] == 401
+    with c.websocket_connect("ws://localhost/v1/live", subprotocols=["excite-live", "excite-ticket.scorer.1.x.forged"]) as ws:
+        assert ws.receive_json()["problem"]["status"] == 401
+
+
+def test_tickets_are_random_secret_signed_short_lived_and_not_in_any_url(keyed, tmp_path):
+    """The ticket secret is random and kept in the job store (shared by replicas), not derived
+    from the keys file; a validly signed ticket that would outlive the TTL is refused; the
+    OpenAPI document offers the ticket as no HTTP route's credential."""
+    from api import auth
+
+    c, s = keyed
+    secret = c.app.state.ticket_secret
+    keys_file = Path(c.app.state.ctx.settings.api_keys_file).read_bytes()
+    assert len(secret) == 32 and secret not in keys_file
+    import hashlib
+
+    assert secret != hashlib.sha256(b"excite-live-ticket\0" + keys_file).digest()
+    assert auth.ticket_claims(secret, auth.ticket(secret, "root")) is not None
+    ten_years = auth.ticket(secret, "root", ttl_s=10 * 365 * 86400)
+    assert auth.ticket_claims(secret, ten_years) is None
+    with c.websocket_connect("ws://localhost/v1/live", subprotocols=["excite-live", f"excite-ticket.{ten_years}"]) as ws:
+        assert ws.receive_json()["problem"]["status"] == 401
+    doc = c.get("/openapi.json", headers=_h(s, "scorer")).json()
+    assert "LiveTicket" not in doc["components"]["securitySchemes"]
+    assert all("LiveTicket" not in str(op.get("security")) for item in doc["paths"].values() for op in item.values())
+    # another replica on the same store signs with the same secret
+    app2 = create_app(Settings(db_path=c.app.state.ctx.settings.db_path, workers=0, score_workers=1,
+                               api_keys_file=c.app.state.ctx.settings.api_keys_file))
+    assert app2.state.ticket_secret == secret
 
 
 def test_metrics_and_docs_follow_their_settings(keyed, tmp_path):
@@ -130,7 +162,7 @@ def test_metrics_and_docs_follow_their_settings(keyed, tmp_path):
     secrets = write_keys(tmp_path / "keys.yaml", {"a": {"scopes": ["admin"]}})
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1,
                               api_keys_file=tmp_path / "keys.yaml", docs="off", metrics="public"))
-    with TestClient(app) as c2:
+    with TestClient(app, base_url="http://localhost") as c2:
         assert c2.get("/openapi.json", headers={"X-API-Key": secrets["a"]}).status_code == 404
         assert c2.get("/docs", headers={"X-API-Key": secrets["a"]}).status_code == 404
         assert c2.get("/metrics").status_code == 200
@@ -241,7 +273,7 @@ def test_a_flood_of_jobs_does_not_starve_another_key_over_http(tmp_path):
 def open_client(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("open")
     app = create_app(Settings(db_path=tmp / "jobs.sqlite3", workers=0, score_workers=1))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         yield c
 
 
@@ -250,16 +282,16 @@ def test_a_cross_site_multipart_post_is_refused(open_client, data_dir):
     bag = (data_dir / "nav2_turtlebot.mcap").read_bytes()
     files = {"bag": ("nav2_turtlebot.mcap", bag, "application/octet-stream")}
     # what a foreign page's form would send: its origin, or (old browsers) no origin and no custom header
-    body = _problem(c.post("/v1/score", files=files, data={"topic": "/odom"},
+    body = _problem(c.post("/v1/score/bag", files=files, data={"topic": "/odom"},
                            headers={"Origin": "https://evil.example"}), 403)
     assert "evil.example" in body["detail"]
-    _problem(c.post("/v1/score", files=files, data={"topic": "/odom"}), 403)
-    _problem(c.post("/v1/score", files=files, data={"topic": "/odom"}, headers={"Sec-Fetch-Site": "cross-site"}), 403)
+    _problem(c.post("/v1/score/bag", files=files, data={"topic": "/odom"}), 403)
+    _problem(c.post("/v1/score/bag", files=files, data={"topic": "/odom"}, headers={"Sec-Fetch-Site": "cross-site"}), 403)
     _problem(c.post("/v1/score", content=b'{"route": {}}', headers={"Content-Type": "text/plain"}), 403)
     # this server's own page, or a client that says it is one (a header a form cannot send)
-    r = c.post("/v1/score", files=files, data={"topic": "/odom"}, headers={"Origin": "http://testserver"})
+    r = c.post("/v1/score/bag", files=files, data={"topic": "/odom"}, headers={"Origin": "http://localhost"})
     assert r.status_code == 200, r.text[:300]
-    assert c.post("/v1/score", files=files, data={"topic": "/odom"},
+    assert c.post("/v1/score/bag", files=files, data={"topic": "/odom"},
                   headers={"X-Excite-Client": "curl"}).status_code == 200
     # JSON needs a preflight a foreign page does not pass: allowed without the header, not from a foreign origin
     assert c.post("/v1/score", json={"route": LOOP}).status_code == 200
@@ -270,16 +302,16 @@ def test_a_cross_site_multipart_post_is_refused(open_client, data_dir):
 def test_a_foreign_origin_websocket_is_refused(open_client, tmp_path):
     c = open_client
     with pytest.raises(WebSocketDisconnect) as exc:
-        with c.websocket_connect("/v1/live", headers={"Origin": "https://evil.example"}) as ws:
+        with c.websocket_connect("ws://localhost/v1/live", headers={"Origin": "https://evil.example"}) as ws:
             ws.receive_json()
     assert exc.value.code == 1008
-    with c.websocket_connect("/v1/live", headers={"Origin": "http://testserver"}) as ws:
+    with c.websocket_connect("ws://localhost/v1/live", headers={"Origin": "http://localhost"}) as ws:
         ws.send_json({"type": "start"})
         assert ws.receive_json()["type"] == "started"
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1,
                               allowed_origins="https://planner.example:8443"))
-    with TestClient(app) as c2:
-        with c2.websocket_connect("/v1/live", headers={"Origin": "https://planner.example:8443"}) as ws:
+    with TestClient(app, base_url="http://localhost") as c2:
+        with c2.websocket_connect("ws://localhost/v1/live", headers={"Origin": "https://planner.example:8443"}) as ws:
             ws.send_json({"type": "start"})
             assert ws.receive_json()["type"] == "started"
 

@@ -25,7 +25,7 @@ def server(tmp_path_factory):
 
 def _post(server, name, data, **fields):
     with server.client() as c:
-        return c.post("/v1/score", files={"bag": (name, data, "application/octet-stream")}, data=fields,
+        return c.post("/v1/score/bag", files={"bag": (name, data, "application/octet-stream")}, data=fields,
                       headers={"X-Excite-Client": "tests"})
 
 

@@ -23,7 +23,7 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from api import Settings, create_app
-from api.store import SqliteStore
+from api.store import open_store as SqliteStore
 from test_api_support import LiveServer, processes_with, wait_job
 
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
@@ -196,7 +196,7 @@ def bag_server(tmp_path_factory):
 
 def _upload(srv, path: Path, topic: str = "/pose"):
     with srv.client(headers={"X-Excite-Client": "tests"}) as c:
-        return c.post("/v1/score", files={"bag": (path.name, path.read_bytes(), "application/octet-stream")},
+        return c.post("/v1/score/bag", files={"bag": (path.name, path.read_bytes(), "application/octet-stream")},
                       data={"topic": topic})
 
 
@@ -251,7 +251,7 @@ def test_a_bag_upload_is_written_to_disk_once(bag_server, data_dir):
 
     before = written()
     with bag_server.client(headers={"X-Excite-Client": "tests"}) as c:
-        r = c.post("/v1/score", files={"bag": ("nav2.mcap", data, "application/octet-stream")},
+        r = c.post("/v1/score/bag", files={"bag": ("nav2.mcap", data, "application/octet-stream")},
                    data={"topic": "/odom"})
     assert r.status_code == 200, r.text[:300]
     assert written() - before < 1.3 * len(data), (written() - before, len(data))
@@ -296,7 +296,7 @@ def client(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("surfaces")
     app = create_app(Settings(db_path=tmp / "jobs.sqlite3", workers=0, score_workers=1, max_lot_vertices=500,
                               max_route_duration_s=60, max_live_pose_rate_hz=400))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         yield c
 
 
@@ -363,17 +363,17 @@ def _frame(ws):
 
 
 def test_malformed_websocket_frames_are_refused_with_a_problem(client):
-    with client.websocket_connect("/v1/live") as ws:
+    with client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_bytes(b"\x00\x01binary")
         p = _frame(ws)
         assert p["status"] == 422 and "binary frames" in p["detail"]
         with pytest.raises(WebSocketDisconnect) as exc:
             ws.receive_json()
         assert exc.value.code == 1003
-    with client.websocket_connect("/v1/live") as ws:
+    with client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_text('{"type": "start", "x": ' + "[" * 5000 + "]" * 5000 + "}")
         assert "nested more than" in _frame(ws)["detail"]
-    with client.websocket_connect("/v1/live") as ws:
+    with client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_json({"type": "start"})
         assert ws.receive_json()["type"] == "started"
         ws.send_text('{"type": "poses", "poses": [[0, 1' + "0" * 400 + ', 0, 0, 0, 0, 0, 1]]}')
@@ -384,7 +384,7 @@ def test_malformed_websocket_frames_are_refused_with_a_problem(client):
 def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
     from api.routers import live
 
-    with client.websocket_connect("/v1/live") as ws:  # the route-duration bound (60 s here)
+    with client.websocket_connect("ws://localhost/v1/live") as ws:  # the route-duration bound (60 s here)
         ws.send_json({"type": "start"})
         ws.receive_json()
         ws.send_json({"type": "poses", "poses": _poses(np.arange(0, 30, 0.1))})
@@ -394,12 +394,12 @@ def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
             msg = ws.receive_json()
             p = msg["problem"] if msg["type"] == "error" else None
         assert "over the limit of 60 s" in p["detail"]
-    with client.websocket_connect("/v1/live") as ws:  # the pose rate (400 Hz here)
+    with client.websocket_connect("ws://localhost/v1/live") as ws:  # the pose rate (400 Hz here)
         ws.send_json({"type": "start"})
         ws.receive_json()
         ws.send_json({"type": "poses", "poses": _poses(np.arange(0, 2, 0.001))})
         assert "denser than the limit of 400 Hz" in _frame(ws)["detail"]
-    with client.websocket_connect("/v1/live") as ws:
+    with client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_json({"type": "start"})
         ws.receive_json()
         (proc,) = live.session_processes()
@@ -418,7 +418,7 @@ def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
 
 def test_a_live_session_over_its_memory_limit_is_refused(tmp_path):
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1, live_memory_mb=64))
-    with TestClient(app) as c, c.websocket_connect("/v1/live") as ws:
+    with TestClient(app, base_url="http://localhost") as c, c.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_json({"type": "start"})
         ws.receive_json()
         ws.send_json({"type": "poses", "poses": _poses(np.arange(0, 20, 0.1))})
@@ -479,7 +479,7 @@ def test_store_faults_are_named_and_metrics_never_fail(tmp_path, caplog, monkeyp
     def full():
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         job = c.post("/v1/maneuvers", json={"time_budget_s": 1}).json()["id"]
         c.delete(f"/v1/jobs/{job}")
         assert c.get("/readyz").status_code == 200
@@ -503,10 +503,10 @@ def test_store_faults_are_named_and_metrics_never_fail(tmp_path, caplog, monkeyp
 
 def test_a_nearly_full_disk_is_not_ready_and_uploads_wait(tmp_path):
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1, min_free_mb=1_000_000))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         r = c.get("/readyz")
         assert r.status_code == 503 and "EXCITE_MIN_FREE_MB" in r.json()["detail"]
-        r = c.post("/v1/score", files={"bag": ("a.mcap", b"x", "application/octet-stream")},
+        r = c.post("/v1/score/bag", files={"bag": ("a.mcap", b"x", "application/octet-stream")},
                    data={"topic": "/odom"}, headers={"X-Excite-Client": "t"})
         assert r.status_code == 503 and r.json()["type"].endswith("/disk-full")
 

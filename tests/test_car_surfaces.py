@@ -106,7 +106,7 @@ def client(tmp_path_factory):
     from api import Settings, create_app
 
     app = create_app(Settings(db_path=tmp_path_factory.mktemp("car") / "j.sqlite3", workers=0, score_workers=1))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
         yield c
 
 
@@ -146,7 +146,7 @@ def test_live_guidance_over_the_service(client):
                                 0.1 * np.sin(np.linspace(0, 30, 31) / 4)))
     s = traj.sample(t)
     rows = np.column_stack([t, s.p_W_V, Rotation.from_matrix(s.R_W_V).as_quat()]).tolist()
-    with client.websocket_connect("/v1/live") as ws:
+    with client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_text(json.dumps({"type": "start", "rig": "sedan", "name": "car"}))
         assert ws.receive_json()["type"] == "started"
         for i in range(0, len(rows), 100):

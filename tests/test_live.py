@@ -454,7 +454,7 @@ def ws_client(tmp_path_factory):
     from api.settings import Settings
 
     app = create_app(Settings(db_path=tmp_path_factory.mktemp("live") / "j.sqlite3", workers=0, score_workers=1))
-    return TestClient(app)  # no lifespan: the WebSocket needs neither workers nor the job store
+    return TestClient(app, base_url="http://localhost")  # no lifespan: the WebSocket needs neither workers nor the job store
 
 
 def _tum_rows(path: Path) -> list[list[float]]:
@@ -487,7 +487,7 @@ def test_websocket_kitti_00_ends_with_excite_score(ws_client, kitti, kitti_repor
     tum = tmp_path / "kitti_00.tum"
     np.savetxt(tum, rows, fmt="%.17g")
     score = evaluate(read_tum(tum), load_rig("robotaxi"))
-    with ws_client.websocket_connect("/v1/live") as ws:
+    with ws_client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_text(json.dumps({"type": "start", "rig": "robotaxi", "name": "kitti_00"}))
         assert ws.receive_json()["type"] == "started"
         events = _stream(ws, rows.tolist())
@@ -507,7 +507,7 @@ def test_websocket_sessions_are_independent_and_freed(ws_client):
     score = evaluate(read_tum(FIGURE_EIGHT), load_rig("robotaxi"))
     slow = [[t * 2, x, y, z, qx, qy, qz, qw] for t, x, y, z, qx, qy, qz, qw in rows]  # same path, half speed
     score_slow = evaluate(read_tum(_write(slow)), load_rig("robotaxi"))
-    with ws_client.websocket_connect("/v1/live") as a, ws_client.websocket_connect("/v1/live") as b:
+    with ws_client.websocket_connect("ws://localhost/v1/live") as a, ws_client.websocket_connect("ws://localhost/v1/live") as b:
         for ws in (a, b):
             ws.send_text(json.dumps({"type": "start"}))
             ws.receive_json()
@@ -520,7 +520,7 @@ def test_websocket_sessions_are_independent_and_freed(ws_client):
         for p, q in zip(events[-1]["parameters"], ref.parameters):
             assert q.sigma is None or _rel(p["sigma"], q.sigma) <= 1e-9
     # a client that goes away mid-drive leaves nothing behind
-    with ws_client.websocket_connect("/v1/live") as ws:
+    with ws_client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_text(json.dumps({"type": "start"}))
         ws.receive_json()
         ws.send_text(json.dumps({"type": "poses", "poses": rows[:300]}))
@@ -542,7 +542,7 @@ def _write(rows) -> Path:
 def _refused(ws_client, messages, status: int, field: str, code: int) -> dict:
     from starlette.websockets import WebSocketDisconnect
 
-    with ws_client.websocket_connect("/v1/live") as ws:
+    with ws_client.websocket_connect("ws://localhost/v1/live") as ws:
         for m in messages:
             ws.send_text(m if isinstance(m, str) else json.dumps(m))
         reply = ws.receive_json()
@@ -581,12 +581,12 @@ def test_websocket_refuses_bad_input_with_problems(ws_client, monkeypatch):
     monkeypatch.setattr(router, "IDLE_S", 0.2)
     _refused(ws_client, [start], 408, "session", 1008)  # then silence
     monkeypatch.setattr(router, "MAX_SESSIONS", 1)
-    with ws_client.websocket_connect("/v1/live") as first:
+    with ws_client.websocket_connect("ws://localhost/v1/live") as first:
         first.send_text(json.dumps(start))
         first.receive_json()
         from starlette.websockets import WebSocketDisconnect
 
-        with ws_client.websocket_connect("/v1/live") as second:
+        with ws_client.websocket_connect("ws://localhost/v1/live") as second:
             reply = second.receive_json()
             assert reply["type"] == "error" and reply["problem"]["status"] == 503
             with pytest.raises(WebSocketDisconnect) as closed:

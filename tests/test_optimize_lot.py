@@ -194,7 +194,7 @@ def test_api_takes_a_geojson_lot_and_names_a_bad_one(tmp_path):
     from api import Settings, create_app
 
     app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1))
-    with TestClient(app) as c:
+    with TestClient(app, base_url="http://localhost") as c:
         r = c.post("/v1/maneuvers", json={"lot": l_lot(ramp=True), "criterion": "D", "time_budget_s": 10})
         assert r.status_code == 202, r.text
         job = c.get(r.headers["location"]).json()

@@ -18,11 +18,12 @@ def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
             429: "Over a quota of the key, or the workers are too busy to finish this in time: retry "
                  "after `Retry-After` seconds",
             500: "Internal error (no details; logged server-side)",
+            421: "The Host is not one this server answers to (EXCITE_ALLOWED_HOSTS)",
             503: "Time limit exceeded or not ready"}
     return {s: {"model": Problem, "description": text[s], "content": {PROBLEM_JSON: {}}}
             for s in statuses}
 
 
 AUTH = problems(401, 403, 429)  # every operation of a server with API keys
-BODY = problems(400, 401, 403, 408, 413, 422, 429, 500, 503)
+BODY = problems(400, 401, 403, 408, 413, 421, 422, 429, 500, 503)
 SCORED = BODY  # operations that need a scoring worker

@@ -21,9 +21,8 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from ..auth import authorize
 from ..context import Ctx, Context
-from ..errors import ProblemError
+from ..errors import Problem
 from ..schemas import Health
-from ..store import SqliteStore
 from .common import problems
 
 router = APIRouter(tags=["health"])
@@ -51,7 +50,7 @@ def unready(ctx: Context) -> str | None:
         return "the job store failed the dispatcher's last use of it (the fault is logged)"
     need = ctx.settings.min_free_mb
     folders = [Path(tempfile.gettempdir())]
-    if isinstance(ctx.store, SqliteStore):
+    if ctx.store.path is not None:
         folders.insert(0, ctx.store.path.parent)
     for folder in folders:
         try:
@@ -76,7 +75,7 @@ def readyz(ctx: Ctx) -> Any:
     jobs are dispatched."""
     why = unready(ctx)
     if why is not None:
-        raise ProblemError(503, why, headers={"Retry-After": "5"})
+        raise Problem(503, why, headers={"Retry-After": "5"})
     detail = {} if ctx.keys is not None else {
         "score_workers": ctx.settings.score_workers, "job_workers": ctx.settings.workers,
         "jobs_running": ctx.runner.running}

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Query, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 
 from ..auth import Planner
 from ..context import Ctx
-from ..export import MEDIA, maneuver_file
-from ..errors import ProblemError
+from ..export import MEDIA
+from ..errors import Problem
 from ..schemas import Job
-from ..scoring import resolve_rig
+from ..scoring import maneuver_task
 from .common import problems
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
@@ -39,7 +39,7 @@ def _get(ctx: Ctx, job_id: str, who: Any) -> dict[str, Any]:
     as if it did not exist."""
     job = ctx.store.get(job_id, key_id=who.job_filter)
     if job is None:
-        raise ProblemError(404, f"no job with id {job_id!r}")
+        raise Problem(404, f"no job with id {job_id!r}")
     return job
 
 
@@ -57,9 +57,9 @@ def get_job(job_id: JobId, ctx: Ctx, who: Planner) -> Any:
 def cancel_job(job_id: JobId, ctx: Ctx, response: Response, who: Planner) -> Any:
     status = ctx.store.cancel(job_id, key_id=who.job_filter)
     if status is None:
-        raise ProblemError(404, f"no job with id {job_id!r}")
+        raise Problem(404, f"no job with id {job_id!r}")
     if status in ("succeeded", "failed"):
-        raise ProblemError(409, f"job {job_id} already {status}")
+        raise Problem(409, f"job {job_id} already {status}")
     if status == "running":
         response.status_code = 202
         ctx.runner.wake()
@@ -71,7 +71,7 @@ def cancel_job(job_id: JobId, ctx: Ctx, response: Response, who: Planner) -> Any
                              "content": {m: {"schema": {"type": "string"}} for m in sorted(set(MEDIA.values()))}},
                        **problems(401, 403, 404, 409, 422, 429, 500, 503)},
             summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON")
-def download_maneuver(job_id: JobId, ctx: Ctx, who: Planner,
+def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
                       format: Annotated[Literal["tum", "csv", "control", "geojson"], Query(
                           description="tum: poses of V; csv: waypoints x,y,z,speed; control: "
                                       "t,speed,curvature CSV; geojson: WGS84 LineString")] = "tum",
@@ -81,7 +81,7 @@ def download_maneuver(job_id: JobId, ctx: Ctx, who: Planner,
     job = _get(ctx, job_id, who)
     result = job["result"]
     if result is None or result.get("profile") is None:
-        raise ProblemError(409, f"job {job_id} has no maneuver (status {job['status']})")
+        raise Problem(409, f"job {job_id} has no maneuver (status {job['status']})")
     req = ctx.store.request_of(job_id) or {}
     origin = None
     if lon_deg is not None and lat_deg is not None:
@@ -91,11 +91,12 @@ def download_maneuver(job_id: JobId, ctx: Ctx, who: Planner,
     elif result.get("origin"):  # the request's lot was GeoJSON in lon/lat
         origin = (result["origin"]["lon_deg"], result["origin"]["lat_deg"])
     if format == "geojson" and origin is None:
-        raise ProblemError(422, "lon_deg/lat_deg: GeoJSON needs the lot's origin: give lon_deg "
-                                "and lat_deg, or origin in the request",
-                           errors=[{"field": "lon_deg", "message": "required for geojson"}])
+        raise Problem(422, "lon_deg/lat_deg: GeoJSON needs the lot's origin: give lon_deg "
+                           "and lat_deg, or origin in the request",
+                      errors=[{"field": "lon_deg", "message": "required for geojson"}])
     name = req.get("name") or "maneuver"
-    text = maneuver_file(result["profile"], resolve_rig(req.get("rig", "robotaxi")), format, name, origin)
+    # the stored rig is a client's: resolved, and the drive rebuilt, in a worker
+    text = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
     ext = {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]
     return Response(text, media_type=MEDIA[format],
                     headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})

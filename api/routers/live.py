@@ -23,11 +23,15 @@ its drive lasts at most ``EXCITE_MAX_ROUTE_DURATION_S``, holds at most ``EXCITE_
 poses, no denser than ``EXCITE_MAX_LIVE_POSE_RATE_HZ``; at most ``EXCITE_MAX_LIVE_SESSIONS`` stream
 at once, and each key at most its quota of them.
 
-**Where the work runs.** Each session's incremental evaluator runs in a process of its own
-(forked from the scoring pool's forkserver) with an address-space limit
-(``EXCITE_LIVE_MEMORY_MB``), and every message's work, the final evaluation included, has the
-request time limit: the server process holds only the socket. A broken connection, a refusal or
-the end of the session ends that process.
+**Where the work runs.** Each session's incremental evaluator runs in a supervised process of its
+own (:class:`~excite.core.processes.Supervised`, forked from the scoring pool's forkserver) with
+an address-space limit (``EXCITE_LIVE_MEMORY_MB``); the start's rig is resolved there too, and
+every message's work, the start and the final evaluation included, has the request time limit:
+the event loop holds only the socket. A broken connection, a refusal or the end of the session
+ends that process.
+
+**Authentication**: a key in the headers, or (a browser) a single-use ticket offered as the
+subprotocol ``excite-ticket.<ticket>`` beside ``excite-live``, which the server answers with.
 """
 
 from __future__ import annotations
@@ -35,19 +39,19 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import threading
 import time
 from typing import Any
 
 import anyio
-from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
-from ..auth import LiveClient, Scorer
+from excite.core.processes import Supervised
+from excite.errors import WorkerDied, WorkTimeout
+
+from .. import auth
+from ..auth import LIVE_PROTOCOL, LiveClient, RateLimiter, Scorer
 from ..context import Ctx, Context
-from ..errors import ProblemError, Refused, Rejected
-from ..problems import TYPE_BASE, capped
-from ..scoring import resolve_rig
+from ..errors import Problem
 
 log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
@@ -60,36 +64,21 @@ BURST = 100
 IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot freed)
 MAX_SESSIONS = 64  # the ceiling of EXCITE_MAX_LIVE_SESSIONS (16 by default), whatever it says
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
-_processes: set[Any] = set()  # every session's process, ended at shutdown
-_lock = threading.Lock()
+_messages = RateLimiter()  # per session
+# the close code of a refusal, by the problem's status (1008: policy, the default)
+CLOSE = {413: 1009, 500: 1011, 503: 1011}
 
 
-def problem(status: int, field: str, message: str) -> dict[str, Any]:
-    """The error frame: the fields of an RFC 9457 problem document."""
-    kind = {401: "unauthorized", 403: "forbidden", 408: "timeout", 413: "too-large", 422: "validation",
-            429: "rate-limited", 500: "internal", 503: "unavailable"}.get(status, "http-error")
-    title = {401: "Unauthorized", 403: "Forbidden", 408: "Request timeout", 413: "Content too large",
-             422: "Unprocessable content", 429: "Too many requests", 500: "Internal server error",
-             503: "Service unavailable"}.get(status, "Bad request")
-    return {"type": "error", "problem": capped({"type": TYPE_BASE + kind, "title": title, "status": status,
-                                                "detail": f"{field}: {message}",
-                                                "errors": [{"field": field, "message": message}]})}
+class Refusal(Exception):
+    """Ends a session: the problem as an error frame, then the close code."""
+
+    def __init__(self, problem: Problem, close_code: int | None = None):
+        super().__init__(problem.detail)
+        self.problem, self.close_code = problem, close_code or CLOSE.get(problem.status, 1008)
 
 
-class _Bucket:
-    """Token bucket: ``rate`` messages per second on average, ``burst`` at once."""
-
-    def __init__(self, rate: float, burst: int):
-        self.rate, self.burst, self.tokens, self.at = rate, burst, float(burst), time.monotonic()
-
-    def take(self) -> bool:
-        now = time.monotonic()
-        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
-        self.at = now
-        if self.tokens < 1:
-            return False
-        self.tokens -= 1
-        return True
+def refused(status: int, field: str, message: str, close_code: int | None = None) -> Refusal:
+    return Refusal(Problem.at(field, message, status), close_code)
 
 
 def depth(text: str) -> int:
@@ -121,16 +110,16 @@ def _number(text: str) -> float | int:
 
 def _message(text: str) -> dict[str, Any]:
     if len(text.encode("utf-8")) > MAX_MESSAGE_BYTES:
-        raise Refused(413, "message", f"over the limit of {MAX_MESSAGE_BYTES} bytes", 1009)
+        raise refused(413, "message", f"over the limit of {MAX_MESSAGE_BYTES} bytes")
     if depth(text) > MAX_DEPTH:
-        raise Refused(422, "message", f"nested more than {MAX_DEPTH} levels deep")
+        raise refused(422, "message", f"nested more than {MAX_DEPTH} levels deep")
     try:
         msg = json.loads(text, parse_int=_number)
     except ValueError as exc:
         detail = f"{exc.msg} at character {exc.pos}" if isinstance(exc, json.JSONDecodeError) else str(exc)[:200]
-        raise Refused(400, "message", f"not JSON ({detail})") from None
+        raise refused(400, "message", f"not JSON ({detail})") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        raise Refused(422, "type", "each message is an object with a string field 'type'")
+        raise refused(422, "type", "each message is an object with a string field 'type'")
     return msg
 
 
@@ -148,14 +137,14 @@ def _rows(msg: dict[str, Any], field: str, width: int, required: bool) -> list[l
     if rows is None and not required:
         return None
     if not isinstance(rows, list) or not rows:
-        raise Refused(422, field, f"must be a non-empty array of [{width} numbers] rows")
+        raise refused(422, field, f"must be a non-empty array of [{width} numbers] rows")
     if len(rows) > MAX_POSES:
-        raise Refused(413, field, f"{len(rows)} rows, over the limit of {MAX_POSES} per message")
+        raise refused(413, field, f"{len(rows)} rows, over the limit of {MAX_POSES} per message")
     for i, r in enumerate(rows):
         if not (isinstance(r, list) and len(r) == width and all(_finite_number(x) for x in r)):
-            raise Refused(422, f"{field}[{i}]", f"must be {width} finite numbers")
+            raise refused(422, f"{field}[{i}]", f"must be {width} finite numbers")
         if any(abs(x) > 1e12 for x in r):
-            raise Refused(422, f"{field}[{i}]", "a number beyond ±1e12")
+            raise refused(422, f"{field}[{i}]", "a number beyond ±1e12")
     return rows
 
 
@@ -170,7 +159,7 @@ def _poses(rows: list[list[float]]):
     bad = np.abs(norm - 1.0) > QUAT_NORM_TOL
     if bad.any():
         k = int(np.argmax(bad))
-        raise Refused(422, f"poses[{k}]", f"the quaternion has norm {norm[k]:.6g}, not 1")
+        raise refused(422, f"poses[{k}]", f"the quaternion has norm {norm[k]:.6g}, not 1")
     return d[:, 0], d[:, 1:4], Rotation.from_quat(d[:, 4:8] / norm[:, None]).as_matrix()
 
 
@@ -195,12 +184,12 @@ class Drive:
     def check(self, t: Any) -> None:
         n = len(t)
         if self.n + n > self.max_poses:
-            raise Refused(413, "poses", f"the drive would hold {self.n + n} poses, over the limit of "
+            raise refused(413, "poses", f"the drive would hold {self.n + n} poses, over the limit of "
                                         f"{self.max_poses} (EXCITE_MAX_SAMPLES)")
         t0 = float(t[0]) if self.t0 is None else self.t0
         span = float(t[-1]) - t0
         if span > self.max_s:
-            raise Refused(422, "poses", f"the drive would last {span:.1f} s, over the limit of "
+            raise refused(422, "poses", f"the drive would last {span:.1f} s, over the limit of "
                                         f"{self.max_s:g} s (EXCITE_MAX_ROUTE_DURATION_S)")
         start = float(t[0]) if self.t_last is None else self.t_last
         if n >= 2 or self.t_last is not None:
@@ -208,7 +197,7 @@ class Drive:
             dt = float(t[-1]) - start
             if steps > 0 and steps > self.max_rate * max(dt, 0.0) + 1:
                 rate = steps / dt if dt > 0 else math.inf
-                raise Refused(422, "poses", f"{steps} poses in {dt:.3g} s ({rate:.4g} Hz), denser than "
+                raise refused(422, "poses", f"{steps} poses in {dt:.3g} s ({rate:.4g} Hz), denser than "
                                             f"the limit of {self.max_rate:g} Hz (EXCITE_MAX_LIVE_POSE_RATE_HZ)")
         self.n += n
         self.t0, self.t_last = t0, float(t[-1])
@@ -218,137 +207,104 @@ class Drive:
 # The session's process
 
 
-def _session_main(conn: Any, rig: Any, name: str, memory_mb: int, duration_s: float,
-                  length_m: float, server_pid: int) -> None:
+def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: float) -> None:
+    """A session's evaluator: the rig resolved here (a client's rig can cost seconds to check),
+    then each ``("poses", t, p, R)`` or ``("end",)`` answered ``("ok", value)`` or
+    ``("problem", Problem)``."""
     from excite.core.bounds import tightened
     from excite.errors import ExciteError
     from excite.score.live import PoseStream
 
-    from ..pool import exit_with_server, limit_memory, trim
+    from .. import problems
+    from ..pool import trim
+    from ..scoring import resolve_rig
 
-    threading.Thread(target=exit_with_server, args=(server_pid,), daemon=True).start()
-    limit_memory(memory_mb)
-    try:
-        with tightened(duration_s=duration_s, length_m=length_m):
-            stream = PoseStream(resolve_rig(rig), name=name)
-            while True:
-                try:
-                    msg = conn.recv()
-                except (EOFError, OSError):
-                    return
-                try:
-                    if msg[0] == "poses":
-                        out: Any = ("ok", stream.add(*msg[1:]))
-                    else:
-                        out = ("ok", stream.finish())
-                except ExciteError as exc:
-                    out = ("refused", str(exc))
-                except MemoryError:
-                    out = ("memory", None)
-                except Exception as exc:  # a bug: logged here, a 500 frame for the client
-                    log.exception("live session failed")
-                    out = ("error", repr(exc))
-                trim()
-                conn.send(out)
-                if out[0] != "ok" or msg[0] == "end":
-                    return
-    except MemoryError:
-        conn.send(("memory", None))
+    with tightened(duration_s=duration_s, length_m=length_m):
+        try:
+            r = resolve_rig(rig)
+            stream = PoseStream(r, name=name)
+        except (Problem, ExciteError, MemoryError, RecursionError) as exc:
+            conn.send(("problem", problems.of(exc, "rig")))
+            return
+        conn.send(("ok", {"rig": r.name, "parameters": [c.name for c in r.scored]}))
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return
+            try:
+                out: Any = ("ok", stream.add(*msg[1:]) if msg[0] == "poses" else stream.finish())
+            except (ExciteError, MemoryError) as exc:
+                out = ("problem", problems.of(exc, "poses"))
+            except Exception:  # a bug: logged here, a 500 frame for the client
+                log.exception("live session failed")
+                out = ("problem", Problem(500, "the server failed to process the poses; the error is logged"))
+            trim()
+            conn.send(out)
+            if out[0] != "ok" or msg[0] == "end":
+                return
 
 
-class SessionProcess:
-    """One session's evaluator in a process of its own; :meth:`call` is bounded in time."""
+class Session:
+    """One session's evaluator in a supervised process (forked from the scoring pool's
+    forkserver, with ``EXCITE_LIVE_MEMORY_MB``); every call has the request time limit."""
 
-    def __init__(self, ctx: Context | None, s: Any, rig: Any, name: str):
-        import multiprocessing
+    def __init__(self, s: Any, rig: Any, name: str):
+        from ..pool import forkserver
 
-        mp = ctx.pool.context() if ctx is not None else multiprocessing.get_context("forkserver")
-        self.conn, child = mp.Pipe()
-        self.proc = mp.Process(target=_session_main, daemon=True, name="excite-live",
-                               args=(child, rig, name, s.live_memory_mb, s.max_route_duration_s,
-                                     s.max_route_length_m, os.getpid()))
-        self.proc.start()
-        child.close()
         self.timeout_s = s.request_timeout_s
+        self.proc = Supervised(_session_main, rig, name, s.max_route_duration_s, s.max_route_length_m,
+                               context=forkserver(), memory_mb=s.live_memory_mb, name="excite-live")
         self.memory_mb = s.live_memory_mb
-        with _lock:
-            _processes.add(self)
 
     def call(self, *msg: Any) -> Any:
-        """Runs in a thread: the reply to ``msg``, or :class:`Refused` (the process is ended)."""
+        """Runs in a thread: the reply to ``msg`` (``()``: the start's), or :class:`Refusal`."""
         try:
-            self.conn.send(msg)
-            ready = self.conn.poll(self.timeout_s)
-            if not ready:
-                raise Refused(503, "poses", f"the update took longer than the time limit of "
-                                            f"{self.timeout_s:g} s", 1011)
-            kind, value = self.conn.recv()
-        except (EOFError, OSError, BrokenPipeError):
-            raise Refused(503, "session", "the session's process ended unexpectedly", 1011) from None
-        if kind == "ok":
-            return value
-        if kind == "refused":
-            raise Refused(422, "poses", value)
-        if kind == "memory":
-            raise Refused(413, "poses", f"the drive needs more memory than a live session may use "
-                                        f"({self.memory_mb} MiB, EXCITE_LIVE_MEMORY_MB)", 1009)
-        raise Refused(500, "session", "the server failed to process the poses; the error is logged", 1011)
-
-    def end(self) -> None:
-        with _lock:
-            _processes.discard(self)
-        try:
-            self.conn.close()
-        except OSError:
-            pass
-        if self.proc.is_alive():
-            self.proc.kill()
-        self.proc.join(5)
-
-
-def session_processes() -> list[SessionProcess]:
-    """The sessions' processes running now (in this server)."""
-    with _lock:
-        return list(_processes)
-
-
-def close_all() -> None:
-    """End every session's process (the server is shutting down)."""
-    with _lock:
-        procs = list(_processes)
-    for p in procs:
-        p.end()
+            if msg:
+                self.proc.send(msg)
+            kind, value = self.proc.receive(time.monotonic() + self.timeout_s)
+        except WorkTimeout:
+            self.proc.stop()
+            raise refused(503, "poses", f"the update took longer than the time limit of {self.timeout_s:g} s") from None
+        except WorkerDied:
+            if self.proc.proc.exitcode not in (None, 0, 70):  # killed: most likely by its memory limit
+                raise refused(413, "poses", f"the drive needs more memory than a live session may use "
+                                            f"({self.memory_mb} MiB, EXCITE_LIVE_MEMORY_MB)") from None
+            raise refused(503, "session", "the session's process ended unexpectedly") from None
+        if kind == "problem":
+            raise Refusal(value)
+        return value
 
 
 # --------------------------------------------------------------------------------------------
 # The socket
 
 
-@router.post("/live/tickets", summary="A ticket for a browser's /v1/live WebSocket (60 s, one key)")
-def ticket(ctx: Ctx, who: Scorer) -> dict[str, Any]:
-    """A browser cannot set headers on a WebSocket: it sends this ticket as ``?ticket=``
-    instead of its key. On an open server no ticket is needed (``null``)."""
+@router.post("/live/tickets", summary="A ticket for a browser's /v1/live WebSocket (60 s, one session)")
+def ticket(request: Request, ctx: Ctx, who: Scorer) -> dict[str, Any]:
+    """A browser cannot set headers on a WebSocket: it offers this ticket as the subprotocol
+    ``excite-ticket.<ticket>`` (with ``excite-live``) instead of its key. A ticket opens one
+    session within 60 s. On an open server no ticket is needed (``null``)."""
     if ctx.keys is None:
         return {"ticket": None, "expires_in_s": None}
-    from ..auth import TICKET_TTL_S
-
-    return {"ticket": ctx.keys.ticket(who), "expires_in_s": TICKET_TTL_S}
+    return {"ticket": auth.ticket(request.app.state.ticket_secret, who.key_id), "expires_in_s": auth.TICKET_TTL_S}
 
 
 def _start(msg: dict[str, Any]) -> tuple[Any, str]:
     if msg["type"] != "start":
-        raise Refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
+        raise refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
     rig = msg.get("rig", "robotaxi")
     if not isinstance(rig, (str, dict)):
-        raise Refused(422, "rig", "must be a bundled rig name or a rig object")
+        raise refused(422, "rig", "must be a bundled rig name or a rig object")
     name = msg.get("name", "live")
     if not isinstance(name, str) or len(name) > 200:
-        raise Refused(422, "name", "must be a string of at most 200 characters")
-    try:
-        resolved = resolve_rig(rig)
-    except Rejected as exc:
-        raise Refused(exc.status, exc.field, exc.message) from None
-    return resolved, name
+        raise refused(422, "name", "must be a string of at most 200 characters")
+    return rig, name
+
+
+def _subprotocol(ws: WebSocket) -> str | None:
+    offered = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")]
+    return LIVE_PROTOCOL if LIVE_PROTOCOL in offered else None
 
 
 @router.websocket("/live")
@@ -356,30 +312,29 @@ async def live(ws: WebSocket, who: LiveClient) -> None:
     ctx: Context | None = getattr(ws.app.state, "ctx", None)
     settings = settings_of(ws)
     counts = ctx.live_sessions if ctx is not None else {}
-    await ws.accept()
-    if isinstance(who, ProblemError):
-        await _refuse(ws, Refused(who.status, "X-API-Key", who.detail, 1008))
+    await ws.accept(subprotocol=_subprotocol(ws))
+    if isinstance(who, Problem):
+        await _refuse(ws, Refusal(who))
         return
     limit = min(settings.max_live_sessions, MAX_SESSIONS)
     if _sessions["open"] >= limit:
-        await _refuse(ws, Refused(503, "session", f"{limit} sessions are streaming already; "
-                                                   "try again later", 1013))
+        await _refuse(ws, refused(503, "session", f"{limit} sessions are streaming already; try again later", 1013))
         return
     mine = counts.get(who.key_id, 0)
     if who.limits is not None and mine >= who.limits.live_sessions:
-        await _refuse(ws, Refused(429, "session", f"the key {who.key_id} has {mine} sessions streaming "
-                                                   f"(its quota: {who.limits.live_sessions})", 1013))
+        await _refuse(ws, refused(429, "session", f"the key {who.key_id} has {mine} sessions streaming "
+                                                  f"(its quota: {who.limits.live_sessions})", 1013))
         return
     _sessions["open"] += 1
     counts[who.key_id] = mine + 1
     try:
-        await _session(ws, ctx, settings)
+        await _session(ws, settings)
     except WebSocketDisconnect:
         pass  # the client went away: its stream is dropped with this frame
     except Exception:
         log.exception("live session failed")
         try:
-            await _refuse(ws, Refused(500, "session", "the server failed; the error is logged", 1011))
+            await _refuse(ws, refused(500, "session", "the server failed; the error is logged"))
         except Exception:
             pass
     finally:
@@ -398,51 +353,52 @@ async def _receive_text(ws: WebSocket) -> str | None:
         if message["type"] == "websocket.disconnect":
             raise WebSocketDisconnect(message.get("code", 1000))
         if message.get("text") is None:
-            raise Refused(422, "message", "binary frames are not accepted: send JSON text frames", 1003)
+            raise refused(422, "message", "binary frames are not accepted: send JSON text frames", 1003)
         return message["text"]
     return None
 
 
-async def _session(ws: WebSocket, ctx: Context | None, settings: Any) -> None:
-    bucket = _Bucket(MAX_MESSAGES_PER_S, BURST)
-    proc: SessionProcess | None = None
+async def _session(ws: WebSocket, settings: Any) -> None:
+    name_of_session = f"session-{id(ws)}"
+    session: Session | None = None
     drive = Drive(settings)
     try:
         while True:
             try:
                 text = await _receive_text(ws)
                 if text is None:
-                    raise Refused(408, "session", f"no message for {IDLE_S:g} s")
-                if not bucket.take():
-                    raise Refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second", 1008)
+                    raise refused(408, "session", f"no message for {IDLE_S:g} s")
+                if _messages.take(name_of_session, MAX_MESSAGES_PER_S, BURST) > 0:
+                    raise refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second")
                 msg = _message(text)
-                if proc is None:
+                if session is None:
                     rig, name = _start(msg)
-                    proc = SessionProcess(ctx, settings, msg.get("rig", "robotaxi"), name)
-                    await ws.send_json({"type": "started", "rig": rig.name,
-                                        "parameters": [c.name for c in rig.scored]})
+                    session = Session(settings, rig, name)
+                    started = await anyio.to_thread.run_sync(session.call)
+                    await ws.send_json({"type": "started", **started})
                     continue
                 if msg["type"] == "poses":
                     t, p, R = _poses(_rows(msg, "poses", 8, True))
                     _rows(msg, "imu", 7, False)
                     drive.check(t)
-                    for update in await anyio.to_thread.run_sync(proc.call, "poses", t, p, R):
+                    for update in await anyio.to_thread.run_sync(session.call, "poses", t, p, R):
                         await ws.send_json(update)
                 elif msg["type"] == "end":
-                    final = await anyio.to_thread.run_sync(proc.call, "end")
+                    final = await anyio.to_thread.run_sync(session.call, "end")
                     await ws.send_json(final)
                     await ws.close(1000)
                     return
                 else:
-                    raise Refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
-            except Refused as exc:
+                    raise refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
+            except Refusal as exc:
                 await _refuse(ws, exc)
                 return
     finally:
-        if proc is not None:
-            await anyio.to_thread.run_sync(proc.end)
+        _messages.forget(name_of_session)
+        if session is not None:
+            await anyio.to_thread.run_sync(session.proc.stop)
 
 
-async def _refuse(ws: WebSocket, exc: Refused) -> None:
-    await ws.send_json(problem(exc.status, exc.field, exc.message))
+async def _refuse(ws: WebSocket, exc: Refusal) -> None:
+    await ws.send_json({"type": "error", "problem": exc.problem.body("/v1/live")})
     await ws.close(exc.close_code)

@@ -1,4 +1,5 @@
-"""``GET /``: the planners' page (static files shipped in ``api/static``; no build step, no CDN)."""
+"""``GET /``: the planners' page (static files shipped in ``api/static``; no build step, no CDN);
+the files of ``/docs`` (Swagger UI from the ``swagger-ui-bundle`` package)."""
 
 from __future__ import annotations
 
@@ -21,3 +22,10 @@ def index() -> FileResponse:
 def static_files() -> StaticFiles:
     """The page's script and style sheet, served under ``/static``."""
     return StaticFiles(directory=STATIC_DIR)
+
+
+def docs_files() -> StaticFiles:
+    """Swagger UI's script and style sheet (the ``swagger-ui-bundle`` package), under ``/docs/static``."""
+    import swagger_ui_bundle
+
+    return StaticFiles(directory=swagger_ui_bundle.swagger_ui_path)

@@ -36,6 +36,9 @@ MAX_IMU_SAMPLES = 20_000_000
 MAX_SENSORS = 16
 """Most exteroceptive sensors on one rig."""
 MAX_NESTING = 12
+# keys and list items in one rig document, all levels together (a rig of 16 sensors with
+# targets and priors for each coordinate holds a few hundred): a bound on the work of checking it
+MAX_RIG_NODES = 5000
 """Deepest nesting of a rig document (the deepest real key, a rotation matrix entry, is 6)."""
 
 
@@ -185,6 +188,17 @@ def rig_numbers(data: Any, prefix: str = "") -> list[tuple[str, float]]:
     elif isinstance(data, (int, float)) and not isinstance(data, bool):
         out.append((prefix[:-1], float(data)))
     return out
+
+
+def size(data: Any, limit: int = MAX_RIG_NODES) -> int:
+    """Keys and list items of a nested document, all levels, counted without recursion and at
+    most ``limit + 1``."""
+    n, level = 0, [data] if isinstance(data, (dict, list, tuple)) else []
+    while level and n <= limit:
+        n += sum(len(x) for x in level)
+        level = [v for x in level for v in (x.values() if isinstance(x, dict) else x)
+                 if isinstance(v, (dict, list, tuple))][:limit + 1]
+    return min(n, limit + 1)
 
 
 def nesting(data: Any, limit: int = MAX_NESTING) -> int:

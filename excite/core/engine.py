@@ -24,10 +24,10 @@ import multiprocessing
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence, TypeVar
 
+from . import processes
 from ..errors import EngineError
 
 SCHEDULER_ENV = "EXCITE_DASK_SCHEDULER"
@@ -100,22 +100,10 @@ def run(fn: Callable[[I], R], items: Sequence[I], *, failed: Callable[[I, BaseEx
             finish(i, fn(item))
         return results
     # fork on Linux: workers start in milliseconds with excite already imported; elsewhere the
-    # platform default
-    ctx = multiprocessing.get_context("fork") if sys.platform == "linux" else None
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
-        try:
-            for fut in as_completed(futures):
-                i = futures[fut]
-                try:
-                    r = fut.result()
-                except Exception as exc:  # the process died (killed, out of memory)
-                    r = failed(items[i], exc)
-                finish(i, r)
-        except BaseException:  # Ctrl-C: the tasks not started are dropped, not waited for (the
-            # running ones had the signal too: the workers are in this process's group)
-            pool.shutdown(wait=True, cancel_futures=True)
-            raise
+    # platform default. Each is a supervised process (excite.core.processes): interrupted, or
+    # when this process exits, the workers and what they started end with it.
+    processes.map_ordered(fn, items, jobs, failed=failed, on_result=finish,
+                          context="fork" if sys.platform == "linux" else multiprocessing.get_context())
     return results
 
 

@@ -30,15 +30,14 @@ the control CSV writes it.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import multiprocessing
 import os
-import sys
 import time
 from typing import Any, Callable
 
 import numpy as np
 
+from ..core import processes
+from ..errors import WorkerDied, WorkTimeout
 from ..score.evaluate import evaluate
 from ..rig.config import Rig
 from ..motion.vehicle import ControlProfile, drive
@@ -99,28 +98,20 @@ class _Cores:
 
 
 class _Worker:
-    """One process next to IPOPT for the comparison candidates (spawned: the caller may hold
-    threads, and forking it would copy held locks)."""
+    """One process next to IPOPT for the comparison candidates (:class:`~excite.core.processes.Worker`,
+    spawned: the caller may hold threads, and forking it would copy held locks). It runs its
+    tasks in order: the references (when not cached), the random chunks, COBYLA."""
 
     def __init__(self, rig: Rig, settings: OptimizeSettings, site: Any, refs: bool):
         self.args = (rig, settings, site)
-        self.pool = cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        # A spawned child re-imports the parent's __main__ script unless it is hidden: a script
-        # calling optimize() without an `if __name__ == "__main__"` guard would run again in it.
-        # The worker needs nothing from __main__ (its tasks live in excite.plan.candidates).
-        main = sys.modules["__main__"]
-        hidden = {k: main.__dict__.get(k) for k in ("__file__", "__spec__") if k in main.__dict__}
-        main.__dict__.pop("__file__", None)
-        main.__spec__ = None
-        try:
-            self.refs = self.pool.submit(cand.references, *self.args) if refs else None  # starts the process
-            if self.refs is None:
-                self.pool.submit(int)  # starts the process
-        finally:
-            main.__dict__.pop("__spec__", None)
-            main.__dict__.update(hidden)
-        self.cobyla: cf.Future | None = None
-        self.chunks: list[cf.Future] = []
+        self.worker = processes.Worker(context="spawn", name="excite-comparison")
+        self.kinds: list[str] = []
+        if refs:
+            self._submit("refs", cand.references)
+
+    def _submit(self, kind: str, fn: Callable[..., Any], *args: Any) -> None:
+        self.worker.submit(fn, *self.args, *args)
+        self.kinds.append(kind)
 
     def start_rest(self, z_start: np.ndarray, cobyla_s: float, n_random: int,
                    drawn: list[list[ControlProfile]]) -> None:
@@ -129,36 +120,38 @@ class _Worker:
         # the random candidates first: the comparison the result is held to; COBYLA last
         for c, (first, size) in enumerate(_chunks(n_random)):
             if c < len(drawn):
-                self.chunks.append(self.pool.submit(cand.screened, *self.args, drawn[c]))
+                self._submit("chunk", cand.screened, drawn[c])
             else:
-                self.chunks.append(self.pool.submit(cand.randoms, *self.args, c, size, first))
-        self.cobyla = self.pool.submit(cand.cobyla, *self.args, z_start, cobyla_s)
+                self._submit("chunk", cand.randoms, c, size, first)
+        self._submit("cobyla", cand.cobyla, z_start, cobyla_s)
+
+    def collect(self, until: float, refs_until: float) -> dict[str, Any]:
+        """What the worker finished: the references by ``refs_until``, the rest by ``until``
+        (time.monotonic()); a task that failed gives nothing, and the first not done in time
+        ends the collection (and the worker)."""
+        out: dict[str, Any] = {"refs": None, "chunk": [], "cobyla": None}
+        for kind in self.kinds:
+            try:
+                value = self.worker.result(refs_until if kind == "refs" else until)
+            except (WorkTimeout, WorkerDied):
+                break
+            except Exception:  # noqa: BLE001 — a comparison candidate that failed is no reason to withhold the result
+                value = None
+            if kind == "chunk":
+                out["chunk"] += value or []
+            else:
+                out[kind] = value
+        return out
 
     def close(self) -> None:
-        """Drop the worker's unfinished work at once: a task it is running (COBYLA, a chunk) is
-        cut short, so that neither this call nor the interpreter's exit waits for it."""
-        procs = list((self.pool._processes or {}).values())  # noqa: SLF001 — no public handle before 3.14
-        self.pool.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
+        """Drop the worker's unfinished work at once (its process and what it started end)."""
+        self.worker.stop()
 
 
 def _chunks(n_random: int) -> list[tuple[int, int]]:
     """(first index, size) of every chunk of random candidates (the first START_RANDOM are also
     IPOPT's possible starts)."""
     return [(first, min(CHUNK, n_random - first)) for first in range(0, n_random, CHUNK)]
-
-
-def _result(fut: cf.Future | None, timeout_s: float):
-    """The future's result, or None if it is not there in time, was cancelled, or failed (a
-    comparison candidate that failed is not a reason to withhold the result)."""
-    if fut is None:
-        return None
-    try:
-        return fut.result(timeout=max(timeout_s, 0.0))
-    except Exception:  # noqa: BLE001 — timeout, cancelled, or the worker broke
-        return None
 
 
 def optimize(rig: Rig, settings: OptimizeSettings = OptimizeSettings(),
@@ -328,14 +321,13 @@ def _run(rig, settings, t0, report, remaining, stop, cores: _Cores, keep_worker)
     refs: list[Candidate] = cached_refs or []
     cob, randoms = None, []
     if worker is not None:
-        if settings.comparison and not cancelled:  # asked for: wait for it within the budget
-            pending = [f for f in [worker.refs, worker.cobyla, *worker.chunks] if f is not None]
-            cf.wait(pending, timeout=max(remaining() - 0.6 * finish_reserve_s(budget), 0.0))
-        if worker.refs is not None:
-            refs = _result(worker.refs, max(min(remaining() - 0.5 * finish_reserve_s(budget), 30.0), 0.0)) or []
+        now = time.monotonic()
+        wait = max(remaining() - 0.6 * finish_reserve_s(budget), 0.0) if settings.comparison and not cancelled else 0.0
+        got = worker.collect(now + wait, now + max(wait, min(remaining() - 0.5 * finish_reserve_s(budget), 30.0)))
+        if "refs" in worker.kinds:
+            refs = got["refs"] or []
             cand.store_references(rig, settings, site, refs)
-        cob = _result(worker.cobyla, 0.0)
-        randoms = [c for f in worker.chunks if f.done() and not f.cancelled() for c in (_result(f, 0.0) or [])]
+        cob, randoms = got["cobyla"], got["chunk"]
         worker.close()
     elif cached_refs is None and not cancelled:
         refs = cand.references(rig, settings, site)
