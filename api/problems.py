@@ -45,8 +45,9 @@ def of(exc: BaseException, field: str | None = None, *, timeout_s: float | None 
                        type_="store-unavailable", headers={"Retry-After": "5"})
     if isinstance(exc, ExciteError):
         name = field or next((f for cls, f in FIELDS if isinstance(exc, cls)), "body")
-        message = exc.problem if isinstance(exc, RouteError) and exc.line is None else str(exc)
-        return Problem(422, str(exc), errors=[{"field": name, "message": message}])
+        if isinstance(exc, RouteError):  # named by the request's field, never by a server path
+            return Problem.at(name, exc.problem if exc.line is None else f"line {exc.line}: {exc.problem}")
+        return Problem(422, str(exc), errors=[{"field": name, "message": str(exc)}])
     if isinstance(exc, Overloaded):
         return Problem(429, f"the service is busy: {exc.detail}; retry in {exc.retry_after_s} s",
                        type_="overloaded", headers={"Retry-After": str(exc.retry_after_s)})

@@ -52,6 +52,12 @@ MAX_CHUNK_BYTES = 256 << 20  # one chunk, decompressed (recorders write a few MB
 MAX_RATIO = 1000  # a chunk beyond this ratio (and past RATIO_FLOOR) is a bomb: real data is < 50
 RATIO_FLOOR = 64 << 20  # small chunks may be all zeros
 MIN_BUDGET = 1 << 30  # the least a read may decompress in all (a small bag)
+# An MCAP without a summary is indexed by walking every record of every chunk (rosbags does it in
+# Python, ~1 µs a record): it may decompress at most this many times its size in all (real
+# recordings compress < 50-fold), and at least SUMMARYLESS_FLOOR, so that a small file of empty
+# records cannot hold a reader for minutes
+SUMMARYLESS_RATIO = 100
+SUMMARYLESS_FLOOR = 4 << 20
 COMPRESSIONS = ("", "none", "zstd", "lz4", "bz2")
 
 
@@ -63,11 +69,14 @@ class Budget:
         self.limit, self.used = limit, 0
 
     @classmethod
-    def for_file(cls, path: Path) -> "Budget":
+    def for_file(cls, path: Path, summary: bool = True) -> "Budget":
+        """The budget of a read of ``path``; ``summary`` False: an MCAP without a summary."""
         try:
             size = sum(f.stat().st_size for f in ([path] if path.is_file() else path.iterdir()))
         except OSError:
             size = 0
+        if not summary:
+            return cls(max(SUMMARYLESS_FLOOR, SUMMARYLESS_RATIO * size))
         return cls(max(MIN_BUDGET, MAX_RATIO * size))
 
     def cap(self, compressed: int) -> int:

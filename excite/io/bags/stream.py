@@ -58,12 +58,14 @@ def open_bag(path: Path):
         raise BagError(path, "not a bag (expected a ROS 1 .bag, an .mcap file or a ROS 2 bag "
                              "folder with metadata.yaml)")
     errors = reader_errors()
-    allowance = Budget.for_file(path)
     files = mcap_files(path)
-    if files is not None and not all(has_summary(f) for f in files):
-        # rosbags indexes an MCAP without a summary by reading every chunk: verify them first
+    summary = files is None or all(has_summary(f) for f in files)
+    allowance = Budget.for_file(path, summary)
+    if not summary:
+        # rosbags indexes an MCAP without a summary by reading every chunk and walking its
+        # records: verify them first, under the smaller budget of such a file
         try:
-            verify_chunks(files, allowance)
+            verify_chunks(files, Budget.for_file(path, summary))
         except (EOFError, struct.error, ValueError, KeyError, OSError) as exc:
             raise BagError(path, f"cannot read the bag, truncated or corrupt ({exc})") from None
     try:
