@@ -3,6 +3,7 @@
     Exception
     ├── Problem               an error answered with a problem document: raised by routers and
     │                         by tasks in workers (it pickles), sent as a /v1/live error frame
+    ├── Refusal               ends a /v1/live session with a problem frame and a close code
     ├── Overloaded            the work cannot be done by its deadline: refused now (429, Retry-After)
     ├── OverQuota             a key's quota of jobs or storage would be exceeded (429)
     ├── WorkTimeout           a task did not finish by its deadline (its process was ended)
@@ -85,6 +86,17 @@ class Problem(Exception):
 
 def _rebuild(status: int, detail: str, type_: str, title: str, errors: Any, headers: Any) -> Problem:
     return Problem(status, detail, type_=type_, title=title, errors=errors, headers=headers)
+
+
+class Refusal(Exception):
+    """Ends a /v1/live session: its problem as an error frame, then the WebSocket close code
+    (by the status unless given: 1009 too large, 1011 a server failure, 1008 otherwise)."""
+
+    CLOSE = {413: 1009, 500: 1011, 503: 1011}
+
+    def __init__(self, problem: Problem, close_code: int | None = None):
+        super().__init__(problem.detail)
+        self.problem, self.close_code = problem, close_code or self.CLOSE.get(problem.status, 1008)
 
 
 class Overloaded(Exception):

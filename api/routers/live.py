@@ -51,7 +51,7 @@ from excite.errors import WorkerDied, WorkTimeout
 from .. import auth
 from ..auth import LIVE_PROTOCOL, LiveClient, RateLimiter, Scorer
 from ..context import Ctx, Context
-from ..errors import Problem
+from ..errors import Problem, Refusal
 
 log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
@@ -65,18 +65,6 @@ IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot 
 MAX_SESSIONS = 64  # the ceiling of EXCITE_MAX_LIVE_SESSIONS (16 by default), whatever it says
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
 _messages = RateLimiter()  # per session
-# the close code of a refusal, by the problem's status (1008: policy, the default)
-CLOSE = {413: 1009, 500: 1011, 503: 1011}
-
-
-class Refusal(Exception):
-    """Ends a session: the problem as an error frame, then the close code."""
-
-    def __init__(self, problem: Problem, close_code: int | None = None):
-        super().__init__(problem.detail)
-        self.problem, self.close_code = problem, close_code or CLOSE.get(problem.status, 1008)
-
-
 def refused(status: int, field: str, message: str, close_code: int | None = None) -> Refusal:
     return Refusal(Problem.at(field, message, status), close_code)
 
@@ -370,7 +358,7 @@ async def _session(ws: WebSocket, settings: Any) -> None:
                     raise refused(408, "session", f"no message for {IDLE_S:g} s")
                 if _messages.take(name_of_session, MAX_MESSAGES_PER_S, BURST) > 0:
                     raise refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second")
-                msg = _message(text)
+                msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
                     rig, name = _start(msg)
                     session = Session(settings, rig, name)

@@ -1,0 +1,53 @@
+"""/v1/live's start message is resolved in the session's process: a rig built to cost seconds
+(50,000 glob targets in a 1 MB message) never holds the event loop."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import httpx
+import pytest
+
+from test_api_support import LiveServer
+
+IMU = {"accelerometer_noise_density": 2e-3, "accelerometer_random_walk": 3e-3,
+       "gyroscope_noise_density": 1.7e-4, "gyroscope_random_walk": 2e-5, "update_rate": 200.0}
+
+
+@pytest.mark.slow
+def test_a_50000_glob_rig_start_keeps_healthz_under_a_second(tmp_path):
+    from websockets.sync.client import connect
+
+    srv = LiveServer(tmp_path, workers=0).start()
+    try:
+        targets = {f"*.rot_{i}*": "0.1 deg" for i in range(50_000)}
+        start = json.dumps({"type": "start", "name": "bomb", "rig": {"name": "bomb", "imu": IMU, "targets": targets}})
+        assert len(start) < 1 << 20
+        worst = [0.0]
+        done = threading.Event()
+
+        def probe() -> None:
+            while not done.is_set():
+                t0 = time.monotonic()
+                assert httpx.get(srv.url + "/healthz", timeout=30).status_code == 200
+                worst[0] = max(worst[0], time.monotonic() - t0)
+                time.sleep(0.05)
+
+        t = threading.Thread(target=probe)
+        t.start()
+        t0 = time.monotonic()
+        try:
+            with connect(f"ws://127.0.0.1:{srv.port}/v1/live", open_timeout=10, max_size=None) as ws:
+                ws.send(start)
+                frame = json.loads(ws.recv(timeout=60))
+        finally:
+            done.set()
+            t.join(60)
+        assert frame["type"] == "error" and frame["problem"]["status"] == 422, frame
+        assert frame["problem"]["errors"][0]["field"].startswith("rig")
+        assert time.monotonic() - t0 < 10
+        assert worst[0] < 1.0, worst
+    finally:
+        srv.stop()
