@@ -6,9 +6,8 @@
     ├── Refusal               ends a /v1/live session with a problem frame and a close code
     ├── Overloaded            the work cannot be done by its deadline: refused now (429, Retry-After)
     ├── OverQuota             a key's quota of jobs or storage would be exceeded (429)
-    ├── WorkTimeout           a task did not finish by its deadline (its process was ended)
-    ├── WorkerDied            a worker process ended while running a task
     ├── Unsendable            a task's arguments cannot be sent to a worker
+    (a task past its deadline, a worker that died: excite.errors.WorkTimeout, WorkerDied)
     └── excite.errors.ExciteError
         ├── StoreError        the job database cannot be opened or used (names it and why:
         │                     full, read-only, corrupt, unreachable); answered 503
@@ -110,14 +109,6 @@ class Overloaded(Exception):
 
 class OverQuota(Exception):
     """A key's quota of jobs or of storage would be exceeded by this job (429)."""
-
-
-class WorkTimeout(Exception):
-    """The task did not finish by its deadline (its process, if it had one, was ended)."""
-
-
-class WorkerDied(Exception):
-    """The worker ended while running the task (e.g. killed by the system)."""
 
 
 class Unsendable(Exception):

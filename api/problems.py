@@ -17,10 +17,10 @@ import json
 import logging
 from typing import Any, Callable
 
-from excite.errors import BagError, EvaluationError, ExciteError, LimitError, RigError, RouteError
+from excite.errors import (BagError, EvaluationError, ExciteError, LimitError, RigError, RouteError,
+                           WorkerDied, WorkTimeout)
 
-from .errors import (TITLES, Overloaded, OverQuota, Problem, StoreError, Unsendable, WorkerDied,
-                     WorkTimeout)
+from .errors import TITLES, Overloaded, OverQuota, Problem, StoreError, Unsendable
 
 log = logging.getLogger("excite.api")
 

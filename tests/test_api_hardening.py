@@ -160,7 +160,7 @@ def test_a_worker_that_grew_is_replaced_after_its_task(srv, client):
 
 def test_a_slow_body_is_timed_out_and_the_connection_closed(srv):
     with socket.create_connection(("127.0.0.1", srv.port), timeout=15) as s:
-        s.sendall(b"POST /v1/score HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        s.sendall(b"POST /v1/score HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
                   b"Content-Length: 1000\r\n\r\n{\"route\": ")
         t0 = time.monotonic()
         data = b""
@@ -181,7 +181,7 @@ def test_slow_headers_are_timed_out_and_the_connection_closed(srv, client):
     with socket.create_connection(("127.0.0.1", srv.port), timeout=15) as trickle, \
             socket.create_connection(("127.0.0.1", srv.port), timeout=15) as idle:
         t0 = time.monotonic()
-        trickle.sendall(b"POST /v1/score HTTP/1.1\r\nHost: x\r\n")
+        trickle.sendall(b"POST /v1/score HTTP/1.1\r\nHost: localhost\r\n")
         trickle.settimeout(0.25)
         data = b""
         for byte in b"Content-Type: application/json\r\n" * 100:
@@ -222,62 +222,52 @@ def test_a_websocket_outlives_the_header_time_limit(srv):
 
 
 def test_a_pool_refuses_work_it_cannot_finish_by_the_deadline():
-    """Admission by the recent cost of a task: once a task is known to take ~1.5 s, a second one
-    while the only worker is busy cannot finish within 1 s and is refused at once with a retry
-    time; one with time enough is admitted (and a queue of one is the count bound)."""
+    """Admission by the size of the work: once a task is known to cost ~1.5 s per unit of size,
+    a second one while the only worker is busy cannot finish within 1 s and is refused at once
+    with a retry time; one with time enough is admitted (and a queue of one is the count bound)."""
     from api.errors import Overloaded
     from api.pool import WorkerPool
 
-    pool = WorkerPool(1, 0, 0, max_queued=1, preload=())
+    pool = WorkerPool(1, 0, 0, max_queued=1)
     pool.start()
     try:
         soon = lambda s: time.monotonic() + s  # noqa: E731
-        (f,) = pool.submit_all(time.sleep, [(1.5,)], soon(10))
-        f.result()  # now a sleep is known to cost ~1.5 s
-        (busy,) = pool.submit_all(time.sleep, [(1.5,)], soon(10))
+        (f,) = pool.submit(time.sleep, [(1.5,)], soon(10), sizes=[1.0])
+        f.result()  # now a sleep is known to cost ~1.5 s per unit
+        (busy,) = pool.submit(time.sleep, [(1.5,)], soon(10), sizes=[1.0])
         time.sleep(0.3)
         t0 = time.monotonic()
         with pytest.raises(Overloaded) as exc:
-            pool.submit_all(time.sleep, [(0.0,)], soon(1.0))
+            pool.submit(time.sleep, [(0.0,)], soon(1.0), sizes=[1.0])
         assert time.monotonic() - t0 < 0.5 and exc.value.retry_after_s >= 1
         assert "time limit" in exc.value.detail
-        (waits,) = pool.submit_all(time.sleep, [(0.0,)], soon(10))  # ~1.5 + 1.5 s < 10 s
+        (waits,) = pool.submit(time.sleep, [(0.0,)], soon(10), sizes=[1.0])  # ~1.5 + 1.5 s < 10 s
         with pytest.raises(Overloaded, match="at most 1"):
-            pool.submit_all(time.sleep, [(0.0,)], soon(60))  # one already waits
+            pool.submit(time.sleep, [(0.0,)], soon(60), sizes=[0.001])  # one already waits
         busy.result()
         waits.result()
-        assert pool.submit_all(time.sleep, [(0.0,)], soon(10))[0].result() is None  # drained
+        assert pool.submit(time.sleep, [(0.0,)], soon(10))[0].result() is None  # drained
         assert pool.shed == 2
     finally:
         pool.close()
 
 
-def test_a_worker_killed_by_two_threads_at_once_closes_its_pipe_once():
-    """A request thread past its deadline and the pool's shutdown can kill the same worker at
-    the same moment (a CI run ended in EBADF this way): the second kill must not close the pipe
-    again, which would close whatever file reused its descriptor."""
-    from api.pool import _Worker
+def test_a_process_stopped_by_two_threads_at_once_closes_its_pipe_once():
+    """A request thread past its deadline and the pool's shutdown can stop the same worker at
+    the same moment: the second stop must not close the pipe again, which would close whatever
+    file reused its descriptor."""
+    from excite.core.processes import Worker
 
-    class SlowProc:
-        def kill(self):
-            pass
-
-        def join(self, timeout):
-            time.sleep(0.2)  # both threads are inside kill() together
-
-    class Conn:
-        closes = 0
-
-        def close(self):
-            Conn.closes += 1
-
-    w = _Worker(SlowProc(), Conn())
-    threads = [threading.Thread(target=w.kill) for _ in range(4)]
+    w = Worker(context="fork")
+    closes = []
+    real = w.conn.close
+    w.conn.close = lambda: (closes.append(1), time.sleep(0.1), real())
+    threads = [threading.Thread(target=w.stop) for _ in range(4)]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    assert Conn.closes == 1
+    assert len(closes) == 1
 
 
 def _inline_rig(**changes: float) -> dict:
@@ -321,7 +311,8 @@ def test_pathological_structure_is_422(client):
     rig["sensors"] = [dict(rig["sensors"][0], name=f"s{i}") for i in range(500)]
     t0 = time.monotonic()
     r = client.post("/v1/score", json={"route": LOOP, "rig": rig})
-    assert "500 sensors, over the limit of 16" in _problem(r, 422, "rig.sensors")["detail"]
+    # refused by its size (keys and items) before its sensors are counted
+    assert "more than 5000 keys and list items" in _problem(r, 422, "rig")["detail"]
     assert time.monotonic() - t0 < TIMEOUT_S
 
 

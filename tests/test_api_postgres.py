@@ -76,7 +76,7 @@ def fresh(postgres):
     """The store emptied for this test."""
     import psycopg
 
-    from api.store import PostgresStore
+    from api.store import open_store as PostgresStore
 
     store = PostgresStore(postgres)
     with psycopg.connect(postgres, autocommit=True) as db:
@@ -85,7 +85,7 @@ def fresh(postgres):
 
 
 def test_migrations_leases_and_fairness_on_postgres(postgres, fresh):
-    from api.store import SCHEMA_VERSION, PostgresStore
+    from api.store import SCHEMA_VERSION, open_store as PostgresStore
 
     store = fresh
     assert PostgresStore(postgres).schema_version() == SCHEMA_VERSION  # opening again migrates nothing
@@ -95,7 +95,7 @@ def test_migrations_leases_and_fairness_on_postgres(postgres, fresh):
     late = store.create("maneuver", {"name": "late"}, key_id="late")
     assert store.claim("host/boot/1/a", 30)[0] == late  # the key with nothing running goes first
     assert store.reclaim("host/boot/2/b") == []  # live leases of another replica: untouched
-    assert store.heartbeat("host/boot/1/a", 30) == {first, (late, 1)}
+    assert store.heartbeat("host/boot/1/a", 30, {first, (late, 1), ("other", 1)}) == {first, (late, 1)}
     import psycopg
 
     with psycopg.connect(postgres, autocommit=True) as db:

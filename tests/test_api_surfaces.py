@@ -23,6 +23,7 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from api import Settings, create_app
+from excite.core import processes
 from api.store import open_store as SqliteStore
 from test_api_support import LiveServer, processes_with, wait_job
 
@@ -402,7 +403,7 @@ def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
     with client.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_json({"type": "start"})
         ws.receive_json()
-        (proc,) = live.session_processes()
+        (proc,) = processes.running("excite-live")
         pid = proc.proc.pid
         assert pid != os.getpid() and proc.proc.is_alive()
         ws.send_json({"type": "poses", "poses": _poses(np.arange(0, 20, 0.1))})
@@ -410,9 +411,9 @@ def test_live_sessions_are_bounded_and_run_in_a_process_of_their_own(client):
         while ws.receive_json()["type"] != "final":
             pass
     deadline = time.monotonic() + 10
-    while live.session_processes() and time.monotonic() < deadline:
+    while processes.running("excite-live") and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not live.session_processes() and not os.path.exists(f"/proc/{pid}/status") or \
+    assert not processes.running("excite-live") and not os.path.exists(f"/proc/{pid}/status") or \
         "zombie" in Path(f"/proc/{pid}/status").read_text()
 
 
@@ -453,7 +454,7 @@ def test_the_connection_survives_a_500(tmp_path):
         with socket.create_connection(("127.0.0.1", port), timeout=30) as conn:
             f = conn.makefile("rb")
             for path, status in (("/boom", b"500"), ("/healthz", b"200")):
-                conn.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+                conn.sendall(f"GET {path} HTTP/1.1\r\nHost: localhost\r\n\r\n".encode())
                 line = f.readline()
                 assert status in line, (path, line)
                 length = 0

@@ -243,6 +243,12 @@ class Supervised:
         self.stop()
 
 
+def running(name: str | None = None) -> list[Supervised]:
+    """The supervised processes of this process not yet stopped (named ``name``, when given)."""
+    with _live_lock:
+        return [p for p in _live if name is None or p.proc.name == name]
+
+
 def stop_all() -> None:
     """Stop every supervised process of this process (at interpreter exit, before
     :mod:`multiprocessing` joins its children; also at a server's shutdown)."""
