@@ -672,18 +672,18 @@ async function onLiveStart(ev) {
     return;
   }
   const name = $("#live-file").files[0].name.slice(0, 200);
-  let query = "";
-  if (sessionStorage.getItem("excite-key")) {  // a WebSocket carries no header: a short-lived ticket instead
+  const protocols = ["excite-live"];
+  if (sessionStorage.getItem("excite-key")) {  // a WebSocket carries no header: a single-use ticket, offered as a subprotocol
     try {
       const { ticket } = await api("POST", "/v1/live/tickets");
-      if (ticket) query = `?ticket=${encodeURIComponent(ticket)}`;
+      if (ticket) protocols.push(`excite-ticket.${ticket}`);
     } catch (err) {
       if (!(err instanceof Problem)) throw err;
       showProblem(form, err, $("#live-error"));
       return;
     }
   }
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/live${query}`);
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/live`, protocols);
   const live = { ws, poses, next: 0, speed: Number($("#live-speed").value), updates: 0, timer: null, over: false };
   state.live = live;
   $("#live-start").disabled = true;
