@@ -133,6 +133,10 @@ def validate(
                                                      "of every trial) to this file.")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress line.")] = False,
+    driver: Annotated[bool, typer.Option("--driver", help="The route is a drivable plan (plan.json of excite "
+                                                          "optimize --drivable): every trial drives it as another "
+                                                          "person would (the driver model), and the prediction is "
+                                                          "made from each trial's own drive.")] = False,
 ) -> None:
     """Simulate the rig's sensors on the route, calibrate N times, compare with the predicted σ."""
     from ..rig.config import load_rig
@@ -145,7 +149,31 @@ def validate(
     r = load_rig(rig)
     if imu_rate is not None:
         r = with_imu_rate(r, imu_rate)
-    traj = read_route(route, times=times, suspension=r.suspension)
+    drives = None
+    if driver and duration is not None:
+        from ..errors import ValidateError
+
+        raise ValidateError("--duration crops a route; a plan driven with --driver is driven whole")
+    if driver or route.suffix.lower() == ".json":
+        from ..motion.vehicle import drive
+        from ..plan.drivable.plan import build, read_plan
+        from ..plan.settings import vehicle_limits
+        from ..plan.drivable.search import DrivableSettings
+
+        limits = vehicle_limits(r, DrivableSettings().limits)
+        built = build(read_plan(route), limits)
+        traj = drive(built.timed().profile, r.suspension)
+        if driver:
+            import numpy as np
+
+            from ..motion.driver import DriverModel, drive_course
+
+            def drives(i: int):
+                dc = drive_course(built.course, limits, DriverModel(), np.random.default_rng([seed, i]),
+                                  duration_s=built.plan.duration_s)
+                return drive(dc.profile, r.suspension)
+    else:
+        traj = read_route(route, times=times, suspension=r.suspension)
     if duration is not None:
         traj = crop(traj, duration)
     if simulator not in ("physical", "model"):
@@ -161,7 +189,11 @@ def validate(
             err.print(f"trial {trial.index + 1}/{runs}: {trial.status} in {trial.iterations} iterations, "
                       f"{trial.seconds:.2f} s", end="\r")
 
-    if log is None:
+    if drives is not None:
+        from ..validate.monte_carlo import monte_carlo_driven
+
+        res = monte_carlo_driven(drives, r, traj, settings, progress)
+    elif log is None:
         res = monte_carlo(traj, r, settings, progress)
     else:
         try:
@@ -175,4 +207,8 @@ def validate(
     else:
         if show:
             err.print(" " * 70, end="\r")
+        if drives is not None:
+            console().print(f"every trial drove the plan as another driver would (the driver model); the predicted σ "
+                            f"is the RMS of each trial's own drive's σ, the NEES each trial's against its drive's "
+                            f"information")
         print_result(res, console())

@@ -6,8 +6,8 @@ cones and a sheet of instructions ("figure-eight around cones 1 and 2 at 30 km/h
 control file. :func:`drive_course` is one such driver on a :class:`~excite.motion.course.Course`:
 
 - **Speed.** The driver holds the instructed speed with an error that stays over a leg
-  (``speed_bias_sigma``) and a slow fluctuation within it (``speed_noise_sigma``, correlation
-  ``speed_noise_time_s``), and accelerates and brakes "hard" at a fraction of what was asked that
+  (``speed_bias_sigma``) and a slow, smooth fluctuation within it (``speed_noise_sigma``,
+  correlation ``speed_noise_time_s`` at the leg's speed), and accelerates and brakes "hard" at a fraction of what was asked that
   varies from leg to leg (``effort_mean`` ± ``effort_sigma``). Their speed profile along the path is
   the fastest one within those (:func:`~excite.motion.paths.plan_speed`), from rest to rest, and
   where they stop follows from it (the fluctuation moves the stops by ~1 m).
@@ -198,7 +198,9 @@ def _leg_speed(leg: Leg, limits: Limits, margin: float, bias: float, effort: flo
     lim = replace(limits, accel_max_mps2=limits.accel_max_mps2 * effort,
                   decel_max_mps2=limits.decel_max_mps2 * effort)
     plan = plan_speed(leg.path, lim, leg.speed_mps, margin=margin)
-    f = (1.0 + bias) * (1.0 + np.interp(plan.s_m, noise_step_m * np.arange(noise.size), noise))
+    from scipy.interpolate import CubicSpline
+
+    f = (1.0 + bias) * (1.0 + CubicSpline(noise_step_m * np.arange(noise.size), noise)(plan.s_m))
     f = np.maximum(f, 0.2)
     dt = np.diff(plan.t_s)
     t = np.concatenate([[0.0], np.cumsum(dt * 2.0 / (f[1:] + f[:-1]))])
@@ -233,10 +235,12 @@ def drive_course(course: Course, limits: Limits, model: DriverModel = DriverMode
         if model.effort_sigma:
             effort = float(np.clip(rng.normal(model.effort_mean, model.effort_sigma), 0.5, 1.05))
         step_m = 1.0
-        noise = _ou(rng, int(leg.path.length_m / step_m) + 2, step_m,
-                    max(model.speed_noise_time_s * float(np.max(leg.speed_mps[np.isfinite(leg.speed_mps)],
-                                                                initial=5.0)), 1.0),
-                    model.speed_noise_sigma)
+        corr_m = max(model.speed_noise_time_s * float(np.max(leg.speed_mps[np.isfinite(leg.speed_mps)],
+                                                               initial=5.0)), 1.0)
+        # smooth (a filtered Gauss–Markov process): people change speed gradually, and a kink in the
+        # speed would be a jump in the acceleration and the body's pitch
+        noise = _smooth_ou(rng, int(leg.path.length_m / step_m) + 2, step_m, corr_m, model.speed_noise_sigma) \
+            if model.speed_noise_sigma else np.zeros(int(leg.path.length_m / step_m) + 2)
         t, v = _leg_speed(leg, limits, margin, bias, effort, noise, step_m)
         p = _extended(leg.path)
         ds = float(p.s_m[1] - p.s_m[0])

@@ -314,3 +314,67 @@ def monte_carlo(traj: Trajectory, rig: Rig, settings: MonteCarloSettings = Monte
         res.systematic = systematic_error(traj, rig, report, settings)
     res.seconds = time.perf_counter() - t0
     return res
+
+
+# ------------------------------------------------------------------------------------------------
+# Every trial its own drive: a plan as people drive it
+
+
+def statistics_driven(reports: list[Report], rig: Rig, trials: list[Trial], settings: MonteCarloSettings,
+                      nominal: Report, seconds: float = 0.0) -> MonteCarloResult:
+    """Compare trials whose drives differ (trial ``i`` driven as ``reports[i]`` was evaluated)
+    with the prediction made from each trial's own drive: the NEES of trial ``i`` is
+    ``eᵢᵀ Λᵢ eᵢ`` with its drive's information (χ²(d) each, so the mean over N trials lies in
+    χ²(N·d)/N's interval if the evaluator is right), and the predicted σ of a parameter is the RMS
+    of its per-drive σ (the errors are a mixture of zero-mean errors of those σ; the empirical σ's
+    interval is one σ's, a little narrow for such a mixture). Full-rank drives only. ``nominal`` is the report of the drive as planned: ``result.report``, for reference."""
+    scored = np.array([not c.nuisance for c in rig.coordinates])
+    E = np.array([t.error[scored] for t in trials])
+    N, d = E.shape
+    for r in reports:
+        if r.nullity:
+            raise ValidateError(f"a driven drive leaves {r.nullity} direction(s) undetermined: the per-drive "
+                                "prediction needs every drive to determine every parameter")
+    alpha = 1 - settings.confidence
+    sig = np.array([[np.nan if p.sigma is None else p.sigma for p in r.parameters] for r in reports])
+    pred = np.sqrt(np.mean(sig ** 2, axis=0))
+    params = []
+    for i, p in enumerate(nominal.parameters):
+        e = E[:, i]
+        rms = float(np.sqrt(np.mean(e ** 2)))
+        lo = rms * np.sqrt(N / chi2.ppf(1 - alpha / 2, N))
+        hi = rms * np.sqrt(N / chi2.ppf(alpha / 2, N))
+        params.append(ParameterStats(p.name, p.unit, float(pred[i]), rms, (float(lo), float(hi)), float(e.mean()),
+                                     float(e.std(ddof=1) / np.sqrt(N)), rig.scored[i].target))
+    nees = np.array([float(E[k] @ reports[k].information @ E[k]) for k in range(N)])
+    lo = chi2.ppf(alpha / 2, N * d) / N
+    hi = chi2.ppf(1 - alpha / 2, N * d) / N
+    return MonteCarloResult(nominal, settings, trials, params, d, nees, float(nees.mean()), (float(lo), float(hi)),
+                            None, sum(t.status != "converged" for t in trials), seconds,
+                            names=[c.name for c in rig.scored])
+
+
+def monte_carlo_driven(drives: Callable[[int], Trajectory], rig: Rig, nominal: Trajectory,
+                       settings: MonteCarloSettings = MonteCarloSettings(),
+                       progress: Callable[[Trial], None] | None = None,
+                       log: Callable[[dict], None] | None = None) -> MonteCarloResult:
+    """N seeded trials of simulate → calibrate, trial ``i`` on its own drive ``drives(i)`` (a plan
+    as the ``i``-th person drives it), against the evaluator's prediction from each trial's own
+    drive (:func:`statistics_driven`); the physical simulator's :func:`systematic_error` on the
+    first drive."""
+    t0 = time.perf_counter()
+    crig = rig.with_constant_biases()
+    trials, reports = [], []
+    first = None
+    for i in range(settings.runs):
+        traj = drives(i)
+        first = first or traj
+        reports.append(evaluate(traj, crig))
+        trials.append(run_trial(traj, rig, i, settings, log))
+        if progress is not None:
+            progress(trials[-1])
+    res = statistics_driven(reports, rig, trials, settings, evaluate(nominal, crig))
+    if settings.simulation.physical and first is not None:
+        res.systematic = systematic_error(first, rig, reports[0], settings)
+    res.seconds = time.perf_counter() - t0
+    return res

@@ -53,16 +53,20 @@ class Element:
 
 @dataclass(frozen=True)
 class DrivablePlan:
-    """Elements in the order they are driven (see the module docstring)."""
+    """Elements in the order they are driven (see the module docstring); ``expected_score``: what
+    the plan promises (the 10th percentile of its scores over the driver model's drives), the
+    goal of live guidance where it is below 1."""
 
     elements: tuple[Element, ...]
     duration_s: float
     entry: Pose | None = None
     transit_speed_mps: float = TRANSIT_SPEED_MPS
     name: str = "drivable"
+    expected_score: float | None = None  # what the plan promises: its score's 10th percentile over drivers
 
     def to_dict(self) -> dict[str, Any]:
         return {"version": PLAN_VERSION, "name": self.name, "duration_s": self.duration_s,
+                "expected_score": self.expected_score,
                 "entry": None if self.entry is None else [float(v) for v in self.entry],
                 "transit_speed_mps": self.transit_speed_mps,
                 "elements": [{"kind": e.kind, "params": {k: _plain(v) for k, v in e.params.items()},
@@ -137,7 +141,8 @@ def plan_from_dict(doc: Any, where: str = "plan") -> DrivablePlan:
     transit = _number(doc, "transit_speed_mps", where, 1.0, 30.0) if "transit_speed_mps" in doc \
         else TRANSIT_SPEED_MPS
     name = doc.get("name", "drivable")
-    return DrivablePlan(tuple(out), duration, entry, transit, str(name)[:100])
+    expected = _number(doc, "expected_score", where, 0.0, 1e12) if doc.get("expected_score") is not None else None
+    return DrivablePlan(tuple(out), duration, entry, transit, str(name)[:100], expected)
 
 
 def read_plan(path: str | Path) -> DrivablePlan:

@@ -47,8 +47,8 @@ from .robust import QUANTILE, Robust, robust_scores
 
 CONE_CLEARANCE_M = 1.2  # a path keeps this far from every cone but its own element's (half a car and room)
 SCREEN_RATE_HZ = 25.0
-SHARES = {"library": 0.08, "refine": 0.55}  # of the budget; the rest for the robust choice and the result
-RESULT_S = 3.0  # kept at the end for the result's own drive and report
+SHARES = {"library": 0.08, "refine": 0.5}  # of the budget; the rest for the robust choice and the result
+RESULT_S = 5.0  # kept at the end for the result's own drive and report
 
 
 @dataclass(frozen=True)
@@ -629,6 +629,8 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     rep = evaluate(traj, rig)
     rob = robust[k]
     rob.nominal = rep.score
+    plan = replace(plan, expected_score=rob.low)
+    built.plan = plan
     rows = [{"plan": " + ".join(f"{e.kind}×{int(e.params[repeat_param(e.kind)])}" for e in p.elements),
              "score": sc, "score_quantile": r.low, "quantile": settings.quantile, "chosen": i == k}
             for i, ((p, sc), r) in enumerate(zip(picked, robust))]
