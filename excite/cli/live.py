@@ -222,6 +222,25 @@ def _table(update: dict[str, Any], rig_name: str) -> Any:
     return Group(*parts)
 
 
+_PLAN_EVENTS = ("element", "element_done", "element_short", "proposal")
+
+
+def _plan_line(u: dict[str, Any]) -> str:
+    """One line for a plan event (``excite live --plan``)."""
+    t = f"t {u['t_s']:6.0f} s  "
+    if u["type"] == "element":
+        nxt = u["next"]
+        return (t + f"element {u['element']}: {u['instruction']}"
+                + (f"  — next: element {nxt['element']}" if nxt else "  — the plan's last element"))
+    if u["type"] == "element_done":
+        return t + f"element {u['element']} done ({u['laps_done']:.1f} of {u['laps_planned']} laps)"
+    if u["type"] == "element_short":
+        return t + f"element {u['element']} left after {u['laps_done']:.1f} of {u['laps_planned']} laps"
+    steps = "; then ".join(f"element {r['element']}: {r['instruction']}" for r in u["remainder"]) or "nothing fits"
+    return (t + f"proposal ({u['reason']}): {steps} — predicted score {u['predicted_score']:.3g} against the goal "
+            f"{u['goal']:.3g} ({u['predicted_score_original']:.3g} with the plan's remainder)")
+
+
 class _LogLines:
     """Updates as lines (output that is not a terminal): time, distance, score, parameters within
     target, the furthest-behind parameter and what it needs."""
@@ -251,6 +270,10 @@ def live(
     idle: Annotated[float, typer.Option(help="A followed file has ended after this many seconds "
                                              "without a new line.")] = 5.0,
     json_out: Annotated[bool, typer.Option("--json", help="Print one JSON object per update.")] = False,
+    plan: Annotated[Optional[Path], typer.Option("--plan", help="The drivable plan being driven (plan.json of "
+                                                 "excite optimize --drivable): say which element is being driven "
+                                                 "and which is next, and when an element is cut short or the plan "
+                                                 "ends short of its goal, what to repeat.")] = None,
 ) -> None:
     """Live guidance during the drive: each parameter's progress to its target, the motion it
     still needs, and done. Exit code 0 when every parameter is within target, 1 when the source
@@ -269,12 +292,21 @@ def live(
 
     # a TUM file excite wrote is read as read_tum reads it: not smoothed a second time
     smooth = str(route) != "-" and route.is_file() and already_smooth(route)
-    stream = PoseStream(r, name=name, cutoff_hz=math.inf if smooth else DEFAULT_CUTOFF_HZ)
+    cutoff = math.inf if smooth else DEFAULT_CUTOFF_HZ
+    if plan is not None:
+        from ..plan.drivable.guide import PlanStream
+        from ..plan.drivable.plan import read_plan
+
+        stream = PlanStream(r, read_plan(plan), name=name, cutoff_hz=cutoff)
+    else:
+        stream = PoseStream(r, name=name, cutoff_hz=cutoff)
     out = console()
 
     def emit(update: dict[str, Any], display: Any) -> None:
         if json_out:
             typer.echo(json.dumps(update, separators=(",", ":")))
+        elif update["type"] in _PLAN_EVENTS:
+            out.print(_plan_line(update), markup=False, highlight=False)
         elif update["type"] == "done" and update["passed"]:
             out.print(f"[bold green]done[/] at t = {update['t_s']:.0f} s: {update['reason']}")
         elif update["type"] == "done":  # nothing more to gain from this motion: say what helps
