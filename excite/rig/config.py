@@ -12,6 +12,7 @@ from __future__ import annotations
 import fnmatch
 import functools
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -217,10 +218,12 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         raise RigError(f"sensors: {len(sensors)} sensors, over the limit of {bounds.MAX_SENSORS}")
     data = dict(data)
     if isinstance(data.get("imu"), str):
+        from .importers.kalibr import read_imu  # Kalibr's input and output IMU files, OpenCV's header
+
         path = Path(data["imu"])
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
-        data["imu"] = read_yaml(path)
+        data["imu"] = read_imu(path)[0]
     _refuse_per_keyframe_noise(data)
     try:
         cfg = RigConfig.model_validate(data)
@@ -239,25 +242,34 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     for i, s in enumerate(cfg.sensors):
         ratio = kf / s.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise RigError(f"sensors.{i}.rate_hz: {s.rate_hz} Hz must divide the {which} "
-                           f"{kf} Hz by a whole number")
+            fit = kf / math.ceil(ratio - 1e-9)
+            why = (" (its noise is a drift density: σ does not change with the rate it is declared at)"
+                   if s.kind in ("lidar", "camera") else "")
+            raise RigError(f"sensors.{i}.rate_hz: {s.rate_hz:g} Hz must divide the {which} {kf:g} Hz by a whole "
+                           f"number: declare {s.name} at {fit:g} Hz{why}, or set keyframe_rate_hz to a whole "
+                           f"multiple of {s.rate_hz:g} Hz")
     ratio = cfg.imu.update_rate / kf
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        raise RigError(f"imu.update_rate: {cfg.imu.update_rate} Hz must be a whole multiple of the "
-                       f"{which} {kf} Hz")
+        fit = kf * math.floor(ratio + 1e-9)
+        fix = (f"declare the IMU at {fit:g} Hz (its noise densities hold at any rate) or set keyframe_rate_hz "
+               f"to a rate dividing {cfg.imu.update_rate:g} Hz" if fit > 0 else
+               f"set keyframe_rate_hz to a rate dividing {cfg.imu.update_rate:g} Hz")
+        raise RigError(f"imu.update_rate: {cfg.imu.update_rate:g} Hz must be a whole multiple of the "
+                       f"{which} {kf:g} Hz: {fix}")
 
     coords = []
     names = []
     sources = {q.block: k.name for k, _, q in registry.quantities(cfg)}
-    for col in registry.columns(cfg):
+    columns = registry.columns(cfg)
+    missing = [c for c in columns if not c.nuisance and _lookup(cfg.targets, c.name) is None]
+    if missing:
+        raise RigError(missing_targets(missing))
+    for col in columns:
         name, unit = col.name, col.unit
         names.append(name)
         target = math.nan
         if not col.nuisance:
             hit = _lookup(cfg.targets, name)
-            if hit is None:
-                raise RigError(f"targets: no accuracy target for {name} (add '{name}: <value> <unit>' "
-                               f"or a glob such as '*.{name.split('.', 1)[1]}')")
             target = parse_quantity(hit[1], unit, f"targets.{hit[0]}")
         prior = _lookup(cfg.priors, name)
         prior_sigma = None if prior is None else parse_quantity(prior[1], unit, f"priors.{prior[0]}")
@@ -271,6 +283,32 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     if not coords:
         raise RigError("rig: estimates no parameter at all")
     return Rig(cfg, tuple(coords), float(kf))
+
+
+# An example accuracy per unit (per kind where a unit is shared), for the lines an error offers
+_EXAMPLE_TARGETS = {"m": "1 cm", "rad": "0.1 deg", "s": "1 ms", "rad/s": "0.01 deg/s", "m/s^2": "0.02 m/s^2",
+                    "1": "0.001", ("ratio", "1"): "0.1"}
+
+
+def missing_targets(columns: list[Any]) -> str:
+    """The error for parameters without a target: all of them named, and the lines to paste
+    under ``targets:`` (one glob per sensor and kind of parameter; the values are examples)."""
+    groups: dict[tuple[str, str], list[Any]] = {}
+    for c in columns:
+        groups.setdefault((c.block, c.kind), []).append(c)
+    lines = []
+    for (block, _), cols in groups.items():
+        suffixes = [c.name.split(".", 1)[1] for c in cols]
+        if len(cols) == 1:
+            key = cols[0].name
+        else:
+            stem = os.path.commonprefix(suffixes)
+            key = f"{block}.{stem.rsplit('_', 1)[0] + '_' if '_' in stem else stem}*"
+        value = _EXAMPLE_TARGETS.get((cols[0].kind, cols[0].unit), _EXAMPLE_TARGETS.get(cols[0].unit, "<value>"))
+        lines.append(f'  "{key}": {value}')
+    names = ", ".join(c.name for c in columns)
+    return (f"targets: no accuracy target for {len(columns)} parameter{'s' if len(columns) > 1 else ''} "
+            f"({names}); add under targets: (example values: put the accuracy you need)\n" + "\n".join(lines))
 
 
 def _rig_error(exc: ValidationError, prefix: str = "") -> RigError:
@@ -416,11 +454,15 @@ def load_rig(name_or_path: str | Path = "robotaxi") -> Rig:
         if not bundled.exists():
             raise RigError(f"no bundled rig named {str(name_or_path)!r} (bundled: {', '.join(bundled_rigs())})")
         path = bundled
-    data = read_yaml(path)
     try:
-        return build_rig(data, base_dir=path.parent)
+        return build_rig(read_yaml(path), base_dir=path.parent)
     except RigError as exc:
-        raise RigError(f"{path}: {exc}") from None
+        from .importers.detect import hint  # another tool's file: name the command that imports it
+
+        told = hint(path)
+        if told is not None:
+            raise RigError(f"{path}: {told}") from None
+        raise RigError(str(exc) if str(exc).startswith(f"{path}") else f"{path}: {exc}") from None
 
 
 def rig_text(name_or_path: str | Path = "robotaxi") -> str:
