@@ -14,11 +14,12 @@ import excite.cli.score  # noqa: F401  (registers `excite score` on the app)
 from excite.cli.app import app
 from excite.errors import BagError
 from excite.io.bags import bag_info, fix_agreement, read_bag_route, read_fixes, write_bag
+
 from excite.io.bags.reader import _bag_route
 from excite.motion.maneuvers import figure_eight
 from excite.motion.trajectory import SensorLog
 from excite.motion.vehicle import drive
-from excite.rig.config import load_rig
+from excite.rig.config import build_rig, load_rig
 from excite.score.evaluate import evaluate
 from test_gnss import gnss_rig, sigmas
 
@@ -120,39 +121,30 @@ def test_the_gnss_topic_needs_one_antenna(data_dir):
 # --- importers ---------------------------------------------------------------------------------
 
 
-def test_autoware_places_the_gnss_frame_it_finds(tmp_path):
-    """Autoware's sample sensor kit has a gnss_link: it becomes an antenna at its position in the
-    IMU frame (its orientation dropped), with the standalone preset marked for review."""
-
-    from excite.cli.app import main
+def test_autoware_places_the_gnss_frame_it_finds(data_dir):
+    """Autoware's sample sensor kit has a gnss_link at (-0.1, 0, -0.2) on the kit, whose IMU sits at
+    the kit's origin turned by roll π, yaw π (R = diag(-1, 1, -1)): the antenna is at (0.1, 0, 0.2)
+    in the IMU frame (its orientation dropped), with the standalone preset marked for review."""
     from excite.rig.importers import rig_from_autoware
-    from test_rig_import import SENSOR_KIT, SENSORS, _T
 
-    kit, cal = tmp_path / "sensor_kit_calibration.yaml", tmp_path / "sensors_calibration.yaml"
-    import yaml
-
-    kit.write_text(yaml.safe_dump(SENSOR_KIT))
-    cal.write_text(yaml.safe_dump(SENSORS))
-    out = tmp_path / "rig.yaml"
-    assert main(["rig", "from-autoware", str(kit), "--sensors-calibration", str(cal), "--imu", "tamagawa/imu_link",
-                 "--base", "base_link", "--lidar", "velodyne_top_base_link", "-o", str(out)]) == 0
-    rig = load_rig(out)
-    gnss = [s for s in rig.config.sensors if s.kind == "gnss"]
-    assert [s.name for s in gnss] == ["gnss"]
-    R_ki, p_ki = _T(SENSOR_KIT["sensor_kit_base_link"]["tamagawa/imu_link"])
-    _, p_kg = _T(SENSOR_KIT["sensor_kit_base_link"]["gnss_link"])
-    np.testing.assert_allclose(gnss[0].T_B_S.p, R_ki.inv().apply(p_kg - p_ki), atol=1e-9)
-    assert gnss[0].T_B_S.rpy_deg is None and gnss[0].T_B_S.matrix is None
-    text = out.read_text()
-    assert "gnss = gnss_link" in text and "correlation_time_s" in text
+    d = data_dir / "rig_files" / "autoware"
+    imported = rig_from_autoware(d / "sensor_kit_calibration.yaml", sensors_calibration=d / "sensors_calibration.yaml")
+    rig = build_rig(imported.config)
+    (gnss,) = [s for s in rig.config.sensors if s.kind == "gnss"]
+    assert gnss.name == "gnss"
+    np.testing.assert_allclose(gnss.T_B_S.p, [0.1, 0.0, 0.2], atol=1e-9)
+    assert gnss.T_B_S.rpy_deg is None and gnss.T_B_S.matrix is None
+    i = [s["name"] for s in imported.config["sensors"]].index("gnss")
+    assert "standalone" in imported.review[f"sensors.{i}.noise"]
     assert {c.name for c in rig.coordinates} >= {"gnss.trans_x", "gnss.time_offset"}
-    none = rig_from_autoware(kit, imu="tamagawa/imu_link", base="base_link", sensors_calibration=cal, gnss=[])
+    none = rig_from_autoware(d / "sensor_kit_calibration.yaml", sensors_calibration=d / "sensors_calibration.yaml",
+                             gnss=[])
     assert not [s for s in none.config["sensors"] if s["kind"] == "gnss"]
 
 
 def test_tf_import_places_a_named_antenna(data_dir):
     from excite.io.bags import read_static_tf
-    from excite.io.bags.reader import rig_from_tf
+    from excite.io.bags import rig_from_tf
 
     path = data_dir / "nav2_turtlebot.mcap"
     static = read_static_tf(path)

@@ -14,8 +14,8 @@ from .app import app, console
 if TYPE_CHECKING:
     from ..score.evaluate import Report
 
-def print_report(rep: Report, console: Any) -> None:
-    """The report as tables for a terminal."""
+def print_report(rep: Report, console: Any, rig: Any = None) -> None:
+    """The report as tables for a terminal; with the ``rig``, the frame its ``trans_*`` are in."""
     from rich.table import Table
 
     from ..core.units import human
@@ -43,6 +43,12 @@ def print_report(rep: Report, console: Any) -> None:
             row.append(human(p.sigma_with_prior, p.unit) if p.sigma_with_prior is not None else "")
         t.add_row(*row)
     console.print(t)
+    if rig is not None and any(c.kind == "trans" for c in rig.scored):
+        from ..rig.config import body_axes
+
+        console.print(f"trans_* are positions in the IMU frame B, whose axes point "
+                      f"{body_axes(rig.config.vehicle.T_V_B.R)} of the vehicle (T_V_B); rot_* are rotations "
+                      "about each sensor's own axes")
     if rep.weak_modes:
         m = Table(title="Weakest directions (eigenvectors of SΛS, ascending)", title_justify="left")
         m.add_column("λ", justify="right")
@@ -169,7 +175,7 @@ def score(
     if json_out:
         typer.echo(json.dumps(rep.to_dict(), indent=2))
     else:
-        print_report(rep, console())
+        print_report(rep, console(), r)
 
 
 rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs; import rigs from TF, "

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 from pydantic import ConfigDict, Field, ValidationError, field_validator
 
@@ -191,6 +192,21 @@ class Rig:
         data = self.config.model_dump()
         data.update(changes)
         return build_rig(data)
+
+
+def body_axes(R_V_B: np.ndarray) -> str:
+    """Where B's axes point in V, in words: ``x forward, y left, z up`` (within 10°), else as
+    vectors."""
+    words = {0: ("forward", "backward"), 1: ("left", "right"), 2: ("up", "down")}
+    out = []
+    for i, axis in enumerate("xyz"):
+        col = R_V_B[:, i]
+        j = int(np.argmax(np.abs(col)))
+        if abs(col[j]) >= math.cos(math.radians(10.0)):
+            out.append(f"{axis} {words[j][0 if col[j] > 0 else 1]}")
+        else:
+            out.append(f"{axis} along ({col[0]:.2f}, {col[1]:.2f}, {col[2]:.2f})")
+    return ", ".join(out)
 
 
 def _lookup(table: dict[str, float | str], name: str) -> tuple[str, float | str] | None:
@@ -424,15 +440,33 @@ def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
                                f"keyframe rate{conv}")
 
 
+class SafeLoader(yaml.SafeLoader):
+    """PyYAML's safe loader without anchors and aliases: a few nested aliases (a "YAML bomb")
+    expand to gigabytes in whatever walks the result, so they are refused where they appear."""
+
+    def compose_node(self, parent, index):  # noqa: ANN001
+        if self.check_event(yaml.AliasEvent):
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, "anchors and aliases (*name) are not accepted: "
+                                              "write the values out", mark)
+        return super().compose_node(parent, index)
+
+
+MAX_FILE_BYTES = 8 * 2**20  # a rig or calibration file is kilobytes
+
+
 def read_yaml(path: Path) -> Any:
     try:
+        size = Path(path).stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise RigError(f"{path}: {size:,} bytes, over the limit of {MAX_FILE_BYTES:,} for a rig file")
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise RigError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
         raise RigError(f"{path}: not a text file ({exc.reason})") from None
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=SafeLoader)  # noqa: S506 (a safe loader)
     except RecursionError:
         raise RigError(f"{path}: nested more than {bounds.MAX_NESTING} levels deep") from None
     except yaml.YAMLError as exc:

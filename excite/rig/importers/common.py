@@ -31,9 +31,8 @@ import yaml
 from ...core import bounds
 from ...errors import RigError
 from ...factors.gnss import PRESETS
-from ..config import RigConfig, build_rig
+from ..config import MAX_FILE_BYTES, RigConfig, SafeLoader, body_axes, build_rig
 
-MAX_FILE_BYTES = 8 * 2**20  # a calibration file, a URDF included, is kilobytes
 MAX_FRAMES = 4096  # frames of a tree (a robot's URDF has a few hundred links at most)
 ARITHMETIC_TOL = 1e-12  # what a rotation computed in double precision may be off by
 
@@ -134,21 +133,6 @@ def frame_note(cfg: RigConfig) -> str:
     frame V are read off ``T_V_B``."""
     return (f"trans_* (each T_B_S translation) is the sensor's position in the IMU frame B, whose axes "
             f"point {body_axes(cfg.vehicle.T_V_B.R)} of the vehicle frame (T_V_B)")
-
-
-def body_axes(R_V_B: np.ndarray) -> str:
-    """Where B's axes point in V, in words: ``x forward, y left, z up`` (within 10°), else as
-    vectors."""
-    words = {0: ("forward", "backward"), 1: ("left", "right"), 2: ("up", "down")}
-    out = []
-    for i, axis in enumerate("xyz"):
-        col = R_V_B[:, i]
-        j = int(np.argmax(np.abs(col)))
-        if abs(col[j]) >= math.cos(math.radians(10.0)):
-            out.append(f"{axis} {words[j][0 if col[j] > 0 else 1]}")
-        else:
-            out.append(f"{axis} along ({col[0]:.2f}, {col[1]:.2f}, {col[2]:.2f})")
-    return ", ".join(out)
 
 
 def pose(R: np.ndarray, p: np.ndarray) -> dict[str, Any]:
@@ -293,16 +277,9 @@ class OpenCVTag:
 _FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)(?:[eE][-+]?[0-9]+)?$")
 
 
-class _Loader(yaml.SafeLoader):
+class _Loader(SafeLoader):
     """YAML as calibration tools write it: floats with their printed decimals (``1e-3`` too,
     which YAML 1.1 reads as a string), OpenCV's matrix tag; no aliases."""
-
-    def compose_node(self, parent, index):  # noqa: ANN001
-        if self.check_event(yaml.AliasEvent):
-            mark = self.peek_event().start_mark
-            raise yaml.composer.ComposerError(None, None, "anchors and aliases (*name) are not accepted: "
-                                              "write the values out", mark)
-        return super().compose_node(parent, index)
 
 
 def _construct_float(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> Any:

@@ -3,6 +3,7 @@ the import command that reads it."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -30,12 +31,13 @@ def detect(path: str | Path) -> tuple[str, str] | None:
         data = common.load_yaml(path, text)
     except RigError:
         return None
-    if not isinstance(data, dict):
-        return None
+    if not isinstance(data, dict) or {"sensors", "targets", "vehicle"} & set(data):
+        return None  # not a mapping, or a rig (whose own error is the one to read)
     if any(isinstance(v, dict) and ("T_cam_imu" in v or "T_imu_cam" in v) for v in data.values()):
         return "Kalibr camchain", f"excite rig from-kalibr {path} IMU_YAML"
-    if "accelerometer_noise_density" in data or any(isinstance(v, dict) and "accelerometer_noise_density" in v
-                                                    for v in data.values()):
+    if "accelerometer_noise_density" in data or any(
+            re.fullmatch(r"imu\d+", str(k)) and isinstance(v, dict) and "accelerometer_noise_density" in v
+            for k, v in data.items()):
         return "Kalibr IMU", f"excite rig from-kalibr CAMCHAIN {path}"
     if "body_T_cam0" in data:
         return "VINS-Fusion", f"excite rig from-vins {path}"
@@ -56,4 +58,4 @@ def hint(path: str | Path) -> str | None:
         return None
     what, command = found
     also = (f" (or name it as a rig's IMU block: `imu: {Path(path).name}`)" if what == "Kalibr IMU" else "")
-    return f"this is {'an' if what[0] in 'AEIOU' else 'a'} {what} file, not a rig: `{command}` writes a rig from it{also}"
+    return f"this is {'an' if what[0] in 'AEIO' else 'a'} {what} file, not a rig: `{command}` writes a rig from it{also}"

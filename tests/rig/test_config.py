@@ -82,8 +82,9 @@ def test_errors_name_the_key(mutate, key):
     (lambda d: d.__setitem__("keyframe_rat_hz", 10), "keyframe_rat_hz: not a key of a rig file here"),
     (lambda d: d["sensors"][1].__setitem__("name", "lidar"), "sensors: sensor names must be unique, repeated: lidar"),
     (lambda d: (d.__setitem__("keyframe_rate_hz", None), d["sensors"][1].__setitem__("rate_hz", 15.0)),
-     "sensors.0.rate_hz: 10.0 Hz must divide the keyframe rate (not given: the fastest sensor's) 15.0 Hz "
-     "by a whole number"),
+     "sensors.0.rate_hz: 10 Hz must divide the keyframe rate (not given: the fastest sensor's) 15 Hz by a whole "
+     "number: declare lidar at 7.5 Hz (its noise is a drift density: σ does not change with the rate it is "
+     "declared at), or set keyframe_rate_hz to a whole multiple of 10 Hz"),
 ])
 def test_errors_read_as_sentences_not_validator_jargon(mutate, message):
     data = base()
@@ -110,3 +111,62 @@ def test_rig_show_prints_the_bundled_rig(capsys):
     out = capsys.readouterr().out
     assert yaml.safe_load(out)["name"] == "robotaxi"
     assert main(["rig", "show", "nosuch"]) == 1
+
+
+# --------------------------------------------------------------------------------------------
+# Writing a rig by hand
+
+
+def _sedan_without(*globs: str) -> dict:
+    data = yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())
+    for g in globs:
+        data["targets"].pop(g)
+    return data
+
+
+def test_a_car_rig_missing_six_targets_gets_one_error_naming_all_six():
+    data = _sedan_without("wheel.scale_*", "wheel.track_*")
+    with pytest.raises(RigError) as e:
+        build_rig(data)
+    msg = str(e.value)
+    missing = ["wheel.scale_fl", "wheel.scale_fr", "wheel.scale_rl", "wheel.scale_rr", "wheel.track_front",
+               "wheel.track_rear"]
+    first = msg.splitlines()[0]
+    assert first.startswith("targets: no accuracy target for 6 parameters (")
+    assert all(name in first for name in missing)
+    # the lines it offers, pasted under targets:, make the rig whole
+    pasted = yaml.safe_load("\n".join(msg.splitlines()[1:]))
+    assert set(pasted) == {"wheel.scale_*", "wheel.track_*"}
+    data["targets"].update(pasted)
+    rig = build_rig(data)
+    assert {c.name for c in rig.scored} >= set(missing)
+
+
+def test_a_rig_with_no_targets_names_every_parameter_once(capsys, tmp_path):
+    data = _sedan_without(*list(yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())["targets"]))
+    path = tmp_path / "car.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert main(["rig", "show", str(path)]) == 1
+    err = capsys.readouterr().err
+    n = len(build_rig(yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())).scored)
+    assert f"targets: no accuracy target for {n} parameters" in err
+    pasted = yaml.safe_load("\n".join(err.strip().splitlines()[1:]))
+    data["targets"] = pasted
+    assert len(build_rig(data).scored) == n
+
+
+def test_the_rate_error_says_the_fix_and_the_fix_works():
+    data = base()
+    data["keyframe_rate_hz"] = None
+    data["sensors"][0]["rate_hz"] = 20.0  # a 20 Hz lidar: keyframes at 20 Hz
+    data["sensors"][1]["rate_hz"] = 15.0  # a 15 Hz camera
+    with pytest.raises(RigError) as e:
+        build_rig(data)
+    msg = str(e.value)
+    assert msg.startswith("sensors.1.rate_hz: 15 Hz must divide the keyframe rate (not given: the fastest "
+                          "sensor's) 20 Hz by a whole number: declare cam_front at 10 Hz")
+    assert "σ does not change with the rate it is declared at" in msg
+    fix = float(msg.split("declare ")[1].split(" at ")[1].split(" Hz")[0])
+    assert fix == 10.0
+    data["sensors"][1]["rate_hz"] = fix
+    build_rig(data)
