@@ -26,7 +26,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="Calibration excitation planner: how well does a drive determine every "
                        "sensor calibration parameter?")
 
-PIPE_WIDTH = 240  # columns of output to a pipe or file: wide enough that rows stay whole
+PIPE_WIDTH = 100  # columns of output to a pipe or file (a terminal's own width otherwise)
 
 
 def _version(value: bool) -> None:
@@ -45,12 +45,35 @@ def _root(version: Annotated[Optional[bool], typer.Option(
 
 def console(stderr: bool = False) -> Any:
     """A rich console for the commands' tables: the terminal's width, or :data:`PIPE_WIDTH`
-    when the output is piped (rich would wrap at 80)."""
+    when the output is piped (rich would wrap at 80). Tables wrap their cells between words and
+    never cut one: each column is at least as wide as its longest word (:func:`fit_words`)."""
     from rich.console import Console
+
+    class WordConsole(Console):
+        def print(self, *objects: Any, **kwargs: Any) -> None:
+            for obj in objects:
+                fit_words(obj)
+            super().print(*objects, **kwargs)
 
     stream = sys.stderr if stderr else sys.stdout
     piped = not stream.isatty() and "COLUMNS" not in os.environ
-    return Console(stderr=stderr, width=PIPE_WIDTH if piped else None)
+    return WordConsole(stderr=stderr, width=PIPE_WIDTH if piped else None)
+
+
+def fit_words(table: Any) -> None:
+    """Give each column of a rich ``table`` the width of its longest word (header and cells), so
+    that narrowing the table wraps its cells between words instead of cutting one."""
+    from rich.table import Table
+    from rich.text import Text
+
+    if not isinstance(table, Table):
+        return
+    for col in table.columns:
+        words = [0]
+        for cell in [col.header, *col.cells]:
+            plain = cell.plain if isinstance(cell, Text) else Text.from_markup(cell).plain if isinstance(cell, str) else ""
+            words += [len(w) for w in plain.split()]
+        col.min_width = max(col.min_width or 0, max(words))
 
 
 def register(argv: list[str]) -> None:

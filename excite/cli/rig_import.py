@@ -162,3 +162,61 @@ def from_autoware(
 
     _write(rig_from_autoware(sensor_kit, sensors_calibration=sensors_calibration, imu=imu, base=base, lidar=lidar,
                              camera=camera, gnss=_antennas(gnss, no_gnss), name=name), output)
+
+
+@rig_app.command("noise")
+def noise(
+    odometry: Annotated[Path, typer.Argument(help="The odometry's poses: a bag (with --topic), a TUM file or an "
+                                                  "EuRoC CSV.")],
+    reference: Annotated[Optional[Path], typer.Option(
+        help="The reference of the same drive (ground truth, a GNSS/INS pose): a bag (with --reference-topic), "
+             "a TUM file or an EuRoC CSV (default: the odometry's bag).")] = None,
+    topic: Annotated[Optional[str], typer.Option(help="Bags: the odometry's pose topic.")] = None,
+    reference_topic: Annotated[Optional[str], typer.Option(help="Bags: the reference's pose topic.")] = None,
+    max_time_offset: Annotated[float, typer.Option(
+        help="Search the clocks' offset within ± this [s].")] = 1.0,
+    time_offset: Annotated[Optional[float], typer.Option(
+        help="The clocks' offset [s] (the reference at t + offset is the odometry at t), instead of searching.")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the estimate as JSON.")] = False,
+) -> None:
+    """An odometry's drift densities (the noise of a rig's lidar or camera) from a drive logged with a
+    reference: the densities with their uncertainty, and the rig lines to paste."""
+    import json
+
+    from ..io.timed_poses import read_timed_poses
+    from ..rig.noise import estimate_drift
+
+    if reference is None and reference_topic is None:
+        raise typer.BadParameter("name the reference: --reference FILE, or --reference-topic in the odometry's bag",
+                                 param_hint="--reference")
+    odom = read_timed_poses(odometry, topic)
+    ref = read_timed_poses(reference or odometry, reference_topic)
+    est = estimate_drift(odom, ref, max_time_offset_s=max_time_offset, time_offset_s=time_offset)
+    if json_out:
+        typer.echo(json.dumps(est.to_dict(), indent=2))
+        return
+    from .app import console
+
+    _print_drift(est, console(), f"{topic or odometry.name} against {reference_topic or (reference or odometry).name}")
+
+
+def _print_drift(est, con, title: str) -> None:
+    from rich.table import Table
+
+    con.print(f"[bold]{title}[/]: {est.pairs} frame pairs over {est.duration_s:.0f} s ({est.rate_hz:.1f} Hz)")
+    t = Table(title="Drift densities (σ of a relative pose over Δt = density·√Δt, per axis)", title_justify="left")
+    for col, right in (("", False), ("between frames", True), ("± (1σ)", True), ("per axis x, y, z", True),
+                       ("over 1 s", True), ("over 10 s", True), ("white, per pose", True)):
+        t.add_column(col, justify="right" if right else "left")
+    for what, d, white_unit in (("rotation [deg/√s]", est.rotation, "deg"),
+                                ("translation [m/√s]", est.translation, "m")):
+        t.add_row(what, f"{d.value:.4g}", f"{d.sigma:.2g}", ", ".join(f"{x:.3g}" for x in d.per_axis),
+                  f"{d.over_1s:.3g}", f"{d.over_10s:.3g}", f"{d.white_sigma:.2g} {white_unit}")
+    con.print(t)
+    con.print(f"alignment: time offset {est.time_offset_s * 1e3:+.1f} ms (the reference at t + offset is the "
+              f"odometry at t), frames {est.frame_rotation_deg:.2f}° apart, lever arm "
+              f"({', '.join(f'{x:.3f}' for x in est.lever_arm_m)}) m, scale {est.scale:.4f} (metres per odometry unit)")
+    for note in est.notes:
+        con.print(f"note: {note}")
+    con.print("rig lines to paste under the lidar's or camera's entry:")
+    con.print(est.rig_lines().rstrip(), highlight=False, markup=False)
