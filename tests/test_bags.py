@@ -111,7 +111,7 @@ def test_route_info_lists_topics_types_rates_and_sources(data_dir, capsys):
     assert info["/amcl_pose"].use == "pose" and info["/tf_static"].use == ""
     assert main(["route", "info", str(data_dir / NAV2)]) == 0
     out = capsys.readouterr().out
-    assert "--topic /tf:odom.base_link" in out and "nav_msgs/Odometry" in out and "2639" in out
+    assert "/tf:odom.base_link" in out and "nav_msgs/Odometry" in out and "2639" in out
 
 
 def test_odom_topic_and_tf_chain_give_the_same_score(data_dir, turtlebot_rig):

@@ -52,7 +52,7 @@ def console(stderr: bool = False) -> Any:
     class WordConsole(Console):
         def print(self, *objects: Any, **kwargs: Any) -> None:
             for obj in objects:
-                fit_words(obj)
+                fit_words(obj, self.width)
             super().print(*objects, **kwargs)
 
     stream = sys.stderr if stderr else sys.stdout
@@ -60,20 +60,41 @@ def console(stderr: bool = False) -> Any:
     return WordConsole(stderr=stderr, width=PIPE_WIDTH if piped else None)
 
 
-def fit_words(table: Any) -> None:
-    """Give each column of a rich ``table`` the width of its longest word (header and cells), so
-    that narrowing the table wraps its cells between words instead of cutting one."""
+def fit_words(table: Any, width: int) -> None:
+    """Widths for the columns of a rich ``table`` that fit ``width`` and wrap cells between words
+    instead of cutting one: each column at least as wide as its longest word (header and cells),
+    the room left shared in proportion to what each needs beyond that. Where the longest words
+    together are wider than the room, the widest columns give way first and fold what must be
+    folded (never cropping it)."""
     from rich.table import Table
     from rich.text import Text
 
-    if not isinstance(table, Table):
+    if not isinstance(table, Table) or not table.columns:
         return
+    lo, hi = [], []
     for col in table.columns:
-        words = [0]
+        words, lines = [1], [1]
         for cell in [col.header, *col.cells]:
             plain = cell.plain if isinstance(cell, Text) else Text.from_markup(cell).plain if isinstance(cell, str) else ""
             words += [len(w) for w in plain.split()]
-        col.min_width = max(col.min_width or 0, max(words))
+            lines += [len(line) for line in plain.splitlines()]
+        lo.append(max(words))
+        hi.append(max(max(lines), max(words)))
+    n = len(lo)
+    pad = table.padding[1] + table.padding[3]
+    room = width - n * pad - ((n + 1) if table.box is not None and table.show_edge else max(n - 1, 0))
+    if sum(hi) <= room:
+        return  # rich lays it out whole
+    while sum(lo) > room and max(lo) > 8:
+        k = lo.index(max(lo))
+        lo[k] = max(8, lo[k] - (sum(lo) - room))
+    spare = max(room - sum(lo), 0)
+    need = [h - w for h, w in zip(hi, lo)]
+    total = sum(need) or 1
+    widths = [w + int(spare * d / total) for w, d in zip(lo, need)]
+    for col, w in zip(table.columns, widths):
+        col.width = w
+        col.overflow = "fold"
 
 
 def register(argv: list[str]) -> None:

@@ -51,7 +51,7 @@ def bag_table(file: Path) -> None:
     topics = bag_info(file)
     table = Table(title=Text(f"{file.name}: {len(topics)} topics"))
     for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"),
-                      ("rate [Hz]", "right"), ("span [s]", "right"), ("use (excite score --topic / --imu-topic)", "left")):
+                      ("rate [Hz]", "right"), ("span \\[s]", "right"), ("use (excite score --topic / --imu-topic)", "left")):
         table.add_column(col, justify=just, overflow="fold")
     for t in topics:
         use = {"pose": f"--topic {t.topic}", "imu": f"--imu-topic {t.topic}",

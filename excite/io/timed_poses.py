@@ -13,7 +13,8 @@ from ..errors import RouteError
 from ..rig.noise import TimedPoses
 from .bags import is_bag, read_poses
 from .poses import MIN_POSES
-from .routes import _check_count, _check_times, _quaternions, document, numbers, split_rows
+from .poses import QUAT_NORM_TOL
+from .routes import document, numbers, split_rows
 
 
 def read_timed_poses(path: str | Path, topic: str | None = None) -> TimedPoses:
@@ -35,13 +36,27 @@ def read_timed_poses(path: str | Path, topic: str | None = None) -> TimedPoses:
                              source=table.source, line=table.lines[0])
         ns = np.array([int(float(r[0])) for r in table.rows], dtype=np.int64)
         t = (ns - ns[0]).astype(float) * 1e-9 + float(ns[0]) * 1e-9
-        q = _quaternions(d[:, 4:8], table.source, table.lines, 5)
-        R = Rotation.from_quat(q, scalar_first=True).as_matrix()
+        R = Rotation.from_quat(_unit(d[:, 4:8], table), scalar_first=True).as_matrix()
     else:
         table = split_rows(doc, None)
         d = numbers(table, (8,))
         t = d[:, 0]
-        R = Rotation.from_quat(_quaternions(d[:, 4:8], table.source, table.lines, 5)).as_matrix()
-    _check_count(len(d), MIN_POSES, "poses", table.source, table.lines)
-    _check_times(t, table.source, table.lines)
+        R = Rotation.from_quat(_unit(d[:, 4:8], table)).as_matrix()
+    if len(d) < MIN_POSES:
+        raise RouteError(f"too few poses: {len(d)}, need at least {MIN_POSES}", source=table.source)
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0)) + 1
+        raise RouteError(f"times must increase: {t[k]:.9g} s after {t[k - 1]:.9g} s", source=table.source,
+                         line=table.lines[k])
     return TimedPoses(t, R, d[:, 1:4], path.stem)
+
+
+def _unit(q: np.ndarray, table) -> np.ndarray:
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.abs(norm - 1.0) > QUAT_NORM_TOL
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise RouteError(f"quaternion norm {norm[k]:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g})", source=table.source,
+                         line=table.lines[k])
+    return q / norm[:, None]

@@ -24,6 +24,7 @@ from pydantic import ConfigDict, Field, ValidationError, field_validator
 
 from .. import factors  # noqa: F401  (registers the built-in measurement kinds)
 from ..core import bounds
+from .files import MAX_FILE_BYTES, SafeLoader
 from ..core.schema import Model as _Model
 from ..core.schema import Pose, PositiveFloat
 from ..errors import RigError
@@ -234,12 +235,12 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         raise RigError(f"sensors: {len(sensors)} sensors, over the limit of {bounds.MAX_SENSORS}")
     data = dict(data)
     if isinstance(data.get("imu"), str):
-        from .importers.kalibr import read_imu  # Kalibr's input and output IMU files, OpenCV's header
+        from .files import read_kalibr_imu  # Kalibr's input and output IMU files, OpenCV's header
 
         path = Path(data["imu"])
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
-        data["imu"] = read_imu(path)[0]
+        data["imu"] = read_kalibr_imu(path)[0]
     _refuse_per_keyframe_noise(data)
     try:
         cfg = RigConfig.model_validate(data)
@@ -440,21 +441,6 @@ def _refuse_per_keyframe_noise(data: dict[str, Any]) -> None:
                                f"keyframe rate{conv}")
 
 
-class SafeLoader(yaml.SafeLoader):
-    """PyYAML's safe loader without anchors and aliases: a few nested aliases (a "YAML bomb")
-    expand to gigabytes in whatever walks the result, so they are refused where they appear."""
-
-    def compose_node(self, parent, index):  # noqa: ANN001
-        if self.check_event(yaml.AliasEvent):
-            mark = self.peek_event().start_mark
-            raise yaml.composer.ComposerError(None, None, "anchors and aliases (*name) are not accepted: "
-                                              "write the values out", mark)
-        return super().compose_node(parent, index)
-
-
-MAX_FILE_BYTES = 8 * 2**20  # a rig or calibration file is kilobytes
-
-
 def read_yaml(path: Path) -> Any:
     try:
         size = Path(path).stat().st_size
@@ -491,7 +477,7 @@ def load_rig(name_or_path: str | Path = "robotaxi") -> Rig:
     try:
         return build_rig(read_yaml(path), base_dir=path.parent)
     except RigError as exc:
-        from .importers.detect import hint  # another tool's file: name the command that imports it
+        from .files import hint  # another tool's file: name the command that imports it
 
         told = hint(path)
         if told is not None:

@@ -2,7 +2,7 @@
 sensor kit), each a child's pose in its parent, static or over time; the hops of the chain
 between two frames (in time linear in the frames of the tree) and the static pose of one frame
 in another. The files they come from are read in :mod:`excite.io` (:mod:`excite.io.bags.tf`);
-the rig importers compose them."""
+the rig importers compose the static trees of their files with :mod:`excite.rig.importers.tree`."""
 
 from __future__ import annotations
 

@@ -15,9 +15,10 @@ import yaml
 import formats
 from excite.cli.app import main
 from excite.errors import RigError
-from excite.io.tf_rig import rig_from_tf
+from excite.io.bags import rig_from_tf
 from excite.rig import importers
 from excite.rig.config import build_rig, load_rig
+from excite.rig.files import MAX_FILE_BYTES, read_kalibr_imu
 
 LIDARS = ("lidar_roof_link", "velodyne_rear_link")
 CAMERAS = ("cam_front_link", "cam_left_link")
@@ -150,12 +151,12 @@ def test_published_imu_files_nest_their_values(data_dir):
     """Kalibr's output and OpenVINS's IMU chains hold the densities under imu0: (with OpenCV's
     header) and read as the flat input file does."""
     d = data_dir / "rig_files"
-    flat, _ = importers.kalibr.read_imu(d / "kalibr/imu.yaml")
-    nested, _ = importers.kalibr.read_imu(d / "kalibr/imu-camera_imu.yaml")
+    flat, _ = read_kalibr_imu(d / "kalibr/imu.yaml")
+    nested, _ = read_kalibr_imu(d / "kalibr/imu-camera_imu.yaml")
     assert flat == nested == {"accelerometer_noise_density": 1.86e-3, "accelerometer_random_walk": 4.33e-4,
                               "gyroscope_noise_density": 1.87e-4, "gyroscope_random_walk": 2.66e-5,
                               "update_rate": 500.0}
-    tumvi, _ = importers.kalibr.read_imu(d / "openvins_tumvi/kalibr_imu_chain.yaml")
+    tumvi, _ = read_kalibr_imu(d / "openvins_tumvi/kalibr_imu_chain.yaml")
     assert tumvi["accelerometer_noise_density"] == 0.0028
 
 
@@ -368,7 +369,7 @@ def test_a_yaml_bomb_is_refused_before_it_expands(tmp_path, capsys):
 def test_a_file_too_large_is_refused_before_it_is_read(tmp_path, capsys):
     path = tmp_path / "params.yaml"
     with path.open("wb") as f:
-        f.truncate(importers.common.MAX_FILE_BYTES + 1)
+        f.truncate(MAX_FILE_BYTES + 1)
     err = _one_line(["rig", "from-lio-sam", str(path)], capsys)
     assert f"{path}: 8,388,609 bytes, over the limit of 8,388,608" in err
 

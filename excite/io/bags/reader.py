@@ -3,13 +3,13 @@ transforms, and a bag's drive as a trajectory."""
 
 from __future__ import annotations
 
-import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ...core import bounds
 from ...errors import BagError, RouteError
@@ -362,20 +362,17 @@ def _bag_route(path: Path, topic: str, imu_topic: str | None, start_s: float | N
     return ImuTrajectory.of(traj, t_imu, imu.omega, imu.accel, imu.frame), int(s.t_ns[0])
 
 
-_NAME = re.compile(r"[^a-z0-9_]+")
-
-
 def rig_from_tf(path: str | Path, *, imu: str, base: str, lidar: list[str] = (), camera: list[str] = (),
                 gnss: list[str] | None = None, name: str | None = None) -> importers.ImportedRig:
-    """A rig from a bag's ``/tf_static`` (:func:`excite.rig.importers.from_tree`): B is the ``imu``
-    frame, V the ``base`` frame; GNSS antennas at the ``gnss`` frames (default: every frame named
-    like one)."""
+    """A rig from a bag's ``/tf_static`` (composed by :func:`excite.rig.importers.rig_from_tree`):
+    B is the ``imu`` frame, V the ``base`` frame; sensors at the ``lidar`` and ``camera`` frames,
+    named after them; GNSS antennas at the ``gnss`` frames (default: every frame named like one,
+    ``gnss``, ``gps_link``, …)."""
     path = Path(path)
     static = read_static_tf(path)
-    edges = {c: Edge(par, c, p=[tuple(p)], q=[tuple(q)]) for c, (par, p, q) in static.items()}
-    cfg, defaults, frames = importers.from_tree(edges, path, TF_STATIC_TOPIC, imu, base, list(lidar), list(camera),
-                                                name or _NAME.sub("_", path.stem.lower()).strip("_") or "rig",
-                                                None if gnss is None else list(gnss))
-    notes = [f"from the /tf_static tree of {path.name}: B = {imu}, V = {base}"]
-    notes += [f"{s['name']} = {f}" for s, f in zip(cfg["sensors"], frames)]
-    return importers.finish(cfg, defaults, notes)
+    hops = [importers.Hop(parent, child, Rotation.from_quat(q).as_matrix(), np.asarray(p, float))
+            for child, (parent, p, q) in static.items()]
+    return importers.rig_from_tree(importers.Tree(hops, f"{path} {TF_STATIC_TOPIC}"), imu=imu, base=base,
+                                   lidar=list(lidar), camera=list(camera), gnss=None if gnss is None else list(gnss),
+                                   name=name or importers.common.rig_name(path),
+                                   notes=[f"from the {TF_STATIC_TOPIC} tree of {path.name}"])

@@ -1,12 +1,6 @@
-"""What every importer shares: reading the files (YAML as the tools write it, OpenCV's dialect
-included, bounded), matrices and rotations to the precision of their printed digits, sensor names
-from frames, the defaults for what a file cannot tell (each marked for review), and the rig YAML
-an import writes.
-
-**Files.** At most :data:`MAX_FILE_BYTES` are read. YAML anchors and aliases are refused (a few
-nested aliases expand to gigabytes in whoever walks the result). OpenCV's ``%YAML:1.0`` first line
-(not a YAML 1.1 directive) is read as the comment it is, and ``!!opencv-matrix`` mappings
-(``rows``, ``cols``, ``dt``, ``data``) become matrices, checked where their key is read.
+"""What every importer shares: matrices and rotations to the precision of their printed digits
+(the files are read by :mod:`excite.rig.files`), sensor names from frames, the defaults for what
+a file cannot tell (each marked for review), and the rig YAML an import writes.
 
 **Rotations.** A matrix read from a file is a rotation as far as its printed digits tell: each
 entry printed with d decimals is off by at most ½·10⁻ᵈ, so the nearest rotation R̂ (polar
@@ -31,7 +25,9 @@ import yaml
 from ...core import bounds
 from ...errors import RigError
 from ...factors.gnss import PRESETS
-from ..config import MAX_FILE_BYTES, RigConfig, SafeLoader, body_axes, build_rig
+from ..config import RigConfig, body_axes, build_rig
+from ..files import (KALIBR_IMU_KEYS as IMU_KEYS, MAX_FILE_BYTES, OpenCVMatrix, OpenCVTag, Printed, find_key,  # noqa: F401
+                     load_yaml, mapping, number, read_text)
 
 MAX_FRAMES = 4096  # frames of a tree (a robot's URDF has a few hundred links at most)
 ARITHMETIC_TOL = 1e-12  # what a rotation computed in double precision may be off by
@@ -40,7 +36,6 @@ ARITHMETIC_TOL = 1e-12  # what a rotation computed in double precision may be of
 DEFAULT_IMU = {"accelerometer_noise_density": 2.0e-3, "accelerometer_random_walk": 3.0e-4,
                "gyroscope_noise_density": 1.7e-4, "gyroscope_random_walk": 2.0e-5,
                "update_rate": 200.0}
-IMU_KEYS = tuple(DEFAULT_IMU)
 # Drift densities of lidar and camera odometry when the file gives none: 0.1 deg and 1 cm per
 # frame pair at 10 Hz (σ·√10); the rig guide gives measured values per sensor class.
 DEFAULT_ODOMETRY_NOISE = {"rotation_density_deg_per_sqrt_s": 0.316,
@@ -235,144 +230,6 @@ def rig_name(path: Path, strip: tuple[str, ...] = ()) -> str:
 
 # --------------------------------------------------------------------------------------------
 # Files
-
-
-class Printed(float):
-    """A float read from a file, with the number of decimals it was printed with."""
-
-    decimals: int
-
-    def __new__(cls, value: float, decimals: int) -> "Printed":
-        obj = super().__new__(cls, value)
-        obj.decimals = decimals
-        return obj
-
-
-def decimals_of(text: str) -> int:
-    """Decimals of a printed number: ``0.9995`` → 4, ``1.2e-3`` → 4, ``1`` → 0."""
-    t = text.strip().lower().lstrip("+-")
-    mantissa, _, exponent = t.partition("e")
-    frac = mantissa.partition(".")[2]
-    try:
-        exp = int(exponent) if exponent else 0
-    except ValueError:
-        exp = 0
-    return max(len(frac) - exp, 0)
-
-
-class OpenCVMatrix(dict):
-    """An ``!!opencv-matrix`` mapping, checked where its key is read (``problem`` if its node was
-    not a mapping)."""
-
-    problem: str | None = None
-
-
-class OpenCVTag:
-    """An ``!!opencv-…`` node of another type (``opencv-nd-matrix``, …)."""
-
-    def __init__(self, tag: str):
-        self.tag = tag
-
-
-_FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)(?:[eE][-+]?[0-9]+)?$")
-
-
-class _Loader(SafeLoader):
-    """YAML as calibration tools write it: floats with their printed decimals (``1e-3`` too,
-    which YAML 1.1 reads as a string), OpenCV's matrix tag; no aliases."""
-
-
-def _construct_float(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> Any:
-    text = node.value
-    if text.lower().lstrip("+-") in (".inf", ".nan"):
-        return loader.construct_yaml_float(node)
-    try:
-        value = float(text.replace("_", ""))
-    except ValueError:
-        return loader.construct_yaml_float(node)
-    return Printed(value, decimals_of(text))
-
-
-def _construct_opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> OpenCVMatrix:
-    out = OpenCVMatrix()
-    if isinstance(node, yaml.MappingNode):
-        out.update(loader.construct_mapping(node, deep=True))
-    else:
-        out.problem = f"!!opencv-matrix holds a {node.id}, not a mapping of rows, cols, dt, data"
-    return out
-
-
-def _construct_opencv_other(loader: yaml.SafeLoader, suffix: str, node: yaml.Node) -> OpenCVTag:
-    return OpenCVTag(f"!!opencv-{suffix}")
-
-
-_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT, list("-+0123456789."))
-_Loader.add_constructor("tag:yaml.org,2002:float", _construct_float)
-_Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", _construct_opencv_matrix)
-_Loader.add_multi_constructor("tag:yaml.org,2002:opencv-", _construct_opencv_other)
-
-_OPENCV_HEADER = re.compile(r"^%YAML:\d\.\d")
-
-
-def read_text(path: Path, what: str = "a calibration file") -> str:
-    """The text of ``path``, at most :data:`MAX_FILE_BYTES` (checked before reading)."""
-    try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise RigError(f"{path}: {size:,} bytes, over the limit of {MAX_FILE_BYTES:,} for {what}")
-        return path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RigError(f"{path}: cannot read ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise RigError(f"{path}: not a text file ({exc.reason})") from None
-
-
-def load_yaml(path: str | Path, text: str | None = None) -> Any:
-    """A YAML file as the tools write it (see the module notes); every problem a
-    :class:`RigError` naming the file and the line."""
-    path = Path(path)
-    text = read_text(path) if text is None else text
-    first, nl, rest = text.partition("\n")
-    if _OPENCV_HEADER.match(first):
-        text = "#" + first + nl + rest  # OpenCV's header is not YAML 1.1's directive: a comment
-    try:
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
-    except RecursionError:
-        raise RigError(f"{path}: nested more than {bounds.MAX_NESTING} levels deep") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f", line {mark.line + 1}" if mark is not None else ""
-        raise RigError(f"{path}{where}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
-    if bounds.nesting(data) > bounds.MAX_NESTING:
-        raise RigError(f"{path}: nested more than {bounds.MAX_NESTING} levels deep")
-    return data
-
-
-def mapping(data: Any, path: Path, what: str) -> dict[str, Any]:
-    if not isinstance(data, dict):
-        raise RigError(f"{path}: expected {what} (a mapping at the top level)")
-    return data
-
-
-def find_key(data: Any, key: str, depth: int = 3) -> tuple[dict[str, Any], str] | None:
-    """The mapping that holds ``key`` (breadth first, up to ``depth`` levels) and its dotted path."""
-    level = [(data, "")]
-    for _ in range(depth + 1):
-        nxt = []
-        for d, prefix in level:
-            if not isinstance(d, dict):
-                continue
-            if key in d:
-                return d, prefix
-            nxt += [(v, f"{prefix}{k}.") for k, v in d.items() if isinstance(v, dict)]
-        level = nxt
-    return None
-
-
-def number(value: Any, path: Path, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise RigError(f"{path}: {key}: expected a finite number, got {value!r}")
-    return float(value)
 
 
 def vector(value: Any, path: Path, key: str, n: int = 3) -> np.ndarray:

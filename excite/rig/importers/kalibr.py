@@ -24,40 +24,11 @@ from typing import Any
 import numpy as np
 
 from ...errors import RigError
+from ..files import read_kalibr_imu
 from . import common
 
 _CAM = re.compile(r"cam(\d+)")
-_IMU = re.compile(r"imu(\d+)")
 CAMCHAIN_PREFIXES = ("camchain-imucam-", "camchain-")
-
-
-def read_imu(path: str | Path, which: str | None = None) -> tuple[dict[str, float], list[str]]:
-    """The Kalibr IMU densities and rate of an IMU file (``which``: the entry of an output file,
-    default its first, ``imu0``), with notes."""
-    path = Path(path)
-    data = common.mapping(common.load_yaml(path), path, "a Kalibr IMU file")
-    notes = []
-    entries = sorted((k for k in data if isinstance(k, str) and _IMU.fullmatch(k)), key=lambda k: int(k[3:]))
-    if entries and not any(k in data for k in common.IMU_KEYS):
-        key = which or entries[0]
-        if key not in entries:
-            raise RigError(f"{path}: {key}: not an IMU of the file (IMUs: {', '.join(entries)})")
-        if len(entries) > 1:
-            notes.append(f"{path.name}: {key} of {', '.join(entries)} (excite scores one IMU, the camchain's body frame)")
-        block, prefix = data[key], f"{key}."
-        if not isinstance(block, dict):
-            raise RigError(f"{path}: {key}: expected a mapping of the IMU's densities")
-    elif which is not None:
-        raise RigError(f"{path}: {which}: the file is a single IMU's (no imu0:, imu1:, …)")
-    else:
-        block, prefix = data, ""
-    missing = [k for k in common.IMU_KEYS if k not in block]
-    if missing:
-        raise RigError(f"{path}: {prefix}{missing[0]}: missing (a Kalibr IMU file has {', '.join(common.IMU_KEYS)}"
-                       f"{', at the top level or under imu0:' if not prefix else ''})")
-    imu = {k: common.number(block[k], path, prefix + k) for k in common.IMU_KEYS}
-    notes.append(f"IMU from {path.name}" + (f" ({prefix[:-1]})" if prefix else ""))
-    return imu, notes
 
 
 def rig_from_kalibr(camchain: str | Path, imu_yaml: str | Path | None = None, *, name: str | None = None,
@@ -73,7 +44,7 @@ def rig_from_kalibr(camchain: str | Path, imu_yaml: str | Path | None = None, *,
     if imu_yaml is None:
         imu_cfg = common.default_imu(review, "no IMU file given")
     else:
-        imu_cfg, more = read_imu(imu_yaml, imu)
+        imu_cfg, more = read_kalibr_imu(imu_yaml, imu)
         notes += more
     stereo = {c for c in cams if isinstance(chain[c], dict) and chain[c].get("cam_overlaps")}
     sensors = []
