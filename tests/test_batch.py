@@ -160,7 +160,8 @@ def test_warnings_are_shown_and_kept_but_do_not_gate(tmp_path: Path, capsys):
     jump = write(tmp_path / "jump.tum", "\n".join(rows) + "\n")
     out = tmp_path / "r.json"
     assert main(["batch", str(jump), "--min-score", "0", "--json", str(out), "--jobs", "1"]) == 0
-    assert "warning: speed" in capsys.readouterr().out
+    shown = capsys.readouterr().out
+    assert "warning:" in shown and "speed" in shown  # (a long path narrows the column: the words wrap)
     [r] = json.loads(out.read_text())["routes"]
     assert r["warnings"] and r["warnings"][0].startswith("speed ") and r["warnings"] == r["report"]["warnings"]
 
