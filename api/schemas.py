@@ -120,6 +120,14 @@ class LimitsIn(In):
     curvature_rate_max_1pms: float = ranged(bounds.LIMITS["curvature_rate_max_1pms"], default=0.25)
 
 
+def parsed_rig(rig: Any) -> Any:
+    """A rig as POST /v1/rigs/parse answers it (``{"rig": {…}, "summary": {…}}``) is the rig it
+    holds: its response is accepted as it is where a rig is expected (no rig has a ``rig`` key)."""
+    if isinstance(rig, dict) and isinstance(rig.get("rig"), dict) and set(rig) <= {"rig", "summary"}:
+        return rig["rig"]
+    return rig
+
+
 def _shallow(rig: dict[str, Any]) -> dict[str, Any]:
     # before the rig is handed to a worker: a deep document would exhaust the recursion limit,
     # and a large one costs the worker time before it is refused
@@ -142,10 +150,10 @@ def _rig_kind(rig: Any) -> str:
 # the field names in errors: api.problems.field_name).
 RIG_TAGS = ("bundled", "inline")
 RigIn = Annotated[Annotated[RigName, Tag("bundled")] |
-                  Annotated[dict[str, Any], AfterValidator(_shallow), Tag("inline")],
+                  Annotated[dict[str, Any], AfterValidator(parsed_rig), AfterValidator(_shallow), Tag("inline")],
                   Discriminator(_rig_kind)]
 RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's structure; the IMU "
-                   f"block inline; at most {bounds.MAX_SENSORS} sensors, nested at most "
+                   "block inline; POST /v1/rigs/parse's response as it is; at most {bounds.MAX_SENSORS} sensors, nested at most "
                    f"{bounds.MAX_NESTING} levels). Sane ranges: {_rig_ranges()}; targets and "
                    "priors by unit: " + "; ".join(f"{u} {r}" for u, r in bounds.QUANTITY.items()) + ".")
 

@@ -29,6 +29,7 @@ from excite.motion.trajectory import Trajectory
 from excite.motion.vehicle import Limits
 from . import problems
 from .errors import Problem
+from .schemas import parsed_rig
 
 log = logging.getLogger("excite.api")
 
@@ -66,6 +67,7 @@ def _has_non_finite(x: Any) -> bool:
 
 def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
     """A bundled rig by name or an inline rig config; never reads a path the client names."""
+    rig = parsed_rig(rig)
     if isinstance(rig, str):
         if rig not in bundled_rigs():
             raise Problem.at(field, f"no bundled rig named {rig!r} (bundled: {', '.join(bundled_rigs())})")

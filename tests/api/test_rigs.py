@@ -50,3 +50,17 @@ def test_a_rig_file_still_parses(client):
     r = client.post("/v1/rigs/parse", json={"yaml": (RIGS_DIR / "robotaxi.yaml").read_text()})
     assert r.status_code == 200, r.text[:300]
     assert r.json()["summary"]["name"] == pyyaml.safe_load((RIGS_DIR / "robotaxi.yaml").read_text())["name"]
+
+
+def test_the_parse_response_is_accepted_as_it_is_where_a_rig_is_expected(client):
+    """POST /v1/rigs/parse answers {"rig": …, "summary": …}: that answer, passed on as `rig`,
+    scores as the rig it holds."""
+    from excite.rig.config import RIGS_DIR
+
+    parsed = client.post("/v1/rigs/parse", json={"yaml": (RIGS_DIR / "robotaxi.yaml").read_text()}).json()
+    route = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
+    as_is = client.post("/v1/score", json={"route": route, "rig": parsed})
+    unwrapped = client.post("/v1/score", json={"route": route, "rig": parsed["rig"]})
+    assert as_is.status_code == 200, as_is.text[:300]
+    assert as_is.json()["score"] == unwrapped.json()["score"]
+    assert as_is.json()["rig"] == parsed["summary"]["name"]
