@@ -187,8 +187,12 @@ def noise(
     from ..rig.noise import estimate_drift
 
     if reference is None and reference_topic is None:
-        raise typer.BadParameter("name the reference: --reference FILE, or --reference-topic in the odometry's bag",
-                                 param_hint="--reference")
+        if topic is None:
+            raise typer.BadParameter("name the reference: --reference FILE, or --reference-topic in the odometry's "
+                                     "bag (or --topic alone: the densities the odometry's covariance reports)",
+                                     param_hint="--reference")
+        _reported(odometry, topic, json_out)
+        return
     odom = read_timed_poses(odometry, topic)
     ref = read_timed_poses(reference or odometry, reference_topic)
     est = estimate_drift(odom, ref, max_time_offset_s=max_time_offset, time_offset_s=time_offset)
@@ -220,3 +224,27 @@ def _print_drift(est, con, title: str) -> None:
         con.print(f"note: {note}")
     con.print("rig lines to paste under the lidar's or camera's entry:")
     con.print(est.rig_lines().rstrip(), highlight=False, markup=False)
+
+
+def _reported(bag: Path, topic: str, json_out: bool) -> None:
+    """The densities an odometry topic's own covariance reports (no reference to check them)."""
+    import json
+
+    from ..io.bags import odometry_log, read_pose_covariances
+    from ..rig.noise import reported_densities
+
+    cov = read_pose_covariances(bag, topic)
+    rep = reported_densities(odometry_log(cov, int(cov.t_ns.min()), bag, topic).covariance)
+    if json_out:
+        typer.echo(json.dumps({"rotation_density_deg_per_sqrt_s": rep.rotation_deg_per_sqrt_s,
+                               "translation_density_m_per_sqrt_s": rep.translation_m_per_sqrt_s,
+                               "messages": rep.messages}, indent=2))
+        return
+    r, t = rep.rotation_deg_per_sqrt_s, rep.translation_m_per_sqrt_s
+    typer.echo(f"{topic}: the densities its own covariance reports ({rep.messages} messages; not checked "
+               "against a reference):")
+    typer.echo(f"  rotation {r[1]:.3g} deg/√s (10–90 % of the messages: {r[0]:.3g}–{r[2]:.3g})")
+    typer.echo(f"  translation {t[1]:.3g} m/√s (10–90 %: {t[0]:.3g}–{t[2]:.3g})")
+    typer.echo("rig lines to paste under the lidar's or camera's entry (or set noise.use_reported_covariance: "
+               "true to weigh each frame pair by its message):")
+    typer.echo(rep.rig_lines().rstrip())

@@ -343,3 +343,36 @@ def estimate_drift(odometry: TimedPoses, reference: TimedPoses, *, max_time_offs
     return DriftEstimate(rot, trans, delta, float(np.degrees(np.linalg.norm(x[:3]))), X, x[3:6].copy(),
                          float(x[6]), int(a.size), float(odometry.t_s[valid][-1] - odometry.t_s[valid][0]),
                          1.0 / dt_med, notes)
+
+
+@dataclass(frozen=True)
+class ReportedDensities:
+    """What an odometry reports of itself: the drift densities its messages' covariances imply
+    (the root of the mean per-second variance over the three axes and the messages), with the
+    10th and 90th percentiles over the messages."""
+
+    rotation_deg_per_sqrt_s: tuple[float, float, float]  # (p10, overall, p90)
+    translation_m_per_sqrt_s: tuple[float, float, float]
+    messages: int
+
+    def rig_lines(self) -> str:
+        return ("    noise:\n"
+                f"      rotation_density_deg_per_sqrt_s: {self.rotation_deg_per_sqrt_s[1]:.3g}\n"
+                f"      translation_density_m_per_sqrt_s: {self.translation_m_per_sqrt_s[1]:.3g}\n")
+
+
+def reported_densities(per_second: np.ndarray) -> ReportedDensities:
+    """The densities an odometry's covariances per second imply (``per_second``: (n, 6, 6) in the
+    residual's order, rotation [rad²/s] then translation [m²/s]; NaN where a message reports
+    none): what ``noise.use_reported_covariance`` weighs its frame pairs by, in one number each."""
+    known = np.all(np.isfinite(per_second), axis=(1, 2))
+    if not known.any():
+        raise RigError("no message reports a covariance")
+    d = np.diagonal(per_second[known], axis1=1, axis2=2)
+    rot, trans = d[:, :3].mean(axis=1), d[:, 3:].mean(axis=1)
+
+    def summary(v: np.ndarray, scale: float) -> tuple[float, float, float]:
+        return (math.sqrt(np.percentile(v, 10)) * scale, math.sqrt(float(v.mean())) * scale,
+                math.sqrt(np.percentile(v, 90)) * scale)
+
+    return ReportedDensities(summary(rot, math.degrees(1.0)), summary(trans, 1.0), int(known.sum()))
