@@ -226,6 +226,16 @@ class ManeuverRequest(In):
         "(role \"entry\", heading_deg) and ramp/bank/bump Polygons (see excite.plan.site)."))
     criterion: Literal["E", "D", "A"] = Field("E", description=(
         "What to maximise: E (λ_min, the score), D (log det), A (−trace of the inverse)."))
+    drivable: bool = Field(False, description=(
+        "Plan what a person drives from cones and a sheet (figure-eights, circles, slaloms, straight runs "
+        "placed in the lot), chosen by the 10th percentile of its score over the driver model's drives; the "
+        "job's links then include the sheet (PDF, PNG), the cone layout (GeoJSON) and the plan (JSON). "
+        "criterion, closed and n_random do not apply."))
+    speed_max_mps: float | None = Field(None, gt=0, le=100, description=(
+        "Drivable plans: the fastest speed the instructions may ask for (at most the lot's safe speed: the "
+        "fastest a car reaches and stops from again along the lot's longest straight)."))
+    draws: int = Field(30, ge=5, le=200, description="Drivable plans: drives of the driver model per plan "
+                                                     "in the robust choice.")
 
 
 # --------------------------------------------------------------------------------------------
@@ -388,6 +398,10 @@ class JobResult(Out):
     lot: dict[str, Any] | None = Field(None, description=(
         "The lot planned in, in local metres: polygon and holes ([x, y] rings), entry [x, y, heading] "
         "or null, terrain [{role, polygon}], margin_m."))
+    drivable: dict[str, Any] | None = Field(None, description=(
+        "A drivable plan's job: plan (plan.json), instructions (one line per element), robust (the score's "
+        "10th percentile over the driver model's drives), cones (the cone layout as GeoJSON, in the lot's "
+        "metres), candidates (the plans it was chosen among)."))
 
 
 class Job(Out):

@@ -425,6 +425,47 @@ def lot_task(lot: dict[str, Any] | None, max_vertices: int, rig: str | dict[str,
     return errors
 
 
+def drivable_check_task(request: dict[str, Any]) -> list[dict[str, str]]:
+    """What a drivable plan's request is refused for before it becomes a job (a lot too small for
+    any element, an instructed speed above the lot's safe speed), as ``errors``."""
+    from excite.plan.drivable.search import check_problem
+
+    from .jobs import drivable_settings
+
+    try:
+        settings = drivable_settings(request)
+        check_problem(settings.lot, settings.limits, settings.speed_max_mps)
+    except ExciteError as exc:
+        field = "speed_max_mps" if str(exc).startswith("speed_max_mps") else "lot"
+        return [{"field": field, "message": str(exc)}]
+    return []
+
+
+def drivable_file_task(plan: dict[str, Any], rig: str | dict[str, Any], fmt: str, lot: dict[str, Any] | None,
+                       lot_x_m: float, lot_y_m: float, origin: tuple[float, float] | None) -> bytes:
+    """A drivable plan's file: its sheet (``sheet_pdf``, ``sheet_png``), cone layout (``cones``,
+    GeoJSON: lon/lat where the lot has an origin) or the plan itself (``plan``)."""
+    import json
+
+    from excite.plan.drivable.plan import build, cones_geojson, plan_from_dict
+    from excite.plan.drivable.sheet import sheet
+    from excite.plan.settings import vehicle_limits
+    from excite.motion.vehicle import Limits
+    from excite.plan.site import Site, read_site
+
+    def make() -> bytes:
+        p = plan_from_dict(plan)
+        if fmt == "plan":
+            return json.dumps(p.to_dict(), indent=2).encode()
+        site = read_site(lot) if lot else Site.rectangle(lot_x_m, lot_y_m)
+        built = build(p, vehicle_limits(resolve_rig(rig), Limits()))
+        if fmt == "cones":
+            return json.dumps(cones_geojson(built, origin or site.origin)).encode()
+        return sheet(built, site, "pdf" if fmt == "sheet_pdf" else "png")
+
+    return task(make)
+
+
 def maneuver_task(profile: dict[str, Any], rig: str | dict[str, Any], fmt: str, name: str,
                   origin: tuple[float, float] | None) -> str:
     """A finished job's maneuver as a file's text (:func:`api.export.maneuver_file`)."""

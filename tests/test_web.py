@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -583,3 +584,36 @@ def test_page_and_its_files_are_served(server):
     assert all(u.startswith(("/", "data:", "#")) for u in refs), refs  # offline: no other host
     for u in ("/static/app.js", "/static/style.css"):
         assert httpx.get(server.url + u).status_code == 200
+
+
+def test_plan_a_drivable_maneuver_and_see_its_sheet_and_cones(page, shots, server):
+    """Tick "drivable": the job plans elements from cones; the page lists the instructions, draws
+    the cones in the lot, shows the driver's sheet and offers it (PDF, PNG), the cone layout and
+    the plan as downloads."""
+    import httpx
+
+    page.click("#tab-plan")
+    page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
+    page.check("#plan-drivable")
+    for field, value in {"duration_s": "60", "time_budget_s": "20", "lot_x_m": "80", "lot_y_m": "50"}.items():
+        page.fill(f"#plan-{field}", value)
+    page.click("#plan-button")
+    page.wait_for_selector("#job-id:not(:empty)")
+    job_id = page.inner_text("#job-id")
+    page.wait_for_selector("#plan-score", timeout=180_000)
+    page.wait_for_selector('#sheet[src^="blob:"]', state="attached", timeout=60_000)
+    deadline = time.monotonic() + 30
+    while page.locator("#sheet").evaluate("img => img.naturalWidth") == 0:  # decoded
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    job = httpx.get(f"{server.url}/v1/jobs/{job_id}").json()
+    d = job["result"]["drivable"]
+    assert page.locator("#instructions li").count() == len(d["instructions"])
+    n_cones = len([f for f in d["cones"]["features"] if f["properties"]["role"] == "cone"])
+    assert page.locator("#lot-map path.cone").count() == n_cones
+    hrefs = page.locator("#downloads a").evaluate_all("as => as.map(a => a.getAttribute('href'))")
+    for fmt in ("sheet_pdf", "sheet_png", "cones", "plan"):
+        href = next(h for h in hrefs if h.endswith(f"format={fmt}"))
+        assert httpx.get(server.url + href).status_code == 200
+    save_shot(page, shots, "web-plan-drivable.png")
+    assert page.console.errors == []

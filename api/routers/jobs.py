@@ -11,10 +11,13 @@ from ..context import Ctx
 from ..export import MEDIA
 from ..errors import Problem
 from ..schemas import Job
-from ..scoring import maneuver_task
+from ..scoring import drivable_file_task, maneuver_task
 from .common import problems
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
+
+DRIVABLE = {"sheet_pdf": ("application/pdf", "sheet.pdf"), "sheet_png": ("image/png", "sheet.png"),
+            "cones": ("application/geo+json", "cones.geojson"), "plan": ("application/json", "plan.json")}
 
 JobId = Annotated[str, Path(max_length=64, description="The id returned by POST /v1/maneuvers.")]
 
@@ -27,6 +30,9 @@ def job_view(job: dict[str, Any]) -> dict[str, Any]:
     links = {"self": f"/v1/jobs/{job['id']}"}
     if job["result"] is not None and job["result"].get("profile") is not None:
         links["maneuver"] = f"/v1/jobs/{job['id']}/maneuver?format=tum"
+    if job["result"] is not None and job["result"].get("drivable"):
+        for fmt in ("sheet_pdf", "sheet_png", "cones", "plan"):
+            links[fmt] = f"/v1/jobs/{job['id']}/maneuver?format={fmt}"
     return {"id": job["id"], "kind": job["kind"], "status": job["status"],
             "cancel_requested": bool(job["cancel_requested"]), "created_at": job["created_at"],
             "started_at": job["started_at"], "finished_at": job["finished_at"],
@@ -68,13 +74,19 @@ def cancel_job(job_id: JobId, ctx: Ctx, response: Response, who: Planner) -> Any
 
 @router.get("/jobs/{job_id}/maneuver", response_class=Response,
             responses={200: {"description": "The maneuver file",
-                             "content": {m: {"schema": {"type": "string"}} for m in sorted(set(MEDIA.values()))}},
+                             "content": {m: {"schema": {"type": "string"}} for m in
+                                         sorted(set(MEDIA.values()) | {m for m, _ in DRIVABLE.values()})}},
                        **problems(401, 403, 404, 409, 422, 429, 500, 503)},
-            summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON")
+            summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON; a drivable "
+                    "plan's sheet (PDF, PNG), cone layout (GeoJSON) or plan (JSON)")
 def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
-                      format: Annotated[Literal["tum", "csv", "control", "geojson"], Query(
+                      format: Annotated[Literal["tum", "csv", "control", "geojson", "sheet_pdf", "sheet_png",
+                                                "cones", "plan"], Query(
                           description="tum: poses of V; csv: waypoints x,y,z,speed; control: "
-                                      "t,speed,curvature CSV; geojson: WGS84 LineString")] = "tum",
+                                      "t,speed,curvature CSV; geojson: WGS84 LineString; a drivable plan's "
+                                      "sheet_pdf, sheet_png (the driver's sheet), cones (the cone layout, "
+                                      "lon/lat where the lot has an origin, else the lot's metres), plan "
+                                      "(plan.json)")] = "tum",
                       lon_deg: Annotated[float | None, Query(ge=-180, le=180)] = None,
                       lat_deg: Annotated[float | None, Query(ge=-85, le=85)] = None) -> Response:
     """GeoJSON needs the lot's origin: from the request's ``origin`` or ``lon_deg``/``lat_deg``."""
@@ -90,11 +102,20 @@ def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
         origin = (req["origin"]["lon_deg"], req["origin"]["lat_deg"])
     elif result.get("origin"):  # the request's lot was GeoJSON in lon/lat
         origin = (result["origin"]["lon_deg"], result["origin"]["lat_deg"])
+    name = req.get("name") or "maneuver"
+    if format in DRIVABLE:
+        if not result.get("drivable"):
+            raise Problem(422, f"format: {format} is a drivable plan's; job {job_id} planned a free-form maneuver",
+                          errors=[{"field": "format", "message": "only for a drivable plan's job"}])
+        data = ctx.run(request, who, drivable_file_task, result["drivable"]["plan"], req.get("rig", "robotaxi"),
+                       format, req.get("lot"), req.get("lot_x_m", 80.0), req.get("lot_y_m", 50.0), origin)
+        media, ext = DRIVABLE[format]
+        return Response(data, media_type=media,
+                        headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})
     if format == "geojson" and origin is None:
         raise Problem(422, "lon_deg/lat_deg: GeoJSON needs the lot's origin: give lon_deg "
                            "and lat_deg, or origin in the request",
                       errors=[{"field": "lon_deg", "message": "required for geojson"}])
-    name = req.get("name") or "maneuver"
     # the stored rig is a client's: resolved, and the drive rebuilt, in a worker
     text = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
     ext = {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]

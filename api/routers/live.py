@@ -4,6 +4,11 @@ receives the live guidance of :mod:`excite.score.live` (the same updates as ``ex
 Protocol (text frames, one JSON object each):
 
 - client → ``{"type": "start", "rig": "robotaxi" | {inline rig}, "name": "drive 7"}`` first;
+  with ``"plan": {plan.json of a drivable plan}`` the guidance follows the plan (as
+  ``excite live --plan``): the server also sends ``element`` (the element being driven and the
+  next), ``element_done``/``element_short`` (an element left, with its laps) and ``proposal``
+  (what to repeat when an element was cut short or the plan ends short of its goal:
+  :mod:`excite.plan.drivable.guide`);
 - client → ``{"type": "poses", "poses": [[t, x, y, z, qx, qy, qz, qw], ...],
   "imu": [[t, wx, wy, wz, ax, ay, az], ...]}`` (``imu`` optional: checked, not used: the
   model's IMU factor is predicted from the pose trajectory, as in batch evaluation);
@@ -195,7 +200,7 @@ class Drive:
 # The session's process
 
 
-def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: float) -> None:
+def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: float, plan: Any = None) -> None:
     """A session's evaluator: the rig resolved here (a client's rig can cost seconds to check),
     then each ``("poses", t, p, R)`` or ``("end",)`` answered ``("ok", value)`` or
     ``("problem", Problem)``."""
@@ -210,9 +215,19 @@ def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: f
     with tightened(duration_s=duration_s, length_m=length_m):
         try:
             r = resolve_rig(rig)
-            stream = PoseStream(r, name=name)
         except (Problem, ExciteError, MemoryError, RecursionError) as exc:
             conn.send(("problem", problems.of(exc, "rig")))
+            return
+        try:
+            if plan is None:
+                stream = PoseStream(r, name=name)
+            else:
+                from excite.plan.drivable.guide import PlanStream
+                from excite.plan.drivable.plan import plan_from_dict
+
+                stream = PlanStream(r, plan_from_dict(plan, "plan"), name=name)
+        except (Problem, ExciteError, MemoryError, RecursionError) as exc:
+            conn.send(("problem", problems.of(exc, "plan")))
             return
         conn.send(("ok", {"rig": r.name, "parameters": [c.name for c in r.scored]}))
         while True:
@@ -237,11 +252,11 @@ class Session:
     """One session's evaluator in a supervised process (forked from the scoring pool's
     forkserver, with ``EXCITE_LIVE_MEMORY_MB``); every call has the request time limit."""
 
-    def __init__(self, s: Any, rig: Any, name: str):
+    def __init__(self, s: Any, rig: Any, name: str, plan: Any = None):
         from ..pool import forkserver
 
         self.timeout_s = s.request_timeout_s
-        self.proc = Supervised(_session_main, rig, name, s.max_route_duration_s, s.max_route_length_m,
+        self.proc = Supervised(_session_main, rig, name, s.max_route_duration_s, s.max_route_length_m, plan,
                                context=forkserver(), memory_mb=s.live_memory_mb, name="excite-live")
         self.memory_mb = s.live_memory_mb
 
@@ -278,7 +293,7 @@ def ticket(request: Request, ctx: Ctx, who: Scorer) -> dict[str, Any]:
     return {"ticket": auth.ticket(request.app.state.ticket_secret, who.key_id), "expires_in_s": auth.TICKET_TTL_S}
 
 
-def _start(msg: dict[str, Any]) -> tuple[Any, str]:
+def _start(msg: dict[str, Any]) -> tuple[Any, str, Any]:
     if msg["type"] != "start":
         raise refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
     rig = msg.get("rig", "robotaxi")
@@ -287,7 +302,10 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str]:
     name = msg.get("name", "live")
     if not isinstance(name, str) or len(name) > 200:
         raise refused(422, "name", "must be a string of at most 200 characters")
-    return rig, name
+    plan = msg.get("plan")
+    if plan is not None and not isinstance(plan, dict):
+        raise refused(422, "plan", "must be a drivable plan object (plan.json of excite optimize --drivable)")
+    return rig, name, plan
 
 
 def _subprotocol(ws: WebSocket) -> str | None:
@@ -360,8 +378,8 @@ async def _session(ws: WebSocket, settings: Any) -> None:
                     raise refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second")
                 msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
-                    rig, name = _start(msg)
-                    session = Session(settings, rig, name)
+                    rig, name, plan = _start(msg)
+                    session = Session(settings, rig, name, plan)
                     started = await anyio.to_thread.run_sync(session.call)
                     await ws.send_json({"type": "started", **started})
                     continue

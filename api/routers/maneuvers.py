@@ -15,7 +15,7 @@ from ..auth import Planner
 from ..context import Ctx, deadline
 from ..errors import Problem
 from ..schemas import Job, ManeuverRequest
-from ..scoring import lot_task
+from ..scoring import drivable_check_task, lot_task
 from .common import BODY
 from .jobs import job_view
 
@@ -46,6 +46,8 @@ def create_maneuver(body: ManeuverRequest, request: Request, ctx: Ctx, response:
         errors.append({"field": str(exc).split(" ", 1)[0], "message": str(exc)})
     if body.lot is not None or isinstance(body.rig, dict):  # a client's lot and rig: in a worker
         errors += ctx.run(request, who, lot_task, body.lot, s.max_lot_vertices, body.rig)
+    if body.drivable and not errors:  # the lot's room for an element and its safe speed
+        errors += ctx.run(request, who, drivable_check_task, body.model_dump())
     if errors:
         raise Problem(422, "; ".join(e["message"] if e["message"].startswith(e["field"]) else
                                      f"{e['field']}: {e['message']}" for e in errors), errors=errors)

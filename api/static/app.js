@@ -478,6 +478,7 @@ async function maneuverRequest() {
   for (const name of ["duration_s", "lot_x_m", "lot_y_m", "time_budget_s", "n_random", "seed"]) req[name] = numberOf(`plan-${name}`);
   req.closed = $("#plan-closed").checked;
   req.criterion = $("#plan-criterion").value;
+  if ($("#plan-drivable").checked) req.drivable = true;
   const file = $("#plan-lot-file").files[0];
   if (file) {
     try {
@@ -576,12 +577,12 @@ async function showPlan(job) {
   $("#plan-summary").replaceChildren(el("div", { class: "big" }, el("span", { class: "label", text: "planned maneuver score " }),
     el("output", { id: "plan-score", text: fmt(res.score, 4) }), " ",
     el("span", { class: rep.passed ? "badge pass" : "badge fail", text: rep.passed ? "PASS" : "FAIL" })),
-  el("div", { class: "facts", text: `${job.status} · ${res.status} after ${res.iterations} iterations in ${res.elapsed_s.toFixed(1)} s · ` +
-    `${rep.duration_s.toFixed(0)} s, ${rep.length_m.toFixed(0)} m` }));
+  el("div", { class: "facts", text: `${job.status} · ` + (res.drivable ? `a drivable plan, chosen among ${res.comparison.length} in ` :
+    `${res.status} after ${res.iterations} iterations in `) + `${res.elapsed_s.toFixed(1)} s · ${rep.duration_s.toFixed(0)} s, ${rep.length_m.toFixed(0)} m` }));
   const cols = [["name", "maneuver"], ["kind", "kind"], ["score", "score"], ["ratio", "planned ÷ this"], ["feasible", "feasible"]];
   const cell = (v) => (v === null || v === undefined ? "—" : typeof v === "number" ? fmt(v, 3) : typeof v === "boolean" ? (v ? "yes" : "no") : String(v));
   $("#comparison thead").replaceChildren(el("tr", {}, ...cols.map(([, t]) => el("th", { scope: "col", text: t }))));
-  $("#comparison tbody").replaceChildren(...res.comparison.map((r) => el("tr", { class: r.kind === "optimized" ? "mine" : null,
+  $("#comparison tbody").replaceChildren(...res.comparison.map((r) => el("tr", { class: r.kind === "optimized" || r.result ? "mine" : null,
     title: r.violations && r.violations.length ? `violations: ${r.violations.join("; ")}` : null },
   ...cols.map(([c]) => el("td", { text: cell(r[c]) })))));
   const origin = res.origin;
@@ -590,8 +591,37 @@ async function showPlan(job) {
   links.push(el("li", {}, lon !== null && lat !== null
     ? el("a", { href: origin ? `${base}?format=geojson` : `${base}?format=geojson&lon_deg=${lon}&lat_deg=${lat}`, download: "", text: "GeoJSON (WGS84)" })
     : el("span", { class: "hint", text: "GeoJSON: set the lot's origin longitude and latitude" })));
+  if (res.drivable) for (const [f, t] of [["sheet_pdf", "driver's sheet (PDF)"], ["sheet_png", "driver's sheet (PNG)"],
+    ["cones", "cone layout (GeoJSON)"], ["plan", "plan (JSON)"]]) links.unshift(el("li", {}, el("a", { href: `${base}?format=${f}`, download: "", text: t })));
   $("#downloads").replaceChildren(...links);
   if (sessionStorage.getItem("excite-key")) for (const a of $("#downloads").querySelectorAll("a")) a.addEventListener("click", download);
+  await showDrivable(job);
+}
+
+// A drivable plan: its instructions, its robust score, its cones on the map and its sheet.
+async function showDrivable(job) {
+  const d = job.result.drivable;
+  $("#drivable-result").hidden = !d;
+  if (!d) return;
+  const r = d.robust;
+  $("#plan-summary").append(el("div", { class: "facts", text: `drivable plan · 10th percentile over ${r.draws} drives by the driver model ` +
+    `${fmt(r.score_quantile, 4)} (${Math.round(100 * r.quantile_over_nominal)} % of its score) · ${d.cones.features.filter((f) => f.properties.role === "cone").length} cones` }));
+  $("#instructions").replaceChildren(...d.instructions.map((t) => el("li", { text: t })));
+  const svg = $("#lot-map");
+  const box = svg.getAttribute("viewBox").split(" ").map(Number);
+  const size = 0.012 * Math.max(box[2], box[3]);
+  for (const f of d.cones.features) {
+    if (f.properties.role !== "cone") continue;
+    const [x, y] = f.geometry.coordinates;
+    svg.append(el("svg:path", { d: `M${x} ${-y - size}L${x + size} ${-y + size}L${x - size} ${-y + size}Z`, class: "cone" },
+      el("svg:title", { text: `cone ${f.properties.label} (${f.properties.cone_role})` })));
+  }
+  const r2 = await authFetch(`/v1/jobs/${job.id}/maneuver?format=sheet_png`);
+  if (r2.ok) {
+    const img = $("#sheet");
+    if (img.src.startsWith("blob:")) URL.revokeObjectURL(img.src);
+    img.src = URL.createObjectURL(await r2.blob());
+  }
 }
 
 function ringPath(ring) {

@@ -118,6 +118,31 @@ def safe_speed_mps(site: Site, limits: Limits) -> tuple[float, float]:
     return math.sqrt(2 * best * a * b / (a + b)), best
 
 
+def check_problem(site: Site, limits: Limits, speed_max_mps: float | None = None) -> None:
+    """Refuse, before any work, a lot too small for any element (the smallest, circles at the
+    turning radius, needs a circle of the turning radius and a metre inside the lot's margin)
+    and an instructed speed above the lot's safe speed (:func:`safe_speed_mps`); each error
+    names the limit."""
+    from .elements import turning_radius_m
+
+    r = turning_radius_m(limits)
+    lo, hi = site.lot.polygon_m.min(axis=0), site.lot.polygon_m.max(axis=0)
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + 0.5, 0.5), np.arange(lo[1], hi[1] + 0.5, 0.5))
+    room = float(site.lot.clearance_m(np.column_stack([gx.ravel(), gy.ravel()])).max()) - site.margin_m
+    if room < r + 1.0:
+        lx, ly = site.extent_m
+        raise OptimizeError(f"the lot ({lx:.0f} × {ly:.0f} m, {site.margin_m:g} m margin) is too small for any "
+                            f"element within the limits: the smallest, circles at the turning radius {r:.1f} m, "
+                            f"needs a circle of {2 * (r + 1.0):.0f} m across inside the margin, and the lot has "
+                            f"{2 * max(room, 0.0):.0f} m")
+    if speed_max_mps is not None:
+        safe, straight = safe_speed_mps(site, limits)
+        if speed_max_mps > safe + 1e-9:
+            raise OptimizeError(f"speed_max_mps: {speed_max_mps:.3g} m/s is above the lot's safe speed {safe:.3g} m/s "
+                                f"(the fastest a car reaches and stops from again at {MARGIN:g} × its acceleration "
+                                f"and braking along the lot's longest straight, {straight:.0f} m)")
+
+
 @dataclass
 class Progress:
     phase: str
@@ -494,13 +519,9 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     from ..settings import vehicle_limits
 
     limits = vehicle_limits(rig, limits)
-    safe, straight = safe_speed_mps(site, limits)
+    check_problem(site, limits, settings.speed_max_mps)
     vmax = MARGIN * limits.speed_max_mps
     if settings.speed_max_mps is not None:
-        if settings.speed_max_mps > safe + 1e-9:
-            raise OptimizeError(f"speed_max_mps: {settings.speed_max_mps:.3g} m/s is above the lot's safe speed "
-                                f"{safe:.3g} m/s (the fastest a car reaches and stops from again at {MARGIN:g} × its "
-                                f"acceleration and braking along the lot's longest straight, {straight:.0f} m)")
         vmax = min(vmax, settings.speed_max_mps)
     limits_plan = replace(limits, speed_max_mps=vmax / MARGIN)
     timings: dict[str, float] = {}
