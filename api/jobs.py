@@ -97,41 +97,21 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
 
 
 
-def drivable_settings(request: dict[str, Any]):
-    """The drivable search's settings of a maneuver request (as data)."""
-    from excite.motion.vehicle import Limits
-    from excite.plan.drivable.search import DrivableSettings
-    from excite.plan.site import read_site
-
-    return DrivableSettings(duration_s=request["duration_s"], lot_x_m=request["lot_x_m"], lot_y_m=request["lot_y_m"],
-                            site=read_site(request["lot"]) if request.get("lot") else None,
-                            limits=Limits(**request["limits"]), time_budget_s=request["time_budget_s"],
-                            speed_max_mps=request.get("speed_max_mps"), draws=request.get("draws", 30),
-                            seed=request["seed"], workers=1)
-
-
 def run_drivable(request: dict[str, Any], rig: Any, progress: Callable[[dict[str, Any]], None],
                  should_stop: Callable[[], bool]) -> dict[str, Any]:
     """A drivable plan's job (:func:`excite.plan.drivable.search.optimize_drivable`): the report,
     the plan, its instructions and cones, its robust score, and the drive as instructed."""
-    from excite.plan.drivable.plan import cones_geojson
     from excite.plan.drivable.search import optimize_drivable
+
+    from .scoring import drivable_settings
 
     settings = drivable_settings(request)
     res = optimize_drivable(rig, settings, lambda p: progress(plain({"phase": p.phase, "elapsed_s": p.elapsed_s,
                                                                       "score": p.best or None})), should_stop)
-    report = plain(res.report.to_dict())
-    report["route"] = request.get("name") or report.get("route")
+    out = plain(res.to_dict())
+    out["report"]["route"] = request.get("name") or out["report"].get("route")
     origin = settings.lot.origin
-    rows = [{"name": r["plan"], "kind": "drivable", "score": r["score"], "score_quantile": r["score_quantile"],
-             "ratio": res.report.score / r["score"] if r["score"] else None, "feasible": True, "result": r["chosen"]}
-            for r in res.rows]
-    return {"report": report, "comparison": plain(rows), "status": "done", "iterations": 0,
-            "elapsed_s": res.elapsed_s, "cancelled": False, "score": res.report.score, "model_score": None,
-            "timings_s": res.timings_s, "message": "", "lot": settings.lot.outline(),
-            "drivable": plain({"plan": res.plan.to_dict(), "instructions": res.built.instructions,
-                               "robust": res.robust.to_dict(), "cones": cones_geojson(res.built),
-                               "candidates": res.rows}),
+    return {**out,
             "profile": profile_data(res.profile),
             "origin": None if origin is None else {"lon_deg": origin[0], "lat_deg": origin[1]}}
 

@@ -425,12 +425,23 @@ def lot_task(lot: dict[str, Any] | None, max_vertices: int, rig: str | dict[str,
     return errors
 
 
+def drivable_settings(request: dict[str, Any]):
+    """The drivable search's settings of a maneuver request (as data)."""
+    from excite.motion.vehicle import Limits
+    from excite.plan.drivable.search import DrivableSettings
+    from excite.plan.site import read_site
+
+    return DrivableSettings(duration_s=request["duration_s"], lot_x_m=request["lot_x_m"], lot_y_m=request["lot_y_m"],
+                            site=read_site(request["lot"]) if request.get("lot") else None,
+                            limits=Limits(**request["limits"]), time_budget_s=request["time_budget_s"],
+                            speed_max_mps=request.get("speed_max_mps"), draws=request.get("draws", 30),
+                            seed=request["seed"], workers=1)
+
+
 def drivable_check_task(request: dict[str, Any]) -> list[dict[str, str]]:
     """What a drivable plan's request is refused for before it becomes a job (a lot too small for
     any element, an instructed speed above the lot's safe speed), as ``errors``."""
     from excite.plan.drivable.search import check_problem
-
-    from .jobs import drivable_settings
 
     try:
         settings = drivable_settings(request)

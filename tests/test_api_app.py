@@ -100,3 +100,15 @@ def test_response_schemas_declare_exactly_the_library_json():
     result = OptimizeResult(profile=None, trajectory=None, report=rep, comparison=[], status="optimal",
                             iterations=0, elapsed_s=0.0, cancelled=False)
     assert fields(schemas.JobResult) == set(result.to_dict())
+    # a drivable plan's result has the same fields
+    from excite.motion.vehicle import Limits
+    from excite.plan.drivable.plan import DrivablePlan, Element, build
+    from excite.plan.drivable.robust import Robust
+    from excite.plan.drivable.search import DrivableResult
+
+    built = build(DrivablePlan((Element("circles", dict(radius_m=8, speed_mps=6, laps=1), (0.0, 0.0, 0.0)),), 30.0),
+                  Limits())
+    dres = DrivableResult(built.plan, built, None, None, rep, Robust(1.0, np.ones(5)),
+                          [{"plan": "circles×1", "score": 1.0, "score_quantile": 1.0, "quantile": 0.1, "chosen": True}],
+                          1.0, {})
+    assert fields(schemas.JobResult) == set(dres.to_dict())

@@ -190,12 +190,14 @@ class OptimizeResult:
     compiled: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (the report is :meth:`Report.to_dict`)."""
+        """JSON-ready summary (the report is :meth:`Report.to_dict`); ``drivable`` is None (a
+        drivable plan's result, :meth:`excite.plan.drivable.search.DrivableResult.to_dict`, has the
+        same fields and fills it)."""
         return {
             "status": self.status, "iterations": self.iterations, "elapsed_s": self.elapsed_s,
             "cancelled": self.cancelled, "model_score": self.model_score, "score": self.report.score,
             "ipopt_status": self.ipopt_status, "source": self.source, "criterion": self.criterion,
             "timings_s": self.timings_s, "message": self.message, "comparison": self.comparison, "lot": self.lot,
             "starts": self.starts, "starts_converged": self.starts_converged, "compiled": self.compiled,
-            "report": self.report.to_dict(),
+            "report": self.report.to_dict(), "drivable": None,
         }

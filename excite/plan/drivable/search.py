@@ -168,12 +168,25 @@ class DrivableResult:
     elapsed_s: float
     timings_s: dict[str, float]
     design: list[dict[str, Any]] = field(default_factory=list)
+    lot: dict[str, Any] | None = None  # the site planned in, in local metres (Site.outline)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"plan": self.plan.to_dict(), "score": self.report.score, "robust": self.robust.to_dict(),
-                "instructions": self.built.instructions, "cones": len(self.built.cones),
-                "candidates": self.rows, "design": self.design, "elapsed_s": self.elapsed_s,
-                "timings_s": self.timings_s, "report": self.report.to_dict()}
+        """JSON-ready summary with the fields of the free-form optimizer's
+        (:meth:`excite.plan.settings.OptimizeResult.to_dict`: one result shape for both), the
+        plans it was chosen among as the ``comparison`` and ``drivable``: the plan, its
+        instructions, its robust score, its cones (GeoJSON in the lot's metres) and the design."""
+        from .plan import cones_geojson
+
+        rows = [{"name": r["plan"], "kind": "drivable", "score": r["score"], "score_quantile": r["score_quantile"],
+                 "ratio": self.report.score / r["score"] if r["score"] else None, "feasible": True,
+                 "result": r["chosen"]} for r in self.rows]
+        return {"status": "done", "iterations": 0, "elapsed_s": self.elapsed_s, "cancelled": False,
+                "model_score": None, "score": self.report.score, "ipopt_status": "", "source": "drivable",
+                "criterion": "E", "timings_s": self.timings_s, "message": "", "comparison": rows, "lot": self.lot,
+                "starts": 0, "starts_converged": 0, "compiled": False, "report": self.report.to_dict(),
+                "drivable": {"plan": self.plan.to_dict(), "instructions": self.built.instructions,
+                             "robust": self.robust.to_dict(), "cones": cones_geojson(self.built),
+                             "candidates": self.rows, "design": self.design}}
 
 
 # --------------------------------------------------------------------------------------------
@@ -661,4 +674,4 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     best_so_far[0] = rep.score
     report("done")
     return DrivableResult(plan, built, timed.profile, traj, rep, rob, rows, time.monotonic() - t0,
-                          {k: round(v, 2) for k, v in timings.items()}, design_rows)
+                          {k: round(v, 2) for k, v in timings.items()}, design_rows, site.outline())
