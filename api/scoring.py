@@ -358,6 +358,9 @@ def rig_summary(rig: Rig) -> dict[str, Any]:
 MAX_YAML_EVENTS = 20_000  # a rig file has a few hundred
 
 
+MAX_YAML_BYTES_HINTED = 64_000  # a calibration file is kilobytes: a bigger refused document is not read again
+
+
 def rig_yaml_task(text: str) -> dict[str, Any]:
     """A rig YAML file → ``{"rig": its mapping, "summary": …}``. Anchors and aliases are refused
     (a few nested aliases expand to gigabytes), so are documents nested deeper or larger than a
@@ -372,6 +375,17 @@ def rig_yaml_task(text: str) -> dict[str, Any]:
         return Problem.at("yaml", message)
 
     def run() -> dict[str, Any]:
+        try:
+            return parse()
+        except Problem:
+            from excite.rig.files import hint  # another tool's file: name the command that imports it
+
+            told = hint("FILE", text) if len(text) <= MAX_YAML_BYTES_HINTED else None
+            if told is not None:
+                raise bad(told + " (then send that rig)") from None
+            raise
+
+    def parse() -> dict[str, Any]:
         try:
             depth = events = 0
             for ev in yaml.parse(text, Loader=loader):

@@ -215,13 +215,15 @@ def _has(data: Any, key: str, depth: int = 3) -> bool:
     return find_key(data, key, depth) is not None
 
 
-def detect(path: str | Path) -> tuple[str, str] | None:
-    """(what the file is, the command that imports it), or None when it is none of the formats."""
+def detect(path: str | Path, text: str | None = None) -> tuple[str, str] | None:
+    """(what the file is, the command that imports it), or None when it is none of the formats;
+    ``text``: the file's text, already held (the path then only names it)."""
     path = Path(path)
-    try:
-        text = read_text(path)
-    except RigError:
-        return None
+    if text is None:
+        try:
+            text = read_text(path)
+        except RigError:
+            return None
     head = text.lstrip()[:2000]
     if head.startswith("<?xml") or head.startswith("<robot") or "<robot" in head:
         if path.suffix == ".xacro" or "xmlns:xacro" in head:
@@ -251,9 +253,9 @@ def detect(path: str | Path) -> tuple[str, str] | None:
     return None
 
 
-def hint(path: str | Path) -> str | None:
+def hint(path: str | Path, text: str | None = None) -> str | None:
     """``this is a … file: `excite rig from-… FILE``` for a file of one of the formats."""
-    found = detect(path)
+    found = detect(path, text)
     if found is None:
         return None
     what, command = found

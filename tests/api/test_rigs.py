@@ -64,3 +64,13 @@ def test_the_parse_response_is_accepted_as_it_is_where_a_rig_is_expected(client)
     assert as_is.status_code == 200, as_is.text[:300]
     assert as_is.json()["score"] == unwrapped.json()["score"]
     assert as_is.json()["rig"] == parsed["summary"]["name"]
+
+
+def test_another_tools_file_is_named_with_its_importer(client, data_dir):
+    text = (data_dir / "rig_files" / "lio_sam" / "params.yaml").read_text()
+    r = client.post("/v1/rigs/parse", json={"yaml": text})
+    assert r.status_code == 422
+    assert "this is a LIO-SAM file, not a rig: `excite rig from-lio-sam FILE`" in r.json()["detail"]
+    text = (data_dir / "rig_files" / "vins_fusion" / "euroc_stereo_imu_config.yaml").read_text()  # %YAML:1.0
+    r = client.post("/v1/rigs/parse", json={"yaml": text})
+    assert r.status_code == 422 and "excite rig from-vins FILE" in r.json()["detail"]

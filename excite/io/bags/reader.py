@@ -24,7 +24,7 @@ from .mcap import mcap_files, mcap_read, verify_chunks
 from .stream import (budget, count_bound, has_topic, is_ros2, open_bag, reader_errors, stream_messages, time_window,
                      topic_connections, topic_list)
 from ...rig import importers
-from ...rig.frames import Edge, static_transform
+from ...rig.frames import static_transform
 from .tf import static_edges, tf_chain
 from .vehicle import VEHICLE_USES
 

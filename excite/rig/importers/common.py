@@ -13,7 +13,6 @@ deviation and the tolerance. A reflection (det −1) is refused.
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,12 +21,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ...core import bounds
 from ...errors import RigError
 from ...factors.gnss import PRESETS
 from ..config import RigConfig, body_axes, build_rig
-from ..files import (KALIBR_IMU_KEYS as IMU_KEYS, MAX_FILE_BYTES, OpenCVMatrix, OpenCVTag, Printed, find_key,  # noqa: F401
-                     load_yaml, mapping, number, read_text)
+# what the importers read files with, one name away
+from ..files import OpenCVMatrix, OpenCVTag, find_key, load_yaml, mapping, number, read_text  # noqa: F401
 
 MAX_FRAMES = 4096  # frames of a tree (a robot's URDF has a few hundred links at most)
 ARITHMETIC_TOL = 1e-12  # what a rotation computed in double precision may be off by
@@ -58,7 +56,6 @@ def default_targets(sensors: list[dict[str, Any]]) -> dict[str, str]:
     kinds = {s["kind"] for s in sensors}
     if kinds & {"lidar", "camera"}:
         out["*.rot_*"] = "0.1 deg"
-    if kinds & {"lidar", "camera"}:
         out["*.trans_*"] = "1 cm"
         out["*.time_offset"] = "2 ms"
     for s in sensors:
