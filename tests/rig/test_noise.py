@@ -84,6 +84,8 @@ def test_known_densities_are_recovered_within_their_stated_uncertainty():
         assert abs(got.value - true) < 3 * got.sigma, (got, true)
         # the white part (the reference's error, interpolated) is told apart, not added
         assert got.over_1s == pytest.approx(true, rel=0.25)
+        # Gaussian errors: no heavy tails, and the robust bulk density agrees with the variance's
+        assert got.kurtosis == pytest.approx(3.0, abs=0.3) and got.bulk == pytest.approx(true, rel=0.1)
     assert est.rotation.white_sigma > 0.3 * REF_NOISE_DEG
     lines = est.rig_lines()
     pasted = yaml.safe_load(lines)["noise"]
