@@ -178,8 +178,9 @@ def score(
         print_report(rep, console(), r)
 
 
-rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs; import rigs from TF, "
-                                                 "Kalibr and Autoware files.")
+rig_app = typer.Typer(no_args_is_help=True, help="Show the bundled rigs; import rigs from Kalibr, OpenVINS, "
+                                                 "VINS-Fusion, LIO-SAM, FAST-LIO, URDF, Autoware and TF "
+                                                 "files; measure an odometry's noise densities.")
 app.add_typer(rig_app, name="rig")
 
 
