@@ -14,7 +14,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from api import Settings, create_app
 from api.store import open_store as SqliteStore
-from test_api_support import LiveServer, job_result_file, write_keys
+from servers import LiveServer, job_result_file, write_keys
 
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
 JOB = {"duration_s": 60, "time_budget_s": 5, "n_random": 2}
@@ -233,13 +233,14 @@ def test_the_queue_serves_the_key_with_fewest_running_first(tmp_path):
     assert store.claim("r", 30)[0] == third
 
 
+@pytest.mark.slow
 def test_a_flood_of_jobs_does_not_starve_another_key_over_http(tmp_path):
     """300 jobs from one key, then one from another, on a live server with one job worker: the
     other key's job starts at the first free slot (after at most one of the flood's)."""
     secrets = write_keys(tmp_path / "keys.yaml", {"flood": {"scopes": ["plan"], "quota": {"jobs": 300,
                                                                                        "rate_per_s": 1000, "burst": 1000}},
                                                   "late": {"scopes": ["plan"]}})
-    srv = LiveServer(tmp_path, workers=1, api_keys_file=tmp_path / "keys.yaml", job_function="test_api_support:quick_job",
+    srv = LiveServer(tmp_path, workers=1, api_keys_file=tmp_path / "keys.yaml", job_function="servers:quick_job",
                      test_job_result=job_result_file(tmp_path / "result.json")).start()
     try:
         with srv.client(headers={"X-API-Key": secrets["flood"]}) as c:

@@ -8,13 +8,14 @@ import time
 import pytest
 
 from api.store import open_store as SqliteStore
-from test_api_support import LiveServer, processes_with, wait_job
+from servers import LiveServer, processes_with, wait_job
 
 # a generous grace: after the cancel the stand-in still scores its best maneuver so far, which a
 # loaded machine may take a while to do (the grace kill would discard it)
-SLOW = {"job_function": "test_api_support:slow_job", "workers": 1, "cancel_grace_s": 120}
+SLOW = {"job_function": "servers:slow_job", "workers": 1, "cancel_grace_s": 120}
 
 
+@pytest.mark.slow
 def test_cancel_a_running_job(tmp_path):
     srv = LiveServer(tmp_path, **SLOW).start()
     try:
@@ -34,6 +35,7 @@ def test_cancel_a_running_job(tmp_path):
         srv.stop()
 
 
+@pytest.mark.slow
 def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
     srv = LiveServer(tmp_path, **SLOW).start()
     with srv.client() as c:
@@ -75,6 +77,7 @@ def test_job_survives_kill_9_and_completes_after_restart(tmp_path):
     assert f"re-queued 1 job(s) left running by a previous server: {job_id}" in srv2.log.read_text()
 
 
+@pytest.mark.slow
 def test_real_optimizer_job_survives_kill_9(tmp_path):
     pytest.importorskip("excite.plan")
     srv = LiveServer(tmp_path, workers=1).start()

@@ -10,7 +10,7 @@ import time
 import httpx
 import pytest
 
-from test_api_support import LiveServer
+from servers import LiveServer
 
 IMU = {"accelerometer_noise_density": 2e-3, "accelerometer_random_walk": 3e-3,
        "gyroscope_noise_density": 1.7e-4, "gyroscope_random_walk": 2e-5, "update_rate": 200.0}

@@ -5,15 +5,13 @@ each once."""
 from __future__ import annotations
 
 import concurrent.futures as cf
-import json
 import time
-from pathlib import Path
 
 import httpx
 import pytest
 
 from api.store import open_store
-from test_api_support import LiveServer, job_result_file, write_keys
+from servers import LiveServer, job_result_file, write_keys
 
 JOB = {"duration_s": 60, "time_budget_s": 5, "n_random": 2}
 
@@ -50,7 +48,7 @@ def test_a_store_outage_during_running_jobs_ends_every_job_once_on_sqlite(tmp_pa
     folder = tmp_path / "db"
     folder.mkdir()
     srv = LiveServer(tmp_path, db_path=folder / "jobs.sqlite3", workers=2, job_lease_s=3,
-                     job_function="test_api_support:quick_job", test_job_result=result, test_job_log=log).start()
+                     job_function="servers:quick_job", test_job_result=result, test_job_log=log).start()
     away = tmp_path / "db-away"
     try:
         ids = []

@@ -4,7 +4,6 @@ body is read, and the time limit whose 503 and a request's lasting effect exclud
 from __future__ import annotations
 
 import asyncio
-import os
 import threading
 import time
 from pathlib import Path
@@ -14,7 +13,7 @@ import pytest
 
 from api.errors import Problem
 from api.middleware import Deadline, TimeLimit
-from test_api_support import LiveServer, write_keys
+from servers import LiveServer, write_keys
 
 
 def _rss_mib(pid: int) -> float:

@@ -18,7 +18,7 @@ schemathesis = pytest.importorskip("schemathesis")
 from hypothesis import HealthCheck, settings  # noqa: E402
 from schemathesis.config import SchemathesisConfig  # noqa: E402
 
-from test_api_support import LiveServer  # noqa: E402
+from servers import LiveServer  # noqa: E402
 
 @pytest.fixture(scope="module")
 def fuzz_server(tmp_path_factory):
@@ -39,6 +39,7 @@ def api_schema(fuzz_server):
 schema = schemathesis.pytest.from_fixture("api_schema")
 
 
+@pytest.mark.slow
 @schema.parametrize()
 @settings(max_examples=30, deadline=None, derandomize=True,
           suppress_health_check=list(HealthCheck))

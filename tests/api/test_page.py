@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_api_support import REPO, LiveServer
+from servers import REPO, LiveServer
 
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -112,6 +112,8 @@ def _library_report(segments: int = 0):
     return evaluate(routes.read_tum(FIGURE_EIGHT), load_rig("robotaxi"), Options(segments=segments))
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_score_a_route_through_the_file_input(page, shots):
     """Score figure_eight.tum as a planner would: the score and verdict, the σ/target table with
     lidar.trans_z, a segment per reported segment on the map with its information on hover,
@@ -175,6 +177,8 @@ def test_score_a_route_through_the_file_input(page, shots):
     assert page.console.errors == []
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_drop_a_route_file_on_the_score_form(page):
     """A route file dropped on the form (a real DataTransfer carrying figure_eight.tum's bytes)
     becomes the route: its name shows, the zone lights up while dragged over, and scoring gives
@@ -196,6 +200,8 @@ def test_drop_a_route_file_on_the_score_form(page):
     assert page.console.errors == []
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_motion_no_car_makes_is_warned_about_on_the_page(page, tmp_path):
     rows = [r for r in FIGURE_EIGHT.read_text().splitlines() if not r.startswith("#")]
     f = rows[400].split()
@@ -211,6 +217,8 @@ def test_motion_no_car_makes_is_warned_about_on_the_page(page, tmp_path):
     assert page.console.errors == []
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_malformed_route_error_shows_next_to_the_field(page, shots, tmp_path):
     """A TUM file with a broken line: the service's problem (field route.text) appears beside
     the route input, which is marked invalid; no report is shown. Likewise a broken rig YAML
@@ -260,6 +268,8 @@ def plan_short(page, time_budget_s: float) -> str:
     return page.inner_text("#job-id")
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
     """Plan a 20 s maneuver with a 1 s optimizer budget: the job's progress is shown while it
     runs, then the maneuver in the lot, the comparison and working downloads."""
@@ -295,6 +305,8 @@ def test_plan_a_short_maneuver_and_watch_it_finish(page, shots, server):
     assert page.console.errors == []
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_plan_in_a_geojson_lot_with_a_hole_and_a_ramp(page, shots, server, tmp_path):
     """Upload an L-shaped GeoJSON lot (lon/lat) with a building and a ramp: a refused lot is named
     beside the file input, a good one is planned in and drawn (lot, keep-out zone, ramp), and the
@@ -302,7 +314,7 @@ def test_plan_in_a_geojson_lot_with_a_hole_and_a_ramp(page, shots, server, tmp_p
     import json
 
     import httpx
-    from test_optimize_lot import l_lot
+    from helpers import l_lot
 
     page.click("#tab-plan")
     page.wait_for_selector('[data-limit="speed_max_mps"]', state="attached")
@@ -345,6 +357,8 @@ def test_plan_in_a_geojson_lot_with_a_hole_and_a_ramp(page, shots, server, tmp_p
     assert len(page.console.errors) == 1 and "status of 422" in page.console.errors[0], page.console.errors
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_a_car_rig_scores_and_plans_on_the_page(page, shots, server):
     """The bundled sedan (four CAN wheel speeds, the steering angle, a radar) chosen on the page:
     its sensors are listed, the planned car drive scores as the library scores it (the car's own
@@ -393,6 +407,8 @@ def test_a_car_rig_scores_and_plans_on_the_page(page, shots, server):
     assert page.console.errors == []
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_cancel_a_running_job(page):
     """A job with a long budget, cancelled from the page once it runs, ends `cancelled`."""
     page.click("#tab-plan")
@@ -419,6 +435,8 @@ def _live(page, speed: str) -> None:
     page.wait_for_selector("#live-result[data-phase=final]", timeout=120_000)
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_live_view_replays_a_drive_to_the_websocket(page, shots):
     """Live: figure_eight.tum streamed at 10× to /v1/live. Progress bars appear while it streams
     (one row per scored parameter, updates arriving before the end), and the final state is
@@ -459,6 +477,8 @@ def test_live_view_replays_a_drive_to_the_websocket(page, shots):
     assert page.console.errors == []
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_live_view_done_banner_stop_and_errors(page, tmp_path):
     """With targets loose enough for figure_eight.tum (an uploaded rig YAML) the service's done
     event shows the banner and the final says done; Stop closes the stream mid-drive; a TUM line

@@ -11,7 +11,7 @@ import time
 import httpx
 import pytest
 
-from test_api_support import LiveServer, write_keys
+from servers import LiveServer, write_keys
 
 SHORT = {"route": {"control": {"t_s": [0, 10, 20], "speed_mps": [0, 5, 0], "curvature_1pm": [0, 0.1, 0]}}}
 HOUR = {"route": {"control": {"t_s": [0, 1200, 2400, 3600], "speed_mps": [5, 9, 7, 5],

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from excite.io import routes
-from test_api_support import LiveServer, wait_job
+from servers import LiveServer, wait_job
 
 PROBLEM = "application/problem+json"
 
@@ -41,6 +41,7 @@ def _problem(r, status: int, field: str | None = None) -> dict:
     return body
 
 
+@pytest.mark.slow
 def test_score_kitti_00_uploaded_inline(client, data_dir):
     body = {"route": {"name": "kitti_00", "format": "kitti",
                       "text": (data_dir / "kitti_00_poses.txt").read_text(),
@@ -182,6 +183,7 @@ def test_rigs_probes_metrics_docs(client):
     assert {"/v1/score", "/v1/batch", "/v1/maneuvers", "/v1/jobs/{job_id}", "/v1/rigs"} <= spec["paths"].keys()
 
 
+@pytest.mark.slow
 def test_optimization_job_runs_to_completion_and_downloads(client):
     req = {"duration_s": 60, "time_budget_s": 5, "n_random": 4, "seed": 1, "name": "lot_a",
            "origin": {"lon_deg": 11.57, "lat_deg": 48.14}}
@@ -210,6 +212,7 @@ def test_optimization_job_runs_to_completion_and_downloads(client):
     _problem(client.delete(loc), 409)
 
 
+@pytest.mark.slow
 def test_cancel_a_queued_job(client):
     # one job worker: the second job waits in the queue and is cancelled at once
     a = client.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 5, "n_random": 2})

@@ -9,7 +9,7 @@ from excite.io.bags import BagSource
 from excite.score.evaluate import evaluate
 from excite.rig.config import load_rig
 from excite.io.routes import read_route
-from test_api_support import LiveServer
+from servers import LiveServer
 
 NAV2 = "nav2_turtlebot.mcap"
 LIMIT = 1024 * 1024
@@ -29,6 +29,7 @@ def _post(server, name, data, **fields):
                       headers={"X-Excite-Client": "tests"})
 
 
+@pytest.mark.slow
 def test_uploaded_bag_scores_like_the_library(server, data_dir):
     data = (data_dir / NAV2).read_bytes()
     r = _post(server, NAV2, data, topic="/tf:odom.base_link", rig="robotaxi")

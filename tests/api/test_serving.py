@@ -16,7 +16,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from test_api_support import LiveServer
+from servers import LiveServer
 
 TIMEOUT_S = 6.0  # workers warm up (load the compiled kernels) before they take work
 SETTINGS = {"workers": 0, "score_workers": 1, "request_timeout_s": TIMEOUT_S, "body_timeout_s": 2,
@@ -88,6 +88,7 @@ def _score_workers(server_pid: int) -> set[int]:
     return {p for p, pp in tree.items() if pp != server_pid and tree.get(pp) == server_pid}
 
 
+@pytest.mark.slow
 def test_a_timed_out_request_has_its_worker_killed_and_the_next_is_served(srv, client):
     before = _score_workers(srv.proc.pid)
     assert len(before) == 1
@@ -207,6 +208,7 @@ def test_slow_headers_are_timed_out_and_the_connection_closed(srv, client):
         assert time.monotonic() - t0 < 10
 
 
+@pytest.mark.slow
 def test_a_websocket_outlives_the_header_time_limit(srv):
     """The header deadline ends with the upgrade: a /v1/live session idle for longer than it
     (2 s here) still answers."""
@@ -221,6 +223,7 @@ def test_a_websocket_outlives_the_header_time_limit(srv):
     assert reply["type"] == "error" and "'poses' or 'end'" in reply["problem"]["detail"], reply
 
 
+@pytest.mark.slow
 def test_a_pool_refuses_work_it_cannot_finish_by_the_deadline():
     """Admission by the size of the work: once a task is known to cost ~1.5 s per unit of size,
     a second one while the only worker is busy cannot finish within 1 s and is refused at once

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from test_api_support import LiveServer, free_port, job_result_file
+from servers import LiveServer, free_port, job_result_file
 
 
 def _binaries() -> Path | None:
@@ -25,6 +25,9 @@ def _binaries() -> Path | None:
         return Path(found[-1]).parent
     initdb = shutil.which("initdb")
     return Path(initdb).resolve().parent if initdb else None
+
+
+pytestmark = pytest.mark.postgres
 
 
 @pytest.fixture(scope="module")
@@ -106,13 +109,14 @@ def test_migrations_leases_and_fairness_on_postgres(postgres, fresh):
     assert [r["outcome"] for r in store.runs(flood[0])] == ["lost", None]
 
 
+@pytest.mark.slow
 def test_three_replicas_run_thirty_jobs_exactly_once_with_one_killed(tmp_path, postgres, fresh):
     """Replicas A and B take 30 jobs; A is killed with SIGKILL mid-job and C starts afterwards.
     Every job succeeds exactly once: one succeeded run per job in the records, the runs lost
     with A re-run once (attempt 2), and no job of a live replica was ever taken over."""
     result = job_result_file(tmp_path / "result.json")
     log = tmp_path / "completions.log"
-    common = {"database_url": postgres, "workers": 2, "job_lease_s": 3, "job_function": "test_api_support:quick_job",
+    common = {"database_url": postgres, "workers": 2, "job_lease_s": 3, "job_function": "servers:quick_job",
               "test_job_result": result, "test_job_log": log}
 
     def replica(name: str) -> LiveServer:

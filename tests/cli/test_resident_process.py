@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 from excite.cli import resident_process as resident
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 ROUTE = REPO / "trajectories" / "figure_eight_control.csv"
 # exactly what the `excite` script runs (its sys.path[0] differs, which the key leaves out)
 CLIENT = [sys.executable, "-c", "from excite.cli.resident_process import run; run()"]
@@ -139,6 +139,7 @@ def test_the_excite_script_is_the_resident_client():
     assert script.value == "excite.cli.resident_process:run"
 
 
+@pytest.mark.slow
 def test_a_served_command_is_the_command_run_here(started, tmp_path):
     """Relative paths resolve in the caller's directory, files land there, and output, messages
     and exit codes are those of the same command run in the calling process."""
@@ -251,6 +252,7 @@ def test_signals_and_a_vanished_caller_reach_the_command_and_its_workers(started
         assert _wait(lambda: _status(started)["running"] == 0, 30), how
 
 
+@pytest.mark.slow
 def test_a_running_command_does_not_keep_a_new_resident_process_from_starting(tmp_path):
     """Neither a served command nor the processes it starts hold the resident process's lock:
     stopped while a command runs, it can be started again at once; two starts at once give one
@@ -319,6 +321,7 @@ def test_the_callers_umask_and_locale_are_its_own(started, tmp_path):
     assert resident.key(base) == resident.key(dict(base, EXCITE_RESIDENT="1", HOME="/elsewhere"))
 
 
+@pytest.mark.slow
 def test_it_starts_itself_only_at_a_terminal_and_leaves_when_idle():
     home, env = _home()
     try:

@@ -20,16 +20,17 @@ import time
 import urllib.error
 import urllib.request
 import uuid
-from pathlib import Path
 
 import pytest
+from helpers import REPO
 
 IMAGE = os.environ.get("EXCITE_IMAGE")
 PODMAN = shutil.which("podman")
-ROUTE = Path(__file__).resolve().parents[1] / "trajectories" / "figure_eight_control.csv"
+ROUTE = REPO / "trajectories" / "figure_eight_control.csv"
 HEALTHY_WITHIN_S = 30.0
 
-pytestmark = pytest.mark.skipif(not (IMAGE and PODMAN), reason="EXCITE_IMAGE unset or no podman")
+pytestmark = [pytest.mark.container, pytest.mark.slow,
+              pytest.mark.skipif(not (IMAGE and PODMAN), reason="EXCITE_IMAGE unset or no podman")]
 
 
 def podman(*args: str, check: bool = True, timeout: float = 60) -> subprocess.CompletedProcess:

@@ -25,8 +25,8 @@ from excite.factors import base as registry
 from excite.rig.config import RigConfig, build_rig, load_rig, rig_range
 from excite.motion.trajectory import Trajectory
 from excite.motion.vehicle import ControlProfile, Limits
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 # --------------------------------------------------------------------------------------------

@@ -17,8 +17,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 README = ROOT / "README.md"
 SHARED = ROOT.parent / "shared"
 SKIP = ("python3 -m pip", "pip ", "python -m pip", "python3 -m pytest", "python -m pytest", "pytest",
@@ -84,6 +85,7 @@ def test_the_readme_has_examples():
     assert PYTHON
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command, code", COMMANDS, ids=[c[:70] for c, _ in COMMANDS])
 def test_command_runs_as_written(command: str, code: int, workdir: Path):
     if "../shared/data" in command and not SHARED.joinpath("data").is_dir():
@@ -100,6 +102,7 @@ def test_command_runs_as_written(command: str, code: int, workdir: Path):
             assert (workdir / arg).read_text().startswith("<?xml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("code", PYTHON, ids=[f"python-{i}" for i in range(len(PYTHON))])
 def test_python_example_runs_as_written(code: str, workdir: Path):
     res = run([sys.executable, "-c", code], workdir)

@@ -13,66 +13,20 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
 from excite.errors import RigError
 from excite.factors import ackermann, symbolic
 from excite.factors import base as registry
 from excite.factors.ackermann import CanRecording, interval_means
 from excite.factors.base import Nominal
-from excite.information import dense, problem
-from excite.information.closure import marginalise_nuisance
 from excite.motion.vehicle import ControlProfile, Suspension, drive
-from excite.rig.config import RIGS_DIR, build_rig, load_rig
-from excite.score import spectrum
+from excite.rig.config import build_rig, load_rig
 from excite.score.evaluate import evaluate
-
-T = 30.0
-KNOTS = np.linspace(0.0, T, 31)
-VARIED_SPEED = 6 + 3 * np.sin(KNOTS / 3)
-BOTH_WAYS = 0.08 * np.sin(KNOTS / 5)
-
-
-def profile(speed, curvature, **kw) -> ControlProfile:
-    return ControlProfile(KNOTS, np.broadcast_to(speed, KNOTS.shape) * 1.0,
-                          np.broadcast_to(curvature, KNOTS.shape) * 1.0, **kw)
-
-
-def car_data(radar: bool = False) -> dict:
-    """The bundled sedan at 5 Hz keyframes (the dense reference forms J in full), its radar out
-    unless asked for."""
-    data = yaml.safe_load((RIGS_DIR / "sedan.yaml").read_text())
-    data.update(keyframe_rate_hz=5)
-    data["imu"]["update_rate"] = 100
-    if radar:
-        data["sensors"][0]["rate_hz"] = 5
-    else:
-        data["sensors"] = []
-        data["targets"] = {k: v for k, v in data["targets"].items() if not k.startswith("*.rot") and
-                           not k.startswith("*.trans")}
-    return data
-
+from helpers import KNOTS, VARIED_SPEED, BOTH_WAYS, profile, car_data, dense_analysis, null_weights
 
 @pytest.fixture(scope="module")
 def car():
     return build_rig(car_data())
-
-
-def dense_analysis(traj, rig):
-    """The dense reference (J and H formed in full, numpy's Schur complement), nuisances
-    marginalised, analysed as the evaluator analyses: (spectrum, Λ over the scored coordinates)."""
-    prob = problem.build(Nominal.of(traj, rig), rig)
-    Lam = dense.marginal_dense(prob)
-    J, _ = dense.jacobian(prob)
-    before = np.asarray(J[:, prob.n_states:].multiply(J[:, prob.n_states:]).sum(axis=0)).ravel()
-    scored = np.array([not c.nuisance for c in rig.coordinates])
-    L = marginalise_nuisance(Lam, scored)
-    return spectrum.analyse(L, before[scored], np.array([c.target for c in rig.scored])), L
-
-
-def null_weights(spec, rig) -> dict[str, float]:
-    N = spec.null_space
-    return {c.name: float((N[i] ** 2).sum()) for i, c in enumerate(rig.scored)}
 
 
 def assert_null_space_is(traj, rig, expected: set[str]):

@@ -24,7 +24,7 @@ from excite.factors import symbolic
 from excite.factors.base import Kind, Quantity
 from excite.motion.vehicle import ControlProfile, drive
 from excite.rig.config import load_rig
-from test_optimize import model_samples
+from helpers import model_samples
 
 
 class SpeedNoise(Model):
@@ -98,6 +98,7 @@ def _sigma(Lam, rig, name):
     return float(np.sqrt(np.linalg.inv(L)[i, i]))
 
 
+@pytest.mark.slow
 def test_the_kind_goes_through_score_with_the_dense_reference_sigma(rig, traj):
     from excite.factors.base import Nominal
     from excite.information import dense, problem

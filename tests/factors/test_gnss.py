@@ -29,36 +29,10 @@ from excite.information.closure import marginalise_nuisance
 from excite.motion.maneuvers import figure_eight
 from excite.motion.trajectory import SensorLog
 from excite.motion.vehicle import ControlProfile, drive
-from excite.rig.config import build_rig, load_rig
+from excite.rig.config import build_rig
 from excite.score import spectrum
 from excite.score.evaluate import evaluate
-
-LEVER = [0.2, 0.3, 1.5]
-
-
-def gnss_entry(rate_hz=10.0, tau=30.0, h=0.02, v=0.04, **extra):
-    return {"name": "gnss", "kind": "gnss", "rate_hz": rate_hz, "T_B_S": {"translation_m": LEVER},
-            "noise": {"horizontal_sigma_m": h, "vertical_sigma_m": v, "correlation_time_s": tau}, **extra}
-
-
-def gnss_rig(rate_hz=10.0, tau=30.0, suspension=True, lidar=False, constant_biases=False, **entry):
-    """The bundled rig's IMU and wheels with a GNSS antenna (and the lidar if asked): keyframes at 10 Hz."""
-    base = load_rig("robotaxi").config.model_dump()
-    data = dict(base, keyframe_rate_hz=10.0)
-    data["sensors"] = ([base["sensors"][0]] if lidar else []) + [gnss_entry(rate_hz, tau, **entry)]
-    data["targets"] = {k: v for k, v in base["targets"].items() if lidar or k != "*.rot_*"}
-    if not data["sensors"][-1].get("estimate", {}).get("time_offset", True) and not lidar:
-        del data["targets"]["*.time_offset"]
-    if not suspension:
-        data["vehicle"] = dict(data["vehicle"], suspension={"pitch_deg_per_mps2": 0.0, "roll_deg_per_mps2": 0.0})
-    if constant_biases:
-        data["imu"] = dict(data["imu"], bias_model="constant")
-    return build_rig(data)
-
-
-def sigmas(rep) -> dict[str, float | None]:
-    return {p.name: p.sigma for p in rep.parameters}
-
+from helpers import LEVER, gnss_rig, sigmas
 
 @pytest.fixture(scope="module")
 def eight():

@@ -1,4 +1,10 @@
-"""An odometry's own covariance (issue 27, item 4): with ``noise.use_reported_covariance`` a lidar's
+"""A lidar's or camera's odometry noise (:mod:`excite.factors.odometry`).
+
+The noise is a drift density (σ of a relative pose over Δt = density·√Δt): a lidar of the same
+quality at 10, 20 or 40 Hz is told the same σ, and rigs with per-pair keys are refused with the
+density that keeps their numbers at their sensor's rate.
+
+An odometry's own covariance: with ``noise.use_reported_covariance`` a lidar's
 or camera's frame pairs are whitened by the covariance its log reports (``nav_msgs/Odometry``,
 ``PoseWithCovarianceStamped``), so that a stretch the odometry reports worse shows in σ.
 
@@ -15,6 +21,7 @@ or camera's frame pairs are whitened by the covariance its log reports (``nav_ms
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -24,18 +31,22 @@ from typer.testing import CliRunner
 
 import excite.cli.score  # noqa: F401  (registers `excite score` on the app)
 from excite.cli.app import app
-from excite.errors import BagError
+from excite.errors import BagError, RigError
 from excite.factors.base import Nominal
+from excite.factors.odometry import pair_sigmas
 from excite.information import elimination, problem
 from excite.information.closure import marginalise_nuisance
 from excite.io.bags import read_bag_route, read_pose_covariances, write_bag
+from excite.io.routes import read_route
 from excite.motion.maneuvers import figure_eight
 from excite.motion.trajectory import SensorLog
 from excite.motion.vehicle import drive
 from excite.rig.config import build_rig, load_rig
 from excite.score.evaluate import evaluate
+from helpers import REPO
 
 RATE = 10.0
+TRAJ = REPO / "trajectories"
 
 
 def lidar_rig(reported: bool = True, scale: float = 1.0):
@@ -286,3 +297,56 @@ def test_an_odometry_publishing_faster_than_the_frames(tmp_path, eight):
     log = traj.logs["lidar"]
     as_is = sigmas(evaluate(traj.with_logs({"lidar": SensorLog(log.t, 0.5 * log.covariance)}), rig))
     assert as_is["lidar.trans_x"] < 0.9 * base["lidar.trans_x"]
+
+
+# --- densities: the same σ at any frame rate --------------------------------------------------
+
+
+def _lidar_at(rate_hz: float):
+    base = load_rig("robotaxi")
+    sensors = base.config.model_dump()["sensors"]
+    sensors[0]["rate_hz"] = rate_hz  # the camera stays at 10 Hz, every 1/2/4 keyframes
+    return base.with_config(keyframe_rate_hz=rate_hz, sensors=sensors)
+
+
+def test_a_faster_lidar_of_the_same_density_is_told_the_same_sigma():
+    traj = read_route(TRAJ / "slalom.tum")
+    sigma = {}
+    for f in (10.0, 20.0, 40.0):
+        rep = evaluate(traj, _lidar_at(f))
+        sigma[f] = {p.name: p.sigma for p in rep.parameters}
+    for name, s10 in sigma[10.0].items():
+        for f in (20.0, 40.0):
+            assert sigma[f][name] == pytest.approx(s10, rel=0.03), (name, f, sigma[f][name], s10)
+
+
+def test_the_per_pair_sigma_is_the_density_times_root_dt():
+    rig = _lidar_at(40.0)
+    lidar = rig.config.sensors[0]
+    sig_r, sig_t = pair_sigmas(lidar)
+    assert sig_t == pytest.approx(lidar.noise.translation_density_m_per_sqrt_s * math.sqrt(1 / 40.0), rel=1e-15)
+    assert sig_r == pytest.approx(math.radians(lidar.noise.rotation_density_deg_per_sqrt_s) / math.sqrt(40.0), rel=1e-15)
+    # the bundled rig's densities are its old per-pair σ at 10 Hz, exactly
+    assert pair_sigmas(load_rig("robotaxi").config.sensors[0]) == (math.radians(0.05), 0.02)
+
+
+@pytest.mark.parametrize("old, new, factor", [("rotation_sigma_deg", "rotation_density_deg_per_sqrt_s", 0.05),
+                                              ("translation_sigma_m", "translation_density_m_per_sqrt_s", 0.02)])
+def test_the_old_per_pair_keys_give_the_equivalent_density(old, new, factor):
+    data = load_rig("robotaxi").config.model_dump()
+    data["sensors"][1]["rate_hz"] = 20.0
+    data["keyframe_rate_hz"] = 20.0
+    data["sensors"][1]["noise"] = {old: factor}
+    with pytest.raises(RigError) as err:
+        build_rig(data)
+    msg = str(err.value)
+    assert msg.startswith(f"sensors.1.noise.{old}: ")
+    assert f"sensors.1.noise.{new}" in msg and "20 Hz" in msg
+    want = f"{factor * math.sqrt(20.0):.6g}"
+    assert f"{new}: {want}" in msg, msg
+    # the value it names keeps the old σ per pair
+    data["sensors"][1]["noise"] = {"rotation_density_deg_per_sqrt_s": 1.0, "translation_density_m_per_sqrt_s": 1.0,
+                                   new: float(want)}
+    s = build_rig(data).config.sensors[1]
+    got = pair_sigmas(s)[0 if old.startswith("rotation") else 1]
+    assert got == pytest.approx(math.radians(factor) if old.startswith("rotation") else factor, rel=1e-5)

@@ -11,17 +11,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from excite.core import so3
 from excite.errors import RigError
 from excite.factors import base as registry
 from excite.factors import symbolic
 from excite.factors.base import Nominal
 from excite.factors.radar import RadarNoise, velocity_sigma_mps
-from excite.motion.vehicle import ControlProfile, Suspension, drive
+from excite.motion.vehicle import Suspension, drive
 from excite.rig.config import build_rig
 from excite.score.evaluate import evaluate
 
-from test_car import BOTH_WAYS, KNOTS, VARIED_SPEED, car_data, dense_analysis, null_weights, profile
+from helpers import BOTH_WAYS, KNOTS, VARIED_SPEED, car_data, dense_analysis, null_weights, profile
 
 
 def radar_data(dimensions: int = 3) -> dict:
@@ -78,6 +77,7 @@ def test_the_time_offset_sees_the_later_velocity(radar3):
     assert np.median(rel, axis=0).max() < 0.05 and change.max() > 0.01
 
 
+@pytest.mark.montecarlo
 def test_the_noise_is_that_of_a_doppler_fit_over_stationary_targets():
     """σ of the ego-velocity from ``n`` targets uniform over the field of view, each range rate
     with σ_d: a Monte Carlo of least-squares fits (many targets, where the fit's covariance is its

@@ -292,6 +292,7 @@ def test_the_imu_bias_jacobian_is_the_derivative_of_preintegrating_again(rig, no
     _assert_close(blk.Jt_full(len(rig.coordinates))[f][:, g0:g0 + 6], fd, 2e-3)
 
 
+@pytest.mark.montecarlo
 def test_imu_covariance_matches_monte_carlo(rig, nom):
     """The propagated covariance is the covariance of preintegrating noisy samples."""
     cfg = rig.config.imu

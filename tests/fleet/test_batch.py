@@ -14,8 +14,9 @@ import pytest
 from excite.fleet import batch as gate
 from excite.cli.app import main
 from excite.errors import ManifestError
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 TRAJ = ROOT / "trajectories"
 
 

@@ -18,14 +18,15 @@ from excite.fleet import batch as gate
 from excite.core import engine
 from excite.fleet import mine
 from excite.cli.app import main
+from helpers import REPO
 
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 
 @pytest.fixture(scope="module")
 def cluster():
-    # the workers also import the tests' stand-in job (test_api_support)
+    # the workers also import the tests' stand-in job (tests/servers.py)
     path = os.pathsep.join([str(ROOT / "tests"), str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     with dask.config.set(engine.WORKER_CONFIG):  # the workers' environment is set as they spawn
         c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -131,11 +132,12 @@ def test_a_worker_killed_mid_run_loses_no_route(cluster, routes, local):
     _same(local, remote)
 
 
+@pytest.mark.slow
 def test_the_service_runs_batches_and_jobs_on_the_cluster(cluster, tmp_path):
     """With EXCITE_DASK_SCHEDULER the service's batch routes and optimization jobs run on the
     cluster (seen in its task stream); a Dask worker killed mid-job loses nothing: the job
     completes from the durable record's process; a job cancelled while on the cluster stops."""
-    from test_api_support import LiveServer, wait_job
+    from servers import LiveServer, wait_job
 
     from excite.score.evaluate import evaluate
     from excite.rig.config import load_rig
@@ -143,7 +145,7 @@ def test_the_service_runs_batches_and_jobs_on_the_cluster(cluster, tmp_path):
 
     address, client = cluster
     files = [ROOT / "trajectories" / "figure_eight.tum", ROOT / "trajectories" / "slalom.tum"]
-    srv = LiveServer(tmp_path, job_function="test_api_support:slow_job", workers=1, dask_scheduler=address).start(timeout_s=180)
+    srv = LiveServer(tmp_path, job_function="servers:slow_job", workers=1, dask_scheduler=address).start(timeout_s=180)
     try:
         with srv.client() as c, distributed.get_task_stream(client=client) as stream:
             r = c.post("/v1/batch", json={"routes": [{"name": f.stem, "format": "tum", "text": f.read_text()}

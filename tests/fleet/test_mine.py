@@ -93,6 +93,7 @@ def straight_hour_with_figure_eight():
     return traj, (f0, f1)
 
 
+@pytest.mark.slow
 def test_mine_finds_the_figure_eight_in_a_straight_hour(straight_hour_with_figure_eight):
     traj, (f0, f1) = straight_hour_with_figure_eight
     res = mine.mine(traj, RIG, window_s=120.0, goal=mine.Goal(min_score=1e-6), per_log=2)

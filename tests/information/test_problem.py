@@ -17,6 +17,7 @@ from excite.errors import RigError
 from excite.score.evaluate import evaluate
 from excite.rig.config import build_rig, load_rig
 from excite.io.routes import read_route
+from helpers import REPO
 
 
 @pytest.fixture(scope="module")
@@ -190,8 +191,7 @@ def test_instantaneous_bias_saturates_while_a_constant_bias_keeps_shrinking(rig)
     recent drift allows: σ stops shrinking as the drive lengthens. A constant bias (a mean over
     the drive) shrinks like 1/√T. Same generated drive of 5 and 20 minutes."""
     import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(REPO / "benchmarks"))
     from bench_evaluate import generated
 
     short, long_ = generated(300.0, rig), generated(1200.0, rig)

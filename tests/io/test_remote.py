@@ -18,8 +18,9 @@ from excite.fleet import mine
 from excite.io import remote
 from excite.cli.app import main
 from excite.errors import RouteError
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 FIGURE_EIGHT = ROOT / "trajectories" / "figure_eight.tum"
 FIGURE_EIGHT_CONTROL = ROOT / "trajectories" / "figure_eight_control.csv"
 

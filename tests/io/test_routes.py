@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +14,9 @@ from excite.cli.app import main
 from excite.errors import RouteError
 from excite.motion.vehicle import Limits, check_limits, drive
 from helpers import weave_drive, weave_profile
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 TUM_OK = "\n".join(f"{0.1 * i:.1f} {i:.1f} 0 0 0 0 0 1" for i in range(10)) + "\n"
 KITTI_ROW = "1 0 0 {x} 0 1 0 0 0 0 1 {z}"
@@ -357,7 +357,7 @@ def test_motion_no_car_makes_is_warned_about(tmp_path, data_dir, capsys):
 def test_a_route_held_in_memory_reads_as_its_file(name):
     """Readers take the text itself (a service parses what it holds, no temporary file): the same
     trajectory as from the file, bit for bit, and errors name the text's name."""
-    path = Path(__file__).resolve().parents[1] / "trajectories" / name
+    path = REPO / "trajectories" / name
     a = routes.read_route(path)
     for content in (path.read_text(), path.read_bytes()):
         b = routes.read_route(routes.Text(content, name))

@@ -12,8 +12,9 @@ from excite.io import references, routes
 from excite.errors import LimitError
 from excite.motion.maneuvers import REFERENCE_MANEUVERS, Lot
 from excite.motion.vehicle import Limits, Suspension, check_limits, drive
+from helpers import REPO
 
-TRAJECTORIES = Path(__file__).resolve().parents[1] / "trajectories"
+TRAJECTORIES = REPO / "trajectories"
 
 
 @pytest.fixture(scope="module")

@@ -25,6 +25,7 @@ from excite.rig.config import load_rig
 from excite.rig.config import build_rig
 from excite.io.routes import read_control_profile
 from excite.motion.vehicle import ControlProfile, Limits, Suspension, check_limits, drive
+from helpers import model_samples
 
 
 @pytest.fixture(scope="module")
@@ -35,22 +36,6 @@ def rig():
 @pytest.fixture(scope="module")
 def coarse(rig):
     return coarse_rig(rig, 2.0, 4)
-
-
-def _colmajor(R: np.ndarray) -> np.ndarray:
-    return R.transpose(0, 2, 1).reshape(len(R), 9).T
-
-
-def model_samples(traj, crig):
-    """(keyframes, the body samples Nominal.of takes for ``crig``, in the CasADi model's layout);
-    the other surfaces' tests feed the optimizer's model with them too."""
-    n = int(round(crig.config.imu.update_rate / crig.keyframe_rate_hz))
-    K = Nominal.of(traj, crig).n_keyframes
-    t = traj.t_start + np.arange((K - 1) * n + 1) / crig.config.imu.update_rate
-    s = traj.sample(t)
-    pose = crig.config.vehicle.T_V_B
-    b = s.body(pose.R, pose.p)
-    return K, [_colmajor(b.R_W_B), b.p_W_B.T, b.v_W.T, b.omega_B.T, b.specific_force_B.T, _colmajor(s.R_V_A)]
 
 
 def test_public_interface():
@@ -193,6 +178,7 @@ def test_criteria_equal_their_textbook_definitions():
     assert criteria.rotation_excitation(w) == pytest.approx(np.linalg.eigvalsh(ref))
 
 
+@pytest.mark.slow
 def test_an_iteration_cap_still_returns_the_best_checked_drive(rig, tmp_path):
     """IPOPT cannot finish (2 iterations): the result is still the best drive the run saw —
     no candidate in the comparison that passed the check scores higher — and the files written
@@ -234,6 +220,7 @@ def test_cancel_returns_promptly_with_a_checked_drive(rig):
     assert check(res.profile, rig, s, s.lot)[1] == []
 
 
+@pytest.mark.slow
 def test_optimized_maneuver_beats_every_baseline_and_is_feasible(rig):
     """The issue's claim on a smaller problem that fits the test suite: 45 s in a 60 × 40 m lot,
     6 random candidates, IPOPT capped at 40 iterations (so that the outcome does not depend on
@@ -412,6 +399,7 @@ def test_compiled_functions_are_cached_by_key_and_rebuilt_when_unloadable(tmp_pa
     assert vm.mode == "virtual machine" and "virtual machine" in vm.note and "\n" not in vm.note
 
 
+@pytest.mark.slow
 def test_starts_run_on_the_engine_and_say_which_converged(rig):
     """Two starts on two local processes: each comes back with its best iterates within the
     limits (at most KEEP), the one IPOPT finished says converged and beat its start, the one

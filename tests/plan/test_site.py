@@ -13,35 +13,7 @@ from excite.score.evaluate import evaluate
 from excite.plan.site import read_site
 from excite.rig.config import load_rig
 from excite.motion.vehicle import ControlProfile, drive
-
-ORIGIN = (11.58, 48.14)  # lon, lat of the test lot's local origin
-L_OUTER = [(0, 0), (70, 0), (70, 30), (30, 30), (30, 66), (0, 66)]  # an L, metres east/north
-HOLE = [(44, 9), (56, 9), (56, 19), (44, 19)]  # a building in the long arm
-RAMP = [(4, 36), (26, 36), (26, 54), (4, 54)]  # in the short arm, rising to the north
-
-
-def _tm(origin, inverse=False):
-    from pyproj import Transformer
-
-    crs = f"+proj=tmerc +lat_0={origin[1]} +lon_0={origin[0]} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m"
-    return Transformer.from_crs(crs, "EPSG:4326", always_xy=True) if inverse else \
-        Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-
-
-def _lonlat(ring):
-    a = np.array(list(ring) + [ring[0]], dtype=float)
-    lon, lat = _tm(ORIGIN, inverse=True).transform(a[:, 0], a[:, 1])
-    return [[float(x), float(y)] for x, y in zip(lon, lat)]
-
-
-def l_lot(ramp: bool) -> dict:
-    feats = [{"type": "Feature", "properties": {"role": "lot"},
-              "geometry": {"type": "Polygon", "coordinates": [_lonlat(L_OUTER), _lonlat(HOLE)]}}]
-    if ramp:
-        feats.append({"type": "Feature", "properties": {"role": "ramp", "slope_deg": 8.0, "uphill_deg": 90.0},
-                      "geometry": {"type": "Polygon", "coordinates": [_lonlat(RAMP)]}})
-    return {"type": "FeatureCollection", "features": feats}
-
+from helpers import ORIGIN, L_OUTER, HOLE, RAMP, l_lot, lot_projection
 
 def _inside(poly, p):
     """Even-odd point-in-polygon (written here, independent of excite.motion.maneuvers.Lot)."""
@@ -157,6 +129,7 @@ def _plan(rig, ramp: bool, tmp_path):
     return site, res, out
 
 
+@pytest.mark.slow
 def test_l_shaped_lot_with_a_hole_and_a_ramp(rig, tmp_path):
     """The plan stays in the L with the 3 m margin and out of the building (checked on the
     written GeoJSON, projected here), drives up or down the ramp, and determines the vertical
@@ -167,7 +140,7 @@ def test_l_shaped_lot_with_a_hole_and_a_ramp(rig, tmp_path):
     assert res.comparison and any(r["result"] for r in res.comparison)
     doc = json.loads((out / "maneuver.geojson").read_text())
     ll = np.array(doc["features"][0]["geometry"]["coordinates"])
-    x, y = _tm(ORIGIN).transform(ll[:, 0], ll[:, 1])
+    x, y = lot_projection(ORIGIN).transform(ll[:, 0], ll[:, 1])
     p = np.column_stack([x, y])
     assert _inside(L_OUTER, p).all() and not _inside(HOLE, p).any()
     clearance = np.minimum(_edge_distance(L_OUTER, p), _edge_distance(HOLE, p))
@@ -233,6 +206,6 @@ def test_api_job_on_a_georeferenced_lot_downloads_geojson_without_an_origin(rig,
     doc = json.loads(maneuver_file(out["profile"], rig, "geojson", "m", origin))
     ll = np.array(doc["features"][0]["geometry"]["coordinates"])
     local = site.lot.polygon_m - np.array(L_OUTER, float)  # the site's frame = the test's + a shift
-    x, y = _tm(ORIGIN).transform(ll[:, 0], ll[:, 1])
+    x, y = lot_projection(ORIGIN).transform(ll[:, 0], ll[:, 1])
     first = np.array([x[0], y[0]]) + local.mean(axis=0)
     assert first == pytest.approx([10.0, 10.0], abs=0.05)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-import formats
+import rig_formats as formats
 from excite.cli.app import main
 from excite.errors import RigError
 from excite.io.bags import rig_from_tf

@@ -224,6 +224,7 @@ def _scaled(L, rig):
     return L * np.outer(S, S)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("chunk", [500, 7])
 def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
     """Small drive: the chunked elimination (one chunk, or chunks of 7 keyframes) in both

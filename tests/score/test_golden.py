@@ -34,9 +34,10 @@ import pytest
 from excite.score.evaluate import Options, evaluate
 from excite.rig.config import load_rig
 from excite.io.routes import read_route
+from helpers import REPO
 
-GOLDEN = Path(__file__).parent / "golden" / "reports.json"
-TRAJ = Path(__file__).resolve().parents[1] / "trajectories"
+GOLDEN = REPO / "tests" / "golden" / "reports.json"
+TRAJ = REPO / "trajectories"
 UPDATE = os.environ.get("EXCITE_UPDATE_GOLDEN") == "1"
 RTOL = 1e-7
 EIG_FLOOR = 1e-14

@@ -23,8 +23,9 @@ from excite.score.evaluate import evaluate, report_of
 from excite.factors.base import Nominal
 from excite.rig.config import load_rig
 from excite.io.routes import read_kitti, read_tum
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 FIGURE_EIGHT = ROOT / "trajectories" / "figure_eight.tum"
 
 # A lidar + IMU + wheels rig with targets a minute and a half of figure-eight can meet.
@@ -312,6 +313,7 @@ def test_cli_exits_0_when_done(test_rig, tmp_path):
     assert not any(e["passed"] for e in events[:-2]) and events[-1]["t_s"] > 15
 
 
+@pytest.mark.slow
 def test_cli_says_what_a_stalled_drive_needs_and_goes_on(test_rig, tmp_path):
     """A long straight before the figure-eight: `excite live` prints the non-passed done (which
     parameters need which motion), keeps reading, and exits 0 at the passed done. Replayed at
@@ -660,7 +662,7 @@ def test_cli_final_is_the_score_of_a_file_excite_wrote(tmp_path):
     from excite.rig.config import load_rig
     from excite.io.routes import read_route, read_tum, write_tum
 
-    window = read_route(Path(__file__).resolve().parents[1] / "trajectories" / "slalom_control.csv").cropped(30.0, 60.0)
+    window = read_route(REPO / "trajectories" / "slalom_control.csv").cropped(30.0, 60.0)
     tum = write_tum(window, tmp_path / "crop.tum", rate_hz=100.0)
     r = CliRunner().invoke(app, ["live", str(tum), "--replay", "1000x", "--json"])
     final = next(e for e in _json_lines(r.stdout) if e["type"] == "final")

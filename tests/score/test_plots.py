@@ -16,8 +16,9 @@ from excite.errors import PlotError
 from excite.score.evaluate import Options, evaluate
 from excite.rig.config import load_rig
 from excite.io.routes import read_route
+from helpers import REPO
 
-TRAJ = Path(__file__).resolve().parents[1] / "trajectories"
+TRAJ = REPO / "trajectories"
 
 
 @pytest.fixture(scope="module")

@@ -31,6 +31,8 @@ from excite.validate.monte_carlo import MonteCarloSettings, monte_carlo, run_tri
 from excite.errors import FactorisationError, ValidateError
 from excite.validate.simulate import Calibration, SimulationSettings, offset_sigma, simulate
 from excite.motion.vehicle import ControlProfile, Suspension, drive
+from helpers import hilly
+from helpers import REPO
 
 N_SCORED = 23
 
@@ -41,15 +43,6 @@ def _rig(suspension: bool = True):
     if not suspension:
         data["vehicle"]["suspension"] = {"pitch_deg_per_mps2": 0.0, "roll_deg_per_mps2": 0.0}
     return build_rig(data)
-
-
-def hilly(profile: ControlProfile) -> ControlProfile:
-    """Undulating ground (as benchmarks/bench_validate.py): pitch and roll excitation for the
-    vertical lever arms."""
-    t = np.linspace(0.0, profile.t_s[-1], int(profile.t_s[-1] * 20) + 1)
-    c = profile.at(t)
-    return ControlProfile(t, c["speed_mps"], c["curvature_1pm"], grade_rad=0.08 * np.sin(2 * np.pi * t / 4.0),
-                          bank_rad=0.06 * np.sin(2 * np.pi * t / 3.0), name="hilly_figure_eight")
 
 
 @pytest.fixture(scope="module")
@@ -230,6 +223,8 @@ def _nees_bounds(n: int, dof: int, alpha: float = 0.01) -> tuple[float, float]:
     return float(chi2.ppf(alpha / 2, n * dof) / n), float(chi2.ppf(1 - alpha / 2, n * dof) / n)
 
 
+@pytest.mark.slow
+@pytest.mark.montecarlo
 def test_monte_carlo_matches_the_predicted_sigma_on_a_well_excited_drive(rig):
     """60 trials on 20 s of a figure-eight over undulating ground (full rank, every parameter
     determined). With 60 trials each parameter's empirical/predicted σ lies in [0.69, 1.33] with
@@ -255,6 +250,8 @@ def test_monte_carlo_matches_the_predicted_sigma_on_a_well_excited_drive(rig):
     assert np.allclose(again.error, res.trials[7].error, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
+@pytest.mark.montecarlo
 def test_degenerate_drive_wanders_exactly_along_the_null_space():
     """A planar figure-eight without suspension: the evaluator reports the two vertical lever arms
     as unobservable. The calibration must not move along them (the error there is the initial
@@ -337,10 +334,9 @@ OPTIMIZED = "optimized_15s_control.csv"  # `excite optimize --duration 15 --seed
 
 @pytest.fixture(scope="module")
 def optimized(rig):
-    from pathlib import Path
 
     from excite.io.routes import read_route
-    return read_route(Path(__file__).parent / "data" / OPTIMIZED, suspension=rig.suspension)
+    return read_route(REPO / "tests" / "data" / OPTIMIZED, suspension=rig.suspension)
 
 
 def test_initialisation_recovers_rotation_time_offsets_and_gyro_bias_from_angular_rates(rig, optimized):

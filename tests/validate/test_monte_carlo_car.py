@@ -50,6 +50,8 @@ def test_noise_free_data_calibrates_to_the_truth(rig, traj):
             assert abs(err[i]) < 0.05 * sigma[c.name], (c.name, err[i], sigma[c.name])
 
 
+@pytest.mark.slow
+@pytest.mark.montecarlo
 def test_monte_carlo_on_a_car_drive_is_consistent(rig, traj):
     """24 trials in the model's own data: the empirical errors have the predicted covariance
     (NEES in its 95 % interval) and every trial converges."""

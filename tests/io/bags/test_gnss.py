@@ -4,7 +4,6 @@ status and covariance, the drive carrying them, and the Husky bag scored with it
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,9 +20,10 @@ from excite.motion.trajectory import SensorLog
 from excite.motion.vehicle import drive
 from excite.rig.config import build_rig, load_rig
 from excite.score.evaluate import evaluate
-from test_gnss import gnss_rig, sigmas
+from helpers import gnss_rig, sigmas
+from helpers import REPO
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = REPO / "examples"
 HUSKY = "husky_robot_localization.bag"
 ODOM, IMU = "/husky_velocity_controller/odom", "/imu/data"
 

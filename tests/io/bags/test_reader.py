@@ -28,6 +28,7 @@ from excite.rig.frames import Edge, chain_edges
 from excite.io.poses import trajectory_from_poses
 from excite.io.routes import read_route
 from helpers import weave_drive
+from helpers import REPO
 
 NAV2 = "nav2_turtlebot.mcap"
 SENSOR_FRAMES = {"rplidar": "rplidar_link", "oakd_rgb_camera": "oakd_rgb_camera_optical_frame"}  # name: frame
@@ -386,7 +387,7 @@ def test_truncated_and_corrupt_bags(tmp_path, data_dir, capsys):
 
 
 def test_topic_options_on_a_text_route_are_refused(capsys):
-    route = Path(__file__).resolve().parents[1] / "trajectories" / "circle_left.tum"
+    route = REPO / "trajectories" / "circle_left.tum"
     err = _cli_error(capsys, route, "--topic", "/odom")
     assert "bags only" in err
 

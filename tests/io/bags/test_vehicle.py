@@ -18,7 +18,7 @@ from excite.motion.vehicle import ControlProfile, drive
 from excite.rig.config import build_rig
 from excite.score.agreement import agreement
 
-from test_car import car_data
+from helpers import car_data
 
 JOINTS = ("front_left_wheel_joint", "front_right_wheel_joint", "rear_left_wheel_joint", "rear_right_wheel_joint")
 
