@@ -1,4 +1,4 @@
-"""Is a rig with GNSS consistent on a drive the optimizer planned? Monte Carlo (issue 27).
+"""Is a rig with GNSS consistent on a drive the optimizer planned? Monte Carlo.
 
 The rig is ``benchmarks/robotaxi_gnss.yaml`` (the bundled robotaxi with an RTK antenna, 2/4 cm,
 τ 30 s, 10 Hz). The plan is the optimizer's (``excite optimize``'s, E-optimal) for ``--duration``

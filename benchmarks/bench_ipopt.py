@@ -5,8 +5,8 @@ one start, each run to convergence.
         [--exact-duration 15] [--max-iterations 1500]
 
 The default problem (robotaxi, 90 s, 80 × 50 m, seed 0) from ``--start`` (``random_0_0``:
-the start today's optimizer chose for seed 0, whose converged plan scored 2.05e-3 by the full
-evaluator, issue 29; ``SEED:NAME`` names another seed's random start; with several starts every
+the start the optimizer chooses for seed 0, whose converged plan scores about 2e-3 by the full
+evaluator; ``SEED:NAME`` names another seed's random start; with several starts every
 variant runs from each, and a table of iterations and full scores ends the output), IPOPT until
 it converges (or ``--max-iterations``). Per variant: IPOPT's
 status, iterations, wall time and its split (objective, gradient, constraint Jacobian, IPOPT's
@@ -17,7 +17,7 @@ checks them), and the first iterations within 10 / 1 / 0.1 % of the best model v
 
 - ``shipped``: what ``excite optimize`` runs (B-spline controls, limits at the model's
   samples, jerk at the knots, multiple shooting every 3 s, SR1 with 20 pairs, compiled model);
-- ``bfgs6``: the shipped options before issue 29's tuning (L-BFGS with 6 pairs); the variants
+- ``bfgs6``: L-BFGS with 6 pairs and MUMPS's own scaling (the untuned baseline); the variants
   after ``vm`` (IPOPT options; ``--print-level 5`` prints IPOPT's iterations) change one or two
   options of ``bfgs6`` each;
 - ``single``: the same without multiple shooting (every position depends on every earlier control);
@@ -60,7 +60,7 @@ VARIANTS = {
     "mumps_scaled": (SHIPPED, dataclasses.replace(solver.DEFAULT, mumps_scaling=True)),
     "restored": (SHIPPED, solver.DEFAULT),  # from the start moved to the constraints first (solver.restore)
 }
-_D = dataclasses.replace(solver.DEFAULT, history=6, update="bfgs", mumps_scaling=True)  # the options before issue 29's tuning
+_D = dataclasses.replace(solver.DEFAULT, history=6, update="bfgs", mumps_scaling=True)  # the untuned baseline
 
 
 def _x(**extra) -> solver.SolverOptions:
@@ -68,7 +68,7 @@ def _x(**extra) -> solver.SolverOptions:
     return dataclasses.replace(_D, extra=extra)
 
 
-VARIANTS.update({  # issue 29: IPOPT's own options, one or two changes each from bfgs6
+VARIANTS.update({  # IPOPT's own options, one or two changes each from bfgs6
     "bfgs6": (SHIPPED, _D),
     "history50": (SHIPPED, dataclasses.replace(_D, history=50)),
     "lm_scalar2": (SHIPPED, _x(limited_memory_initialization="scalar2")),

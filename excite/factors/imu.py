@@ -9,7 +9,7 @@ Residuals of the interval ``i → j`` (ΔT long, n IMU samples of dt each, held 
 with the preintegrated measurement ``(ΔR, Δv, Δp)`` of the gyro and accelerometer samples
 corrected to first order for the biases b (GTSAM's form: ``ΔR(b) = ΔR Exp(−ΔRᵀ G_R b_g)``,
 ``Δv(b) = Δv + V_g b_g + V_a b_a``, ``Δp(b) = Δp + P_g b_g + P_a b_a``). The measurement
-(:func:`preintegrate`) applies each sample's specific force in the attitude of the sample's
+(:func:`preintegrate_all`) applies each sample's specific force in the attitude of the sample's
 middle (a sample is the mean over its interval); the bias Jacobians and the covariance take the
 attitude at its start, which differs from it by O(ω·dt). The covariance of the preintegrated
 measurement is propagated from the Kalibr noise densities at the IMU rate (discrete white noise
@@ -155,10 +155,10 @@ class Imu(Kind):
         biases, which random-walk per the random-walk densities (physical) or stay constant
         (model). Physical: the IMU integrates the true motion at ``imu_oversampling`` × its rate and
         outputs the mean rate and specific force over each sample (a boxcar, as delta-angle /
-        delta-velocity IMUs do, without coning or sculling compensation), which :func:`preintegrate`
+        delta-velocity IMUs do, without coning or sculling compensation), which :func:`preintegrate_all`
         applies in the attitude of the sample's middle. Model: sample ``s`` is the
         increment-equivalent rate over ``[τ_s, τ_s + dt)`` (:func:`_imu_increment_equivalent`),
-        which :func:`preintegrate` turns exactly into the drive's keyframe states."""
+        which :func:`preintegrate_all` turns exactly into the drive's keyframe states."""
         nom, rng, settings = sim.nom, sim.rng, sim.settings
         n, K = nom.imu_per_keyframe, nom.n_keyframes
         rate = imu.update_rate

@@ -105,8 +105,8 @@ def _jacobians(R, v, omega_B, R_BA, v_V, sig_lat, sig_vert, slip):
 
         ∂/∂θ = R_BAᵀ [v_body]×     ∂/∂v = R_BAᵀ Rᵀ
 
-    and, with ``slip``, the slip angle's column :func:`lateral_slip_regressor` (from the axle
-    velocities ``v_V``) in the lateral row; rows divided by their σ."""
+    and, with ``slip``, the slip angle's column ``u·(u·ψ̇)/g`` (:meth:`NonHolonomicConstraint.measurement`'s
+    derivative, from the axle velocities ``v_V``) in the lateral row; rows divided by their σ."""
     K = R.shape[0]
     Jx = np.empty((K, 2, 9))  # zeroed per keyframe, in cache
     Jt = np.empty((K, 2, 1 if slip else 0))

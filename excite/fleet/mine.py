@@ -3,7 +3,7 @@
 A log is cut into short chunks of keyframes (``chunk_s``, the window resolution). Each chunk is
 sampled, linearised and its inner keyframes eliminated once (:func:`summarise`): what remains is
 its *summary*, the information over ``[x_a, x_b, θ]`` (its two end states and the calibration;
-:class:`excite.information.Piece`). Summaries of adjacent chunks combine by eliminating the
+:class:`excite.information.elimination.Piece`). Summaries of adjacent chunks combine by eliminating the
 state they share, an associative operation, so the information of any window made of whole
 chunks follows from its chunks' summaries without touching a factor again. Windows of ``L``
 chunks are combined with the two-stack sliding-window scheme: the chunks are grouped in blocks
@@ -56,7 +56,7 @@ class Summaries:
     """The chunk summaries of one log (see the module docstring).
 
     ``T[c]`` is chunk ``c``'s information over ``[x_a, x_b, θ]`` (states of dimension ``sd``,
-    θ over :func:`excite.information.columns` of one drive); ``opening[c]`` and ``cap[c]`` the
+    θ over :func:`excite.information.problem.columns` of one drive); ``opening[c]`` and ``cap[c]`` the
     information a window adds at its first keyframe ``edges[c]`` (the gauge and the opening
     factors of :meth:`~excite.information.closure.Closure.open`, over ``[x_a, θ]``) and at
     its last keyframe ``edges[c + 1]`` (the non-holonomic constraint there, over ``[x_b, θ]``); ``diag_tt[c]``
@@ -189,7 +189,7 @@ def _close(T: np.ndarray, opening: np.ndarray, cap: np.ndarray, sd: int, free: n
 
 
 def window_information(s: Summaries, L: int, first: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Λ_θ (over :func:`excite.information.columns`) of every window of ``L`` consecutive chunks,
+    """Λ_θ (over :func:`excite.information.problem.columns`) of every window of ``L`` consecutive chunks,
     in order of their first chunk, and each one's diag H_θθ (two-stack scheme: module docstring);
     with ``first``, of the one window that starts at chunk ``first``."""
     if first is not None:

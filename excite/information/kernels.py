@@ -130,9 +130,9 @@ def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, or
 
 @nb.njit(cache=True, nogil=True)
 def eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored, comp):
-    """The slab loop of :func:`excite.information._eliminated` (documented there), compiled: the
+    """The slab loop of :func:`excite.information.elimination.eliminated` (documented there), compiled: the
     factors of ``blocks`` (a tuple of ``(Jx, Jt, cols, first, stride, n_states, xcols)``, keyframe
-    indices 0 … m of a chunk: :func:`excite.information._as_tuple`) are accumulated and eliminated ``slab`` keyframes at a time in the
+    indices 0 … m of a chunk: :func:`excite.information.elimination.as_kernel_blocks`) are accumulated and eliminated ``slab`` keyframes at a time in the
     ring buffer ``band, Hxt`` (``slab + D`` positions, D the widest factor's span; position 0
     holds what is carried in), in the sweep's order; with random-walk biases (``w2``: 1/σ² of a
     step's six components; empty without) the walk's information is added on the bias deviations'
@@ -358,7 +358,7 @@ def _eliminate(band, Hxe, Hee, lo, hi, D, sd):
 
 @nb.njit(cache=True, nogil=True)
 def local_maps(R, v, p):
-    """The maps ``V, P`` (K × 3 × 6) of :func:`excite.information._local_maps` from the keyframes'
+    """The maps ``V, P`` (K × 3 × 6) of :func:`excite.information.problem.to_local` from the keyframes'
     orientation, world velocity and position: ``V_k = [−R_k[v_k]×, R_k]`` with the body velocity
     ``v_k = R_kᵀ v``, ``P_k = [−R_k[d_k]×, R_k]`` with the increment ``d_k = R_kᵀ(p_{k+1} − p_k)``
     (zero for the last keyframe, which has none)."""
@@ -393,7 +393,7 @@ def to_local(Jx, first, stride, V, P, sd):
     """World-state Jacobians ``Jx`` (N × r × 9·n_states) of factors at keyframes ``first + stride·a``
     re-expressed in local states over every keyframe they span (N × r × sd·(span + 1): sd ≥ 9
     columns per state, the 9 trajectory states first, any further ones zero); the maps
-    ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information._to_local`.
+    ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information.problem.to_local`.
     Also returns which of those columns it wrote a non-zero to (every other column is zero for
     every factor: a factor that sees no velocity, the increments after its last keyframe)."""
     N, r, nx = Jx.shape

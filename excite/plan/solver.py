@@ -35,15 +35,11 @@ class SolverOptions:
 
     ``hessian``: ``limited-memory`` (IPOPT's quasi-Newton approximation, ``history`` pairs,
     updated by ``update``) or ``exact``.
-    ``update``: ``sr1`` or ``bfgs`` (IPOPT's ``limited_memory_update_type``). SR1 with 20 pairs
-    (issue 29, ``benchmarks/bench_ipopt.py``, robotaxi 90 s from ``random_0_0``): BFGS with 6, 20
-    or 50 pairs gave the same 495 iterations (identical iterates to iteration 471, so its memory
-    apparently never held more than 6 pairs: BFGS skips an update whose curvature is not positive,
-    and IPOPT resets the memory after more than 2 in a row — raising ``limited_memory_max_skipping``
-    did change the iterates); SR1 needs no positive curvature and converged in 240 iterations
-    (10, 20 and 50 pairs alike; 313 with 6) to a better optimum (full score 2.142e-3 against
-    1.994e-3). From 4 starts (``random_0_0/1/5/7``): 1136 iterations against BFGS's 2243, the
-    score −0.8 % to +17 % of BFGS's from the same start.
+    ``update``: ``sr1`` or ``bfgs`` (IPOPT's ``limited_memory_update_type``). SR1, because it needs
+    no positive curvature: BFGS skips an update whose curvature is not positive and IPOPT resets
+    its memory after more than two skips in a row, so on this objective BFGS's memory holds few
+    pairs whatever ``history`` says, and it takes about twice the iterations to a lower optimum
+    (``benchmarks/bench_ipopt.py`` compares them from the same starts).
     ``tol``: IPOPT's convergence tolerance on its scaled optimality error; IPOPT's acceptable
     level also counts as converged: ``acceptable_iter`` consecutive iterations with the error
     below ``acceptable_tol`` and the objective changing by less than ``acceptable_obj_change_tol``
@@ -53,12 +49,9 @@ class SolverOptions:
     barrier of the constraint rows outweighs the objective and IPOPT first drives to the middle
     of the feasible set (the weakest excitation).
     ``mumps_scaling``: whether MUMPS scales the KKT system itself (IPOPT's default). Off: the NLP
-    is scaled already (:class:`.kinematics.Scales`), and MUMPS's scaling of the ~4100-row system
-    was more than half of IPOPT's own time per iteration (``benchmarks/bench_ipopt.py``, variant
-    ``mumps_scaled``, 2026-12-02, side by side from the slalom: 11.8 against 26.3 ms, the same
-    optimum in 270 iterations instead of 280, 10.2 against 13.7 s; from the five seeds' second
-    starts a 0.2 % lower to 2.3 % higher optimum, in 6 % fewer to 48 % more iterations and
-    2 % more to 49 % less time, two runs at once on the 2 cores).
+    is scaled already (:class:`.kinematics.Scales`), and MUMPS's own scaling of the KKT system
+    costs more than half of IPOPT's time per iteration for the same optimum
+    (``benchmarks/bench_ipopt.py``, variant ``mumps_scaled``).
     """
 
     hessian: str = "limited-memory"

@@ -136,7 +136,7 @@ class SimulationSettings:
     estimator takes them constant).
     ``wheel_ticks_per_rev``: encoder resolution (0: no quantisation); the white part of the wheel
     noise is reduced so that the total per increment equals the rig's
-    (:attr:`excite.rig.config.Rig.wheel_increment_sigma_rad`).
+    (:func:`excite.factors.wheel.increment_sigma_rad`).
     ``wheel_slip_per_g``: longitudinal slip ratio of the rear wheels per g of longitudinal
     acceleration (a braking wheel turns slower than it travels, a driven one faster), plus
     ``wheel_scrub_per_g2`` × (lateral acceleration/g)² (the tyre's shorter rolling radius when it

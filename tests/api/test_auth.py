@@ -1,4 +1,4 @@
-"""Who may do what (issue 30): API keys with scopes and owners, jobs that belong to their key,
+"""Who may do what: API keys with scopes and owners, jobs that belong to their key,
 per-key quotas, a fair job queue, browser safety, and a server that will not serve the network
 without keys. In-process (TestClient) unless a real socket or process is the point."""
 

@@ -1,4 +1,4 @@
-"""The job store on a real PostgreSQL server (issue 30): several replicas share it, jobs are
+"""The job store on a real PostgreSQL server: several replicas share it, jobs are
 claimed with leases and heartbeats, a replica that dies loses no job and a live replica's job is
 never taken over. The server is Debian's ``postgresql`` package, started here on loopback in a
 temporary folder and stopped at the end (``.ci/run`` installs it)."""

@@ -1,4 +1,4 @@
-"""GNSS antennas (issue 27): the lever arm and time offset of an antenna whose fixes have an error
+"""GNSS antennas (:mod:`excite.factors.gnss`): the lever arm and time offset of an antenna whose fixes have an error
 correlated over time, scored against independent computations, its degenerate motions, its
 convergence with the fix rate, outages from the log, and its rig entry.
 

@@ -1,6 +1,7 @@
-"""Issue 11: the numbers must not move with arbitrary choices — the keyframe rate (a
-discretisation), the accuracy targets (they scale σ/target, never what is observable), and one
-drive's nuisances must not leak into another's."""
+"""The information problem (:mod:`excite.information.problem`): the numbers must not move with
+arbitrary choices — the keyframe rate (a discretisation), the accuracy targets (they scale
+σ/target, never what is observable) — and one drive's nuisances (monocular scale, drifting
+biases) must not leak into another's."""
 
 from __future__ import annotations
 

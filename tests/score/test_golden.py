@@ -1,25 +1,22 @@
 """Golden reports: what excite says of the reference routes, KITTI 00 and two bags, held across
-redesigns.
+refactorings.
 
-``tests/golden/reports.json`` was written by this file *before* the package was redesigned
-(factor registry, the drive closed in one place, packages by concern: issue 26) and the
-redesign must reproduce it: σ, score, rank and the three spectra of every route, for the bundled
-rig with random-walk biases and with constant biases. Numbers are compared to 1e-7 relative:
-σ and the score each to its own size; a spectrum as a whole, to its largest eigenvalue (its
-exactly-null entries are rounding noise of ~1e-13 of it, which no reordering of a sum keeps to
-nine digits of their own). 1e-7, not 1e-9: every entry reproduced to 1e-9 on the machines of
-the sessions that wrote and kept the file (CI included), but on the machine of 2026-12-02 (an
-"Intel(R) Xeon(R) Processor", other BLAS and LLVM kernels) the circles' entries, the
-worst-conditioned (a track σ of 43 m), differ by up to 4.6e-8, every other entry by less than 1e-9. A change of the model moves an entry by far more (the scrub: 31 of 36 by ≥ 1e-4).
+``tests/golden/reports.json`` holds σ, score, rank and the three spectra of every route, for the
+bundled rig with random-walk biases and with constant biases; a change of structure (the factor
+registry, how a drive is closed, how packages are cut) must reproduce it. Numbers are compared to
+1e-7 relative: σ and the score each to its own size; a spectrum as a whole, to its largest
+eigenvalue (its exactly-null entries are rounding noise of ~1e-13 of it, which no reordering of a
+sum keeps to nine digits of their own). 1e-7, not 1e-9: other BLAS and LLVM kernels move the
+worst-conditioned entries (the circles', with a track σ of 43 m) by up to ~5e-8, every other
+entry by less than 1e-9, while a change of the model moves an entry by far more (≥ 1e-4).
 A score (the smallest eigenvalue) is also allowed a rounding floor of 1e-14 of the largest
 eigenvalue (~90 ε: a symmetric eigensolver's backward error is a few ε‖M‖, and M itself is a
 sum over every keyframe), so where λ_min is ~1e-10 of λ_max (the circles: 1.3e-8 of 499) its
 digits past ~4e-6 relative (ε‖M‖/λ_min) are rounding; elsewhere the floor is negligible (the
-figure-eight: 3e-8 of its score). On a fresh "AMD EPYC" machine of 2026-12-02 the circles'
-strided scores came out 1.5e-7 relative from the file (2.0e-15 absolute, 4e-18 of λ_max).
+figure-eight: 3e-8 of its score).
 
 Regenerate only on purpose (a model change, stated in the commit): ``EXCITE_UPDATE_GOLDEN=1
-python3 -m pytest tests/test_golden.py``.
+python3 -m pytest tests/score/test_golden.py``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""GNSS fixes read from bags (issue 27): sensor_msgs/NavSatFix in ROS 1, ROS 2 and MCAP, their
+"""GNSS fixes read from bags: sensor_msgs/NavSatFix in ROS 1, ROS 2 and MCAP, their
 status and covariance, the drive carrying them, and the Husky bag scored with its GPS."""
 
 from __future__ import annotations
