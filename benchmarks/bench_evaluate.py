@@ -43,6 +43,9 @@ from excite.factors.base import Nominal
 from excite.rig.config import load_rig
 from excite.io.routes import read_kitti
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results import Session, spread  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 
@@ -125,6 +128,15 @@ def baseline_package(rev: str, into: Path):
     return tuple(importlib.import_module(f"excite_baseline.{m}") for m in layout)
 
 
+def figure(times: list[tuple[float, float]]) -> dict:
+    """Wall and CPU time [ms] of timed runs as benchmark figures (median, range, runs)."""
+    return {"wall_ms": spread([t[0] for t in times], 1), "cpu_ms": spread([t[1] for t in times], 1)}
+
+
+def ratio_figure(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> dict:
+    return {f"{kind}_ratio": spread([x[i] / y[i] for x, y in zip(a, b)], 3) for i, kind in enumerate(("wall", "cpu"))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=7)
@@ -133,6 +145,8 @@ def main() -> None:
     parser.add_argument("--when-idle", type=float, default=0.0, metavar="S",
                         help="wait up to S seconds before each timed run for the machine to be idle")
     args = parser.parse_args()
+    session = Session()
+    figures: dict = {}
     global IDLE_WAIT_S
     IDLE_WAIT_S = args.when_idle
     rig = load_rig("robotaxi")
@@ -153,6 +167,9 @@ def main() -> None:
     print(row("10-minute drive, random walk", times[10]))
     print(row("60-minute drive, random walk", times[60]))
     print(ratios("60 min / 10 min", times[60], times[10]))
+    figures["ten_minute_drive"] = figure(times[10])
+    figures["sixty_minute_drive"] = figure(times[60])
+    figures["sixty_over_ten_minutes"] = ratio_figure(times[60], times[10])
     print(f"{'':34s} per keyframe: cpu {statistics.median(t[1] for t in times[10]) / n_kf[10] * 1e3:.1f} vs "
           f"{statistics.median(t[1] for t in times[60]) / n_kf[60] * 1e3:.1f} µs")
 
@@ -165,6 +182,8 @@ def main() -> None:
     print(row("10-minute drive, random walk", [p[0] for p in pairs]))
     print(row("10-minute drive, constant biases", [p[1] for p in pairs]))
     print(ratios("random walk / constant", [p[0] for p in pairs], [p[1] for p in pairs]))
+    figures["ten_minute_drive_constant_biases"] = figure([p[1] for p in pairs])
+    figures["random_walk_over_constant_biases"] = ratio_figure([p[0] for p in pairs], [p[1] for p in pairs])
     for name, r in (("random walk", rig), ("constant biases", const)):
         stages = [evaluate(drives[10], r).timings_ms for _ in range(args.runs)]
         print(f"10-minute drive, {name}: CPU time per stage summed over threads (medians): " + ", ".join(
@@ -184,6 +203,7 @@ def main() -> None:
     print(row("10-minute drive, with GNSS", [p[0] for p in pairs]))
     print(row("10-minute drive, without", [p[1] for p in pairs]))
     print(ratios("with GNSS / without", [p[0] for p in pairs], [p[1] for p in pairs]))
+    figures["with_gnss_over_without"] = ratio_figure([p[0] for p in pairs], [p[1] for p in pairs])
     stages = [evaluate(drives[10], gnss).timings_ms for _ in range(args.runs)]
     print("10-minute drive, with GNSS: CPU time per stage summed over threads (medians): " + ", ".join(
         f"{k.removesuffix('_thread')} {statistics.median(t[k] for t in stages):.1f} ms"
@@ -204,23 +224,31 @@ def main() -> None:
     if DATA.is_dir():
         kitti = read_kitti(DATA / "kitti_00_poses.txt", DATA / "kitti_00_times.txt")
         evaluate(kitti, rig)
-        print(row("KITTI 00 (470 s), random walk", [timed(lambda: evaluate(kitti, rig)) for _ in range(args.runs)]))
+        kitti_times = [timed(lambda: evaluate(kitti, rig)) for _ in range(args.runs)]
+        print(row("KITTI 00 (470 s), random walk", kitti_times))
+        figures["kitti_00"] = figure(kitti_times)
 
     if not args.skip_dense:
         traj = generated(120.0, rig)
         nom = Nominal.of(traj, rig)
         t0 = time.perf_counter()
-        dense = dense.marginal_dense(problem.build(nom, rig))
+        reference = dense.marginal_dense(problem.build(nom, rig))
         t_dense = time.perf_counter() - t0
         t_fast = statistics.median(timed(lambda: elimination.drive_information([traj], rig))[0] for _ in range(5))
         fast = elimination.drive_information([traj], rig).information
         S = np.array([1.0 if c.nuisance else c.target for c in rig.coordinates])
-        rel = np.abs((fast - dense) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
+        rel = np.abs((fast - reference) * np.outer(S, S)).max() / np.abs(fast * np.outer(S, S)).max()
         print(f"2-minute drive: dense reference {t_dense * 1e3:.0f} ms, fast path {t_fast:.1f} ms "
               f"→ {t_dense * 1e3 / t_fast:.0f}x faster; max relative difference {rel:.1e}")
+        figures["two_minute_dense_over_fast"] = round(t_dense * 1e3 / t_fast)
+        figures["two_minute_max_relative_difference"] = float(f"{rel:.2g}")
     if IDLE_WAIT_S:
         print(f"timed runs started on an idle machine (≥ 90 % idle over 0.2 s): {_started_idle[0]} of {_started_idle[1]}")
     print(load())
+    if args.baseline is None:  # a comparison with another revision is not this commit's figure
+        figures["timed_runs_started_idle"] = f"{_started_idle[0]} of {_started_idle[1]}" if IDLE_WAIT_S else None
+        session.record("evaluate", figures, note=f"robotaxi rig, every coordinate estimated; generated drives; "
+                                                 f"{args.runs} runs each; OPENBLAS_NUM_THREADS={blas or 'unset'}")
 
 
 if __name__ == "__main__":

@@ -25,14 +25,18 @@ from results import ROOT, Session, spread  # noqa: E402
 
 
 def run_once(marker: str | None) -> dict:
-    args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"] + (["-m", marker] if marker else [])
+    args = [sys.executable, "-m", "pytest", "-q", "-rf", "-p", "no:cacheprovider"] + (["-m", marker] if marker else [])
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(args, cwd=ROOT, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    tail = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
+    lines = proc.stdout.strip().splitlines()
+    tail = lines[-1] if lines else ""
+    for line in lines:
+        if line.startswith(("FAILED", "ERROR")):
+            print(line)
     counts = {k: int(v) for v, k in re.findall(r"(\d+) (passed|failed|skipped|deselected|errors?)", tail)}
     return {"wall_s": wall, "cpu_s": cpu, "counts": counts, "returncode": proc.returncode, "summary": tail}
 

@@ -4,7 +4,7 @@ Starts ``excite serve`` on a free 127.0.0.1 port and loads ``/`` ``--loads`` tim
 fresh browser context (empty cache). Per load: the bytes of every response the page fetched
 (the page, its script and style sheet, ``/v1/rigs``), the browser's first contentful paint, and
 the time until the page is usable (the rig list filled in). Needs Debian's ``chromium`` and the
-``playwright`` package, like tests/test_web.py.
+``playwright`` package, like tests/api/test_page.py.
 
     python benchmarks/bench_web.py [--loads 20]
 """

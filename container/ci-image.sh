@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Build the service's container image with podman on a Debian 12 machine with no Docker engine
-# and no reachable container registry, then test a fresh container (tests/test_container.py).
+# and no reachable container registry, then test a fresh container (tests/container/test_image.py).
 # Run as root from the repository's root (.ci/run calls it). Prints the time of each phase.
 #
 #   EXCITE_IMAGE   tag to build (default localhost/excite:ci)
@@ -45,5 +45,5 @@ podman build --format docker "${secret[@]}" --build-arg BASE="$base" --build-arg
   -t "$image" -f Dockerfile .
 phase "image $image built ($(podman image inspect --format '{{.Size}}' "$image") bytes)"
 
-EXCITE_IMAGE=$image python3 -m pytest -q -p no:cacheprovider --noconftest -rA tests/test_container.py
+EXCITE_IMAGE=$image python3 -m pytest -q -p no:cacheprovider --noconftest -rA tests/container/test_image.py
 phase "container tested"

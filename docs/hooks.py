@@ -342,27 +342,39 @@ def _figure(v: Any) -> str:
 
 
 def _benchmarks_markdown() -> str:
-    files = sorted((ROOT / "benchmarks" / "results").glob("*.json"))
-    if not files:
-        return "No benchmark has written its figures yet (`benchmarks/results/` is empty).\n"
-    out = []
-    for f in files:
+    import ast
+
+    results = {}
+    for f in sorted((ROOT / "benchmarks" / "results").glob("*.json")):
         d = json.loads(f.read_text())
+        results.setdefault(d.get("script") or "", []).append(d)
+    scripts = sorted((ROOT / "benchmarks").glob("bench_*.py"))
+    recorded = {d["benchmark"]: d for ds in results.values() for d in ds}
+    out = ["| Benchmark | What it measures | Current figures |", "|---|---|---|"]
+    sections = []
+    for script in scripts:
+        doc = ast.get_docstring(ast.parse(script.read_text())) or ""
+        first = " ".join(doc.split("\n\n")[0].split()).replace("|", "&#124;")
+        mine = [d for d in recorded.values() if script.name in (d.get("command") or "")]
+        link = ", ".join(f"[{d['benchmark']}](#{d['benchmark']})" for d in mine) or \
+            f"not recorded yet: `python benchmarks/{script.name}`"
+        out.append(f"| `{script.name}` | {first} | {link} |")
+    for d in recorded.values():
         m = d.get("machine", {})
         load = d.get("load_average", {})
         sha = (d.get("commit") or {}).get("sha") or "?"
         dirty = " (with uncommitted changes)" if (d.get("commit") or {}).get("dirty") else ""
-        out.append(f"## {d.get('benchmark', f.stem)}\n")
+        sections.append(f"## {d['benchmark']}\n")
         if d.get("note"):
-            out.append(d["note"] + "\n")
-        out.append("| Figure | Value |\n|---|---|")
+            sections.append(d["note"] + "\n")
+        sections.append("| Figure | Value |\n|---|---|")
         for k, v in d.get("figures", {}).items():
-            out.append(f"| `{k}` | {_figure(v)} |")
-        out.append("")
-        out.append(f"`{d.get('command', '')}` · commit `{sha[:10]}`{dirty} · {m.get('cpu', '?')}, "
-                   f"{m.get('cores', '?')} cores, {m.get('memory_gib', '?')} GiB, Python {m.get('python', '?')} · "
-                   f"load {load.get('before')} → {load.get('after')} · {d.get('finished', '')}\n")
-    return "\n".join(out)
+            sections.append(f"| `{k}` | {_figure(v)} |")
+        sections.append("")
+        sections.append(f"`{d.get('command', '')}` · commit `{sha[:10]}`{dirty} · {m.get('cpu', '?')}, "
+                        f"{m.get('cores', '?')} cores, {m.get('memory_gib', '?')} GiB, Python {m.get('python', '?')} · "
+                        f"load average {load.get('before')} → {load.get('after')} · {d.get('finished', '')}\n")
+    return "\n".join(out) + "\n\n" + "\n".join(sections)
 
 
 GENERATORS = {"cli": _cli_markdown, "http": _http_markdown, "rig-file": _rig_markdown,

@@ -11,7 +11,8 @@
     │   ├── ValidateError           a Monte Carlo validation request is invalid (excite.validate)
     │   ├── PlotError               a figure cannot be drawn as asked (excite.score.plots)
     │   ├── ManifestError           a routes manifest is malformed (excite.fleet.batch)
-    │   └── EngineError             the Dask cluster cannot be reached or used (excite.core.engine)
+    │   ├── EngineError             the Dask cluster cannot be reached or used (excite.core.engine)
+    │   └── DataError               a public recording cannot be fetched or is damaged (excite.io.datasets)
     ├── WorkerDied                  a helper process ended while running a task (excite.core.processes)
     ├── WorkTimeout                 a task did not finish by its deadline (its process was ended)
     ├── FactorisationError          internal: a pivot of the calibrator's banded Cholesky failed
@@ -78,6 +79,11 @@ class ManifestError(ExciteError, ValueError):
 
 class EngineError(ExciteError):
     """The Dask cluster cannot be reached or used; the message names the address."""
+
+
+class DataError(ExciteError):
+    """A public recording cannot be fetched, or a local copy differs from the catalogue: names the
+    file and the URL."""
 
 
 class ValidateError(ExciteError, ValueError):

@@ -18,6 +18,18 @@ function el(tag, attrs = {}, ...children) {
   return node;
 }
 
+// The units a calibration engineer reads, as the command line shows them (excite.core.units):
+// SI unit of the report → [factor, unit shown].
+const DISPLAY_UNITS = {
+  "rad": [180 / Math.PI, "deg"], "m": [100, "cm"], "s": [1000, "ms"],
+  "rad/s": [180 / Math.PI, "deg/s"], "m/s^2": [1, "m/s²"], "1": [1, ""],
+};
+
+function shown(value, unit) {
+  const [f, u] = DISPLAY_UNITS[unit] || [1, unit];
+  return { value: value === null || value === undefined ? value : value * f, unit: u };
+}
+
 function fmt(x, digits = 3) {
   if (x === null || x === undefined) return "—";
   if (x === 0) return "0";
@@ -216,11 +228,52 @@ async function routeFromInputs() {
   return route;
 }
 
+function isBag(file) {
+  return !!file && /\.(bag|mcap)$/i.test(file.name);
+}
+
 function updateFormatFields() {
   const file = $("#route-file").files[0];
   const chosen = $("#route-format").value;
   const guess = file && /\.txt$/i.test(file.name) ? "kitti" : "";
   $("#times-field").hidden = (chosen || guess) !== "kitti";
+  $("#topic-field").hidden = !isBag(file);
+  $("#route-format").disabled = isBag(file);
+}
+
+// A bag (ROS 1 .bag or .mcap) is posted as it is, multipart, to the same endpoint; the service
+// reads the poses of its topic (or TF chain /tf:PARENT.CHILD).
+async function scoreBag(file) {
+  const topic = $("#route-topic").value.trim();
+  if (!topic) throw new Problem({ errors: [{ field: "topic", message: "name the pose topic or TF chain (/tf:odom.base_link)" }] }, 0);
+  const form = new FormData();
+  form.append("bag", file, file.name);
+  form.append("topic", topic);
+  const rig = currentRig();
+  form.append("rig", typeof rig === "string" ? rig : JSON.stringify(rig));
+  form.append("segments", String(Number($("#segments").value)));
+  const r = await authFetch("/v1/score", { method: "POST", body: form, headers: { Accept: "application/json" } });
+  const data = (r.headers.get("content-type") || "").includes("json") ? await r.json() : { detail: await r.text() };
+  if (!r.ok) throw new Problem(data, r.status);
+  return data;
+}
+
+// One click: the bundled 90 s figure-eight (trajectories/figure_eight_control.csv, served with
+// the page), scored with the chosen rig — what the page does before the visitor has a file.
+async function onScoreReference() {
+  const form = $("#score-form");
+  clearErrors(form);
+  $("#score-busy").textContent = "scoring the bundled figure-eight…";
+  try {
+    const text = await (await fetch("/static/figure_eight_control.csv")).text();
+    const route = { name: "figure_eight_control", format: "control_csv", text };
+    showReport(await api("POST", "/v1/score", { route, rig: currentRig(), segments: Number($("#segments").value), track_points: 1500 }));
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    showProblem(form, err, $("#score-error"));
+  } finally {
+    $("#score-busy").textContent = "";
+  }
 }
 
 async function onScore(ev) {
@@ -231,8 +284,9 @@ async function onScore(ev) {
   $("#score-button").disabled = true;
   busy.textContent = "scoring…";
   try {
-    const body = { route: await routeFromInputs(), rig: currentRig(), segments: Number($("#segments").value), track_points: 1500 };
-    const report = await api("POST", "/v1/score", body);
+    const file = $("#route-file").files[0];
+    const report = isBag(file) ? await scoreBag(file)
+      : await api("POST", "/v1/score", { route: await routeFromInputs(), rig: currentRig(), segments: Number($("#segments").value), track_points: 1500 });
     showReport(report);
   } catch (err) {
     if (!(err instanceof Problem)) throw err;
@@ -283,11 +337,12 @@ function renderParams() {
   $("#params tbody").replaceChildren(...rows.map((p) => {
     const unobs = p.sigma === null;
     const status = unobs ? "unobservable" : p.ok ? "ok" : "over";
+    const sigma = shown(p.sigma, p.unit), target = shown(p.target, p.unit);
     return el("tr", { class: unobs ? "unobservable" : p.ok ? "ok" : "bad", "data-name": p.name },
       el("th", { scope: "row", text: p.name }),
-      el("td", { text: unobs ? "∞" : fmt(p.sigma) }),
-      el("td", { text: fmt(p.target) }),
-      el("td", { class: "unit", text: p.unit }),
+      el("td", { text: unobs ? "∞" : fmt(sigma.value) }),
+      el("td", { text: fmt(target.value) }),
+      el("td", { class: "unit", text: sigma.unit }),
       el("td", { text: unobs ? "∞" : fmt(p.ratio) }),
       el("td", { text: status }));
   }));
@@ -389,6 +444,8 @@ function polylinePoints(xs, ys, i0, i1) {
 
 function drawRoute() {
   const rep = state.report, tr = rep.track, svg = $("#route-map");
+  $("#map-figure").hidden = !tr;  // a bag's report carries no path to draw
+  if (!tr) return;
   const key = $("#colour-by").value || "@weak";
   const box = fitBox(tr.x_m, tr.y_m, 0.05);
   makeZoomable(svg, box);
@@ -801,9 +858,9 @@ function renderLive(live, msg) {
     bar.value = p.progress;
     bar.setAttribute("aria-label", `${p.name}: ${pct} % of target reached`);
     cells[0].querySelector(".pct").textContent = `${pct} %`;
-    cells[1].textContent = p.sigma === null ? "∞" : fmt(p.sigma);
-    cells[2].textContent = fmt(p.target);
-    cells[3].textContent = p.unit;
+    cells[1].textContent = p.sigma === null ? "∞" : fmt(shown(p.sigma, p.unit).value);
+    cells[2].textContent = fmt(shown(p.target, p.unit).value);
+    cells[3].textContent = shown(p.target, p.unit).unit;
     cells[4].textContent = p.sigma === null ? "∞" : (p.sigma / p.target).toFixed(2);
     // an ETA only while the parameter is gaining (within the service's horizon), as `excite live`
     cells[5].textContent = p.status === "ok" ? "" : p.status === "gaining" && p.eta_s !== null ? `${Math.round(p.eta_s)} s` : "—";
@@ -857,6 +914,7 @@ function main() {
   $("#route-file").addEventListener("change", updateFormatFields);
   $("#route-format").addEventListener("change", updateFormatFields);
   $("#score-form").addEventListener("submit", onScore);
+  $("#score-reference").addEventListener("click", onScoreReference);
   $("#plan-form").addEventListener("submit", onPlan);
   $("#cancel-button").addEventListener("click", onCancel);
   $("#live-form").addEventListener("submit", onLiveStart);

@@ -7,7 +7,7 @@ from __future__ import annotations
 # command → the module that registers it on `app` (``serve`` is the service's own: the service sits
 # above the command line and adds its command to it)
 COMMANDS = {c: f"excite.cli.{m}" for c, m in {
-    "batch": "batch", "live": "live", "mine": "mine", "optimize": "optimize", "resident": "resident",
+    "batch": "batch", "data": "data", "live": "live", "mine": "mine", "optimize": "optimize", "resident": "resident",
     "route": "route", "rig": "rig_import", "score": "score", "validate": "validate"}.items()}
 COMMANDS["serve"] = "api.command"
 

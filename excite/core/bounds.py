@@ -8,7 +8,7 @@ rigs), and the error quotes the bound. The service states the same numbers in it
 schema (:mod:`api.schemas` builds its fields from these tables) and may only tighten them.
 
 To bound a new numeric rig key, add one line to :data:`RIG`: a glob over the dotted key (list
-items are ``*``) → its range. ``tests/test_bounds.py`` fails for a numeric rig key without one.
+items are ``*``) → its range. ``tests/core/test_bounds.py`` fails for a numeric rig key without one.
 """
 
 from __future__ import annotations

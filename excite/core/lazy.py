@@ -1,6 +1,6 @@
 """Modules imported on first use. Scoring a drive never needs CasADi (the kinds' compiled kernels
 do the evaluator's work), but every kind states its math in CasADi: importing it there would make
-every ``excite score`` load it (the command line's cold start, ``tests/test_cli_imports.py``)."""
+every ``excite score`` load it (the command line's cold start, ``tests/cli/test_app.py``)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """The reference maneuvers as route files (``trajectories/``): ``python -m excite.io.references
---write DIR`` writes them; ``tests/test_maneuvers.py`` holds the committed files to it."""
+--write DIR`` writes them; ``tests/motion/test_maneuvers.py`` holds the committed files to it."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ methods answered 405 with ``Allow``.
 One check is configured: schema-valid bodies may be refused with 422 (positive data acceptance).
 JSON Schema cannot state that waypoints must not repeat, that sensor rates must divide the
 keyframe rate, or that a route must last long enough to score; the service says so in a 422.
-Every *bound* the service enforces is in the schema, which tests/test_api_hardening.py checks
+Every *bound* the service enforces is in the schema, which tests/api/test_serving.py checks
 on its own. The server accepts jobs but runs none (EXCITE_WORKERS=0), and its route bounds are
 small, so that every generated request is cheap.
 """

@@ -9,6 +9,7 @@ made).
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -17,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from excite.core.units import display_unit
 
 from servers import REPO, LiveServer
 
@@ -128,8 +131,11 @@ def test_score_a_route_through_the_file_input(page, shots):
     assert page.inner_text("#summary .badge") == ("PASS" if lib.passed else "FAIL")
     row = page.locator('#params tr[data-name="lidar.trans_z"]')
     assert row.is_visible()
-    sigma = next(p for p in lib.parameters if p.name == "lidar.trans_z").sigma
-    assert float(row.locator("td").nth(0).inner_text()) == pytest.approx(sigma, rel=1e-2)
+    # σ and target in the command line's units: lidar.trans_z in cm
+    lidar_z = next(p for p in lib.parameters if p.name == "lidar.trans_z")
+    assert row.locator("td").nth(2).inner_text() == "cm"
+    assert float(row.locator("td").nth(0).inner_text()) == pytest.approx(lidar_z.sigma * 100, rel=1e-2)
+    assert float(row.locator("td").nth(1).inner_text()) == pytest.approx(lidar_z.target * 100, rel=1e-6)
     assert page.locator("#params tbody tr").count() == len(lib.parameters)
 
     # sorted by σ/target on a click, descending on a second click
@@ -386,8 +392,10 @@ def test_a_car_rig_scores_and_plans_on_the_page(page, shots, server):
     for name in ("wheel.scale_fl", "wheel.wheelbase", "steering.ratio", "steering.offset", "radar_front.rot_z",
                  "wheel.time_offset"):
         row = page.locator(f'#params tr[data-name="{name}"]')
-        sigma = next(p for p in lib.parameters if p.name == name).sigma
-        assert float(row.locator("td").nth(0).inner_text()) == pytest.approx(sigma, rel=1e-2), name
+        p = next(p for p in lib.parameters if p.name == name)
+        factor, unit = display_unit(p.unit)
+        assert float(row.locator("td").nth(0).inner_text()) == pytest.approx(p.sigma * factor, rel=1e-2), name
+        assert row.locator("td").nth(2).inner_text() == unit, name
     save_shot(page, shots, "web-score-sedan.png")
 
     page.click("#tab-plan")
@@ -637,3 +645,64 @@ def test_plan_a_drivable_maneuver_and_see_its_sheet_and_cones(page, shots, serve
         assert httpx.get(server.url + href).status_code == 200
     save_shot(page, shots, "web-plan-drivable.png")
     assert page.console.errors == []
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_one_click_scores_the_bundled_figure_eight(page, shots):
+    """A visitor without a file: one click scores the bundled figure-eight with the chosen rig,
+    the same report as the library's on trajectories/figure_eight_control.csv."""
+    from excite.io import routes
+    from excite.rig.config import load_rig
+    from excite.score.evaluate import evaluate
+
+    page.click("#score-reference")
+    page.wait_for_selector("#score-value")
+    rig = load_rig("robotaxi")
+    lib = evaluate(routes.read_route(REPO / "trajectories" / "figure_eight_control.csv", suspension=rig.suspension), rig)
+    assert float(page.inner_text("#score-value")) == pytest.approx(lib.score, rel=1e-3)
+    assert "figure_eight_control" in page.inner_text("#summary")
+    assert page.locator("#params tbody tr").count() == len(lib.parameters)
+    assert page.locator("#route-map polyline.seg").count() >= 1
+    save_shot(page, shots, "web-reference.png")
+    assert page.console.errors == []
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_a_bag_scores_through_the_route_input(page, data_dir):
+    """An MCAP log goes through the same input: the page asks for its pose topic, posts the bag
+    as it is, and shows the library's report of the same bag and topic (no map: a bag's report
+    carries no path)."""
+    from excite.io.bags import BagSource
+    from excite.io.routes import read_route
+    from excite.rig.config import load_rig
+    from excite.score.evaluate import evaluate
+
+    bag = data_dir / "nav2_turtlebot.mcap"
+    page.set_input_files("#route-file", str(bag))
+    assert page.is_visible("#topic-field")
+    page.click("#score-button")
+    assert "name the pose topic" in page.inner_text("#topic-error")
+    page.fill("#route-topic", "/odom")
+    page.click("#score-button")
+    page.wait_for_selector("#score-value")
+    rig = load_rig("robotaxi")
+    lib = evaluate(read_route(bag, bag=BagSource("/odom")), rig)
+    assert float(page.inner_text("#score-value")) == pytest.approx(lib.score, rel=1e-3, abs=1e-12)
+    assert page.locator("#params tbody tr").count() == len(lib.parameters)
+    assert not page.is_visible("#map-figure")
+
+
+def test_the_page_shows_the_command_lines_units():
+    """The page's table of display units is the command line's (excite.core.units), and the
+    bundled drive it scores is trajectories/figure_eight_control.csv."""
+    js = (REPO / "api" / "static" / "app.js").read_text()
+    table = re.search(r"const DISPLAY_UNITS = \{(.*?)\};", js, re.S).group(1)
+    entries = re.findall(r'"([^"]+)": \[([^,\]]+), "([^"]*)"\]', table)
+    assert {u for u, _, _ in entries} >= {"rad", "m", "s", "rad/s", "m/s^2"}
+    for unit, factor, shown in entries:
+        f, name = display_unit(unit)
+        assert eval(factor.replace("Math.PI", str(math.pi))) == pytest.approx(f) and shown == name, unit
+    static = REPO / "api" / "static" / "figure_eight_control.csv"
+    assert static.read_bytes() == (REPO / "trajectories" / "figure_eight_control.csv").read_bytes()

@@ -4,7 +4,7 @@ bicycle model's steering), the readings' interval means, the degenerate motions 
 on the dense reference, and σ of every new parameter against it.
 
 The contract tests (derivative = finite differences, residual zero at its measurement, the
-symmetries kept) run over this kind in ``tests/test_factors.py``.
+symmetries kept) run over this kind in ``tests/factors/test_symbolic.py``.
 """
 
 from __future__ import annotations

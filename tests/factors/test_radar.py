@@ -3,7 +3,7 @@ rigid-body computation, its noise against a Monte Carlo of Doppler fits over sta
 the rig entry, and the degenerate motions of docs/DESIGN.md on the dense reference.
 
 The contract tests (derivative = finite differences, residual zero at its measurement, the
-symmetries kept) run over this kind, 3-D and 2-D, in ``tests/test_factors.py``.
+symmetries kept) run over this kind, 3-D and 2-D, in ``tests/factors/test_symbolic.py``.
 """
 
 from __future__ import annotations

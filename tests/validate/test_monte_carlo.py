@@ -294,6 +294,7 @@ def test_settings_are_validated():
 
 # --- the command line --------------------------------------------------------------------------
 
+@pytest.mark.montecarlo
 def test_cli_validate(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")  # the whole table, untruncated
     route = write_control_csv(hilly(figure_eight(12.0)), tmp_path / "hilly_control.csv")
@@ -481,6 +482,7 @@ def test_each_added_physics_changes_the_data_and_is_absorbed_or_flagged(rig, opt
     assert cal.scalar("vehicle", "slip_angle") == pytest.approx(np.deg2rad(0.15) * 9.80665, rel=0.02)
 
 
+@pytest.mark.montecarlo
 def test_convergence_on_a_short_optimized_plan_in_the_physical_simulator(rig, optimized):
     """The calibrator converges on the plans the optimizer sells, with the physical simulator's data
     (IMU at 8× its rate, random-walk biases, wheel slip, tyre slip angle): every trial of 8 here,
