@@ -124,6 +124,11 @@ def check_references() -> int:
     return bad
 
 
+def as_code(text: str) -> str:
+    """Sphinx roles in ``text`` shown as the code they name (``:class:`~a.B``` → `B`)."""
+    return ROLE.sub(lambda m: f"`{m.group(3).rsplit('.', 1)[-1] if m.group(2) else m.group(3).lstrip('.')}`", text)
+
+
 class RolesToCode:
     """A griffe extension: Sphinx roles shown as the code they name (``:class:`~a.B``` → `B`)."""
 
@@ -133,9 +138,7 @@ class RolesToCode:
         class _RolesToCode(griffe.Extension):
             def on_instance(self, *, obj: Any, **kw: Any) -> None:
                 if obj.docstring is not None:
-                    obj.docstring.value = ROLE.sub(
-                        lambda m: f"`{m.group(3).rsplit('.', 1)[-1] if m.group(2) else m.group(3).lstrip('.')}`",
-                        obj.docstring.value)
+                    obj.docstring.value = as_code(obj.docstring.value)
 
         return _RolesToCode()
 
@@ -159,7 +162,8 @@ def _cli_markdown() -> str:
                 continue
             record = p.get_help_record(ctx)
             if p.param_type_name == "argument":
-                name, help_ = p.human_readable_name, getattr(p, "help", None) or ""
+                name = getattr(p, "human_readable_name", None) or (p.name or "").upper()
+                help_ = getattr(p, "help", None) or ""
                 name = f"`{name}`"
             elif record is None:
                 continue
@@ -170,21 +174,20 @@ def _cli_markdown() -> str:
         return rows
 
     def walk(cmd: Any, path: list[str], parent_ctx: Any) -> None:
-        import click
-
-        ctx = click.Context(cmd, info_name=path[-1], parent=parent_ctx)
+        # typer vendors its own click: use the command's own context class and duck typing
+        ctx = cmd.context_class(cmd, info_name=path[-1], parent=parent_ctx)
         title = " ".join(path)
         if len(path) > 1:
             out.append(f"{'#' * min(len(path) + 1, 4)} `{title}`\n")
         help_ = (cmd.help or "").strip()
         if help_:
-            out.append(help_.replace("\b\n", "") + "\n")
+            out.append(as_code(help_.replace("\b\n", "")) + "\n")
         usage = " ".join(cmd.collect_usage_pieces(ctx))
         out.append(f"```text\nUsage: {title} {usage}\n```\n")
         rows = param_rows(cmd, ctx)
         if rows:
             out.append("| Argument or option | What it does |\n|---|---|\n" + "\n".join(rows) + "\n")
-        if isinstance(cmd, click.Group):
+        if hasattr(cmd, "list_commands"):
             for name in cmd.list_commands(ctx):
                 sub = cmd.get_command(ctx, name)
                 if sub is not None and not getattr(sub, "hidden", False):
@@ -223,7 +226,7 @@ def _http_markdown() -> str:
             if op.get("summary"):
                 out.append(f"**{op['summary']}**\n")
             if op.get("description"):
-                out.append(op["description"].strip() + "\n")
+                out.append(as_code(op["description"].strip()) + "\n")
             params = op.get("parameters", [])
             if params:
                 out.append("| Parameter | In | Type | Required | Description |\n|---|---|---|---|---|")
@@ -246,7 +249,7 @@ def _http_markdown() -> str:
         for name, s in schemas.items():
             out.append(f"### `{name}`\n")
             if s.get("description"):
-                out.append(s["description"].strip() + "\n")
+                out.append(as_code(s["description"].strip()) + "\n")
             props = s.get("properties", {})
             if props:
                 req = set(s.get("required", []))
@@ -283,7 +286,7 @@ def _type_of(s: dict[str, Any], defs: dict[str, Any]) -> str:
 def _model_table(name: str, s: dict[str, Any], defs: dict[str, Any]) -> list[str]:
     out = [f"### {name}\n"]
     if s.get("description"):
-        out.append(" ".join(s["description"].split()) + "\n")
+        out.append(as_code(" ".join(s["description"].split())) + "\n")
     props = s.get("properties", {})
     if props:
         req = set(s.get("required", []))

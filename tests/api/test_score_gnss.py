@@ -1,6 +1,7 @@
 """The service scores a rig with a GNSS antenna as the library does."""
 
 from __future__ import annotations
+
 import pytest
 from excite.motion.maneuvers import figure_eight
 from excite.motion.vehicle import drive

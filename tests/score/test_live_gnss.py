@@ -6,6 +6,7 @@ drives through :mod:`excite.information.closure` (world states with the drive's 
 the first fix opening the error's chain), and each must agree with the evaluator."""
 
 from __future__ import annotations
+
 import numpy as np
 import pytest
 from excite.information.closure import marginalise_nuisance

@@ -7,6 +7,7 @@ the first fix opening the error's chain), and each must agree with the evaluator
 """
 
 from __future__ import annotations
+
 import numpy as np
 import pytest
 from scipy.stats import chi2

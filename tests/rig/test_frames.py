@@ -1,15 +1,15 @@
-"""TF chains resolve in linear time in the number of frames, and their errors are short."""
+"""Trees of transforms (:mod:`excite.rig.frames`): a TF chain resolves in linear time in the number
+of frames, and its errors are short."""
 
 from __future__ import annotations
 
 import pytest
 
+from excite.errors import BagError
+from excite.rig.frames import MAX_HOPS, Edge, chain_edges
+
 
 def test_tf_chains_resolve_in_linear_time_and_their_errors_are_short(tmp_path):
-    from excite.errors import BagError
-    from excite.io.bags import Edge, chain_edges
-    from excite.io.bags.tf import MAX_HOPS
-
     n = 50_000
     edges = {f"a{i}": Edge(f"a{i - 1}" if i else "root", f"a{i}") for i in range(n)}
     edges.update({f"b{i}": Edge(f"b{i - 1}" if i else "root", f"b{i}") for i in range(n)})
