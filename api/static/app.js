@@ -241,7 +241,7 @@ function updateFormatFields() {
   $("#route-format").disabled = isBag(file);
 }
 
-// A bag (ROS 1 .bag or .mcap) is posted as it is, multipart, to the same endpoint; the service
+// A bag (ROS 1 .bag or .mcap) is posted as it is, multipart, to /v1/score/bag; the service
 // reads the poses of its topic (or TF chain /tf:PARENT.CHILD).
 async function scoreBag(file) {
   const topic = $("#route-topic").value.trim();
@@ -252,7 +252,7 @@ async function scoreBag(file) {
   const rig = currentRig();
   form.append("rig", typeof rig === "string" ? rig : JSON.stringify(rig));
   form.append("segments", String(Number($("#segments").value)));
-  const r = await authFetch("/v1/score", { method: "POST", body: form, headers: { Accept: "application/json" } });
+  const r = await authFetch("/v1/score/bag", { method: "POST", body: form, headers: { Accept: "application/json" } });
   const data = (r.headers.get("content-type") || "").includes("json") ? await r.json() : { detail: await r.text() };
   if (!r.ok) throw new Problem(data, r.status);
   return data;
