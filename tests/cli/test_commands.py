@@ -18,7 +18,6 @@ from helpers import REPO
 PROBE = """
 import contextlib, io, json, sys
 from excite.cli.app import main
-from helpers import REPO
 with contextlib.redirect_stdout(io.StringIO()):
     rc = main(sys.argv[2:])
 print(json.dumps([rc, sorted(m for m in sys.modules if m.split(".")[0] in {names})
