@@ -127,13 +127,19 @@ class DriftEstimate:
 # Interpolation and relative poses
 
 
+def max_gap_s(ref: TimedPoses) -> float:
+    """The widest gap between reference samples bridged: :data:`MAX_GAP_S`, or 2.5 of its usual
+    intervals for a slower reference."""
+    return max(MAX_GAP_S, 2.5 * float(np.median(np.diff(ref.t_s))))
+
+
 def _interpolate(ref: TimedPoses, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The reference at times ``t``: (valid, R, p); invalid outside it or across a gap."""
     j = np.searchsorted(ref.t_s, t, side="right") - 1
     valid = (j >= 0) & (j < ref.t_s.size - 1)
     j = np.clip(j, 0, ref.t_s.size - 2)
     t0, t1 = ref.t_s[j], ref.t_s[j + 1]
-    valid &= (t1 - t0) <= MAX_GAP_S
+    valid &= (t1 - t0) <= max_gap_s(ref)
     a = np.clip((t - t0) / np.maximum(t1 - t0, 1e-12), 0.0, 1.0)
     R0, R1 = ref.R[j], ref.R[j + 1]
     d = so3.log(np.swapaxes(R0, 1, 2) @ R1)
@@ -183,7 +189,13 @@ def _time_offset(odom: TimedPoses, ref: TimedPoses, k: int, max_offset_s: float)
     grid = np.arange(-max_offset_s, max_offset_s + step / 2, step)
     cost = np.array([_rotation_misfit(odom, ref, d, k) for d in grid])
     if not np.isfinite(cost).any():
-        raise RigError("the odometry and the reference do not overlap in time (within the time offset searched)")
+        lo, hi = max(odom.t_s[0], ref.t_s[0] - max_offset_s), min(odom.t_s[-1], ref.t_s[-1] + max_offset_s)
+        if hi - lo < ALIGN_WINDOW_S * MIN_PAIRS / k:
+            raise RigError(f"the odometry ({odom.t_s[0]:.3f}–{odom.t_s[-1]:.3f} s) and the reference "
+                           f"({ref.t_s[0]:.3f}–{ref.t_s[-1]:.3f} s) do not overlap in time (within the time "
+                           f"offset searched, ±{max_offset_s:g} s): the same clock, the same drive?")
+        raise RigError(f"too few stretches of the reference without a gap over {max_gap_s(ref):.2g} s at the "
+                       f"odometry's times: {MIN_PAIRS} relative poses over {ALIGN_WINDOW_S:g} s are needed")
     best = grid[int(np.argmin(cost))]
     res = minimize_scalar(lambda d: _rotation_misfit(odom, ref, d, k), bounds=(best - step, best + step),
                           method="bounded", options={"xatol": 1e-4})
