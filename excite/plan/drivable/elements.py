@@ -10,7 +10,7 @@ the plan through its cones checks).
 
 | kind | parameters | the driver is told |
 |---|---|---|
-| ``figure_eight`` | radius around each cone, cone spacing, speed, laps, direction, stops per lap | figure-eight around two cones, one clockwise, one counter-clockwise |
+| ``figure_eight`` | radius around each cone, cone spacing, speed, laps, direction, stops per lap | figure-eight around a pair of cones, one clockwise, one counter-clockwise |
 | ``circles`` | radius, speed, laps, direction, stops per lap | circles around one cone |
 | ``slalom`` | cone spacing, cones per line, offset beside each cone, speed, laps, direction, stops | weave through a line of cones, U-turn, weave back through a second line beside it |
 | ``straight_run`` | length, top speed, laps, direction | accelerate hard from one cone, brake hard to stop at the next; U-turn, the same back |
