@@ -1,6 +1,7 @@
 # syntax=docker/dockerfile:1
-# excite HTTP service: one installed copy of the code, numba kernels and the optimizer's model
-# compiled at build time, non-root, health-checked.
+# excite HTTP service: one installed copy of the code, its native module (the evaluator's
+# compiled loops) built at install and the optimizer's model compiled at build time, non-root,
+# health-checked. Nothing is run at build to fill a cache: a container starts with what it needs.
 #
 #   podman build --format docker -t excite -f Dockerfile \
 #       --secret id=ca,src=/etc/ssl/certs/ca-certificates.crt .      # the CA only where pip needs it
@@ -9,11 +10,11 @@
 # BASE: a Debian 12 image with python3.11 + python3-venv, useradd and libstdc++6; where no
 # registry is reachable, container/mkbase.sh bootstraps one with mmdebstrap
 # (localhost/debian-python:bookworm). python:3.11-slim-bookworm should do too (not tried here).
-# BUILD_BASE: the same with a C compiler (gcc, libc6-dev) for the build stage
-# (localhost/debian-python-build:bookworm: `container/mkbase.sh essential OUT TAG gcc,libc6-dev`;
-# python:3.11-bookworm has one).
+# BUILD_BASE: the same with a C compiler and Python's headers (gcc, libc6-dev, python3.11-dev) for
+# the build stage (localhost/debian-python-dev:bookworm: `container/mkbase.sh essential OUT TAG
+# gcc,libc6-dev,python3.11-dev`; python:3.11-bookworm has them).
 ARG BASE=localhost/debian-python:bookworm
-ARG BUILD_BASE=localhost/debian-python-build:bookworm
+ARG BUILD_BASE=localhost/debian-python-dev:bookworm
 
 # ---- build: a venv with excite and its dependencies ----------------------------------------
 FROM ${BUILD_BASE} AS build
@@ -26,10 +27,12 @@ COPY pyproject.toml README.md /src/
 RUN --mount=type=secret,id=ca,target=/run/secrets/ca \
     if [ -s /run/secrets/ca ]; then export PIP_CERT=/run/secrets/ca; fi; \
     /opt/excite/bin/pip install /src && /opt/excite/bin/pip uninstall -y excite
+COPY setup.py MANIFEST.in /src/
 COPY excite /src/excite
 COPY api /src/api
 COPY container/slim.py /src/container/slim.py
-# excite itself, non-editable (no source tree left beside it); then drop what nothing imports
+# excite itself, non-editable (no source tree left beside it; its native module compiled by pip);
+# then drop what nothing imports
 RUN --mount=type=secret,id=ca,target=/run/secrets/ca \
     if [ -s /run/secrets/ca ]; then export PIP_CERT=/run/secrets/ca; fi; \
     /opt/excite/bin/pip install --no-deps /src \
@@ -39,9 +42,9 @@ RUN --mount=type=secret,id=ca,target=/run/secrets/ca \
     && /opt/excite/bin/python -m compileall -q -f -j0 --invalidation-mode checked-hash \
         /opt/excite/lib/python3.11/site-packages
 # Above: one whole-second timestamp for every file of the install, so that no copy or export of
-# the layer can change it (numba's cache index keys each kernel by its source's path and mtime),
-# and bytecode checked by hash, not by mtime (pip wrote timestamp .pyc files; after the touch
-# they would be stale and every start would compile ~1100 modules from source again).
+# the layer can change it, and bytecode checked by hash, not by mtime (pip wrote timestamp .pyc
+# files; after the touch they would be stale and every start would compile ~1100 modules from
+# source again).
 # The optimizer's model and kinematics for the service's default problem (robotaxi, 90 s,
 # 80 × 50 m) compiled to C (excite.plan.compiled: ~2.5 min on 2 idle cores); the cache is keyed
 # by the installed sources, so the runtime finds it. Other shapes run in CasADi's virtual machine.
@@ -55,24 +58,19 @@ ENV PATH=/opt/excite/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
     HOME=/var/lib/excite \
-    NUMBA_CACHE_DIR=/var/cache/excite/numba \
     MPLCONFIGDIR=/var/cache/excite/matplotlib \
     EXCITE_CACHE_DIR=/var/cache/excite/excite \
     EXCITE_DB_PATH=/data/excite-jobs.sqlite3
 RUN useradd --system --uid 10001 --user-group --home-dir /var/lib/excite --create-home \
         --shell /usr/sbin/nologin excite \
-    && install -d -o excite -g excite /data /var/cache/excite /var/cache/excite/numba \
-        /var/cache/excite/matplotlib
+    && install -d -o excite -g excite /data /var/cache/excite /var/cache/excite/matplotlib
 COPY --from=build /opt/excite /opt/excite
 COPY --from=build --chown=excite:excite /opt/excite-cache /var/cache/excite/excite
-COPY container/warm.py /usr/local/lib/excite-warm.py
 COPY container/dask.yaml /opt/excite/etc/dask/excite.yaml
 USER excite
 WORKDIR /var/lib/excite
-# compile the kernels now, as the runtime user, in the runtime paths (the cache is written to
-# $NUMBA_CACHE_DIR, which stays writable: on a CPU other than the build machine's, the kernels
-# are compiled again at start and cached in the container)
-RUN python /usr/local/lib/excite-warm.py
+# matplotlib's list of the image's fonts (written to $MPLCONFIGDIR; else its first plot builds it)
+RUN python -c "import matplotlib.font_manager"
 VOLUME ["/data"]
 EXPOSE 8000
 HEALTHCHECK --interval=10s --timeout=5s --start-period=30s --retries=3 \

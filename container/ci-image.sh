@@ -6,13 +6,13 @@
 #   EXCITE_IMAGE   tag to build (default localhost/excite:ci)
 #   BASE_IMAGE     Debian + python3.11 base, bootstrapped with mmdebstrap when missing
 #                  (default localhost/debian-python:bookworm)
-#   BUILD_BASE_IMAGE  the same with gcc, the build stage's (default
-#                  localhost/debian-python-build:bookworm)
+#   BUILD_BASE_IMAGE  the same with gcc and Python's headers, the build stage's (default
+#                  localhost/debian-python-dev:bookworm)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 image=${EXCITE_IMAGE:-localhost/excite:ci}
 base=${BASE_IMAGE:-localhost/debian-python:bookworm}
-build_base=${BUILD_BASE_IMAGE:-localhost/debian-python-build:bookworm}
+build_base=${BUILD_BASE_IMAGE:-localhost/debian-python-dev:bookworm}
 t0=$SECONDS
 phase() { echo "ci-image: $1 (${SECONDS}s since start, +$((SECONDS - t0))s)"; t0=$SECONDS; }
 
@@ -34,7 +34,7 @@ if ! podman image exists "$base"; then
 fi
 phase "base image $base ($(podman image inspect --format '{{.Size}}' "$base") bytes)"
 if ! podman image exists "$build_base"; then
-  container/mkbase.sh essential "$(mktemp -d)/debian-python-build.tar" "$build_base" gcc,libc6-dev
+  container/mkbase.sh essential "$(mktemp -d)/debian-python-dev.tar" "$build_base" gcc,libc6-dev,python3.11-dev
 fi
 phase "build stage's base image $build_base ($(podman image inspect --format '{{.Size}}' "$build_base") bytes)"
 

@@ -2,8 +2,9 @@
 # Bootstrap a minimal Debian 12 (bookworm) root filesystem with Debian's python3.11 (+venv) and
 # import it into podman as a local image (no registry needed).
 # usage: mkbase.sh [VARIANT] [OUT.tar] [TAG] [EXTRA]   VARIANT: essential (default, no apt) | minbase
-#   EXTRA: further packages, comma-separated (the Dockerfile's build stage: gcc,libc6-dev, the C
-#   compiler for the optimizer's model)
+#   EXTRA: further packages, comma-separated (the Dockerfile's build stage:
+#   gcc,libc6-dev,python3.11-dev, the C compiler and Python's headers for excite's native module
+#   and the optimizer's model)
 set -euo pipefail
 variant=${1:-essential}; out=${2:-debian-python.tar}; tag=${3:-localhost/debian-python:bookworm}
 extra=${4:-}

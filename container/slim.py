@@ -1,6 +1,6 @@
 """Shrink a site-packages tree in place (the image's venv, after pip is done with it):
 
-- test suites (every directory named ``tests``: numpy, scipy, pandas-free matplotlib, numba,
+- test suites (every directory named ``tests``: numpy, scipy, pandas-free matplotlib,
   llvmlite, dask, distributed, ... ship theirs; nothing imports them at run time) and casadi's C
   headers (``casadi/include``: only casadi's code generation / JIT compiles against them, excite
   calls ipopt through ``nlpsol``) are removed;

@@ -1,7 +1,7 @@
 """excite: calibration excitation planner for autonomous vehicles.
 
 The names below load on first use (PEP 562): ``excite --help`` or ``import excite.errors`` need
-neither scipy nor numba.
+neither numpy nor scipy.
 """
 
 from __future__ import annotations

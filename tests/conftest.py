@@ -23,15 +23,9 @@ def data_dir() -> Path:
 
 
 def pytest_sessionstart(session) -> None:
-    """Compile the evaluator's kernels once, before any test: numba caches them next to the
-    sources, so the services the tests start (whose workers warm up within a time limit) load
-    them instead of each compiling them on a fresh clone."""
-    import numpy as np
+    """Load the native module once, before any test: in a source checkout whose sources have no
+    build yet, this is where it is compiled (once, into the cache), not inside a test or in the
+    worker of a service a test started."""
+    from excite.core.native import module
 
-    from excite.score.evaluate import evaluate
-    from excite.rig.config import load_rig
-    from excite.motion.vehicle import ControlProfile, drive
-
-    rig = load_rig("robotaxi")
-    t = np.linspace(0.0, 20.0, 21)
-    evaluate(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2)), rig.suspension), rig)
+    module()

@@ -19,7 +19,13 @@ from typing import Annotated, Any, Optional
 import typer
 
 from ..errors import ExciteError
-from .commands import COMMANDS, command_of
+
+# command → the module that registers it on `app` (``serve`` is the service's own: the service sits
+# above the command line and adds its command to it)
+COMMANDS = {c: f"excite.cli.{m}" for c, m in {
+    "batch": "batch", "live": "live", "mine": "mine", "optimize": "optimize", "route": "route", "rig": "rig_import",
+    "score": "score", "validate": "validate"}.items()}
+COMMANDS["serve"] = "api.command"
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   rich_markup_mode=None,
@@ -97,6 +103,12 @@ def fit_words(table: Any, width: int) -> None:
         col.overflow = "fold"
 
 
+def command_of(argv: list[str]) -> str | None:
+    """The command word of ``excite`` arguments (the root takes no option with a value)."""
+    words = [a for a in argv if not a.startswith("-")]
+    return words[0] if words else None
+
+
 def register(argv: list[str]) -> None:
     """Import the module of the command being run (all of them for the overview help)."""
     command = command_of(argv)
@@ -149,15 +161,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run() -> None:
-    """``python -m excite.cli``: :func:`main` in this process, then :func:`leave`. (The ``excite``
-    script, :func:`excite.cli.resident_process.run`, first asks a resident process to run the command.)"""
+    """The ``excite`` script and ``python -m excite.cli``: :func:`main`, then :func:`leave`."""
     leave(main())
 
 
 def leave(rc: int) -> None:
     """End the process with exit code ``rc``.
 
-    What the command imported (numpy, scipy, numba's registries: ~150 000 objects) lives until
+    What the command imported (numpy, scipy, pydantic's models: ~100 000 objects) lives until
     the process ends; at exit the interpreter's cyclic garbage collector would walk all of it
     again while tearing the modules down (~0.3 s of a cold ``excite score``; see
     ``benchmarks/bench_cli.py``). :func:`gc.freeze` leaves those objects out of that walk; they are

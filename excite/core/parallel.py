@@ -23,15 +23,6 @@ def pool() -> ThreadPoolExecutor:
     return _POOL[1]
 
 
-def close() -> None:
-    """End the pool's threads (a process about to fork children that must not inherit a pool
-    whose threads they do not have: :mod:`excite.cli.resident_process`)."""
-    global _POOL
-    if _POOL is not None:
-        _POOL[1].shutdown(wait=True)
-        _POOL = None
-
-
 class hidden_main:
     """Within it, processes started by the ``spawn`` method do not re-run the parent's
     ``__main__`` script (a spawned child imports it unless it is hidden: a script calling the

@@ -59,8 +59,8 @@ from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
 from ..errors import RigError
-from .base import Kind, Quantity, RigView
-from .wheel import G_MPS2, axle_travel, lateral_g
+from .base import ConfigView, Expr, FactorInputs, Kind, Quantity, RigView, SimulationView, Variant
+from .wheel import G_MPS2, Travel, axle_travel, lateral_g
 
 WHEELS = ("fl", "fr", "rl", "rr")  # the order of the readings, of the rows and of the coordinates
 _EPS_M = 1e-6  # regularises a front wheel's path and the curvature at a standstill [m]
@@ -237,7 +237,7 @@ _ADVICE = {
 }
 
 
-class Ackermann(Kind):
+class Ackermann(Kind[AckermannConfig]):
     name = "ackermann"
     arity = 2
     rows = 5  # four wheel speeds, the steering angle (4 without steering)
@@ -255,17 +255,17 @@ class Ackermann(Kind):
               "steering.rate_max_deg_per_s": Range(1.0, 3600.0, "deg/s")}
     advice = _ADVICE
 
-    def stride(self, rig: RigView, entry) -> int:
+    def stride(self, rig: RigView, entry: AckermannConfig) -> int:
         return 1  # a mean over every keyframe interval, whatever the stream's rate
 
-    def quantities(self, cfg, ac: AckermannConfig) -> list[Quantity]:
+    def quantities(self, cfg: ConfigView, ac: AckermannConfig) -> list[Quantity]:
         if getattr(cfg, "wheels", None) is not None:
             raise RigError("ackermann: a rig has rear-axle encoders (wheels) or a car's CAN wheel speeds "
                            "(ackermann), not both")
         est = ac.estimate
         if ac.speeds == "mps":
             wheels = [Quantity("wheel", "scale_factor", 1, "1", 1.0, est.wheels, names=(f"wheel.scale_{w}",),
-                               key=f"scale_{w}", axis=i) for i, w in enumerate(WHEELS)]
+                               key=f"scale_{w}", axis=i, per_entry=False) for i, w in enumerate(WHEELS)]
         else:
             wheels = [Quantity("wheel", "radius", 1, "m", r, est.wheels, names=(f"wheel.radius_{w}",),
                                key=f"radius_{w}", axis=i) for i, (w, r) in enumerate(zip(WHEELS, ac.radii_m))]
@@ -279,18 +279,30 @@ class Ackermann(Kind):
         if st is not None:
             out += [Quantity("steering", "ratio", 1, "1", st.ratio, st.estimate),
                     Quantity("steering", "offset", 1, "rad", math.radians(st.offset_deg), st.estimate)]
-        return out + [Quantity("wheel", "time_offset", 1, "s", 0.0, est.time_offset),
-                      Quantity("wheel", "slip", 1, "1", 0.0, cfg.vehicle.slip.estimate, nuisance=True),
-                      Quantity("wheel", "scrub", 1, "1", 0.0, cfg.vehicle.slip.estimate, nuisance=True)]
+        return out + [Quantity("wheel", "time_offset", 1, "s", 0.0, est.time_offset, per_entry=False),
+                      Quantity("wheel", "slip", 1, "1", 0.0, cfg.vehicle.slip.estimate, nuisance=True, per_entry=False),
+                      Quantity("wheel", "scrub", 1, "1", 0.0, cfg.vehicle.slip.estimate, nuisance=True,
+                               per_entry=False)]
 
     # --- the math ---
 
-    def _gain(self, f, i: int):
+    def variant(self, ac: AckermannConfig) -> Variant:
+        """The readings' unit (``mps``: scale factors; ``radps``: radii) and whether the steering is read."""
+        return (ac.speeds, "steering" if ac.steering is not None else "no_steering")
+
+    def constants(self, rig: RigView, ac: AckermannConfig) -> dict[str, float]:
+        dT = 1.0 / rig.keyframe_rate_hz
+        out = {"sigma_speed": speed_sigma(ac, dT)}
+        if ac.steering is not None:
+            out.update(sigma_steering=steering_sigma_rad(ac, dT), min_speed=ac.steering.min_speed_mps)
+        return out
+
+    def _gain(self, f: FactorInputs, i: int) -> Expr:
         """Reading per m/s of contact-point speed of wheel ``i``."""
         w = WHEELS[i]
-        return f.q[f"scale_{w}"] if f.entry.speeds == "mps" else 1.0 / f.q[f"radius_{w}"]
+        return f.q[f"scale_{w}"] if f.variant[0] == "mps" else 1.0 / f.q[f"radius_{w}"]
 
-    def _speeds(self, f, tr) -> list:
+    def _speeds(self, f: FactorInputs, tr: Travel) -> list:
         """The four wheels' mean readings over the interval (the measurement's first rows)."""
         L, dT = f.q["wheelbase"], f.dT
         xy = [(L, 0.5 * f.q["track_front"]), (L, -0.5 * f.q["track_front"]),
@@ -306,57 +318,56 @@ class Ackermann(Kind):
         return out
 
     @staticmethod
-    def _curvature(f, tr):
+    def _curvature(f: FactorInputs, tr: Travel) -> tuple[Expr, Expr]:
         """The path's curvature the reading sees, ``Δψ/Δs`` moved by ``t_d`` along its change
         (the instantaneous curvatures at the two keyframes), and that change per second. The
         instantaneous curvature ``ω·u/(u² + v_min²)`` fades below ``steering.min_speed_mps``:
         ``ω/u`` of a crawling car is a ratio of two noises (an estimate at 1 cm/s off a
         standstill made the time-offset term, and the calibrator's cost, swing by whole units
         within a hundredth of its step)."""
-        v_min = f.entry.steering.min_speed_mps
+        v_min = f.c["min_speed"]
         ends = [tr.yaw_rate[a] * tr.u[a] / (tr.u[a] * tr.u[a] + v_min ** 2) for a in range(2)]
         rate = (ends[1] - ends[0]) / f.dT
         return tr.dpsi * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2) + f.q["time_offset"] * rate, rate
 
-    def measurement(self, f):
+    def measurement(self, f: FactorInputs) -> Expr:
         tr = axle_travel(f)
         out = self._speeds(f, tr)
-        if f.entry.steering is not None:
+        if f.variant[1] == "steering":
             kappa, _ = self._curvature(f, tr)
             out.append(f.q["ratio"] * ca.atan(f.q["wheelbase"] * kappa) + f.q["offset"])
         return ca.vertcat(*out)
 
-    def residual(self, f, meas):
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
         """The speeds' ``predicted − read``; the steering's in the kinematic form
         ``L·(Δψ + t_d·Δs·κ̇) − Δs·tan((read − offset)/ratio)`` [m], zero at its measurement like
         the reading's difference and, unlike it, smooth at a standstill (where the reading says
         only that the car does not yaw)."""
         tr = axle_travel(f)
         speeds = ca.vertcat(*self._speeds(f, tr)) - meas[0:4]
-        if f.entry.steering is None:
+        if f.variant[1] != "steering":
             return speeds
         _, rate = self._curvature(f, tr)
         L = f.q["wheelbase"]
         turn = L * (tr.dpsi * tr.ds * tr.ds / (tr.ds * tr.ds + _EPS_M ** 2) + f.q["time_offset"] * tr.ds * rate)
         return ca.vertcat(speeds, turn - tr.ds * ca.tan((meas[4] - f.q["offset"]) / f.q["ratio"]))
 
-    def sqrt_information(self, f):
+    def sqrt_information(self, f: FactorInputs) -> Expr:
         """The speeds' ``1/σ``; the steering row's ``ratio·cos²δ / (σ·√(Δs² + (v_min·ΔT)²))``: at
         speed the reading's ``1/σ`` (the form's derivative in the reading is ``−Δs·sec²δ/ratio``),
         below ``v_min`` a turn-per-interval whose σ no longer shrinks with the travel."""
-        ac = f.entry
-        w = [1.0 / speed_sigma(ac, f.dT)] * 4
-        if ac.steering is None:
-            return ca.DM(w)
+        w = [1.0 / f.c["sigma_speed"]] * 4
+        if f.variant[1] != "steering":
+            return ca.vertcat(*w)
         tr = axle_travel(f)
         kappa, _ = self._curvature(f, tr)
         cos2 = 1.0 / (1.0 + (f.q["wheelbase"] * kappa) ** 2)
-        floor = ac.steering.min_speed_mps * f.dT
-        return ca.vertcat(*w, f.q["ratio"] * cos2 / (steering_sigma_rad(ac, f.dT) * ca.sqrt(tr.ds * tr.ds + floor * floor)))
+        floor = f.c["min_speed"] * f.dT
+        return ca.vertcat(*w, f.q["ratio"] * cos2 / (f.c["sigma_steering"] * ca.sqrt(tr.ds * tr.ds + floor * floor)))
 
     # --- simulation ---
 
-    def simulate(self, sim, ac: AckermannConfig) -> np.ndarray:
+    def simulate(self, sim: SimulationView, ac: AckermannConfig) -> np.ndarray:
         """Every keyframe interval's mean readings (N × 4, or 5 with the steering). Physical: the
         CAN stream at ``rate_hz`` (:func:`physical_stream`), each reading the mean of its wheel's
         true contact-point speed over its period (tyre slip as the encoders' physical simulator has
@@ -391,7 +402,7 @@ def _travel(nom, first: np.ndarray) -> np.ndarray:
     motion's chord along A: what sets the steering's weight)."""
     from .wheel import axle_geometry
 
-    p_BV, R_BA, _ = axle_geometry(nom)
+    p_BV, R_BA = axle_geometry(nom)
     RA = nom.R @ R_BA
     pV = nom.p + np.einsum("kij,j->ki", nom.R, p_BV)
     return np.einsum("kji,kj->ki", RA[first], pV[first + 1] - pV[first])[:, 0]

@@ -1,34 +1,37 @@
 """The factor protocol: what one measurement kind declares, the registry of kinds, and what every
 factor shares (the nominal states it is linearised at, its Jacobian blocks).
 
-A **kind** (:class:`Kind`) is one module of :mod:`excite.factors` and declares, in one place:
+A **kind** (:class:`Kind`) is one module of :mod:`excite.factors`. Every kind implements a few
+typed hooks:
 
 - its **rig entry**: the ``kind:`` values of the ``sensors:`` entries it measures
   (:attr:`Kind.sensor_kinds`) or the top-level rig section it reads (:attr:`Kind.section`), the
   pydantic model that validates it (:attr:`Kind.config`), the sane ranges of its numbers
-  (:attr:`Kind.ranges`) and the calibration **quantities** it is a function of
+  (:attr:`Kind.ranges`), and the calibration **quantities** it is a function of
   (:meth:`Kind.quantities`: each a rotation, a 3-vector or a scalar, with the coordinates it
   adds to θ);
-- its **arity** (one keyframe or a pair, :attr:`Kind.arity`) and **stride** (keyframes between
-  its factors), and which gauge symmetries its measurements **break** (:attr:`Kind.breaks`: an
-  absolute position or an absolute yaw), which decides the trajectory's parametrisation and gauge
-  (:mod:`excite.information.closure`);
-- its **math, once**: the noise-free measurement at the nominal motion
-  (:meth:`Kind.measurement`), the residual (:meth:`Kind.residual`) and its whitening
-  (:meth:`Kind.sqrt_information`), in CasADi symbols for one factor
-  (:mod:`excite.factors.symbolic`). The optimizer's information model differentiates it with
-  CasADi, the calibrator evaluates it, and the evaluator's whitened Jacobians are its derivative
-  (:func:`excite.factors.symbolic.jacobians`);
-- optionally a **compiled kernel** (numba) that overrides :meth:`Kind.blocks` for speed; the
-  contract test holds every kernel equal to the derivative of the residual;
+- its **arity** (one keyframe or a pair, :attr:`Kind.arity`), and which gauge symmetries its
+  measurements **break** (:attr:`Kind.breaks`: an absolute position or an absolute yaw), which
+  decides the trajectory's parametrisation and gauge (:mod:`excite.information.closure`);
+- its **math, once**: the noise-free measurement at the nominal motion (:meth:`Kind.measurement`),
+  the residual (:meth:`Kind.residual`) and its whitening (:meth:`Kind.sqrt_information`), in
+  CasADi symbols for one factor (:class:`excite.factors.symbolic.FactorInputs`), reading the
+  numbers of its entry through :meth:`Kind.constants` and its shape through :meth:`Kind.variant`.
+  Everything else follows from it: the evaluator's kernels are generated from it
+  (:mod:`excite.factors.generate`, run by :mod:`excite.factors.kernels`), the optimizer's
+  information model and the calibrator differentiate it with CasADi;
 - its **simulated measurement** (:meth:`Kind.simulate`: physical, or exactly as the model
-  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates;
-- where its noise is a Markov chain along the drive (a GNSS error correlated over time, whitened
-  by differencing consecutive measurements), the **opening** factor of the chain at a drive's
-  first keyframe (:attr:`Kind.opening`, an unregistered one-keyframe kind the closure adds);
-- which measurements a **logged** drive holds (:meth:`Kind.factor_keyframes` reading
-  :attr:`Nominal.logs`, from the trajectory's :class:`~excite.motion.trajectory.SensorLog`: an
-  outage, the reported covariance).
+  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates.
+
+The others have defaults most kinds keep: the keyframes between factors (:meth:`Kind.stride`),
+which measurements a **logged** drive holds (:meth:`Kind.factor_keyframes` reading
+:attr:`Nominal.logs`: an outage), per-factor **whitening from data** (:meth:`Kind.whitening`: a
+reported covariance, a scene's information), what a recording becomes before the residual
+compares it (:meth:`Kind.measured`), the same information per second at another rate
+(:meth:`Kind.at_rate`). What one kind needs is a smaller protocol of its own: a kind whose math
+reads its interval's IMU samples folds them into a summary (:class:`ReadsImu`: the IMU's
+preintegration), a kind whose noise is a Markov chain along the drive names the factor that opens
+it at a drive's start (:class:`OpensChain`: a GNSS antenna's first fix).
 
 Everything else loops over the registry (:func:`kinds`, :func:`instances`): adding a kind is a
 module that calls :func:`register`, and nothing else changes.
@@ -43,12 +46,14 @@ by the inverse Cholesky factor of its covariance).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Iterator, Protocol
+from functools import cached_property
+from typing import Any, ClassVar, Generic, Iterator, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
 
 from ..core.bounds import Range
 from ..motion.trajectory import Trajectory, rigid_body
+
 
 STATE_DIM = 9
 ROT, POS, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -115,6 +120,14 @@ class Nominal:
     @property
     def n_keyframes(self) -> int:
         return self.t.size
+
+    @cached_property
+    def keyframe_table(self) -> np.ndarray:
+        """Every keyframe's inputs to a factor, one row each (K × 27): ``[vec R (row-major), p, v, ω,
+        vec R_V_A]`` (what the generated kernels read, :mod:`excite.factors.kernels`)."""
+        K = self.n_keyframes
+        return np.ascontiguousarray(np.hstack([self.R.reshape(K, 9), self.p, self.v, self.omega,
+                                               self.R_V_A.reshape(K, 9)]))
 
     def window(self, k0: int, k1: int) -> "Nominal":
         """Keyframes ``k0..k1`` (inclusive) and the IMU samples between them (views, no copies)."""
@@ -264,18 +277,22 @@ def theta_columns(rig: RigView, names: list[str]) -> np.ndarray:
 class Quantity:
     """One calibration quantity of a rig entry, as its kind's math uses it.
 
-    ``size`` 3 is a 3-vector, or with ``kind == "rot"`` a rotation (``nominal`` a 3 × 3 matrix,
-    perturbed on the right: ``R · Exp(δφ)``); ``size`` 1 a scalar. ``estimated``: it adds
-    coordinates to θ (``block.kind_x/y/z`` or ``block.kind``, or ``names``); otherwise the math
-    sees its nominal value. ``nuisance``: estimated but not scored (each drive has its own: a
-    monocular camera's scale, tyre slip). ``key``: the name the kind's math reads it by
-    (default ``kind``); ``axis``: the axis a scalar coordinate reports (the left wheel 0, the
-    right 1). ``drift``: the density of the quantity's random walk along the drive (the IMU
-    biases with the random-walk bias model; 0: constant): each keyframe carries its deviation,
-    θ is its value at the drive's end (:mod:`excite.information.closure`)."""
+    ``quantity`` names what it is (``rot``, ``trans``, ``time_offset``, ``scale``, …: the stem of
+    its coordinates' names). ``size`` 3 is a 3-vector, or with ``quantity == "rot"`` a rotation
+    (``nominal`` a 3 × 3 matrix, perturbed on the right: ``R · Exp(δφ)``); ``size`` 1 a scalar.
+    ``estimated``: it adds coordinates to θ (``block.quantity_x/y/z`` or ``block.quantity``, or
+    ``names``); otherwise the math sees its nominal value. ``nuisance``: estimated but not scored
+    (each drive has its own: a monocular camera's scale, tyre slip). ``key``: the name the kind's
+    math reads it by (default ``quantity``); ``axis``: the axis a scalar coordinate reports (the
+    left wheel 0, the right 1). ``drift``: the density of the quantity's random walk along the
+    drive (the IMU biases with the random-walk bias model; 0: constant): each keyframe carries its
+    deviation, θ is its value at the drive's end (:mod:`excite.information.closure`).
+    ``per_entry``: the nominal value is the entry's (an extrinsic, a radius); False: it is always
+    the same (a time offset's 0, a scale's 1, a bias's 0), and the generated kernels take it as a
+    constant."""
 
     block: str
-    kind: str
+    quantity: str
     size: int
     unit: str
     nominal: Any
@@ -285,21 +302,22 @@ class Quantity:
     key: str | None = None
     axis: int = 0
     drift: float = 0.0
+    per_entry: bool = True
 
     @property
     def rotation(self) -> bool:
-        return self.kind == "rot"
+        return self.quantity == "rot"
 
     @property
     def name(self) -> str:
-        return self.key or self.kind
+        return self.key or self.quantity
 
     def coordinate_names(self) -> list[str]:
         if self.names is not None:
             return list(self.names)
         if self.size == 3:
-            return [f"{self.block}.{self.kind}_{a}" for a in "xyz"]
-        return [f"{self.block}.{self.kind}"]
+            return [f"{self.block}.{self.quantity}_{a}" for a in "xyz"]
+        return [f"{self.block}.{self.quantity}"]
 
     def nominal_vector(self) -> np.ndarray:
         """The nominal value as a flat vector (a rotation: its 9 entries, row-major)."""
@@ -313,40 +331,109 @@ class Column:
     name: str
     unit: str
     block: str
-    kind: str
+    quantity: str
     axis: int
     nuisance: bool
 
 
 # --- the protocol ------------------------------------------------------------------------------
 
+E = TypeVar("E")  # a kind's rig entry (its pydantic model)
+Expr = Any  # a CasADi SX expression
+Variant = tuple  # what changes the shape of a kind's statement (its rows, its quantities): small, hashable
+# a residual's whitening: a vector (diagonal), a matrix (rows × the residual's rows), or
+# ("cholesky", Σ): the inverse Cholesky factor of a covariance Σ
+Whitening = Any
 
-class Kind:
+
+@dataclass
+class FactorInputs:
+    """One factor's inputs as its kind's math reads them (CasADi SX).
+
+    Per keyframe of the factor (one, or a pair ``dT`` apart): body orientation ``R``, world
+    position ``p`` and velocity ``v`` (the states), body rate ``omega`` and suspension tilt
+    ``R_V_A`` (nominal inputs, not states). ``q``: the entry's quantities by
+    :attr:`~excite.factors.base.Quantity.name` (rotations 3×3, vectors 3×1, scalars). ``c``: the
+    constants the kind's math reads (:meth:`~excite.factors.base.Kind.constants`). ``imu``: the
+    summary of the interval's IMU samples (:class:`~excite.factors.base.ReadsImu`), for a kind
+    that reads them. ``dT``: the factor's interval [s]; ``R_V_B``, ``p_V_B``: the IMU's pose in V.
+    ``variant``: the entry's :meth:`~excite.factors.base.Kind.variant`. ``entry``, ``rig``: the
+    entry and its rig, for math that reads them directly (then generated per entry, on demand);
+    None where the kernel is generated for every entry of the variant."""
+
+    R: list
+    p: list
+    v: list
+    omega: list
+    R_V_A: list
+    q: dict[str, Any]
+    c: dict[str, Any]
+    imu: dict[str, Any] | None
+    dT: Any
+    R_V_B: Any
+    p_V_B: Any
+    variant: Variant
+    entry: Any = None
+    rig: RigView | None = None
+
+
+
+class ConfigView(Protocol):
+    """What a kind reads of a rig's validated configuration (:class:`excite.rig.config.RigConfig`)."""
+
+    sensors: Sequence[Any]
+    imu: Any
+    vehicle: Any
+
+
+class SimulationView(Protocol):
+    """What a kind's :meth:`Kind.simulate` reads of a simulated drive
+    (:class:`excite.validate.simulate.Simulation`)."""
+
+    traj: Trajectory
+    nom: "Nominal"
+    rig: RigView
+    truth: Any  # the true calibration (:class:`excite.validate.simulate.Calibration`)
+    rng: np.random.Generator
+    settings: Any  # :class:`excite.validate.simulate.SimulationSettings`
+
+    @property
+    def noisy(self) -> bool: ...
+
+    def body_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def measured(self, kind: "Kind", entry: Any) -> np.ndarray: ...
+
+
+class Kind(Generic[E]):
     """One measurement kind (see the module docstring). Subclasses set the class attributes and
-    implement the math; instances are stateless and registered once (:func:`register`)."""
+    implement the hooks every kind implements (:meth:`quantities`, :meth:`measurement`,
+    :meth:`residual`, :meth:`sqrt_information`, :meth:`simulate`, and :meth:`constants` where its
+    math reads numbers of its entry); the others have defaults that most kinds keep. Instances are
+    stateless and registered once (:func:`register`)."""
 
     name: ClassVar[str]
     arity: ClassVar[int] = 2  # keyframes per factor: 1, or a pair ``stride`` keyframes apart
-    rows: ClassVar[int]  # components of one residual (at most: an entry's residual may have fewer, a 2-D radar's)
+    rows: ClassVar[int]  # components of one whitened residual (at most: a 2-D radar's has fewer)
     breaks: ClassVar[frozenset[str]] = frozenset()  # of :data:`SYMMETRIES`
     sensor_kinds: ClassVar[tuple[str, ...]] = ()  # ``sensors:`` entries of these ``kind:`` values
     section: ClassVar[str | None] = None  # or this top-level rig section
     config: ClassVar[type | None] = None  # the pydantic model of an entry (or of the section)
     ranges: ClassVar[dict[str, Range]] = {}  # sane ranges of an entry's numbers (dotted keys within it)
-    # motion advice per (coordinate kind, vehicle axis or None): (the report's, the driver's)
+    # motion advice per (coordinate's quantity, vehicle axis or None): (the report's, the driver's)
     advice: ClassVar[dict[tuple[str, int | None], tuple[str, str]]] = {}
-    uses_imu_samples: ClassVar[bool] = False  # its math reads the IMU samples of its interval
-    # A kind whose noise is a Markov chain along the drive (a GNSS error correlated over time,
-    # whitened by differencing consecutive measurements) declares the one-keyframe kind of the
-    # measurement that opens the chain at a drive's first keyframe (its stationary noise): not
-    # registered; the closure adds it where a drive, or a window closed as one, starts
-    # (:meth:`excite.information.closure.Closure.open`). It observes absolute states: such a
-    # kind breaks the translation symmetry.
-    opening: ClassVar["Kind | None"] = None
+    # a kind whose math reads the IMU samples of its interval (:class:`ReadsImu`)
+    reads_imu: ClassVar[bool] = False
+    summary_fields: ClassVar[tuple[tuple[str, tuple[int, ...]], ...]] = ()
+    summary_state: ClassVar[int] = 0
+
+    @property
+    def summary_size(self) -> int:
+        return sum(int(np.prod(shape)) for _, shape in self.summary_fields)
 
     # --- the rig ---
 
-    def entries(self, rig: RigView) -> list[Any]:
+    def entries(self, rig: RigView) -> list[E]:
         """The rig entries this kind measures: its sensors, or its section if the rig has one."""
         if self.sensor_kinds:
             return [s for s in rig.config.sensors if s.kind in self.sensor_kinds]
@@ -355,54 +442,55 @@ class Kind:
             return [] if entry is None else [entry]
         return [rig.config]
 
-    def block_name(self, entry: Any) -> str:
+    def block_name(self, entry: E) -> str:
         """The name of the entry's factor block (a sensor's name; the kind's own otherwise)."""
         return getattr(entry, "name", None) if self.sensor_kinds else self.name
 
-    def quantities(self, cfg: Any, entry: Any) -> list[Quantity]:
-        """The calibration quantities of ``entry`` (``cfg`` is the whole rig configuration)."""
+    def quantities(self, cfg: ConfigView, entry: E) -> list[Quantity]:
+        """The calibration quantities of ``entry`` (``cfg`` is the whole rig configuration): their
+        keys, sizes and kinds of perturbation depend on :meth:`variant` only."""
         return []
 
-    def stride(self, rig: RigView, entry: Any) -> int:
+    def stride(self, rig: RigView, entry: E) -> int:
         """Keyframes between consecutive factors (a sensor slower than the keyframes: its ratio)."""
         rate = getattr(entry, "rate_hz", None)
         return 1 if rate is None else int(round(rig.keyframe_rate_hz / rate))
 
-    # --- the math (CasADi, one factor: :class:`excite.factors.symbolic.FactorInputs`) ---
+    # --- the math: stated once, in CasADi symbols for one factor ---
 
-    def measurement(self, f: Any) -> Any:
+    def variant(self, entry: E) -> Variant:
+        """What of ``entry`` changes the shape of the statement (its rows, its quantities): one
+        kernel is generated per variant (a 2-D radar's; a car with or without steering)."""
+        return ()
+
+    def constants(self, rig: RigView, entry: E) -> dict[str, float | np.ndarray]:
+        """The numbers of ``entry`` (and of the rig) that the math reads, by name (``f.c[name]``):
+        σ, correlations, intervals. Through them one generated kernel serves every entry of a
+        variant; math that reads ``f.entry`` instead is generated per entry, on demand."""
+        return {}
+
+    def measurement(self, f: FactorInputs) -> Expr:
         """The noise-free measurement of the factor at its nominal inputs (a flat SX vector)."""
         raise NotImplementedError
 
-    def residual(self, f: Any, meas: Any) -> Any:
-        """The unwhitened residual (SX, :attr:`rows` entries) of measurement ``meas``; zero at
-        ``meas = measurement(f)``."""
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
+        """The residual (SX) of measurement ``meas``, not whitened; zero at ``meas = measurement(f)``."""
         raise NotImplementedError
 
-    def sqrt_information(self, f: Any) -> Any:
-        """``W`` with ``WᵀW = Σ⁻¹`` of the residual (a vector: diagonal; or a lower-triangular matrix)."""
+    def sqrt_information(self, f: FactorInputs) -> Whitening:
+        """``W`` with ``WᵀW = Σ⁻¹`` of the residual (:data:`Whitening`)."""
         raise NotImplementedError
 
-    # --- the evaluator's Jacobians ---
+    def whitening(self, nom: "Nominal", rig: RigView, entry: E, first: np.ndarray) -> np.ndarray | None:
+        """Per-factor whitening from data, where a drive carries it (a reported covariance, a
+        scene's information): ``W_n`` (N × rows × the residual's rows, ``W_nᵀW_n = Λ_n``, rows of
+        zeros allowed) of the factors at keyframes ``first``, applied to the residual's rows in
+        place of :meth:`sqrt_information`; None: the statement's whitening."""
+        return None
 
-    def blocks(self, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
-        """A compiled kernel: whitened Jacobians (world states) of every factor of ``entry`` on
-        ``nom``, None if it has none. A kind without one does not define it, and the evaluator
-        differentiates :meth:`residual` instead (:func:`excite.factors.symbolic.jacobians`)."""
-        raise NotImplementedError
+    # --- what the drive holds ---
 
-    @property
-    def compiled(self) -> bool:
-        """Whether the kind has a compiled kernel (:meth:`blocks`)."""
-        return type(self).blocks is not Kind.blocks
-
-    def at_rate(self, entry: dict, rate_hz: float) -> dict:
-        """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second
-        (the optimizer's coarse rig, :func:`excite.plan.model.coarse_rig`); by default only its
-        rate changes (noise given as a density)."""
-        return dict(entry, rate_hz=rate_hz)
-
-    def factor_keyframes(self, rig: RigView, entry: Any, n_keyframes: int, nom: "Nominal | None" = None) -> np.ndarray:
+    def factor_keyframes(self, rig: RigView, entry: E, n_keyframes: int, nom: "Nominal | None" = None) -> np.ndarray:
         """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes`` (relative to
         its start): every ``stride``-th keyframe; pairs need their second keyframe. ``nom``, where
         given, may say which measurements a logged drive holds (:attr:`Nominal.logs`); a kind
@@ -411,7 +499,13 @@ class Kind:
         last = n_keyframes - 1 - (s if self.arity == 2 else 0)
         return np.arange(0, last + 1, s) if last >= 0 else np.zeros(0, dtype=int)
 
-    def measured(self, rig: RigView, entry: Any, recorded: Any, values: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    def at_rate(self, entry: dict, rate_hz: float) -> dict:
+        """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second
+        (the optimizer's coarse rig, :func:`excite.plan.model.coarse_rig`); by default only its
+        rate changes (noise given as a density)."""
+        return dict(entry, rate_hz=rate_hz)
+
+    def measured(self, rig: RigView, entry: E, recorded: Any, values: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         """What :meth:`residual` compares with the model, from what ``entry`` recorded (its
         :meth:`simulate` output), at the estimate ``values`` of its quantities; and the values the
         residual is to be evaluated at. By default the recorded measurements as they are."""
@@ -419,11 +513,39 @@ class Kind:
 
     # --- simulation ---
 
-    def simulate(self, sim: Any, entry: Any) -> Any:
-        """What ``entry`` records on the simulated drive ``sim``
-        (:class:`excite.validate.simulate.Simulation`): a flat measurement per factor, in the
-        layout of :meth:`measurement` (rows of an array, one per factor of :meth:`factor_keyframes`)."""
+    def simulate(self, sim: SimulationView, entry: E) -> Any:
+        """What ``entry`` records on the simulated drive ``sim``: a flat measurement per factor, in
+        the layout of :meth:`measurement` (rows of an array, one per factor of :meth:`factor_keyframes`)."""
         raise NotImplementedError
+
+
+class ReadsImu(Protocol):
+    """What a kind whose math reads the IMU samples of its interval (:attr:`Kind.reads_imu`: the
+    IMU's preintegration) adds: a fold over the samples, from the last to the first, into a
+    summary of the interval that :class:`~excite.factors.symbolic.FactorInputs` carries as ``imu``.
+    The fold's state has :attr:`Kind.summary_state` numbers and starts at zero; the summary's
+    pieces are :attr:`Kind.summary_fields` (name, shape), flat in that order."""
+
+    def summary_step(self, state: Expr, R_i: Expr, R_s: Expr, f_s: Expr, c: dict[str, Expr]) -> Expr:
+        """The state after sample s (orientation ``R_s`` at its start, specific force ``f_s``;
+        ``R_i`` the interval's first orientation)."""
+        ...
+
+    def summary_finish(self, state: Expr, R_i: Expr, R_j: Expr, c: dict[str, Expr]) -> dict[str, Expr]:
+        """The summary from the final state (``R_j``: the orientation at the interval's end)."""
+        ...
+
+
+@runtime_checkable
+class OpensChain(Protocol):
+    """What a kind whose noise is a Markov chain along the drive (a GNSS error correlated over
+    time, whitened by differencing consecutive measurements) adds: the one-keyframe kind of the
+    measurement that opens the chain at a drive's first keyframe (at its stationary noise). Not
+    registered: a drive's start (:meth:`excite.information.closure.Closure.start`) adds it where a
+    drive, or a window closed as one, starts. It observes absolute states: such a kind breaks the
+    translation symmetry."""
+
+    opening: "Kind"
 
 
 # --- the registry ------------------------------------------------------------------------------
@@ -440,7 +562,7 @@ def register(kind: Kind) -> Kind:
         raise ValueError(f"sensor kind(s) {sorted(set(kind.sensor_kinds) & taken)} are measured by another kind")
     if kind.section is not None and any(o.section == kind.section for o in _KINDS.values()):
         raise ValueError(f"rig section {kind.section!r} is read by another kind")
-    if kind.opening is not None and "position" not in kind.breaks:
+    if isinstance(kind, OpensChain) and "position" not in kind.breaks:
         raise ValueError(f"{kind.name}: an opening factor sees one keyframe's absolute state: the kind must "
                          f"break the position symmetry")
     unknown = set(kind.breaks) - set(SYMMETRIES)
@@ -514,7 +636,7 @@ def columns(cfg: Any) -> list[Column]:
         if not q.estimated:
             continue
         for i, name in enumerate(q.coordinate_names()):
-            out.append(Column(name, q.unit, q.block, q.kind, i if q.size == 3 else q.axis, q.nuisance))
+            out.append(Column(name, q.unit, q.block, q.quantity, i if q.size == 3 else q.axis, q.nuisance))
     return out
 
 

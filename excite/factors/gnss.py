@@ -18,6 +18,8 @@ differenced residual
 
     r = W [(z_j − a_j) − φ (z_i − a_i)],   W = diag(σ)⁻¹ / √(1 − φ²)
 
+(the residual is both fixes' errors, the whitening ``[W, −φW]`` differences them)
+
 and the first fix of a drive enters at the stationary variance (:class:`GnssFirstFix`, the
 kind's :attr:`~excite.factors.base.Kind.opening`, added where a drive or a window closed as one
 starts). Together they are the exact likelihood of the correlated fixes, with no state beyond the
@@ -37,8 +39,8 @@ keyframes an outage apart and widen the band the elimination works on).
 **Reported covariance.** With ``noise.use_reported_covariance``, a fix whose log carries the
 receiver's covariance C_k (NavSatFix, ENU) is whitened by it: the normalised error
 ``u_k = L_k⁻¹ e_k`` (``C_k = L_k L_kᵀ``) is the unit Gauss–Markov process, so a fix in a bad
-geometry (a high HDOP) counts less. The compiled kernel reads it; the optimizer's planned drives
-and the simulator use the configured σ.
+geometry (a high HDOP) counts less (:meth:`Gnss.whitening`); the optimizer's planned drives and
+the simulator use the configured σ.
 
 Both σ are in the world frame (east/north, up), so the fix breaks the translation symmetry and,
 with the antenna off the body's origin or a direction of travel, the yaw about the vertical: a
@@ -51,15 +53,13 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import numba as nb
 import numpy as np
 from pydantic import Field, model_validator
 
-from ..core import kernels
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
-from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
+from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .symbolic import exp
 
 # Receivers' error processes. RTK fixed: ~1–2 cm horizontal, twice that vertical, the multipath
@@ -135,7 +135,7 @@ class GnssFixes:
         return self.z[[where[int(x)] for x in k]] if len(k) else np.zeros((0, 3))
 
 
-def _antenna(f, a: int):
+def _antenna(f: FactorInputs, a: int) -> Expr:
     """The antenna's world position the fix of keyframe ``a`` of the factor sees (first order in t_d)."""
     t_d = f.q["time_offset"]
     return f.p[a] + f.v[a] * t_d + ca.mtimes(ca.mtimes(f.R[a], exp(f.omega[a] * t_d)), f.q["trans"])
@@ -153,10 +153,10 @@ _HORIZONTAL = ("antenna lever arm (horizontal): change heading, turns both ways;
 
 def _quantities(s: GnssSensor) -> list[Quantity]:
     return [Quantity(s.name, "trans", 3, "m", s.T_B_S.p, s.estimate.extrinsic),
-            Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset)]
+            Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset, per_entry=False)]
 
 
-class GnssFirstFix(Kind):
+class GnssFirstFix(Kind[GnssSensor]):
     """The first fix of a drive at the error's stationary variance: what opens the chain of
     differenced fixes (:class:`Gnss`). Not registered: the closure adds it at a drive's first
     keyframe, where the log has a fix there."""
@@ -170,38 +170,35 @@ class GnssFirstFix(Kind):
     def block_name(self, entry: GnssSensor) -> str:
         return f"{entry.name}.first_fix"
 
-    def quantities(self, cfg, s: GnssSensor) -> list[Quantity]:
+    def quantities(self, cfg: ConfigView, s: GnssSensor) -> list[Quantity]:
         return _quantities(s)
 
     def factor_keyframes(self, rig: RigView, entry: GnssSensor, n_keyframes: int, nom: Nominal | None = None) -> np.ndarray:
         """Keyframe 0, if it holds a fix."""
         return np.zeros(1 if n_keyframes and _available(nom, entry, 1)[0] else 0, dtype=int)
 
-    def measurement(self, f):
+    def constants(self, rig: RigView, s: GnssSensor) -> dict[str, np.ndarray]:
+        return {"sigma": s.noise.sigmas()}
+
+    def measurement(self, f: FactorInputs) -> Expr:
         return _antenna(f, 0)
 
-    def residual(self, f, meas):
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
         return meas - _antenna(f, 0)
 
-    def sqrt_information(self, f):
-        return ca.DM(1.0 / f.entry.noise.sigmas())
+    def sqrt_information(self, f: FactorInputs) -> Expr:
+        return 1.0 / f.c["sigma"]
 
-    def blocks(self, nom: Nominal, rig: RigView, s: GnssSensor) -> FactorBlock | None:
-        first = self.factor_keyframes(rig, s, nom.n_keyframes, nom)
-        if not first.size:
-            return None
-        W = _whitening(nom, s, first)
-        A, T = _antenna_jacobians(nom, s, first)
-        cols, Jt = _theta(rig, s, T)
-        return FactorBlock(self.block_name(s), first, 1, 1, -np.einsum("nij,njk->nik", W, A),
-                           -np.einsum("nij,njk->nik", W, Jt), cols)
+    def whitening(self, nom: Nominal, rig: RigView, s: GnssSensor, first: np.ndarray) -> np.ndarray | None:
+        """``L⁻¹`` of the receiver's covariance of the first fix, where it reports one."""
+        return fix_whitening(nom, s, first) if reports_covariance(nom, s) else None
 
     def measured(self, rig: RigView, s: GnssSensor, recorded: GnssFixes, values: dict) -> tuple[np.ndarray, dict]:
         k = recorded.keyframes[:1] if recorded.keyframes.size and recorded.keyframes[0] == 0 else np.zeros(0, int)
         return recorded.at(k), values
 
 
-class Gnss(Kind):
+class Gnss(Kind[GnssSensor]):
     name = "gnss"
     arity = 2
     rows = 3
@@ -222,7 +219,7 @@ class Gnss(Kind):
                                 "needs speed changes: accelerate and brake"),
     }
 
-    def quantities(self, cfg, s: GnssSensor) -> list[Quantity]:
+    def quantities(self, cfg: ConfigView, s: GnssSensor) -> list[Quantity]:
         return _quantities(s)
 
     def factor_keyframes(self, rig: RigView, entry: GnssSensor, n_keyframes: int, nom: Nominal | None = None) -> np.ndarray:
@@ -246,39 +243,34 @@ class Gnss(Kind):
 
     # --- the math ---
 
-    def measurement(self, f):
+    def constants(self, rig: RigView, s: GnssSensor) -> dict[str, Any]:
+        return {"sigma": s.noise.sigmas(), "phi": s.noise.phi(self.stride(rig, s) / rig.keyframe_rate_hz)}
+
+    def measurement(self, f: FactorInputs) -> Expr:
         return ca.vertcat(_antenna(f, 0), _antenna(f, 1))
 
-    def residual(self, f, meas):
-        phi = f.entry.noise.phi(f.dT)
-        return (meas[3:6] - _antenna(f, 1)) - phi * (meas[0:3] - _antenna(f, 0))
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
+        """Both fixes' errors, ``[z_j − a_j; z_i − a_i]``: the whitening differences them."""
+        return ca.vertcat(meas[3:6] - _antenna(f, 1), meas[0:3] - _antenna(f, 0))
 
-    def sqrt_information(self, f):
-        phi = f.entry.noise.phi(f.dT)
-        return ca.DM(1.0 / (f.entry.noise.sigmas() * math.sqrt(1.0 - phi * phi)))
+    def sqrt_information(self, f: FactorInputs) -> Expr:
+        """``[W, −φ W] / √(1 − φ²)`` with ``W = diag(σ)⁻¹``: the differenced fixes, whitened."""
+        W = ca.diag(1.0 / f.c["sigma"]) / ca.sqrt(1.0 - f.c["phi"] ** 2)
+        return ca.horzcat(W, -f.c["phi"] * W)
 
-    # --- the compiled kernel ---
-
-    def blocks(self, nom: Nominal, rig: RigView, s: GnssSensor) -> FactorBlock | None:
-        """Whitened Jacobians of every differenced pair of consecutive fixes (compiled:
-        :func:`_pair_jacobians`)."""
-        first = self.factor_keyframes(rig, s, nom.n_keyframes, nom)
-        if not first.size:
+    def whitening(self, nom: Nominal, rig: RigView, s: GnssSensor, first: np.ndarray) -> np.ndarray | None:
+        """``[L_j⁻¹, −φ L_i⁻¹] / √(1 − φ²)`` of every pair where the receiver reports the fixes'
+        covariance (the configured σ for a fix without one)."""
+        if not reports_covariance(nom, s):
             return None
         stride = self.stride(rig, s)
         phi = s.noise.phi(stride / rig.keyframe_rate_hz)
-        log = nom.logs.get(s.name)
-        reported = s.noise.use_reported_covariance and log is not None and log.covariance is not None
-        k = np.arange(nom.n_keyframes) if reported else np.zeros(1, dtype=int)
-        W = _whitening(nom, s, k) if reported else np.diag(1.0 / s.noise.sigmas())[None]
-        cols, _ = _theta(rig, s, np.zeros((0, 3, 4)))
-        Jx, Jt = _pair_jacobians(nom.R, nom.v, nom.omega, first.astype(np.int64), stride, s.T_B_S.p, W, reported,
-                                 phi, s.estimate.extrinsic, s.estimate.time_offset)
-        return FactorBlock(s.name, first, stride, 2, Jx, Jt, cols, _PAIR_XCOLS)
+        c = math.sqrt(1.0 - phi * phi)
+        return np.concatenate([fix_whitening(nom, s, first + stride), -phi * fix_whitening(nom, s, first)], axis=2) / c
 
     # --- simulation and calibration ---
 
-    def simulate(self, sim, s: GnssSensor) -> GnssFixes:
+    def simulate(self, sim: SimulationView, s: GnssSensor) -> GnssFixes:
         """Fixes at every fix keyframe the drive holds (all of them without a log): the antenna at
         its time ``t + t_d`` (physical: the drive's exact pose; model: to first order, as the
         factor) plus a Gauss–Markov error of the configured σ and correlation time, continuing
@@ -316,96 +308,21 @@ class Gnss(Kind):
         return np.hstack([recorded.at(first), recorded.at(first + stride)]), values
 
 
-_PAIR_XCOLS = np.array([0, 1, 2, 3, 4, 5, 9, 10, 11, 12, 13, 14])  # no velocity at t_d = 0
+def reports_covariance(nom: Nominal, s: GnssSensor) -> bool:
+    """Whether the rig asks for the receiver's covariance and the drive's log of ``s`` carries it."""
+    log = nom.logs.get(s.name)
+    return s.noise.use_reported_covariance and log is not None and log.covariance is not None
 
 
-@nb.njit(cache=True, nogil=True)
-def _pair_jacobians(R, v, w, first, stride, l, W, reported, phi, c_trans, c_time):
-    """Per pair i → j = i + stride of fixes, with ``c = √(1 − φ²)``, ``W_i = φ L_i⁻¹ / c`` and
-    ``W_j = L_j⁻¹ / c`` (``L⁻¹``: ``W[k]`` per keyframe if ``reported``, else ``W[0]``), the
-    differenced residual ``W_j (z_j − a_j) − W_i (z_i − a_i)`` differentiated (t_d = 0)::
-
-        ∂/∂δθ_i = −W_i R_i [l]×   ∂/∂δp_i = W_i   ∂/∂δθ_j = W_j R_j [l]×   ∂/∂δp_j = −W_j
-        ∂/∂l = W_i R_i − W_j R_j   ∂/∂t_d = W_i (v_i + R_i (ω_i × l)) − W_j (v_j + R_j (ω_j × l))
-
-    (velocities do not enter at t_d = 0)."""
-    N = first.size
-    nc = (3 if c_trans else 0) + (1 if c_time else 0)
-    Jx = np.zeros((N, 3, 18))
-    Jt = np.zeros((N, 3, nc))
-    c = np.sqrt(1.0 - phi * phi)
-    hl = np.empty((3, 3))
-    kernels.hat(l, hl)
-    A, B, Wk = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    a, b, e = np.empty(3), np.empty(3), np.empty(3)
-    for n in range(N):
-        for side in range(2):
-            k = first[n] + side * stride
-            f = (phi if side == 0 else -1.0) / c  # W_i carries +φ, W_j −1
-            Wsrc = W[k] if reported else W[0]
-            for r in range(3):
-                for q in range(3):
-                    Wk[r, q] = f * Wsrc[r, q]
-            kernels.mul(R[k], hl, A)  # R [l]×
-            kernels.mul(Wk, A, B)
-            o = 9 * side
-            for r in range(3):
-                for q in range(3):
-                    Jx[n, r, o + q] = -B[r, q]
-                    Jx[n, r, o + 3 + q] = Wk[r, q]
-            if c_trans:
-                kernels.mul(Wk, R[k], A)
-                for r in range(3):
-                    for q in range(3):
-                        Jt[n, r, q] += A[r, q]
-            if c_time:
-                kernels.cross(w[k], l, a)
-                kernels.mulv(R[k], a, b)
-                for q in range(3):
-                    e[q] = v[k, q] + b[q]
-                kernels.mulv(Wk, e, a)
-                for r in range(3):
-                    Jt[n, r, nc - 1] += a[r]
-    return Jx, Jt
-
-
-def _whitening(nom: Nominal, s: GnssSensor, k: np.ndarray) -> np.ndarray:
+def fix_whitening(nom: Nominal, s: GnssSensor, k: np.ndarray) -> np.ndarray:
     """``L_k⁻¹`` of every fix at keyframes ``k`` (N × 3 × 3): the configured σ, or the reported
     covariance where the log has one and the rig asks for it."""
     W = np.broadcast_to(np.diag(1.0 / s.noise.sigmas()), (k.size, 3, 3)).copy()
     log = nom.logs.get(s.name)
-    if s.noise.use_reported_covariance and log is not None and log.covariance is not None:
+    if reports_covariance(nom, s):
         C = log.covariance[k]
         ok = np.all(np.isfinite(C), axis=(1, 2))
         if ok.any():
             L = np.linalg.cholesky(C[ok])
             W[ok] = np.linalg.inv(L)
     return W
-
-
-def _antenna_jacobians(nom: Nominal, s: GnssSensor, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The antenna position's Jacobians at the fixes of keyframes ``k`` (t_d = 0), w.r.t. the
-    world state ``[δθ, δp, δv]`` (N × 3 × 9) and to ``[l, t_d]`` (N × 3 × 4)::
-
-        ∂a/∂δθ = −R [l]×,   ∂a/∂δp = I,   ∂a/∂δv = 0,   ∂a/∂l = R,   ∂a/∂t_d = v + R (ω × l)
-    """
-    l = s.T_B_S.p
-    R = nom.R[k]
-    N = k.size
-    A = np.zeros((N, 3, 9))
-    hl = np.array([[0.0, -l[2], l[1]], [l[2], 0.0, -l[0]], [-l[1], l[0], 0.0]])
-    A[:, :, 0:3] = -R @ hl
-    A[:, :, 3:6] = np.eye(3)
-    T = np.zeros((N, 3, 4))
-    T[:, :, 0:3] = R
-    T[:, :, 3] = nom.v[k] + np.einsum("nij,nj->ni", R, np.cross(nom.omega[k], l))
-    return A, T
-
-
-def _theta(rig: RigView, s: GnssSensor, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The columns of θ the entry estimates and the Jacobian ``T`` (over ``[l, t_d]``) restricted to them."""
-    keep = ([0, 1, 2] if s.estimate.extrinsic else []) + ([3] if s.estimate.time_offset else [])
-    names = ([f"{s.name}.trans_{a}" for a in "xyz"] if s.estimate.extrinsic else []) + \
-        ([f"{s.name}.time_offset"] if s.estimate.time_offset else [])
-    cols = theta_columns(rig, names) if names else np.zeros(0, dtype=int)
-    return cols, np.ascontiguousarray(T[:, :, keep])

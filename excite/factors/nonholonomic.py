@@ -19,14 +19,12 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
-from ..core import kernels
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat
-from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
-from .wheel import G_MPS2, axle_geometry
+from .base import ConfigView, Expr, FactorInputs, Kind, Quantity, RigView, SimulationView
+from .wheel import G_MPS2
 
 
 class NonHolonomic(Model):
@@ -45,22 +43,23 @@ def sigma_mps(nh: NonHolonomic, keyframe_rate_hz: float) -> tuple[float, float]:
     return nh.lateral_noise_density * f, nh.vertical_noise_density * f
 
 
-class NonHolonomicConstraint(Kind):
+class NonHolonomicConstraint(Kind[NonHolonomic]):
     name = "nonholonomic"
     arity = 1
     rows = 2
 
-    def entries(self, rig: RigView) -> list:
+    def entries(self, rig: RigView) -> list[NonHolonomic]:
         return [rig.config.vehicle.nonholonomic]
 
-    def quantities(self, cfg, nh: NonHolonomic) -> list[Quantity]:
-        return [Quantity("vehicle", "slip_angle", 1, "rad", 0.0, cfg.vehicle.slip.estimate, nuisance=True)]
+    def quantities(self, cfg: ConfigView, nh: NonHolonomic) -> list[Quantity]:
+        return [Quantity("vehicle", "slip_angle", 1, "rad", 0.0, cfg.vehicle.slip.estimate, nuisance=True,
+                         per_entry=False)]
 
     # --- the math ---
 
-    def measurement(self, f):
-        R_BV = ca.DM(f.R_V_B.T)
-        p_BV = ca.DM(-f.R_V_B.T @ f.p_V_B)
+    def measurement(self, f: FactorInputs) -> Expr:
+        R_BV = f.R_V_B.T
+        p_BV = -ca.mtimes(R_BV, f.p_V_B)
         R, v, w = f.R[0], f.v[0], f.omega[0]
         R_BA = ca.mtimes(R_BV, f.R_V_A[0])
         R_W_A = ca.mtimes(R, R_BA)
@@ -68,27 +67,18 @@ class NonHolonomicConstraint(Kind):
         u, yaw_rate = along[0], ca.dot(R_BA[:, 2], w)
         return ca.vertcat(along[1] + f.q["slip_angle"] * u * u * yaw_rate / G_MPS2, along[2])
 
-    def residual(self, f, meas):
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
         return self.measurement(f) - meas
 
-    def sqrt_information(self, f):
-        lat, vert = sigma_mps(f.entry, f.rig.keyframe_rate_hz)
-        return ca.DM([1.0 / lat, 1.0 / vert])
+    def constants(self, rig: RigView, nh: NonHolonomic) -> dict[str, np.ndarray]:
+        return {"sigma": np.array(sigma_mps(nh, rig.keyframe_rate_hz))}
 
-    # --- the compiled kernel ---
-
-    def blocks(self, nom: Nominal, rig: RigView, nh: NonHolonomic) -> FactorBlock:
-        """Whitened Jacobians of the constraint at every keyframe."""
-        slip = rig.config.vehicle.slip.estimate
-        p_BV, R_BA, v_V = axle_geometry(nom, slip)
-        sig_lat, sig_vert = sigma_mps(nh, rig.keyframe_rate_hz)
-        Jx, Jt = _jacobians(nom.R, nom.v, nom.omega, R_BA, v_V, sig_lat, sig_vert, slip)
-        cols = theta_columns(rig, ["vehicle.slip_angle"]) if slip else np.zeros(0, dtype=int)
-        return FactorBlock("nonholonomic", np.arange(nom.n_keyframes), 1, 1, Jx, Jt, cols)
+    def sqrt_information(self, f: FactorInputs) -> Expr:
+        return 1.0 / f.c["sigma"]
 
     # --- simulation ---
 
-    def simulate(self, sim, nh: NonHolonomic) -> np.ndarray:
+    def simulate(self, sim: SimulationView, nh: NonHolonomic) -> np.ndarray:
         """The pseudo-measurement of zero lateral and vertical axle velocity, with white slip of
         the configured σ (physical: the body also yaws into every turn by the rear tyres' slip
         angle, so the axle really slides outwards; that is the simulated drive's, not this)."""
@@ -96,38 +86,3 @@ class NonHolonomicConstraint(Kind):
         if not (sim.noisy and sim.settings.slip_noise):
             return np.zeros((K, 2))
         return sim.rng.normal(0.0, 1.0, (K, 2)) * np.array(sigma_mps(nh, sim.rig.keyframe_rate_hz))
-
-
-@nb.njit(cache=True, nogil=True)
-def _jacobians(R, v, omega_B, R_BA, v_V, sig_lat, sig_vert, slip):
-    """Per keyframe, the lateral and vertical rows (e_y, e_z) of ``R_W_Aᵀ v_V`` w.r.t. the state
-    ``[δθ, δp, δv]`` (the body rate is nominal), with ``v_body = Rᵀ v``::
-
-        ∂/∂θ = R_BAᵀ [v_body]×     ∂/∂v = R_BAᵀ Rᵀ
-
-    and, with ``slip``, the slip angle's column ``u·(u·ψ̇)/g`` (:meth:`NonHolonomicConstraint.measurement`'s
-    derivative, from the axle velocities ``v_V``) in the lateral row; rows divided by their σ."""
-    K = R.shape[0]
-    Jx = np.empty((K, 2, 9))  # zeroed per keyframe, in cache
-    Jt = np.empty((K, 2, 1 if slip else 0))
-    sig = (sig_lat, sig_vert)
-    vb = np.empty(3)
-    X, Y, RA = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    for k in range(K):
-        Jx[k] = 0.0
-        Jt[k] = 0.0
-        kernels.tmulv(R[k], v[k], vb)
-        kernels.hat(vb, X)
-        kernels.tmul(R_BA[k], X, Y)  # R_BAᵀ [v_body]×
-        kernels.mul(R[k], R_BA[k], RA)  # R_W_A; R_BAᵀ Rᵀ = R_W_Aᵀ
-        for r in range(2):
-            for c in range(3):
-                Jx[k, r, c] = Y[1 + r, c] / sig[r]
-                Jx[k, r, 6 + c] = RA[c, 1 + r] / sig[r]
-        if slip:
-            u = RA[0, 0] * v_V[k, 0] + RA[1, 0] * v_V[k, 1] + RA[2, 0] * v_V[k, 2]
-            yaw_rate = R_BA[k, 0, 2] * omega_B[k, 0] + R_BA[k, 1, 2] * omega_B[k, 1] + R_BA[k, 2, 2] * omega_B[k, 2]
-            Jt[k, 0, 0] = u * u * yaw_rate / G_MPS2 / sig_lat
-    return Jx, Jt
-
-

@@ -34,8 +34,9 @@ the covariance of the message at frame j (the one that closes the pair) over the
 interval, turned from the world into the frame S_i of the residual at the nominal orientation
 (small rotations within a pair); the pair's increments are taken as independent, as with the
 densities, so the pairs stay independent and σ does not depend on the frame rate. A pair whose
-closing frame has no message with a covariance keeps the densities. The compiled kernel reads
-it; the optimizer's planned drives and the simulator use the densities.
+closing frame has no message with a covariance keeps the densities. The evaluator applies it to
+the pairs' rows (:meth:`Odometry.whitening`); the optimizer's planned drives and the simulator use
+the densities.
 """
 
 from __future__ import annotations
@@ -43,15 +44,14 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-import numba as nb
 import numpy as np
 from pydantic import model_validator
 
-from ..core import kernels, so3
+from ..core import so3
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
-from .base import FactorBlock, Kind, Nominal, Quantity, RigView, theta_columns
+from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .symbolic import exp, residual_log
 
 
@@ -92,7 +92,7 @@ _LEVER = ("horizontal lever arm: add yaw at changing speed (turns both ways, fig
           "needs turns both ways at changing speed: a figure-eight, a slalom")
 
 
-class Odometry(Kind):
+class Odometry(Kind[OdometrySensor]):
     name = "odometry"
     arity = 2
     rows = 6
@@ -118,17 +118,17 @@ class Odometry(Kind):
         ("scale", None): ("monocular scale: accelerate and decelerate", "needs speed changes: accelerate and brake"),
     }
 
-    def quantities(self, cfg, s: OdometrySensor) -> list[Quantity]:
+    def quantities(self, cfg: ConfigView, s: OdometrySensor) -> list[Quantity]:
         ext = s.estimate.extrinsic
         return [Quantity(s.name, "rot", 3, "rad", s.T_B_S.R, ext),
                 Quantity(s.name, "trans", 3, "m", s.T_B_S.p, ext),
-                Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset),
-                Quantity(s.name, "scale", 1, "1", 1.0, s.monocular, nuisance=True)]
+                Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset, per_entry=False),
+                Quantity(s.name, "scale", 1, "1", 1.0, s.monocular, nuisance=True, per_entry=False)]
 
     # --- the math ---
 
     @staticmethod
-    def _relative(f):
+    def _relative(f: FactorInputs) -> tuple[Expr, Expr]:
         """``R_rel``, ``t_rel`` of the sensor between the factor's two frames."""
         R_BS, p_BS, t_d = f.q["rot"], f.q["trans"], f.q["time_offset"]
         poses = []
@@ -139,45 +139,30 @@ class Odometry(Kind):
         (Ri, pi), (Rj, pj) = poses
         return ca.mtimes(Ri.T, Rj), ca.mtimes(Ri.T, pj - pi)
 
-    def measurement(self, f):
+    def measurement(self, f: FactorInputs) -> Expr:
         R_rel, t_rel = self._relative(f)
         return ca.vertcat(ca.reshape(R_rel.T, 9, 1), f.q["scale"] * t_rel)
 
-    def residual(self, f, meas):
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
         R_rel, t_rel = self._relative(f)
         R_meas = ca.reshape(meas[0:9], 3, 3).T
         return ca.vertcat(residual_log(ca.mtimes(R_meas.T, R_rel)), f.q["scale"] * t_rel - meas[9:12])
 
-    def sqrt_information(self, f):
-        sig_r, sig_t = pair_sigmas(f.entry)
-        return ca.DM([1.0 / sig_r] * 3 + [1.0 / sig_t] * 3)
+    def constants(self, rig: RigView, s: OdometrySensor) -> dict[str, np.ndarray]:
+        sig_r, sig_t = pair_sigmas(s)
+        return {"sigma": np.array([sig_r] * 3 + [sig_t] * 3)}
 
-    # --- the compiled kernel ---
+    def sqrt_information(self, f: FactorInputs) -> Expr:
+        return 1.0 / f.c["sigma"]
 
-    def blocks(self, nom: Nominal, rig: RigView, sensor: OdometrySensor) -> FactorBlock | None:
-        """Whitened Jacobians of every relative-pose measurement of ``sensor`` (None if < 2 frames)."""
-        stride = self.stride(rig, sensor)
-        N = (nom.n_keyframes - 1) // stride
-        if N < 1:
-            return None
-        name = sensor.name
-        names = [c.name for c in rig.coordinates if c.block == name]
-        at = lambda key, on: names.index(f"{name}.{key}") if on else -1  # noqa: E731
-        sig_r, sig_t = pair_sigmas(sensor)
-        W = _reported_whitening(nom, rig, sensor, N, stride)
-        if W is not None:
-            sig_r = sig_t = 1.0  # unwhitened rows, whitened by each pair's W below
-        Jx, Jt = _jacobians(nom.R, nom.p, nom.v, nom.omega, stride, sensor.T_B_S.R, sensor.T_B_S.p,
-                            at("rot_x", sensor.estimate.extrinsic), at("trans_x", sensor.estimate.extrinsic),
-                            at("time_offset", sensor.estimate.time_offset), at("scale", sensor.monocular), len(names),
-                            sig_r, sig_t)
-        if W is not None:
-            Jx, Jt = np.einsum("nij,njk->nik", W, Jx), np.einsum("nij,njk->nik", W, Jt)
-        return FactorBlock(name, np.arange(N) * stride, stride, 2, Jx, Jt, theta_columns(rig, names))
+    def whitening(self, nom: Nominal, rig: RigView, s: OdometrySensor, first: np.ndarray) -> np.ndarray | None:
+        """The reported covariance's whitening of every frame pair, where the rig asks for it and
+        the drive's log of ``s`` carries one (:func:`reported_whitening`)."""
+        return reported_whitening(nom, s, first, self.stride(rig, s))
 
     # --- simulation ---
 
-    def simulate(self, sim, s: OdometrySensor) -> np.ndarray:
+    def simulate(self, sim: SimulationView, s: OdometrySensor) -> np.ndarray:
         """Relative poses between the sensor's frames at its own clock: the frame stamped ``t``
         shows the body at ``t + t_d`` (the exact pose of the drive; the factor takes it to first
         order); a monocular camera's translations carry its true scale."""
@@ -201,16 +186,16 @@ class Odometry(Kind):
         return np.hstack([R_rel.reshape(-1, 9), t_rel])
 
 
-def _reported_whitening(nom: Nominal, rig: RigView, s: OdometrySensor, N: int, stride: int) -> np.ndarray | None:
-    """``W_n`` (N × 6 × 6, ``W_nᵀW_n = Σ_n⁻¹``) of every frame pair ``n`` where the rig asks for
-    the reported covariance and the drive's log of ``s`` carries one (the module docstring's
-    Σ_ij; the densities' diagonal elsewhere); None where it does not apply."""
+def reported_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: int) -> np.ndarray | None:
+    """``W_n`` (N × 6 × 6, ``W_nᵀW_n = Σ_n⁻¹``) of the frame pairs starting at keyframes ``first``
+    where the rig asks for the reported covariance and the drive's log of ``s`` carries one (the
+    module docstring's Σ_ij; the densities' diagonal elsewhere); None where it does not apply."""
     log = nom.logs.get(s.name)
     if not s.noise.use_reported_covariance or log is None or log.covariance is None:
         return None
     sig_r, sig_t = pair_sigmas(s)
-    W = np.broadcast_to(np.diag([1.0 / sig_r] * 3 + [1.0 / sig_t] * 3), (N, 6, 6)).copy()
-    i = np.arange(N) * stride
+    W = np.broadcast_to(np.diag([1.0 / sig_r] * 3 + [1.0 / sig_t] * 3), (first.size, 6, 6)).copy()
+    i = np.asarray(first)
     Q = log.covariance[i + stride]
     ok = np.all(np.isfinite(Q), axis=(1, 2))
     if ok.any():
@@ -221,98 +206,3 @@ def _reported_whitening(nom: Nominal, rig: RigView, s: OdometrySensor, N: int, s
         Sigma = dt[:, None, None] * np.swapaxes(B, 1, 2) @ Q[ok] @ B
         W[ok] = np.linalg.inv(np.linalg.cholesky(0.5 * (Sigma + np.swapaxes(Sigma, 1, 2))))
     return W
-
-
-@nb.njit(cache=True, nogil=True)
-def _jacobians(R, p, v, w, stride, R_BS, p_BS, c_rot, c_trans, c_time, c_scale, n_cols, sig_r, sig_t):
-    """Per frame pair ``i → j = i + stride``, with ``R_ij = R_iᵀR_j``, ``e = R_iᵀ(p_j − p_i) + R_ij p_BS``
-    and ``t_rel = R_SB (e − p_BS)``: the Jacobians of ``r_R`` and ``r_t`` w.r.t. the states i, j
-    ``[δθ, δp, δv]`` and the sensor's columns (``c_*``: position among them, −1 if not estimated)::
-
-        ∂r_R/∂θ_i = −R_SB R_ijᵀ    ∂r_R/∂θ_j = R_SB
-        ∂r_t/∂θ_i = R_SB [e]×      ∂r_t/∂p_i = −R_SB R_iᵀ
-        ∂r_t/∂θ_j = −R_SB R_ij [p_BS]×    ∂r_t/∂p_j = R_SB R_iᵀ
-        ∂r_R/∂rot = I − R_relᵀ     ∂r_t/∂rot = [t_rel]×     ∂r_t/∂trans = R_SB (R_ij − I)
-        ∂r_R/∂t_d = R_SB (ω_j − R_ijᵀ ω_i)
-        ∂r_t/∂t_d = R_SB (e × ω_i + R_iᵀ(v_j − v_i) + R_ij (ω_j × p_BS))
-        ∂r_t/∂s = t_rel
-
-    rows divided by their σ."""
-    N = (R.shape[0] - 1) // stride
-    Jx = np.empty((N, 6, 18))  # each factor's rows are zeroed where they are written (in cache)
-    Jt = np.empty((N, 6, n_cols))
-    R_SB = R_BS.T.copy()
-    hp = np.empty((3, 3))
-    kernels.hat(p_BS, hp)
-    Rij, X, Y, M = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    e, t_rel, a, b, c = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    ir, it = 1.0 / sig_r, 1.0 / sig_t
-    for n in range(N):
-        i = n * stride
-        j = i + stride
-        Ri, Rj = R[i], R[j]
-        J, T = Jx[n], Jt[n]
-        J[:] = 0.0
-        T[:] = 0.0
-        kernels.tmul(Ri, Rj, Rij)
-        for k in range(3):
-            a[k] = p[j, k] - p[i, k]
-        kernels.tmulv(Ri, a, e)
-        kernels.mulv(Rij, p_BS, b)
-        for k in range(3):
-            e[k] += b[k]
-            b[k] = e[k] - p_BS[k]
-        kernels.mulv(R_SB, b, t_rel)
-        kernels.mul(Rij, R_BS, X)  # (R_SB R_ijᵀ)ᵀ
-        for r in range(3):
-            for k in range(3):
-                J[r, k] = -X[k, r] * ir
-        kernels.put(J, 0, 9, R_SB, ir)
-        kernels.hat(e, M)
-        kernels.mul(R_SB, M, Y)
-        kernels.put(J, 3, 0, Y, it)
-        kernels.mult(R_SB, Ri, Y)  # R_SB R_iᵀ
-        kernels.put(J, 3, 3, Y, -it)
-        kernels.put(J, 3, 12, Y, it)
-        kernels.mul(R_SB, Rij, M)
-        kernels.mul(M, hp, Y)
-        kernels.put(J, 3, 9, Y, -it)
-        if c_rot >= 0:
-            kernels.mul(M, R_BS, Y)  # R_rel
-            for r in range(3):
-                for k in range(3):
-                    T[r, c_rot + k] = ((1.0 if r == k else 0.0) - Y[k, r]) * ir
-            kernels.hat(t_rel, Y)
-            for r in range(3):
-                for k in range(3):
-                    T[3 + r, c_rot + k] = Y[r, k] * it
-        if c_trans >= 0:
-            for r in range(3):
-                for k in range(3):
-                    T[3 + r, c_trans + k] = (M[r, k] - R_SB[r, k]) * it
-        if c_time >= 0:
-            kernels.tmulv(Rij, w[i], a)
-            for k in range(3):
-                a[k] = w[j, k] - a[k]
-            kernels.mulv(R_SB, a, b)
-            for r in range(3):
-                T[r, c_time] = b[r] * ir
-            kernels.cross(e, w[i], a)
-            for k in range(3):
-                c[k] = v[j, k] - v[i, k]
-            kernels.tmulv(Ri, c, b)
-            for k in range(3):
-                a[k] += b[k]
-            kernels.cross(w[j], p_BS, c)
-            kernels.mulv(Rij, c, b)
-            for k in range(3):
-                a[k] += b[k]
-            kernels.mulv(R_SB, a, b)
-            for r in range(3):
-                T[3 + r, c_time] = b[r] * it
-        if c_scale >= 0:
-            for r in range(3):
-                T[3 + r, c_scale] = t_rel[r] * it
-    return Jx, Jt
-
-

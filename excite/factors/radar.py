@@ -37,7 +37,7 @@ from pydantic import Field
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
-from .base import Kind, Quantity
+from .base import ConfigView, Expr, FactorInputs, Kind, Quantity, RigView, SimulationView, Variant
 
 
 class RadarNoise(Model):
@@ -81,7 +81,7 @@ _LEVER = ("radar lever arm: turn (the ego-velocity sees it only through yaw rate
           "straight driving leaves it undetermined", "needs turns: yaw rate")
 
 
-class Radar(Kind):
+class Radar(Kind[RadarSensor]):
     name = "radar"
     arity = 2  # the measurement is at the first keyframe; the second gives its rate of change
     rows = 3  # a 2-D radar's: 2
@@ -104,11 +104,11 @@ class Radar(Kind):
                                 "hides it", "needs speed changes: accelerate and brake"),
     }
 
-    def quantities(self, cfg, s: RadarSensor) -> list[Quantity]:
+    def quantities(self, cfg: ConfigView, s: RadarSensor) -> list[Quantity]:
         ext = s.estimate.extrinsic
         return [Quantity(s.name, "rot", 3, "rad", s.T_B_S.R, ext),
                 Quantity(s.name, "trans", 3, "m", s.T_B_S.p, ext),
-                Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset)]
+                Quantity(s.name, "time_offset", 1, "s", 0.0, s.estimate.time_offset, per_entry=False)]
 
     def at_rate(self, entry: dict, rate_hz: float) -> dict:
         """The same information per second at ``rate_hz``: the targets of the measurements merged."""
@@ -119,25 +119,32 @@ class Radar(Kind):
     # --- the math ---
 
     @staticmethod
-    def _ego(f, a: int):
+    def _ego(f: FactorInputs, a: int) -> Expr:
         """The radar's velocity in its frame at keyframe ``a`` of the factor."""
         R_BS, p_BS = f.q["rot"], f.q["trans"]
         return ca.mtimes(R_BS.T, ca.mtimes(f.R[a].T, f.v[a]) + ca.cross(f.omega[a], p_BS))
 
-    def measurement(self, f):
+    def variant(self, s: RadarSensor) -> Variant:
+        """A 2-D radar measures two components, a 3-D one three."""
+        return (f"{s.dimensions}d",)
+
+    def constants(self, rig: RigView, s: RadarSensor) -> dict[str, np.ndarray]:
+        return {"sigma": velocity_sigma_mps(s.noise, s.dimensions)}
+
+    def measurement(self, f: FactorInputs) -> Expr:
         v0, v1 = self._ego(f, 0), self._ego(f, 1)
         v = v0 + f.q["time_offset"] * (v1 - v0) / f.dT
-        return v[0:f.entry.dimensions]
+        return v[0:int(f.variant[0][0])]
 
-    def residual(self, f, meas):
+    def residual(self, f: FactorInputs, meas: Expr) -> Expr:
         return self.measurement(f) - meas
 
-    def sqrt_information(self, f):
-        return ca.DM(1.0 / velocity_sigma_mps(f.entry.noise, f.entry.dimensions))
+    def sqrt_information(self, f: FactorInputs) -> Expr:
+        return 1.0 / f.c["sigma"]
 
     # --- simulation ---
 
-    def simulate(self, sim, s: RadarSensor) -> np.ndarray:
+    def simulate(self, sim: SimulationView, s: RadarSensor) -> np.ndarray:
         """The ego-velocity at every measurement (its factors' first keyframes): physical, the
         sensor's exact velocity at ``t + t_d`` (the drive's motion, the true body rate); model,
         the measurement model at the truth; each plus white noise of its σ."""

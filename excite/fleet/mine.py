@@ -125,7 +125,7 @@ def _span(traj: Trajectory, rig: Rig, edges: np.ndarray, p: int, sd: int) -> lis
         T[sd:2 * sd, sd:2 * sd] = np.tril(pc.H_bb) + np.tril(pc.H_bb, -1).T
         T[sd:2 * sd, _A(sd, p)] = pc.H_be
         T[_A(sd, p), sd:2 * sd] = pc.H_be.T
-        opening = at_keyframe(closure.fix(sub.R[a], 0) + closure.open(sub.window(a, e), rig), sd, p)
+        opening = at_keyframe(closure.start(sub.window(a, e), rig), sd, p)
         out.append((T, opening, at_keyframe(cap, sd, p), pc.diag_tt, float(length[a:e].sum())))
     return out
 

@@ -29,10 +29,10 @@ information as rounding noise, enough for the rank test to call it determined; w
 in the border it is exactly zero. (The optimizer's model and the calibrator work on plain world
 states, ``origin=False``: no rank test reads them.)
 
-**The opening.** A kind whose noise is a Markov chain along the drive (a GNSS error correlated
+**A drive's start.** A kind whose noise is a Markov chain along the drive (a GNSS error correlated
 over time, whitened by differencing consecutive fixes) declares the factor that opens the chain
-at the stationary noise (:attr:`excite.factors.base.Kind.opening`): it is added where a drive,
-or a window closed as one, starts (:meth:`Closure.open`), beside the gauge fix.
+at the stationary noise (:class:`excite.factors.base.OpensChain`): it is added where a drive, or a
+window closed as one, starts, beside the gauge fix: :meth:`Closure.start` gives both.
 
 **The last keyframe.** In local states, the increment of a drive's last keyframe has no
 successor: it is held at zero (:meth:`Closure.end`). With drifting biases (the random-walk bias
@@ -56,7 +56,7 @@ import numpy as np
 from ..core.lazy import ca
 from ..errors import EvaluationError
 from ..factors import base as registry
-from ..factors import symbolic
+from ..factors import kernels as factor_kernels
 from ..factors.base import STATE_DIM, FactorBlock, Kind, Nominal, RigView
 
 # The gauge fix: σ of the prior on the first keyframe's position [m] and yaw [rad]. Any value
@@ -118,7 +118,7 @@ class Closure:
         gauge = tuple(s for s in registry.SYMMETRIES
                       if (s not in br or (origin and s == "position")) and not (local and s == "position"))
         drift = drifting(rig)
-        openers = tuple((i.kind.opening, i.entry) for i in registry.instances(rig) if i.kind.opening is not None)
+        openers = tuple((i.kind.opening, i.entry) for i in registry.instances(rig) if isinstance(i.kind, registry.OpensChain))
         return cls(local, gauge, STATE_DIM + len(drift), np.array([d for _, d in drift]),
                    np.array([c for c, _ in drift], dtype=int), openers, origin)
 
@@ -167,26 +167,31 @@ class Closure:
         J = ca.vertcat(*rows)
         return ca.mtimes(J.T, J)
 
-    # --- the opening ---
+    # --- a drive's start ---
 
-    def open(self, nom: Nominal, rig: RigView) -> list[FactorBlock]:
-        """The factors that open a drive (or a window closed as one) whose first keyframe is
-        ``nom``'s: every opening kind's measurement there (:attr:`~excite.factors.base.Kind.opening`;
-        none where the log has no measurement at that keyframe). World trajectory states (an
-        opening sees absolute states, so its rig has no local ones)."""
+    def start(self, nom: Nominal, rig: RigView, gauge_keyframe: int = 0) -> list[FactorBlock]:
+        """What a drive (or a window closed as one) whose first keyframe is ``nom``'s adds there:
+        the gauge fix (:meth:`fix`, at its keyframe ``gauge_keyframe``) and the factors that open
+        its kinds' chains (:class:`~excite.factors.base.OpensChain`: their measurement at the
+        first keyframe, none where the log has none there)."""
+        return self.fix(nom.R[gauge_keyframe], gauge_keyframe) + self.openings(nom, rig)
+
+    def openings(self, nom: Nominal, rig: RigView) -> list[FactorBlock]:
+        """The factors that open the chains at ``nom``'s first keyframe (see :meth:`start`). World
+        trajectory states (an opening sees absolute states, so its rig has no local ones)."""
         if not self.openers:
             return []
         first = nom.window(0, 0)
         out = []
         for kind, entry in self.openers:
-            b = symbolic.jacobians(kind, first, rig, entry)
+            b = factor_kernels.jacobians(kind, first, rig, entry)
             if b is not None and b.n_factors:
                 b = self.absolute(b, rig)
                 out.append(self.widened(b) if self.sees_drift(b) else b)
         return out
 
     def is_opening(self, b: FactorBlock) -> bool:
-        """Whether ``b`` is an opening's block (:meth:`open`; a window re-opens its own)."""
+        """Whether ``b`` is an opening's block (:meth:`openings`; a window re-opens its own)."""
         return any(b.name == kind.block_name(entry) for kind, entry in self.openers)
 
     # --- the last keyframe ---

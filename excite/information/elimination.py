@@ -376,8 +376,7 @@ def short_pieces(traj: Trajectory, pieces: Sequence[tuple[int, int]], offset: in
     out = []
     for a, b in pieces:
         own = [sel for blk in blocks if (sel := blk.within(a - a0, b - a0)) is not None]
-        own += closure.fix(sub.R[a - a0], 0) + closure.end(b - a)
-        own += on_drive_columns(closure.open(sub.window(a - a0, b - a0), rig), col_map)
+        own += on_drive_columns(closure.start(sub.window(a - a0, b - a0), rig), col_map) + closure.end(b - a)
         carry = eliminated(own, b - a, zero, False, offset + a, walk)
         out.append((met(zero, carry, offset + a), diagonal(own, p)))
     return out
@@ -444,7 +443,7 @@ def sweep(traj: Trajectory, first: int, last: int, offset: int, chunks: Sequence
         blocks = [b for b in on_drive_columns(linearise(sub, rig, closure, k1 == last, walk=False), col_map)
                   if b is not None and b.n_factors]
         if k0 == first:
-            blocks += closure.fix(sub.R[0], 0) + on_drive_columns(closure.open(sub, rig), col_map)
+            blocks += on_drive_columns(closure.start(sub, rig), col_map)
         if k1 == last:
             blocks += closure.end(k1 - k0)
         walk = (closure.walk_weights(float(sub.t[1] - sub.t[0])) ** 2, k1 == last) if sd > STATE_DIM else None

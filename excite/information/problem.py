@@ -23,7 +23,7 @@ import numpy as np
 from ..core.parallel import n_threads, pool
 from ..errors import EvaluationError
 from ..factors import base as registry
-from ..factors import symbolic
+from ..factors import kernels as factor_kernels
 from ..factors.base import STATE_DIM, FactorBlock, Nominal, RigView
 from . import kernels
 from .closure import ORIGIN, Closure
@@ -40,9 +40,9 @@ class Problem:
     R_W_B: np.ndarray  # nominal body orientation per keyframe (for gauge fixes of windows)
     closure: Closure
     chain_starts: tuple[int, ...] = (0,)  # first keyframe of each drive (drives share only θ)
-    # the opening factors of a drive that would start at a keyframe (:meth:`Closure.open`), for
-    # :meth:`window`; None when the rig has no opening kind
-    open_at: Callable[[int], list[FactorBlock]] | None = field(default=None, compare=False)
+    # what a drive that would start at a keyframe adds there (:meth:`Closure.start`: the gauge fix,
+    # the openings of its kinds' chains), for :meth:`window`
+    start_at: Callable[[int], list[FactorBlock]] | None = field(default=None, compare=False)
 
     @property
     def local(self) -> bool:
@@ -77,14 +77,13 @@ class Problem:
                 out.append(sel)
         R = self.R_W_B[k0:k1 + 1]
         for s, e in zip(starts, ends):
-            out += self.closure.fix(R[s], s) + self.closure.end(e)
-            if self.open_at is not None:
-                out += [b.shifted(s) for b in self.open_at(k0 + s)]
+            start = (self.closure.fix(R[s], 0) if self.start_at is None else self.start_at(k0 + s))
+            out += [b.shifted(s) for b in start] + self.closure.end(e)
         return Problem(k1 - k0 + 1, self.n_params, tuple(out), R, self.closure, tuple(starts))
 
     def without_gauge(self) -> "Problem":
         return Problem(self.n_keyframes, self.n_params, tuple(b for b in self.blocks if b.name != "gauge"),
-                       self.R_W_B, self.closure, self.chain_starts, self.open_at)
+                       self.R_W_B, self.closure, self.chain_starts, self.start_at)
 
 
 def trimmed(starts: Sequence[int], k0: int, k1: int) -> tuple[int, int] | None:
@@ -172,21 +171,17 @@ def build(nom: Nominal | list[Nominal], rig: RigView, gauge_keyframe: int = 0, l
         # kind-major, each kind in time order (the rows of J follow it)
         parts += [b.shifted(offset) for kind in zip(*per_chunk) for b in kind if b is not None and b.n_factors]
         g = gauge_keyframe % K
-        fixes += [b.shifted(offset) for b in closure.fix(n.R[g], g) + closure.end(K - 1)]
-        fixes += [b.shifted(offset) for b in on_drive_columns(closure.open(n, rig), col_map)]
+        fixes += [b.shifted(offset) for b in on_drive_columns(closure.start(n, rig, g), col_map) + closure.end(K - 1)]
         starts.append(offset)
         R_all.append(n.R)
         offset += K
-    open_at = None
-    if closure.openers:
-        ends = np.cumsum([n.n_keyframes for n in noms])
+    ends = np.cumsum([n.n_keyframes for n in noms])
 
-        def open_at(k: int) -> list[FactorBlock]:
-            d = int(np.searchsorted(ends, k, side="right"))
-            local = k - (ends[d] - noms[d].n_keyframes)
-            col_map = drive_column_map(rig, d, len(noms))
-            return on_drive_columns(closure.open(noms[d].window(local, local), rig), col_map)
-    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), closure, tuple(starts), open_at)
+    def start_at(k: int) -> list[FactorBlock]:
+        d = int(np.searchsorted(ends, k, side="right"))
+        local = k - (ends[d] - noms[d].n_keyframes)
+        return on_drive_columns(closure.start(noms[d].window(local, local), rig), drive_column_map(rig, d, len(noms)))
+    return Problem(offset, p, tuple(parts + fixes), np.concatenate(R_all), closure, tuple(starts), start_at)
 
 
 def check_length(K: int, rig: RigView) -> int:
@@ -234,7 +229,7 @@ def linearise(sub: Nominal, rig: RigView, closure: Closure, last: bool, walk: bo
     m = sub.n_keyframes - 1
     blocks: list[FactorBlock | None] = []
     for inst in registry.instances(rig):
-        b = symbolic.jacobians(inst.kind, sub, rig, inst.entry)
+        b = factor_kernels.jacobians(inst.kind, sub, rig, inst.entry)
         if b is not None and inst.kind.arity == 1 and not last:
             b = b.select(b.first < m)
         if b is not None and "position" in inst.kind.breaks:

@@ -5,7 +5,7 @@ of keyframes) and its reverse sweep dominate an IPOPT iteration in CasADi's virt
 compiled, they run several times faster with bit-identical results. Code generation
 (``casadi.CodeGenerator``) takes a second, the C compiler minutes for the 90 s problem (the model
 derived from the kinds' residuals is 6 MB of C: 534 s at load 5–8 on 2 cores), so the shared
-library is cached, like numba's cache: under :func:`cache_dir`, one file per *key* — a hash
+library is cached: under :func:`cache_dir`, one file per *key* — a hash
 of what the functions are built from (the coarse rig, the keyframe count, the CasADi version and
 the source of every module that builds the functions). A cached library is found by its key
 alone, without building the functions it was compiled from (that is the start-up it saves): the

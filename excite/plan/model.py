@@ -95,7 +95,7 @@ def _factor_information(rig: Rig, closure: Closure, arity: int, n: int, instance
                                 f"optimizer's model needs every sensor at the keyframe rate "
                                 f"{rig.keyframe_rate_hz:g} Hz (use coarse_rig)")
         lay = symbolic.layout(kind, rig, entry)
-        Jx, Jt = symbolic.linearised(kind, rig, entry, lay, x, s if lay.n_samples else ca.SX(0, 1),
+        Jx, Jt = symbolic.linearised(kind, rig, entry, x, s if lay.n_samples else ca.SX(0, 1),
                                      ca.DM(symbolic.quantity_inputs(lay)))
         full = ca.SX(kind.rows, P)  # the entry's coordinates among all of θ (the rest structurally zero)
         for i, name in enumerate(symbolic.coordinate_names(lay)):

@@ -143,7 +143,7 @@ class Coordinate:
     name: str  # e.g. "lidar.trans_z"
     unit: str  # SI unit
     block: str  # "lidar", "imu", "wheel", ...
-    kind: str  # "rot", "trans", "time_offset", "gyro_bias", "accel_bias", "radius", "track", "scale", …
+    quantity: str  # "rot", "trans", "time_offset", "gyro_bias", "accel_bias", "radius", "track", "scale", …
     axis: int  # 0..2 for vector coordinates, else the axis its quantity reports (0)
     target: float  # required accuracy (1σ) in SI units; nan for nuisances
     prior_sigma: float | None = None
@@ -290,7 +290,7 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
             target = parse_quantity(hit[1], unit, f"targets.{hit[0]}")
         prior = _lookup(cfg.priors, name)
         prior_sigma = None if prior is None else parse_quantity(prior[1], unit, f"priors.{prior[0]}")
-        coords.append(Coordinate(name, unit, col.block, col.kind, col.axis, target, prior_sigma, col.nuisance,
+        coords.append(Coordinate(name, unit, col.block, col.quantity, col.axis, target, prior_sigma, col.nuisance,
                                  sources.get(col.block, "")))
     for table, label in ((cfg.targets, "targets"), (cfg.priors, "priors")):
         for key in table:

@@ -1,9 +1,9 @@
 """What a weak direction means and which motion would fix it (the degenerate motions of the docs).
 
 Each measurement kind declares the advice for its coordinates (:attr:`excite.factors.base.Kind.advice`:
-the report's words and the driver's, per coordinate kind and vehicle axis); this module looks
+the report's words and the driver's, per coordinate quantity and vehicle axis); this module looks
 them up. A weak mode is an eigenvector of the scaled marginal information; its dominant
-coordinates are grouped by kind (lever arm, extrinsic rotation, time offset, bias, wheel
+coordinates are grouped by quantity (lever arm, extrinsic rotation, time offset, bias, wheel
 geometry). Lever arms and rotation axes are expressed in the vehicle frame first, so that "z"
 means vertical whatever the sensor's mounting.
 """
@@ -16,14 +16,14 @@ from ..factors import base as registry
 from ..rig.config import Coordinate, Rig
 
 REPORT, DRIVER = 0, 1  # which words: the report's, or the driver's (live guidance)
-_VECTOR_KINDS = ("trans", "rot", "accel_bias")  # advice per vehicle axis
+_VECTOR_QUANTITIES = ("trans", "rot", "accel_bias")  # advice per vehicle axis
 
 
 def _text(c: Coordinate, axis: int | None, words: int) -> str | None:
-    """The advice for coordinate ``c`` (at vehicle ``axis``): its own kind's, else any kind's."""
+    """The advice for coordinate ``c`` (at vehicle ``axis``): its own measurement kind's, else any kind's."""
     own = registry.kinds()
     for k in sorted(own, key=lambda k: k.name != c.source):
-        hit = k.advice.get((c.kind, axis))
+        hit = k.advice.get((c.quantity, axis))
         if hit is not None:
             return hit[words]
     return None
@@ -31,19 +31,19 @@ def _text(c: Coordinate, axis: int | None, words: int) -> str | None:
 
 def vehicle_axis(rig: Rig, c: Coordinate) -> int | None:
     """The vehicle axis (0 forward, 1 lateral, 2 vertical) a vector coordinate points along."""
-    if c.kind not in _VECTOR_KINDS:
+    if c.quantity not in _VECTOR_QUANTITIES:
         return None
     R_V_B = rig.config.vehicle.T_V_B.R
     e = np.zeros(3)
     e[c.axis] = 1.0
-    if c.kind == "rot":  # right perturbation: the axis is in the sensor frame
+    if c.quantity == "rot":  # right perturbation: the axis is in the sensor frame
         R = next(q.nominal for _, _, q in registry.quantities(rig.config) if q.block == c.block and q.rotation)
         e = np.asarray(R) @ e
     return int(np.argmax(np.abs(R_V_B @ e)))
 
 
 def _key(rig: Rig, c: Coordinate) -> tuple[str, int | None]:
-    return c.kind, vehicle_axis(rig, c)
+    return c.quantity, vehicle_axis(rig, c)
 
 
 def needs(rig: Rig, c: Coordinate) -> str:
@@ -53,7 +53,7 @@ def needs(rig: Rig, c: Coordinate) -> str:
 
 
 def describe(rig: Rig, coords: list[Coordinate], weights: np.ndarray, words: int = REPORT) -> str:
-    """Motion advice for a mode: the advice of its one or two dominant kinds of coordinate, in
+    """Motion advice for a mode: the advice of its one or two dominant quantities, in
     the report's words or, with ``words=DRIVER``, the driver's."""
     energy: dict[tuple[str, int | None], float] = {}
     first: dict[tuple[str, int | None], Coordinate] = {}

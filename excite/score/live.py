@@ -105,7 +105,7 @@ class Incremental:
         if self.sd > STATE_DIM:  # the walk into the end keyframe is not anchored yet
             blocks.append(self.closure.walk(m, float(nom.t[1] - nom.t[0])))
         if first:
-            blocks += self.closure.fix(nom.R[0], 0) + self.closure.open(nom, self.rig)
+            blocks += self.closure.start(nom, self.rig)
         c1 = time.perf_counter()
         a = max(self.n_keyframes - 1, 0)
         pc = piece([b for b in blocks if b.n_factors], a, a + m, self.p, self.sd)

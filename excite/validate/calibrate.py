@@ -200,7 +200,7 @@ class _Problem:
         # differences of the whole residual vector (steps of 1e-3 target: the residuals are linear
         # in a bias to far better than that over such a step)
         self.bias_columns = [(i, 1e-3 * c.target) for i, c in enumerate(rig.coordinates)
-                             if c.block == "imu" and c.kind in ("gyro_bias", "accel_bias")]
+                             if c.block == "imu" and c.quantity in ("gyro_bias", "accel_bias")]
 
     def nominal(self, X: States, cal: Calibration) -> Nominal:
         """The motion the factors are evaluated on: the estimated states, the IMU samples

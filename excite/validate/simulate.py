@@ -112,7 +112,7 @@ class Calibration:
 def offset_sigma(rig: Rig, in_targets: float, scale_sigma: float = 0.01) -> np.ndarray:
     """σ per coordinate of a random calibration offset: ``in_targets`` × target (scale: ``scale_sigma``;
     tyre slip: none, the simulator's physics sets it)."""
-    return np.array([scale_sigma if c.kind == "scale" else 0.0 if c.nuisance else in_targets * c.target
+    return np.array([scale_sigma if c.quantity == "scale" else 0.0 if c.nuisance else in_targets * c.target
                      for c in rig.coordinates])
 
 

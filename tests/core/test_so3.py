@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from excite.core import kernels, so3
+from excite.core import so3
 from excite.motion import kernels as motion_kernels
 from excite.motion.vehicle import ControlProfile, drive
 
@@ -77,24 +77,3 @@ def test_compiled_imu_sampling_equals_the_vectorised_one(traj):
     np.testing.assert_allclose(R, b.R_W_B, atol=1e-13)
     np.testing.assert_allclose(w, b.omega_B, atol=1e-12)
     np.testing.assert_allclose(f, b.specific_force_B, atol=1e-10)
-
-
-@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 9e-3, 0.011, 0.5, 2.0, 3.0, np.pi - 1e-4, np.pi - 1e-8])
-def test_compiled_log_and_inverse_jacobian(angle):
-    """The factor kernels' Log (every angle, including next to π where sin θ vanishes) against
-    scipy, and their J_r⁻¹ against central differences of ``Log(Exp(φ) Exp(δ))``, on both sides
-    of the series switch."""
-    axes = np.random.default_rng(1).normal(size=(20, 3))
-    eps = 1e-6
-    for u in axes / np.linalg.norm(axes, axis=1, keepdims=True):
-        R = Rotation.from_rotvec(angle * u).as_matrix()
-        got = np.empty(3)
-        kernels.log(R, got)
-        np.testing.assert_allclose(so3.exp(got), R, atol=1e-13)
-        assert np.linalg.norm(got) == pytest.approx(angle, abs=1e-12)
-        if angle < 3.0:
-            J = np.empty((3, 3))
-            kernels.right_jacobian_inv(angle * u, J)
-            fd = np.stack([(so3.log(R @ so3.exp(eps * e)) - so3.log(R @ so3.exp(-eps * e))) / (2 * eps)
-                           for e in np.eye(3)], axis=1)
-            np.testing.assert_allclose(J, fd, atol=1e-8)

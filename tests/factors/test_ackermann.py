@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from excite.errors import RigError
-from excite.factors import ackermann, symbolic
+from excite.factors import ackermann, kernels, symbolic
 from excite.factors import base as registry
 from excite.factors.ackermann import CanRecording, interval_means
 from excite.factors.base import Nominal
@@ -60,8 +60,8 @@ def test_the_coordinates_have_the_stable_names():
     data["targets"] = {**{k: v for k, v in data["targets"].items() if k != "wheel.scale_*"},
                        "wheel.radius_*": "0.5 mm"}
     radii = build_rig(data)
-    assert [c.name for c in radii.coordinates if c.kind == "radius"] == [f"wheel.radius_{w}" for w in ackermann.WHEELS]
-    assert {c.unit for c in radii.coordinates if c.kind == "radius"} == {"m"}
+    assert [c.name for c in radii.coordinates if c.quantity == "radius"] == [f"wheel.radius_{w}" for w in ackermann.WHEELS]
+    assert {c.unit for c in radii.coordinates if c.quantity == "radius"} == {"m"}
 
 
 @pytest.mark.parametrize("change, message", [
@@ -97,7 +97,7 @@ def test_the_steering_is_optional():
     assert not any(c.block == "steering" for c in rig.coordinates)
     inst = next(i for i in registry.instances(rig) if i.kind.name == "ackermann")
     nom = Nominal.of(drive(profile(VARIED_SPEED, BOTH_WAYS)), rig)
-    assert symbolic.jacobians(inst.kind, nom, rig, inst.entry).n_rows == 4  # the four wheels
+    assert kernels.jacobians(inst.kind, nom, rig, inst.entry).n_rows == 4  # the four wheels
 
 
 # --- the model against the drive's kinematics -------------------------------------------------

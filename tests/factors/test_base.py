@@ -20,7 +20,7 @@ import pytest
 
 from excite.core.schema import Model, PositiveFloat, SensorEntry
 from excite.factors import base as registry
-from excite.factors import symbolic
+from excite.factors import kernels
 from excite.factors.base import Kind, Quantity
 from excite.motion.vehicle import ControlProfile, drive
 from excite.rig.config import load_rig
@@ -123,7 +123,7 @@ def test_its_jacobian_is_the_derivative_of_an_independent_speed_model(rig, traj)
 
     nom = Nominal.of(traj, rig)
     entry = rig.config.sensors[-1]
-    blk = symbolic.jacobians(Speedometer(), nom, rig, entry)
+    blk = kernels.jacobians(Speedometer(), nom, rig, entry)
     k = 37
     R_BV = nom.R_V_B.T
     p_BV = -R_BV @ nom.p_V_B

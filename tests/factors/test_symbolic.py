@@ -8,8 +8,8 @@ too), and every kind's opening factor (a GNSS antenna's first fix):
 
 - the derivative of its one residual (CasADi's automatic differentiation) equals central finite
   differences of the same residual, evaluated numerically;
-- a compiled kernel, where the kind has one, equals that derivative (the second copy of the math
-  kept for speed is held to the first);
+- the evaluator's kernel generated from that statement (:mod:`excite.factors.generate`, compiled
+  into the native module) equals the derivative evaluated in CasADi's virtual machine;
 - the residual is zero at the noise-free measurement of the nominal motion;
 - the gauge symmetries it claims not to break (translation, yaw about the vertical) leave its
   residual unchanged: the Jacobian annihilates their generators.
@@ -18,21 +18,20 @@ The drive is fully 3-D (speed, curvature, grade and bank all vary, suspension on
 IMU and sensors are mounted with non-trivial rotations, so that no Jacobian term hides behind a
 zero. Perturbations follow the library's conventions: right-multiplicative on rotations, additive
 on positions, velocities and scalar parameters. Then the physics the factors stand for: the
-IMU's propagated covariance against a Monte Carlo of noisy samples, the preintegration's compiled
-sums against their CasADi statement, the wheel model against integrated wheel speeds, the slip
-columns against the drive's own accelerations.
+IMU's propagated covariance against a Monte Carlo of noisy samples, the preintegration's fold
+(as the evaluator runs it) against the sums over the samples' noise written out here, the wheel
+model against integrated wheel speeds, the slip columns against the drive's own accelerations.
 """
 
 from __future__ import annotations
 
-import casadi as ca
 import numpy as np
 import pytest
 import yaml
 
 from excite.core import so3
 from excite.factors import base as registry
-from excite.factors import imu, symbolic, wheel
+from excite.factors import imu, kernels, layout, symbolic, wheel
 from excite.factors.base import Nominal
 from excite.factors.nonholonomic import sigma_mps
 from excite.motion.vehicle import ControlProfile, drive
@@ -57,7 +56,7 @@ def _instances(rig):
     closure adds where a drive starts)."""
     out = list(registry.instances(rig))
     return out + [registry.Instance(i.kind.opening, i.entry, i.kind.opening.block_name(i.entry))
-                  for i in out if i.kind.opening is not None]
+                  for i in out if isinstance(i.kind, registry.OpensChain)]
 
 
 @pytest.fixture(scope="module")
@@ -156,8 +155,8 @@ def _factor_inputs(nom, rig, inst, f):
     kind, entry = inst.kind, inst.entry
     lay = symbolic.layout(kind, rig, entry)
     first = kind.factor_keyframes(rig, entry, nom.n_keyframes)[f:f + 1]
-    return (lay, symbolic.keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry))[:, 0],
-            symbolic.sample_inputs(nom, first, lay)[:, 0], symbolic.quantity_inputs(lay))
+    return (lay, symbolic.keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry))[0],
+            symbolic.sample_inputs(nom, first, lay)[0], symbolic.quantity_inputs(lay))
 
 
 def _moved(x: np.ndarray, q: np.ndarray, lay, dx: np.ndarray, dq: np.ndarray):
@@ -210,17 +209,17 @@ def test_the_derivative_of_the_residual_equals_finite_differences(request, rig, 
 
 
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
-def test_the_compiled_kernel_equals_the_derivative_of_the_residual(request, rig, slow_rig, name, which, k):
+def test_the_generated_kernel_equals_the_derivative_of_the_residual(request, rig, slow_rig, name, which, k):
     r, inst = _instance(request, rig, slow_rig, which, k)
-    if not inst.kind.compiled:
-        pytest.skip(f"{inst.kind.name} has no compiled kernel: the evaluator uses the derivative itself")
     nom = _nominal(r)
-    fast = inst.kind.blocks(nom, r, inst.entry)
+    lay = layout.layout(inst.kind, r, inst.entry)
+    assert lay.name("lin") in kernels.compiled(), f"{lay.name('lin')} is not compiled in"
+    fast = kernels.jacobians(inst.kind, nom, r, inst.entry)
     ref = symbolic.blocks(inst.kind, nom, r, inst.entry)
     assert np.array_equal(fast.first, ref.first) and fast.stride == ref.stride and fast.n_states == ref.n_states
     P = len(r.coordinates)
-    _assert_close(fast.Jx, ref.Jx, 1e-9)
-    _assert_close(fast.Jt_full(P), ref.Jt_full(P), 1e-9)
+    _assert_close(fast.Jx, ref.Jx, 1e-12)
+    _assert_close(fast.Jt_full(P), ref.Jt_full(P), 1e-12)
 
 
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
@@ -256,17 +255,61 @@ def nom(rig):
     return _nominal(rig)
 
 
-def test_the_preintegration_compiled_equals_its_statement(rig, nom):
-    cfg = rig.config.imu
-    pre = imu.preintegration(nom, cfg.gyroscope_noise_density, cfg.accelerometer_noise_density)
+def _noise_propagation(nom, f: int, dt: float, sg: float, sa: float) -> dict[str, np.ndarray]:
+    """The preintegrated measurement's bias Jacobians and covariance of interval ``f``, written
+    out from their definitions (not from the library's fold): with ``ΔR_s = R_iᵀR(τ_s)``,
+    ``A_s = [ΔR_s f_s dt]×`` and ``G_s = Σ_{q<s} ΔR_q dt``: ``G_R = Σ ΔR_s dt``, ``V_g = Σ A_s G_s``,
+    ``P_g = Σ (V_g,s dt + ½ A_s G_s dt)`` (``V_g,s`` the partial sum before s),
+    ``P_a = −Σ (G_s dt + ½ ΔR_s dt²)``; a gyro noise sample at s (variance σ_g² dt) reaches the end
+    as ``[−I; Σ_{q>s} A_q; Σ_{q>s} w_q A_q]``, an accelerometer one (σ_a² dt) as ``[0; −I; −w_s I]``,
+    ``w_q = (n − 1 − q + ½) dt``; the covariance is the sum of their outer products."""
     n = nom.imu_per_keyframe
-    f = 17
-    R = [ca.DM(nom.imu_R[f * n + s]) for s in range(n + 1)]
-    F = [ca.DM(nom.imu_f[f * n + s]) for s in range(n)]
-    sym = imu.preintegration_symbolic(R, F, 1.0 / cfg.update_rate, cfg.gyroscope_noise_density,
-                                      cfg.accelerometer_noise_density)
-    for key in ("G_R", "V_g", "V_a", "P_g", "P_a", "cov"):
-        _assert_close(pre[key][f], np.array(ca.evalf(sym[key])), 1e-9)
+    i0 = f * n
+    dR = [nom.imu_R[i0].T @ nom.imu_R[i0 + s] for s in range(n)]
+    A = [so3.hat(dR[s] @ nom.imu_f[i0 + s] * dt) for s in range(n)]
+    w = [(n - 1 - q + 0.5) * dt for q in range(n)]
+    G = np.zeros((3, 3))
+    V_g, P_g, P_a = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    for s in range(n):
+        P_g += V_g * dt + 0.5 * dt * A[s] @ G
+        P_a -= G * dt + 0.5 * dt * dt * dR[s]
+        V_g += A[s] @ G
+        G += dR[s] * dt
+    cov = np.zeros((9, 9))
+    for s in range(n):
+        B = np.vstack([-np.eye(3), sum((A[q] for q in range(s + 1, n)), np.zeros((3, 3))),
+                       sum((w[q] * A[q] for q in range(s + 1, n)), np.zeros((3, 3)))])
+        C = np.vstack([np.zeros((3, 3)), -np.eye(3), -w[s] * np.eye(3)])
+        cov += sg * sg * dt * B @ B.T + sa * sa * dt * C @ C.T
+    return {"G_R": G, "V_g": V_g, "P_g": P_g, "P_a": P_a, "cov": cov}
+
+
+def _fold(rig, nom, f: int, sg: float | None = None, sa: float | None = None) -> dict[str, np.ndarray]:
+    """The summary of interval ``f`` as the evaluator computes it (the generated fold), with the
+    rig's noise densities or ``sg``, ``sa``."""
+    inst = next(i for i in registry.instances(rig) if i.kind.name == "imu")
+    lay = layout.layout(inst.kind, rig, inst.entry)
+    values = layout.constant_values(inst.kind, rig, inst.entry)
+    if sg is not None:
+        values.update(sigma_g=np.array(sg), sigma_a=np.array(sa))
+    c = layout.constant_inputs(lay, values)
+    flat = kernels.summaries(nom, np.array([f]), lay, "step_imu", "finish_imu", c)[0]
+    out, o = {}, 0
+    for key, shape in inst.kind.summary_fields:
+        size = int(np.prod(shape))
+        out[key] = flat[o:o + size].reshape(shape)
+        o += size
+    return out
+
+
+def test_the_preintegration_fold_equals_the_noise_propagation(rig, nom):
+    cfg = rig.config.imu
+    for f in (3, 17):
+        got = _fold(rig, nom, f)
+        want = _noise_propagation(nom, f, 1.0 / cfg.update_rate, cfg.gyroscope_noise_density,
+                                  cfg.accelerometer_noise_density)
+        for key in want:
+            _assert_close(got[key], want[key], 1e-11)
 
 
 def test_the_imu_bias_jacobian_is_the_derivative_of_preintegrating_again(rig, nom):
@@ -274,12 +317,11 @@ def test_the_imu_bias_jacobian_is_the_derivative_of_preintegrating_again(rig, no
     the derivative of preintegrating the samples again with the biases subtracted (to O(ω·dt):
     the Jacobians take the attitude at a sample's start, the measurement its middle)."""
     inst = next(i for i in registry.instances(rig) if i.kind.name == "imu")
-    blk = inst.kind.blocks(nom, rig, inst.entry)
+    blk = kernels.jacobians(inst.kind, nom, rig, inst.entry)
     f, n = 23, nom.imu_per_keyframe
     cfg = rig.config.imu
     dt = 1.0 / cfg.update_rate
-    pre = imu.preintegration(nom, cfg.gyroscope_noise_density, cfg.accelerometer_noise_density)
-    W = np.linalg.inv(np.linalg.cholesky(pre["cov"][f]))
+    W = np.linalg.inv(np.linalg.cholesky(_fold(rig, nom, f)["cov"]))
     w_s, f_s = nom.imu_omega[f * n:(f + 1) * n], nom.imu_f[f * n:(f + 1) * n]
     ref = imu.preintegrate_all(w_s, f_s, n, dt, np.zeros(3), np.zeros(3))
 
@@ -310,7 +352,7 @@ def test_imu_covariance_matches_monte_carlo(rig, nom):
     m = imu.preintegrate_all(wn.reshape(-1, 3), fn.reshape(-1, 3), n, dt, np.zeros(3), np.zeros(3))
     errs = np.hstack([so3.log(m[0] @ ref[0][0].T), m[1] - ref[1][0], m[2] - ref[2][0]])
     emp = np.cov(errs.T)
-    cov = imu.preintegration(nom, sg, sa)["cov"][f]
+    cov = _fold(rig, nom, f, sg, sa)["cov"]
     d = np.sqrt(np.diag(cov))
     # correlation-normalised comparison; 2000 samples give ~3 % sampling error per entry
     assert np.abs(emp / np.outer(d, d) - cov / np.outer(d, d)).max() < 0.1
@@ -344,7 +386,7 @@ def test_wheel_slip_column_is_the_drives_longitudinal_acceleration(rig, nom):
     drive's mean longitudinal acceleration over the interval (integrated independently from the
     drive's own acceleration)."""
     inst, inc = _measured(rig, nom, "wheel")
-    blk = inst.kind.blocks(nom, rig, inst.entry)
+    blk = kernels.jacobians(inst.kind, nom, rig, inst.entry)
     col = blk.Jt_full(len(rig.coordinates))[:, :, rig.index("wheel.slip")] * wheel.increment_sigma_rad(
         rig.config.wheels, rig.keyframe_rate_hz)
     f = 31
@@ -359,7 +401,7 @@ def test_wheel_scrub_column_is_the_square_of_the_drives_lateral_acceleration(rig
     with a_y the drive's lateral acceleration over the interval (the generated drive's own
     ``accel_lat`` averaged, independently of the factor's Δs·Δψ/ΔT²); zero on a straight."""
     inst, inc = _measured(rig, nom, "wheel")
-    blk = inst.kind.blocks(nom, rig, inst.entry)
+    blk = kernels.jacobians(inst.kind, nom, rig, inst.entry)
     col = blk.Jt_full(len(rig.coordinates))[:, :, rig.index("wheel.scrub")] * wheel.increment_sigma_rad(
         rig.config.wheels, rig.keyframe_rate_hz)
     s = drive(_PROFILE, rig.suspension)
@@ -377,7 +419,7 @@ def test_slip_angle_column_is_the_drives_lateral_acceleration(rig, nom):
     drive's lateral acceleration (no sideways slide in the generated drive, so the centripetal part
     is all of it, up to grade and bank)."""
     inst = next(i for i in registry.instances(rig) if i.name == "nonholonomic")
-    blk = inst.kind.blocks(nom, rig, inst.entry)
+    blk = kernels.jacobians(inst.kind, nom, rig, inst.entry)
     lat, _ = sigma_mps(rig.config.vehicle.nonholonomic, rig.keyframe_rate_hz)
     Jt = blk.Jt_full(len(rig.coordinates))[:, :, rig.index("vehicle.slip_angle")]
     s = drive(_PROFILE, rig.suspension).sample(nom.t)

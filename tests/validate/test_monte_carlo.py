@@ -353,11 +353,11 @@ def test_initialisation_recovers_rotation_time_offsets_and_gyro_bias_from_angula
     off = np.zeros(len(rig.coordinates))
     for c in rig.coordinates:
         i = rig.index(c.name)
-        if c.kind == "rot":
+        if c.quantity == "rot":
             off[i] = np.deg2rad(1.0) * (-1) ** i
-        elif c.kind == "time_offset":
+        elif c.quantity == "time_offset":
             off[i] = 0.02 * (-1) ** i
-        elif c.kind == "gyro_bias":
+        elif c.quantity == "gyro_bias":
             off[i] = np.deg2rad(0.05)
     truth = nominal.plus(rig, off)
     # time offsets from the rate changes: 20 ms off → 2.5 ms RMS over noise draws (measured 2.3 ms

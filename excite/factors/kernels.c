@@ -1,0 +1,227 @@
+/* The driver of the generated factor kernels: a generated function (CasADi's C calling
+ * convention: f(arg, res, iw, w, mem)) applied to every factor of a batch, each input either
+ * shared by all factors or one row per factor, each output one row per factor. The kernels
+ * themselves are generated from the kinds' statements (excite/factors/generated.c, by
+ * excite/factors/generate.py; never edited by hand); a kind without one here is generated and
+ * compiled on demand, and reaches the same driver through its function's address. */
+#include "../core/native.h"
+#include <stdlib.h>
+
+#include "generated.h"
+
+typedef int (*kernel_fn)(const double **arg, double **res, long long *iw, double *w, int mem);
+typedef int (*work_fn)(long long *sz_arg, long long *sz_res, long long *sz_iw, long long *sz_w);
+
+static int resolve(PyObject *k, kernel_fn *f, work_fn *work);
+
+/* generated() → {name: (nnz of each input, nnz of each output)} of the kernels compiled in */
+NATIVE_FUNCTION(native_generated) {
+    (void)args;
+    if (nargs != 0) {
+        PyErr_SetString(PyExc_TypeError, "generated() takes no arguments");
+        return NULL;
+    }
+    PyObject *out = PyDict_New();
+    for (int k = 0; out && k < excite_n_kernels; ++k) {
+        const excite_kernel *K = &excite_kernels[k];
+        PyObject *ins = PyTuple_New(K->n_in), *outs = PyTuple_New(K->n_out);
+        for (int i = 0; ins && i < K->n_in; ++i) PyTuple_SET_ITEM(ins, i, PyLong_FromLongLong(K->nnz_in[i]));
+        for (int i = 0; outs && i < K->n_out; ++i) PyTuple_SET_ITEM(outs, i, PyLong_FromLongLong(K->nnz_out[i]));
+        PyObject *pair = (ins && outs) ? PyTuple_Pack(2, ins, outs) : NULL;
+        Py_XDECREF(ins);
+        Py_XDECREF(outs);
+        if (!pair || PyDict_SetItemString(out, K->name, pair) < 0) {
+            Py_XDECREF(pair);
+            Py_DECREF(out);
+            return NULL;
+        }
+        Py_DECREF(pair);
+    }
+    return out;
+}
+
+/* run(kernel, first, inputs, offsets, outputs): the kernel (a name compiled in, or (address of f,
+ * address of f_work) of one compiled on demand) over every factor k of a batch, whose first
+ * keyframe is first[k]. Each input is a float64 array of rows: offsets[i] = -1, one row shared by
+ * every factor; -2, row k for factor k; a ≥ 0, row first[k] + a (a keyframe of the factor, in a
+ * table of every keyframe's inputs). Each output is a float64 array of one row per factor. */
+NATIVE_FUNCTION(native_run) {
+    CHECK_NARGS(5, "run");
+    kernel_fn f;
+    work_fn work;
+    if (resolve(args[0], &f, &work)) return NULL;
+    if (!PyTuple_Check(args[2]) || !PyTuple_Check(args[3]) || !PyTuple_Check(args[4]) ||
+        PyTuple_GET_SIZE(args[2]) != PyTuple_GET_SIZE(args[3])) {
+        PyErr_SetString(PyExc_TypeError, "inputs, offsets and outputs: tuples (one offset per input)");
+        return NULL;
+    }
+    Py_ssize_t n_in = PyTuple_GET_SIZE(args[2]), n_out = PyTuple_GET_SIZE(args[4]);
+    if (n_in + n_out + 1 > MAX_ARGS) {
+        PyErr_SetString(PyExc_ValueError, "too many inputs and outputs");
+        return NULL;
+    }
+    Args a = {.n = 0};
+    Py_buffer *fv = native_array(&a, args[1], 'q', 1, 0, "first");
+    if (!fv) return native_release(&a), NULL;
+    Py_ssize_t n = SHAPE(fv, 0);
+    const int64_t *first = Q(fv);
+    const double *in[MAX_ARGS];
+    Py_ssize_t width[MAX_ARGS], offset[MAX_ARGS];
+    double *out[MAX_ARGS];
+    Py_ssize_t out_row[MAX_ARGS];
+    for (Py_ssize_t i = 0; i < n_in; ++i) {
+        Py_buffer *v = native_array(&a, PyTuple_GET_ITEM(args[2], i), 'd', -1, 0, "input");
+        if (!v) return native_release(&a), NULL;
+        in[i] = D(v);
+        offset[i] = PyLong_AsSsize_t(PyTuple_GET_ITEM(args[3], i));
+        if (PyErr_Occurred()) return native_release(&a), NULL;
+        Py_ssize_t rows = v->ndim > 1 ? v->shape[0] : 1, len = v->len / 8;
+        width[i] = rows ? len / rows : 0;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            Py_ssize_t row = offset[i] == -1 ? 0 : offset[i] == -2 ? k : first[k] + offset[i];
+            if (offset[i] < -2 || row < 0 || row >= (rows ? rows : 1)) {
+                PyErr_Format(PyExc_ValueError, "input %zd has no row %zd for factor %zd", i, row, k);
+                return native_release(&a), NULL;
+            }
+        }
+    }
+    for (Py_ssize_t i = 0; i < n_out; ++i) {
+        Py_buffer *v = native_array(&a, PyTuple_GET_ITEM(args[4], i), 'd', -1, 1, "output");
+        if (!v) return native_release(&a), NULL;
+        out[i] = D(v);
+        out_row[i] = n > 0 ? v->len / 8 / n : 0;
+    }
+    long long sz_arg = 0, sz_res = 0, sz_iw = 0, sz_w = 0;
+    work(&sz_arg, &sz_res, &sz_iw, &sz_w);
+    if (sz_arg < n_in || sz_res < n_out) {
+        PyErr_Format(PyExc_ValueError, "the kernel takes %lld inputs and %lld outputs (given %zd and %zd)", sz_arg,
+                     sz_res, n_in, n_out);
+        return native_release(&a), NULL;
+    }
+    int rc = 0;
+    Py_BEGIN_ALLOW_THREADS;
+    const double **arg = calloc((size_t)sz_arg + 1, sizeof(double *));
+    double **res = calloc((size_t)sz_res + 1, sizeof(double *));
+    long long *iw = malloc(sizeof(long long) * ((size_t)sz_iw + 1));
+    double *w = malloc(sizeof(double) * ((size_t)sz_w + 1));
+    if (!arg || !res || !iw || !w) {
+        rc = -1;
+    } else {
+        for (Py_ssize_t k = 0; k < n && !rc; ++k) {
+            for (Py_ssize_t i = 0; i < n_in; ++i)
+                arg[i] = in[i] + width[i] * (offset[i] == -1 ? 0 : offset[i] == -2 ? k : first[k] + offset[i]);
+            for (Py_ssize_t i = 0; i < n_out; ++i) res[i] = out[i] + k * out_row[i];
+            if (f(arg, res, iw, w, 0)) rc = 1;
+        }
+    }
+    free(arg);
+    free(res);
+    free(iw);
+    free(w);
+    Py_END_ALLOW_THREADS;
+    native_release(&a);
+    if (rc == -1) return PyErr_NoMemory();
+    if (rc) {
+        PyErr_SetString(PyExc_RuntimeError, "a generated kernel failed");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+static int resolve(PyObject *k, kernel_fn *f, work_fn *work) {
+    if (PyUnicode_Check(k)) {
+        const char *name = PyUnicode_AsUTF8(k);
+        for (int i = 0; name && i < excite_n_kernels; ++i)
+            if (strcmp(excite_kernels[i].name, name) == 0) {
+                *f = (kernel_fn)excite_kernels[i].f;
+                *work = (work_fn)excite_kernels[i].work;
+                return 0;
+            }
+        PyErr_Format(PyExc_KeyError, "no generated kernel named %s", name ? name : "?");
+        return -1;
+    }
+    if (PyTuple_Check(k) && PyTuple_GET_SIZE(k) == 2) {
+        *f = (kernel_fn)PyLong_AsVoidPtr(PyTuple_GET_ITEM(k, 0));
+        *work = (work_fn)PyLong_AsVoidPtr(PyTuple_GET_ITEM(k, 1));
+        if (PyErr_Occurred() || !*f || !*work) return -1;
+        return 0;
+    }
+    PyErr_SetString(PyExc_TypeError, "kernel: a name, or (address of f, address of f_work)");
+    return -1;
+}
+
+/* fold(step, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): for every interval
+ * starting at keyframe first[k] (its samples i0 … i0 + n, i0 = first[k]·per_keyframe), the state
+ * starts at zero and takes step(state, R_i0, R_s, f_s, c) for s = n − 1 down to 0; out[k] =
+ * finish(state, R_i0, R_{i0+n}, c). */
+NATIVE_FUNCTION(native_fold) {
+    CHECK_NARGS(10, "fold");
+    kernel_fn step, finish;
+    work_fn step_work, finish_work;
+    if (resolve(args[0], &step, &step_work) || resolve(args[1], &finish, &finish_work)) return NULL;
+    Args a = {.n = 0};
+    Py_buffer *first = native_array(&a, args[2], 'q', 1, 0, "first");
+    Py_buffer *R = first ? native_array(&a, args[6], 'd', 3, 0, "imu_R") : NULL;
+    Py_buffer *F = R ? native_array(&a, args[7], 'd', 2, 0, "imu_f") : NULL;
+    Py_buffer *c = F ? native_array(&a, args[8], 'd', 1, 0, "c") : NULL;
+    Py_buffer *out = c ? native_array(&a, args[9], 'd', 2, 1, "out") : NULL;
+    if (!out) return native_release(&a), NULL;
+    long per = native_long(args[3]), n = native_long(args[4]), ns = native_long(args[5]);
+    if (PyErr_Occurred()) return native_release(&a), NULL;
+    Py_ssize_t N = SHAPE(first, 0), M = SHAPE(R, 0), width = SHAPE(out, 1);
+    const int64_t *fi = Q(first);
+    for (Py_ssize_t k = 0; k < N; ++k)
+        if (fi[k] < 0 || fi[k] * per + n > M - 1) {
+            PyErr_SetString(PyExc_ValueError, "fold: an interval reaches beyond the IMU samples");
+            return native_release(&a), NULL;
+        }
+    if (SHAPE(out, 0) != N || SHAPE(F, 0) < M - 1) {
+        PyErr_SetString(PyExc_ValueError, "fold: out must have a row per interval, imu_f a row per sample");
+        return native_release(&a), NULL;
+    }
+    long long s_arg, s_res, s_iw, s_w, f_arg, f_res, f_iw, f_w;
+    step_work(&s_arg, &s_res, &s_iw, &s_w);
+    finish_work(&f_arg, &f_res, &f_iw, &f_w);
+    int rc = 0;
+    const double *Rm = D(R), *Fm = D(F), *cv = D(c);
+    double *o = D(out);
+    (void)width;
+    Py_BEGIN_ALLOW_THREADS;
+    long long sz_iw = s_iw > f_iw ? s_iw : f_iw, sz_w = s_w > f_w ? s_w : f_w;
+    long long *iw = malloc(sizeof(long long) * ((size_t)sz_iw + 1));
+    double *w = malloc(sizeof(double) * ((size_t)sz_w + 1));
+    double *st = malloc(sizeof(double) * (2 * (size_t)ns + 1));
+    if (!iw || !w || !st) {
+        rc = -1;
+    } else {
+        const double *arg[8];
+        double *res[2];
+        for (Py_ssize_t k = 0; k < N && !rc; ++k) {
+            Py_ssize_t i0 = (Py_ssize_t)fi[k] * per;
+            double *cur = st, *nxt = st + ns;
+            memset(cur, 0, sizeof(double) * ns);
+            for (long s = n - 1; s >= 0; --s) {
+                arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + s), arg[3] = Fm + 3 * (i0 + s), arg[4] = cv;
+                res[0] = nxt;
+                if (step(arg, res, iw, w, 0)) rc = 1;
+                double *t = cur;
+                cur = nxt;
+                nxt = t;
+            }
+            arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + n), arg[3] = cv;
+            res[0] = o + k * width;
+            if (finish(arg, res, iw, w, 0)) rc = 1;
+        }
+    }
+    free(iw);
+    free(w);
+    free(st);
+    Py_END_ALLOW_THREADS;
+    native_release(&a);
+    if (rc == -1) return PyErr_NoMemory();
+    if (rc) {
+        PyErr_SetString(PyExc_RuntimeError, "a generated kernel failed");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}

@@ -1,0 +1,138 @@
+"""The generator of the evaluator's kernels (:mod:`excite.factors.generate`): its output is what
+the kinds' statements give, it covers every registered kind and every variant the example rigs
+use, each compiled kernel equals its statement evaluated in CasADi's virtual machine, and a kind
+registered from outside excite (the speedometer of ``tests/test_additive_kind.py``) is generated
+and compiled on demand, or evaluated in the virtual machine where no compiler may run."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from excite.factors import base as registry
+from excite.factors import generate, kernels, layout, symbolic
+from excite.factors.base import Nominal
+from excite.motion.vehicle import ControlProfile, drive
+from excite.rig import kernels as rig_kernels
+from excite.rig.config import RIGS_DIR, load_rig
+
+from test_additive_kind import Speedometer
+
+
+def test_the_committed_kernels_are_what_the_statements_give():
+    """``generated.c`` is regenerated from the statements and compared, byte for byte (it is never
+    edited by hand: ``python -m excite.rig.kernels`` rewrites it)."""
+    assert generate.TARGET.read_text() == rig_kernels.source(), \
+        "excite/factors/generated.c is not what the statements give: run `python -m excite.rig.kernels`"
+
+
+def test_every_registered_kind_and_every_bundled_rig_has_its_kernels_compiled_in():
+    specs = rig_kernels.specs()
+    kinds = {k.name for k in registry.kinds()} | {k.opening.name for k in registry.kinds()
+                                                   if isinstance(k, registry.OpensChain)}
+    assert kinds <= {spec.kind.name for spec in specs.values()}, \
+        "a registered kind has no generated kernel: add a rig with it to EXAMPLES in excite/rig/kernels.py"
+    compiled = kernels.compiled()
+    assert set(specs) == set(compiled)
+    for path in sorted(RIGS_DIR.glob("*.yaml")):
+        rig = load_rig(path.stem)
+        for kind, entry in generate.instances(rig):
+            lay = layout.layout(kind, rig, entry)
+            for what in generate.kernels_of(kind, lay):
+                assert lay.name(what) in compiled, (path.name, lay.name(what))
+
+
+_T = np.linspace(0.0, 12.0, 25)
+_PROFILE = ControlProfile(_T, 5 + 2 * np.sin(_T), 0.1 * np.cos(0.7 * _T), grade_rad=0.05 * np.sin(_T),
+                          bank_rad=0.04 * np.cos(1.3 * _T))
+
+
+def _inputs(spec, fn) -> list[np.ndarray]:
+    """A factor's inputs to the kernel on a 3-D drive of its example rig: keyframes, the interval's
+    summary (the generated fold), the entry's quantities and constants; for the fold's kernels a
+    state part-way through an interval."""
+    rig, kind, lay = spec.rig, spec.kind, spec.lay
+    nom = Nominal.of(drive(_PROFILE, rig.suspension), rig)
+    c = layout.constant_inputs(lay, layout.constant_values(kind, rig, spec.entry))
+    first = kind.factor_keyframes(rig, spec.entry, nom.n_keyframes, nom)
+    k = int(first[min(7, first.size - 1)])
+    stride = kind.stride(rig, spec.entry)
+    if spec.what in ("step", "finish"):
+        rng = np.random.default_rng(5)
+        state = rng.normal(size=lay.n_state) * 1e-2
+        state[-1] = 3.0  # samples taken so far
+        i0 = k * nom.imu_per_keyframe
+        R = nom.imu_R[i0].ravel()
+        return ([state, R, nom.imu_R[i0 + 5].ravel(), nom.imu_f[i0 + 5], c] if spec.what == "step" else
+                [state, R, nom.imu_R[i0 + lay.n_samples].ravel(), c])
+    s = (kernels.summaries(nom, np.array([k]), lay, "step_" + kind.name, "finish_" + kind.name, c)[0]
+         if lay.n_summary else np.zeros(0))
+    xs = [nom.keyframe_table[k + a * stride] for a in range(lay.arity)]
+    return xs + [s, layout.quantity_inputs(lay, per_entry=True), c]
+
+
+@pytest.mark.parametrize("name", sorted(rig_kernels.specs()))
+def test_each_compiled_kernel_equals_its_statement(name):
+    """The compiled kernel against the same function in CasADi's virtual machine, at a factor of a
+    3-D drive of the example rig it was generated for."""
+    spec = rig_kernels.specs()[name]
+    fn = generate.functions(spec.kind, spec.lay, spec.what)
+    args = _inputs(spec, fn)
+    want = [np.array(o).ravel(order="F") for o in fn.call([ca.DM(a) for a in args])]
+    outs = [np.empty(fn.nnz_out(i)) for i in range(fn.n_out())]
+    from excite.core.native import module
+
+    module().run(name, np.zeros(1, dtype=np.int64), tuple(np.ascontiguousarray(a, dtype=float)[None] for a in args),
+                 (-2,) * len(args), tuple(o[None] for o in outs))
+    for got, w in zip(outs, want):
+        assert np.all(np.isfinite(w)) and np.abs(w).max() > 0
+        np.testing.assert_allclose(got, w, rtol=1e-12, atol=1e-12 * np.abs(w).max())
+
+
+@pytest.fixture(scope="module")
+def speedometer_rig():
+    registry.register(Speedometer())
+    base = load_rig("robotaxi")
+    data = base.config.model_dump()
+    data["sensors"].append({"name": "speedo", "kind": "speedometer", "rate_hz": 10.0,
+                            "noise": {"speed_noise_density": 0.02}})
+    data["targets"]["speedo.scale_factor"] = 0.001
+    yield base.with_config(**data)
+    registry.unregister("speedometer")
+
+
+def test_a_kind_from_outside_is_generated_on_demand(speedometer_rig, monkeypatch, tmp_path):
+    """No kernel of the speedometer is compiled in: with a compiler it is generated and compiled
+    into the cache on first use (and found there by a later process), without one — or with
+    compiling disabled — it is evaluated in CasADi's virtual machine; all three give the
+    statement's derivative."""
+    rig = speedometer_rig
+    t = np.linspace(0.0, 20.0, 41)
+    nom = Nominal.of(drive(ControlProfile(t, 6 + 3 * np.sin(t / 4), 0.08 * np.sin(t / 3)), rig.suspension), rig)
+    entry = rig.config.sensors[-1]
+    kind = registry.kind_of_sensor("speedometer")
+    lay = layout.layout(kind, rig, entry)
+    assert lay.name("lin") not in kernels.compiled()
+    ref = symbolic.blocks(kind, nom, rig, entry)
+    monkeypatch.setenv("EXCITE_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("EXCITE_COMPILE", "0")
+    assert generate.on_demand(kind, rig, entry, "lin") is None
+    vm = kernels.jacobians(kind, nom, rig, entry)
+    monkeypatch.setenv("EXCITE_COMPILE", "1")
+    made = generate.on_demand(kind, rig, entry, "lin")
+    assert made is not None and list((tmp_path / "kernels").glob("lin_speedometer_*.so"))
+    fast = kernels.jacobians(kind, nom, rig, entry)
+    for blk in (vm, fast):
+        np.testing.assert_allclose(blk.Jx, ref.Jx, rtol=1e-12, atol=1e-12 * np.abs(ref.Jx).max())
+        np.testing.assert_allclose(blk.Jt, ref.Jt, rtol=1e-12, atol=1e-12 * np.abs(ref.Jt).max())
+
+
+def test_a_statement_that_reads_its_entry_is_not_generated_ahead(speedometer_rig):
+    """Kernels compiled with the package serve every entry of a variant: a statement that reads
+    ``f.entry`` (the speedometer's σ) cannot be one of them, and the generator says what to do."""
+    rig = speedometer_rig
+    entry = rig.config.sensors[-1]
+    kind = registry.kind_of_sensor("speedometer")
+    with pytest.raises(TypeError, match=r"constants\(\)"):
+        generate.functions(kind, layout.layout(kind, rig, entry), "lin")
