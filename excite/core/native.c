@@ -59,8 +59,8 @@ static PyMethodDef methods[] = {
     METHOD(to_local, "to_local(Jx, first, stride, V, P, out, seen)"),
     METHOD(generated, "generated() -> the generated kernels: {name: (n_in, n_out, sizes_in, sizes_out)}"),
     METHOD(run, "run(kernel, first, inputs, offsets, outputs): a generated kernel over every factor"),
-    METHOD(fold, "fold(step, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): a generated fold over "
-                 "every interval's IMU samples"),
+    METHOD(fold, "fold(step, step2, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): a generated "
+                 "fold over every interval's IMU samples"),
     {NULL, NULL, 0, NULL},
 };
 

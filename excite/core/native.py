@@ -29,7 +29,7 @@ from types import ModuleType
 
 NAME = "excite._native"
 PACKAGE = Path(__file__).resolve().parents[1]  # excite/
-FLAGS = ("-O3", "-fPIC", "-fno-math-errno", "-std=c99")  # no fast-math: results as IEEE arithmetic gives them
+FLAGS = ("-O3", "-fPIC", "-fno-math-errno", "-ffp-contract=off", "-std=c99")  # IEEE arithmetic, no fast-math
 LOCK_STALE_S = 600.0
 
 _MODULE: ModuleType | None = None

@@ -13,8 +13,9 @@ kind and variant (:func:`specs_of`):
   inputs, so one kernel serves every entry of the variant;
 - ``raw_<kind>[_<variant>]``, for a kind that whitens some factors by data
   (:meth:`~excite.factors.base.Kind.whitening`): the same rows, not whitened;
-- ``step_<kind>`` and ``finish_<kind>``, for a kind that reads the IMU samples
-  (:class:`~excite.factors.base.ReadsImu`): its fold over an interval's samples.
+- ``step_<kind>``, ``step2_<kind>`` (two samples per call) and ``finish_<kind>``, for a kind
+  that reads the IMU samples (:class:`~excite.factors.base.ReadsImu`): its fold over an
+  interval's samples.
 
 A kind registered from outside excite, or an entry whose variant is not compiled in, is generated
 the same way on demand (:func:`on_demand`): one kernel, compiled with the system C compiler into
@@ -83,6 +84,13 @@ def functions(kind: Kind, lay: Layout, what: str, entry: Any = None, rig: RigVie
         consts = symbolic.unflatten(cv, lay.constants)
         out = kind.summary_step(state, symbolic.mat(R_i), symbolic.mat(R_s), f_s, consts)
         return ca.Function(name, [state, R_i, R_s, f_s, c], [ca.densify(out)], {"cse": True})
+    if what == "step2":  # two samples per call (s, then s − 1): half the state written and read
+        state, R_i = ca.SX.sym("state", lay.n_state), ca.SX.sym("R_i", 9)
+        R_a, f_a, R_b, f_b = ca.SX.sym("R_a", 9), ca.SX.sym("f_a", 3), ca.SX.sym("R_b", 9), ca.SX.sym("f_b", 3)
+        consts = symbolic.unflatten(cv, lay.constants)
+        mid = kind.summary_step(state, symbolic.mat(R_i), symbolic.mat(R_a), f_a, consts)
+        out = kind.summary_step(mid, symbolic.mat(R_i), symbolic.mat(R_b), f_b, consts)
+        return ca.Function(name, [state, R_i, R_a, f_a, R_b, f_b, c], [ca.densify(out)], {"cse": True})
     if what == "finish":
         state, R_i, R_j = ca.SX.sym("state", lay.n_state), ca.SX.sym("R_i", 9), ca.SX.sym("R_j", 9)
         consts = symbolic.unflatten(cv, lay.constants)
@@ -114,7 +122,7 @@ def quantity_values(lay: Layout, q) -> Any:
 def kernels_of(kind: Kind, lay: Layout) -> list[str]:
     """The kernels an entry of ``kind`` with layout ``lay`` needs."""
     return (["lin"] + (["raw"] if whitens_by_data(kind) else []) +
-            (["step", "finish"] if lay.n_summary else []))
+            (["step", "step2", "finish"] if lay.n_summary else []))
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@
 #define casadi_f14 CASADI_PREFIX(f14)
 #define casadi_f15 CASADI_PREFIX(f15)
 #define casadi_f16 CASADI_PREFIX(f16)
+#define casadi_f17 CASADI_PREFIX(f17)
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
@@ -22604,8 +22605,830 @@ CASADI_SYMBOL_EXPORT int raw_odometry_work_bytes(casadi_int *sz_arg, casadi_int*
   return 0;
 }
 
-/* step_imu:(i0[76],i1[9],i2[9],i3[3],i4[17])->(o0[76]) */
+/* step2_imu:(i0[76],i1[9],i2[9],i3[3],i4[9],i5[3],i6[17])->(o0[76]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[1]? arg[1][0] : 0;
+  a02=arg[2]? arg[2][0] : 0;
+  a03=(a01*a02);
+  a04=arg[1]? arg[1][3] : 0;
+  a05=arg[2]? arg[2][3] : 0;
+  a06=(a04*a05);
+  a03=(a03+a06);
+  a06=arg[1]? arg[1][6] : 0;
+  a07=arg[2]? arg[2][6] : 0;
+  a08=(a06*a07);
+  a03=(a03+a08);
+  a08=arg[6]? arg[6][3] : 0;
+  a09=(a03*a08);
+  a00=(a00+a09);
+  a09=arg[4]? arg[4][0] : 0;
+  a10=(a01*a09);
+  a11=arg[4]? arg[4][3] : 0;
+  a12=(a04*a11);
+  a10=(a10+a12);
+  a12=arg[4]? arg[4][6] : 0;
+  a13=(a06*a12);
+  a10=(a10+a13);
+  a13=(a10*a08);
+  a00=(a00+a13);
+  if (res[0]!=0) res[0][0]=a00;
+  a00=arg[0]? arg[0][1] : 0;
+  a13=arg[2]? arg[2][1] : 0;
+  a14=(a01*a13);
+  a15=arg[2]? arg[2][4] : 0;
+  a16=(a04*a15);
+  a14=(a14+a16);
+  a16=arg[2]? arg[2][7] : 0;
+  a17=(a06*a16);
+  a14=(a14+a17);
+  a17=(a14*a08);
+  a00=(a00+a17);
+  a17=arg[4]? arg[4][1] : 0;
+  a18=(a01*a17);
+  a19=arg[4]? arg[4][4] : 0;
+  a20=(a04*a19);
+  a18=(a18+a20);
+  a20=arg[4]? arg[4][7] : 0;
+  a21=(a06*a20);
+  a18=(a18+a21);
+  a21=(a18*a08);
+  a00=(a00+a21);
+  if (res[0]!=0) res[0][1]=a00;
+  a00=arg[0]? arg[0][2] : 0;
+  a21=arg[2]? arg[2][2] : 0;
+  a22=(a01*a21);
+  a23=arg[2]? arg[2][5] : 0;
+  a24=(a04*a23);
+  a22=(a22+a24);
+  a24=arg[2]? arg[2][8] : 0;
+  a25=(a06*a24);
+  a22=(a22+a25);
+  a25=(a22*a08);
+  a00=(a00+a25);
+  a25=arg[4]? arg[4][2] : 0;
+  a01=(a01*a25);
+  a26=arg[4]? arg[4][5] : 0;
+  a04=(a04*a26);
+  a01=(a01+a04);
+  a04=arg[4]? arg[4][8] : 0;
+  a06=(a06*a04);
+  a01=(a01+a06);
+  a06=(a01*a08);
+  a00=(a00+a06);
+  if (res[0]!=0) res[0][2]=a00;
+  a00=arg[0]? arg[0][3] : 0;
+  a06=arg[1]? arg[1][1] : 0;
+  a27=(a06*a02);
+  a28=arg[1]? arg[1][4] : 0;
+  a29=(a28*a05);
+  a27=(a27+a29);
+  a29=arg[1]? arg[1][7] : 0;
+  a30=(a29*a07);
+  a27=(a27+a30);
+  a30=(a27*a08);
+  a00=(a00+a30);
+  a30=(a06*a09);
+  a31=(a28*a11);
+  a30=(a30+a31);
+  a31=(a29*a12);
+  a30=(a30+a31);
+  a31=(a30*a08);
+  a00=(a00+a31);
+  if (res[0]!=0) res[0][3]=a00;
+  a00=arg[0]? arg[0][4] : 0;
+  a31=(a06*a13);
+  a32=(a28*a15);
+  a31=(a31+a32);
+  a32=(a29*a16);
+  a31=(a31+a32);
+  a32=(a31*a08);
+  a00=(a00+a32);
+  a32=(a06*a17);
+  a33=(a28*a19);
+  a32=(a32+a33);
+  a33=(a29*a20);
+  a32=(a32+a33);
+  a33=(a32*a08);
+  a00=(a00+a33);
+  if (res[0]!=0) res[0][4]=a00;
+  a00=arg[0]? arg[0][5] : 0;
+  a33=(a06*a21);
+  a34=(a28*a23);
+  a33=(a33+a34);
+  a34=(a29*a24);
+  a33=(a33+a34);
+  a34=(a33*a08);
+  a00=(a00+a34);
+  a06=(a06*a25);
+  a28=(a28*a26);
+  a06=(a06+a28);
+  a29=(a29*a04);
+  a06=(a06+a29);
+  a29=(a06*a08);
+  a00=(a00+a29);
+  if (res[0]!=0) res[0][5]=a00;
+  a00=arg[0]? arg[0][6] : 0;
+  a29=arg[1]? arg[1][2] : 0;
+  a02=(a29*a02);
+  a28=arg[1]? arg[1][5] : 0;
+  a05=(a28*a05);
+  a02=(a02+a05);
+  a05=arg[1]? arg[1][8] : 0;
+  a07=(a05*a07);
+  a02=(a02+a07);
+  a07=(a02*a08);
+  a00=(a00+a07);
+  a09=(a29*a09);
+  a11=(a28*a11);
+  a09=(a09+a11);
+  a12=(a05*a12);
+  a09=(a09+a12);
+  a12=(a09*a08);
+  a00=(a00+a12);
+  if (res[0]!=0) res[0][6]=a00;
+  a00=arg[0]? arg[0][7] : 0;
+  a13=(a29*a13);
+  a15=(a28*a15);
+  a13=(a13+a15);
+  a16=(a05*a16);
+  a13=(a13+a16);
+  a16=(a13*a08);
+  a00=(a00+a16);
+  a17=(a29*a17);
+  a19=(a28*a19);
+  a17=(a17+a19);
+  a20=(a05*a20);
+  a17=(a17+a20);
+  a20=(a17*a08);
+  a00=(a00+a20);
+  if (res[0]!=0) res[0][7]=a00;
+  a00=arg[0]? arg[0][8] : 0;
+  a21=(a29*a21);
+  a23=(a28*a23);
+  a21=(a21+a23);
+  a24=(a05*a24);
+  a21=(a21+a24);
+  a24=(a21*a08);
+  a00=(a00+a24);
+  a29=(a29*a25);
+  a28=(a28*a26);
+  a29=(a29+a28);
+  a05=(a05*a04);
+  a29=(a29+a05);
+  a05=(a29*a08);
+  a00=(a00+a05);
+  if (res[0]!=0) res[0][8]=a00;
+  a00=arg[0]? arg[0][9] : 0;
+  a05=arg[0]? arg[0][75] : 0;
+  a04=5.0000000000000000e-01;
+  a28=(a05+a04);
+  a28=(a28*a08);
+  a26=(a28*a08);
+  a25=(a03*a26);
+  a00=(a00-a25);
+  a25=1.;
+  a24=(a05+a25);
+  a04=(a24+a04);
+  a04=(a04*a08);
+  a23=(a04*a08);
+  a20=(a10*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][9]=a00;
+  a00=arg[0]? arg[0][10] : 0;
+  a20=(a14*a26);
+  a00=(a00-a20);
+  a20=(a18*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][10]=a00;
+  a00=arg[0]? arg[0][11] : 0;
+  a20=(a22*a26);
+  a00=(a00-a20);
+  a20=(a01*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][11]=a00;
+  a00=arg[0]? arg[0][12] : 0;
+  a20=(a27*a26);
+  a00=(a00-a20);
+  a20=(a30*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][12]=a00;
+  a00=arg[0]? arg[0][13] : 0;
+  a20=(a31*a26);
+  a00=(a00-a20);
+  a20=(a32*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][13]=a00;
+  a00=arg[0]? arg[0][14] : 0;
+  a20=(a33*a26);
+  a00=(a00-a20);
+  a20=(a06*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][14]=a00;
+  a00=arg[0]? arg[0][15] : 0;
+  a20=(a02*a26);
+  a00=(a00-a20);
+  a20=(a09*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][15]=a00;
+  a00=arg[0]? arg[0][16] : 0;
+  a20=(a13*a26);
+  a00=(a00-a20);
+  a20=(a17*a23);
+  a00=(a00-a20);
+  if (res[0]!=0) res[0][16]=a00;
+  a00=arg[0]? arg[0][17] : 0;
+  a26=(a21*a26);
+  a00=(a00-a26);
+  a23=(a29*a23);
+  a00=(a00-a23);
+  if (res[0]!=0) res[0][17]=a00;
+  a00=arg[0]? arg[0][18] : 0;
+  a23=arg[0]? arg[0][37] : 0;
+  a26=(a23*a02);
+  a20=arg[0]? arg[0][38] : 0;
+  a19=(a20*a27);
+  a26=(a26-a19);
+  a26=(a26*a08);
+  a00=(a00+a26);
+  a26=arg[3]? arg[3][0] : 0;
+  a19=(a27*a26);
+  a16=arg[3]? arg[3][1] : 0;
+  a15=(a31*a16);
+  a19=(a19+a15);
+  a15=arg[3]? arg[3][2] : 0;
+  a12=(a33*a15);
+  a19=(a19+a12);
+  a19=(a19*a08);
+  a12=(a23+a19);
+  a11=(a12*a09);
+  a07=(a02*a26);
+  a34=(a13*a16);
+  a07=(a07+a34);
+  a34=(a21*a15);
+  a07=(a07+a34);
+  a07=(a07*a08);
+  a34=(a20+a07);
+  a35=(a34*a30);
+  a11=(a11-a35);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][18]=a00;
+  a00=arg[0]? arg[0][19] : 0;
+  a11=(a23*a13);
+  a35=(a20*a31);
+  a11=(a11-a35);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a12*a17);
+  a35=(a34*a32);
+  a11=(a11-a35);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][19]=a00;
+  a00=arg[0]? arg[0][20] : 0;
+  a11=(a23*a21);
+  a35=(a20*a33);
+  a11=(a11-a35);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a12*a29);
+  a35=(a34*a06);
+  a11=(a11-a35);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][20]=a00;
+  a00=arg[0]? arg[0][21] : 0;
+  a11=(a20*a03);
+  a35=arg[0]? arg[0][36] : 0;
+  a36=(a35*a02);
+  a11=(a11-a36);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a34*a10);
+  a26=(a03*a26);
+  a16=(a14*a16);
+  a26=(a26+a16);
+  a15=(a22*a15);
+  a26=(a26+a15);
+  a26=(a26*a08);
+  a15=(a35+a26);
+  a16=(a15*a09);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][21]=a00;
+  a00=arg[0]? arg[0][22] : 0;
+  a11=(a20*a14);
+  a16=(a35*a13);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a34*a18);
+  a16=(a15*a17);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][22]=a00;
+  a00=arg[0]? arg[0][23] : 0;
+  a11=(a20*a22);
+  a16=(a35*a21);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a34*a01);
+  a16=(a15*a29);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][23]=a00;
+  a00=arg[0]? arg[0][24] : 0;
+  a11=(a35*a27);
+  a16=(a23*a03);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a15*a30);
+  a16=(a12*a10);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][24]=a00;
+  a00=arg[0]? arg[0][25] : 0;
+  a11=(a35*a31);
+  a16=(a23*a14);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a15*a32);
+  a16=(a12*a18);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][25]=a00;
+  a00=arg[0]? arg[0][26] : 0;
+  a11=(a35*a33);
+  a16=(a23*a22);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  a11=(a15*a06);
+  a16=(a12*a01);
+  a11=(a11-a16);
+  a11=(a11*a08);
+  a00=(a00+a11);
+  if (res[0]!=0) res[0][26]=a00;
+  a00=arg[0]? arg[0][27] : 0;
+  a11=arg[0]? arg[0][40] : 0;
+  a16=(a11*a02);
+  a36=arg[0]? arg[0][41] : 0;
+  a37=(a36*a27);
+  a16=(a16-a37);
+  a16=(a16*a08);
+  a00=(a00+a16);
+  a16=(a28*a19);
+  a16=(a11+a16);
+  a37=(a16*a09);
+  a38=(a28*a07);
+  a38=(a36+a38);
+  a39=(a38*a30);
+  a37=(a37-a39);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  if (res[0]!=0) res[0][27]=a00;
+  a00=arg[0]? arg[0][28] : 0;
+  a37=(a11*a13);
+  a39=(a36*a31);
+  a37=(a37-a39);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  a37=(a16*a17);
+  a39=(a38*a32);
+  a37=(a37-a39);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  if (res[0]!=0) res[0][28]=a00;
+  a00=arg[0]? arg[0][29] : 0;
+  a37=(a11*a21);
+  a39=(a36*a33);
+  a37=(a37-a39);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  a37=(a16*a29);
+  a39=(a38*a06);
+  a37=(a37-a39);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  if (res[0]!=0) res[0][29]=a00;
+  a00=arg[0]? arg[0][30] : 0;
+  a37=(a36*a03);
+  a39=arg[0]? arg[0][39] : 0;
+  a02=(a39*a02);
+  a37=(a37-a02);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  a37=(a38*a10);
+  a02=(a28*a26);
+  a02=(a39+a02);
+  a40=(a02*a09);
+  a37=(a37-a40);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  if (res[0]!=0) res[0][30]=a00;
+  a00=arg[0]? arg[0][31] : 0;
+  a37=(a36*a14);
+  a13=(a39*a13);
+  a37=(a37-a13);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  a37=(a38*a18);
+  a13=(a02*a17);
+  a37=(a37-a13);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  if (res[0]!=0) res[0][31]=a00;
+  a00=arg[0]? arg[0][32] : 0;
+  a37=(a36*a22);
+  a21=(a39*a21);
+  a37=(a37-a21);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  a37=(a38*a01);
+  a21=(a02*a29);
+  a37=(a37-a21);
+  a37=(a37*a08);
+  a00=(a00+a37);
+  if (res[0]!=0) res[0][32]=a00;
+  a00=arg[0]? arg[0][33] : 0;
+  a27=(a39*a27);
+  a03=(a11*a03);
+  a27=(a27-a03);
+  a27=(a27*a08);
+  a00=(a00+a27);
+  a27=(a02*a30);
+  a03=(a16*a10);
+  a27=(a27-a03);
+  a27=(a27*a08);
+  a00=(a00+a27);
+  if (res[0]!=0) res[0][33]=a00;
+  a00=arg[0]? arg[0][34] : 0;
+  a31=(a39*a31);
+  a14=(a11*a14);
+  a31=(a31-a14);
+  a31=(a31*a08);
+  a00=(a00+a31);
+  a31=(a02*a32);
+  a14=(a16*a18);
+  a31=(a31-a14);
+  a31=(a31*a08);
+  a00=(a00+a31);
+  if (res[0]!=0) res[0][34]=a00;
+  a00=arg[0]? arg[0][35] : 0;
+  a33=(a39*a33);
+  a22=(a11*a22);
+  a33=(a33-a22);
+  a33=(a33*a08);
+  a00=(a00+a33);
+  a33=(a02*a06);
+  a22=(a16*a01);
+  a33=(a33-a22);
+  a33=(a33*a08);
+  a00=(a00+a33);
+  if (res[0]!=0) res[0][35]=a00;
+  a00=arg[5]? arg[5][0] : 0;
+  a10=(a10*a00);
+  a33=arg[5]? arg[5][1] : 0;
+  a18=(a18*a33);
+  a10=(a10+a18);
+  a18=arg[5]? arg[5][2] : 0;
+  a01=(a01*a18);
+  a10=(a10+a01);
+  a10=(a10*a08);
+  a01=(a15+a10);
+  if (res[0]!=0) res[0][36]=a01;
+  a30=(a30*a00);
+  a32=(a32*a33);
+  a30=(a30+a32);
+  a06=(a06*a18);
+  a30=(a30+a06);
+  a30=(a30*a08);
+  a06=(a12+a30);
+  if (res[0]!=0) res[0][37]=a06;
+  a09=(a09*a00);
+  a17=(a17*a33);
+  a09=(a09+a17);
+  a29=(a29*a18);
+  a09=(a09+a29);
+  a09=(a09*a08);
+  a08=(a34+a09);
+  if (res[0]!=0) res[0][38]=a08;
+  a08=(a04*a10);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][39]=a08;
+  a08=(a04*a30);
+  a08=(a16+a08);
+  if (res[0]!=0) res[0][40]=a08;
+  a08=(a04*a09);
+  a08=(a38+a08);
+  if (res[0]!=0) res[0][41]=a08;
+  a08=arg[0]? arg[0][42] : 0;
+  a29=casadi_sq(a35);
+  a08=(a08+a29);
+  a29=casadi_sq(a15);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][42]=a08;
+  a08=arg[0]? arg[0][43] : 0;
+  a29=(a35*a23);
+  a08=(a08+a29);
+  a29=(a15*a12);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][43]=a08;
+  a08=arg[0]? arg[0][44] : 0;
+  a29=(a35*a20);
+  a08=(a08+a29);
+  a29=(a15*a34);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][44]=a08;
+  a08=arg[0]? arg[0][45] : 0;
+  a29=(a23*a35);
+  a08=(a08+a29);
+  a29=(a12*a15);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][45]=a08;
+  a08=arg[0]? arg[0][46] : 0;
+  a29=casadi_sq(a23);
+  a08=(a08+a29);
+  a29=casadi_sq(a12);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][46]=a08;
+  a08=arg[0]? arg[0][47] : 0;
+  a29=(a23*a20);
+  a08=(a08+a29);
+  a29=(a12*a34);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][47]=a08;
+  a08=arg[0]? arg[0][48] : 0;
+  a29=(a20*a35);
+  a08=(a08+a29);
+  a29=(a34*a15);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][48]=a08;
+  a08=arg[0]? arg[0][49] : 0;
+  a29=(a20*a23);
+  a08=(a08+a29);
+  a29=(a34*a12);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][49]=a08;
+  a08=arg[0]? arg[0][50] : 0;
+  a29=casadi_sq(a20);
+  a08=(a08+a29);
+  a29=casadi_sq(a34);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][50]=a08;
+  a08=arg[0]? arg[0][51] : 0;
+  a29=(a35*a39);
+  a08=(a08+a29);
+  a29=(a15*a02);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][51]=a08;
+  a08=arg[0]? arg[0][52] : 0;
+  a29=(a35*a11);
+  a08=(a08+a29);
+  a29=(a15*a16);
+  a08=(a08+a29);
+  if (res[0]!=0) res[0][52]=a08;
+  a08=arg[0]? arg[0][53] : 0;
+  a35=(a35*a36);
+  a08=(a08+a35);
+  a15=(a15*a38);
+  a08=(a08+a15);
+  if (res[0]!=0) res[0][53]=a08;
+  a08=arg[0]? arg[0][54] : 0;
+  a15=(a23*a39);
+  a08=(a08+a15);
+  a15=(a12*a02);
+  a08=(a08+a15);
+  if (res[0]!=0) res[0][54]=a08;
+  a08=arg[0]? arg[0][55] : 0;
+  a15=(a23*a11);
+  a08=(a08+a15);
+  a15=(a12*a16);
+  a08=(a08+a15);
+  if (res[0]!=0) res[0][55]=a08;
+  a08=arg[0]? arg[0][56] : 0;
+  a23=(a23*a36);
+  a08=(a08+a23);
+  a12=(a12*a38);
+  a08=(a08+a12);
+  if (res[0]!=0) res[0][56]=a08;
+  a08=arg[0]? arg[0][57] : 0;
+  a12=(a20*a39);
+  a08=(a08+a12);
+  a12=(a34*a02);
+  a08=(a08+a12);
+  if (res[0]!=0) res[0][57]=a08;
+  a08=arg[0]? arg[0][58] : 0;
+  a12=(a20*a11);
+  a08=(a08+a12);
+  a12=(a34*a16);
+  a08=(a08+a12);
+  if (res[0]!=0) res[0][58]=a08;
+  a08=arg[0]? arg[0][59] : 0;
+  a20=(a20*a36);
+  a08=(a08+a20);
+  a34=(a34*a38);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][59]=a08;
+  a08=arg[0]? arg[0][60] : 0;
+  a34=casadi_sq(a39);
+  a08=(a08+a34);
+  a34=casadi_sq(a02);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][60]=a08;
+  a08=arg[0]? arg[0][61] : 0;
+  a34=(a39*a11);
+  a08=(a08+a34);
+  a34=(a02*a16);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][61]=a08;
+  a08=arg[0]? arg[0][62] : 0;
+  a34=(a39*a36);
+  a08=(a08+a34);
+  a34=(a02*a38);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][62]=a08;
+  a08=arg[0]? arg[0][63] : 0;
+  a34=(a11*a39);
+  a08=(a08+a34);
+  a34=(a16*a02);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][63]=a08;
+  a08=arg[0]? arg[0][64] : 0;
+  a34=casadi_sq(a11);
+  a08=(a08+a34);
+  a34=casadi_sq(a16);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][64]=a08;
+  a08=arg[0]? arg[0][65] : 0;
+  a34=(a11*a36);
+  a08=(a08+a34);
+  a34=(a16*a38);
+  a08=(a08+a34);
+  if (res[0]!=0) res[0][65]=a08;
+  a08=arg[0]? arg[0][66] : 0;
+  a39=(a36*a39);
+  a08=(a08+a39);
+  a02=(a38*a02);
+  a08=(a08+a02);
+  if (res[0]!=0) res[0][66]=a08;
+  a08=arg[0]? arg[0][67] : 0;
+  a11=(a36*a11);
+  a08=(a08+a11);
+  a16=(a38*a16);
+  a08=(a08+a16);
+  if (res[0]!=0) res[0][67]=a08;
+  a08=arg[0]? arg[0][68] : 0;
+  a36=casadi_sq(a36);
+  a08=(a08+a36);
+  a38=casadi_sq(a38);
+  a08=(a08+a38);
+  if (res[0]!=0) res[0][68]=a08;
+  a08=arg[0]? arg[0][69] : 0;
+  a38=arg[6]? arg[6][4] : 0;
+  a38=(a38-a25);
+  a05=(a38-a05);
+  a36=(a05*a26);
+  a08=(a08+a36);
+  a38=(a38-a24);
+  a36=(a38*a10);
+  a08=(a08+a36);
+  if (res[0]!=0) res[0][69]=a08;
+  a08=arg[0]? arg[0][70] : 0;
+  a36=(a05*a19);
+  a08=(a08+a36);
+  a36=(a38*a30);
+  a08=(a08+a36);
+  if (res[0]!=0) res[0][70]=a08;
+  a08=arg[0]? arg[0][71] : 0;
+  a36=(a05*a07);
+  a08=(a08+a36);
+  a36=(a38*a09);
+  a08=(a08+a36);
+  if (res[0]!=0) res[0][71]=a08;
+  a08=arg[0]? arg[0][72] : 0;
+  a05=(a05*a28);
+  a26=(a05*a26);
+  a08=(a08+a26);
+  a38=(a38*a04);
+  a10=(a38*a10);
+  a08=(a08+a10);
+  if (res[0]!=0) res[0][72]=a08;
+  a08=arg[0]? arg[0][73] : 0;
+  a19=(a05*a19);
+  a08=(a08+a19);
+  a30=(a38*a30);
+  a08=(a08+a30);
+  if (res[0]!=0) res[0][73]=a08;
+  a08=arg[0]? arg[0][74] : 0;
+  a05=(a05*a07);
+  a08=(a08+a05);
+  a38=(a38*a09);
+  a08=(a08+a38);
+  if (res[0]!=0) res[0][74]=a08;
+  a24=(a24+a25);
+  if (res[0]!=0) res[0][75]=a24;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int step2_imu(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f16(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int step2_imu_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void step2_imu_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void step2_imu_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void step2_imu_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int step2_imu_n_in(void) { return 7;}
+
+CASADI_SYMBOL_EXPORT casadi_int step2_imu_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real step2_imu_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* step2_imu_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "i0";
+    case 1: return "i1";
+    case 2: return "i2";
+    case 3: return "i3";
+    case 4: return "i4";
+    case 5: return "i5";
+    case 6: return "i6";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* step2_imu_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "o0";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* step2_imu_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s1;
+    case 3: return casadi_s6;
+    case 4: return casadi_s1;
+    case 5: return casadi_s6;
+    case 6: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* step2_imu_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int step2_imu_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 7;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int step2_imu_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* step_imu:(i0[76],i1[9],i2[9],i3[3],i4[17])->(o0[76]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
   a00=arg[0]? arg[0][0] : 0;
@@ -23060,7 +23883,7 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int step_imu(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f16(arg, res, iw, w, mem);
+  return casadi_f17(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int step_imu_checkout(void) {
@@ -23174,10 +23997,12 @@ static const long long raw_gnss_first_fix_nnz_in[] = {27, 0, 3, 18};
 static const long long raw_gnss_first_fix_nnz_out[] = {27, 12};
 static const long long raw_odometry_nnz_in[] = {27, 27, 0, 12, 21};
 static const long long raw_odometry_nnz_out[] = {108, 48};
+static const long long step2_imu_nnz_in[] = {76, 9, 9, 3, 9, 3, 17};
+static const long long step2_imu_nnz_out[] = {76};
 static const long long step_imu_nnz_in[] = {76, 9, 9, 3, 17};
 static const long long step_imu_nnz_out[] = {76};
 
-const excite_kernel excite_kernels[17] = {
+const excite_kernel excite_kernels[18] = {
     {"finish_imu", (void *)finish_imu, (void *)finish_imu_work, 4, 1, finish_imu_nnz_in, finish_imu_nnz_out},
     {"lin_ackermann_mps_no_steering", (void *)lin_ackermann_mps_no_steering, (void *)lin_ackermann_mps_no_steering_work, 5, 2, lin_ackermann_mps_no_steering_nnz_in, lin_ackermann_mps_no_steering_nnz_out},
     {"lin_ackermann_mps_steering", (void *)lin_ackermann_mps_steering, (void *)lin_ackermann_mps_steering_work, 5, 2, lin_ackermann_mps_steering_nnz_in, lin_ackermann_mps_steering_nnz_out},
@@ -23194,6 +24019,7 @@ const excite_kernel excite_kernels[17] = {
     {"raw_gnss", (void *)raw_gnss, (void *)raw_gnss_work, 5, 2, raw_gnss_nnz_in, raw_gnss_nnz_out},
     {"raw_gnss_first_fix", (void *)raw_gnss_first_fix, (void *)raw_gnss_first_fix_work, 4, 2, raw_gnss_first_fix_nnz_in, raw_gnss_first_fix_nnz_out},
     {"raw_odometry", (void *)raw_odometry, (void *)raw_odometry_work, 5, 2, raw_odometry_nnz_in, raw_odometry_nnz_out},
+    {"step2_imu", (void *)step2_imu, (void *)step2_imu_work, 7, 1, step2_imu_nnz_in, step2_imu_nnz_out},
     {"step_imu", (void *)step_imu, (void *)step_imu_work, 5, 1, step_imu_nnz_in, step_imu_nnz_out},
 };
-const int excite_n_kernels = 17;
+const int excite_n_kernels = 18;

@@ -150,23 +150,26 @@ static int resolve(PyObject *k, kernel_fn *f, work_fn *work) {
     return -1;
 }
 
-/* fold(step, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): for every interval
- * starting at keyframe first[k] (its samples i0 … i0 + n, i0 = first[k]·per_keyframe), the state
- * starts at zero and takes step(state, R_i0, R_s, f_s, c) for s = n − 1 down to 0; out[k] =
+/* fold(step, step2, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): for every
+ * interval starting at keyframe first[k] (its samples i0 … i0 + n, i0 = first[k]·per_keyframe),
+ * the state starts at zero and takes the samples s = n − 1 down to 0: step2(state, R_i0, R_s, f_s,
+ * R_{s−1}, f_{s−1}, c) two at a time, step(state, R_i0, R_s, f_s, c) for a last one; out[k] =
  * finish(state, R_i0, R_{i0+n}, c). */
 NATIVE_FUNCTION(native_fold) {
-    CHECK_NARGS(10, "fold");
-    kernel_fn step, finish;
-    work_fn step_work, finish_work;
-    if (resolve(args[0], &step, &step_work) || resolve(args[1], &finish, &finish_work)) return NULL;
+    CHECK_NARGS(11, "fold");
+    kernel_fn step, step2, finish;
+    work_fn step_work, step2_work, finish_work;
+    if (resolve(args[0], &step, &step_work) || resolve(args[1], &step2, &step2_work) ||
+        resolve(args[2], &finish, &finish_work))
+        return NULL;
     Args a = {.n = 0};
-    Py_buffer *first = native_array(&a, args[2], 'q', 1, 0, "first");
-    Py_buffer *R = first ? native_array(&a, args[6], 'd', 3, 0, "imu_R") : NULL;
-    Py_buffer *F = R ? native_array(&a, args[7], 'd', 2, 0, "imu_f") : NULL;
-    Py_buffer *c = F ? native_array(&a, args[8], 'd', 1, 0, "c") : NULL;
-    Py_buffer *out = c ? native_array(&a, args[9], 'd', 2, 1, "out") : NULL;
+    Py_buffer *first = native_array(&a, args[3], 'q', 1, 0, "first");
+    Py_buffer *R = first ? native_array(&a, args[7], 'd', 3, 0, "imu_R") : NULL;
+    Py_buffer *F = R ? native_array(&a, args[8], 'd', 2, 0, "imu_f") : NULL;
+    Py_buffer *c = F ? native_array(&a, args[9], 'd', 1, 0, "c") : NULL;
+    Py_buffer *out = c ? native_array(&a, args[10], 'd', 2, 1, "out") : NULL;
     if (!out) return native_release(&a), NULL;
-    long per = native_long(args[3]), n = native_long(args[4]), ns = native_long(args[5]);
+    long per = native_long(args[4]), n = native_long(args[5]), ns = native_long(args[6]);
     if (PyErr_Occurred()) return native_release(&a), NULL;
     Py_ssize_t N = SHAPE(first, 0), M = SHAPE(R, 0), width = SHAPE(out, 1);
     const int64_t *fi = Q(first);
@@ -179,15 +182,19 @@ NATIVE_FUNCTION(native_fold) {
         PyErr_SetString(PyExc_ValueError, "fold: out must have a row per interval, imu_f a row per sample");
         return native_release(&a), NULL;
     }
-    long long s_arg, s_res, s_iw, s_w, f_arg, f_res, f_iw, f_w;
-    step_work(&s_arg, &s_res, &s_iw, &s_w);
-    finish_work(&f_arg, &f_res, &f_iw, &f_w);
+    long long sz[3][4];
+    step_work(&sz[0][0], &sz[0][1], &sz[0][2], &sz[0][3]);
+    step2_work(&sz[1][0], &sz[1][1], &sz[1][2], &sz[1][3]);
+    finish_work(&sz[2][0], &sz[2][1], &sz[2][2], &sz[2][3]);
+    long long sz_iw = 0, sz_w = 0;
+    for (int i = 0; i < 3; ++i) {
+        sz_iw = sz[i][2] > sz_iw ? sz[i][2] : sz_iw;
+        sz_w = sz[i][3] > sz_w ? sz[i][3] : sz_w;
+    }
     int rc = 0;
     const double *Rm = D(R), *Fm = D(F), *cv = D(c);
     double *o = D(out);
-    (void)width;
     Py_BEGIN_ALLOW_THREADS;
-    long long sz_iw = s_iw > f_iw ? s_iw : f_iw, sz_w = s_w > f_w ? s_w : f_w;
     long long *iw = malloc(sizeof(long long) * ((size_t)sz_iw + 1));
     double *w = malloc(sizeof(double) * ((size_t)sz_w + 1));
     double *st = malloc(sizeof(double) * (2 * (size_t)ns + 1));
@@ -198,15 +205,21 @@ NATIVE_FUNCTION(native_fold) {
         double *res[2];
         for (Py_ssize_t k = 0; k < N && !rc; ++k) {
             Py_ssize_t i0 = (Py_ssize_t)fi[k] * per;
-            double *cur = st, *nxt = st + ns;
+            double *cur = st, *nxt = st + ns, *t;
             memset(cur, 0, sizeof(double) * ns);
-            for (long s = n - 1; s >= 0; --s) {
-                arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + s), arg[3] = Fm + 3 * (i0 + s), arg[4] = cv;
+            long s = n - 1;
+            for (; s >= 1; s -= 2) {
+                arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + s), arg[3] = Fm + 3 * (i0 + s);
+                arg[4] = Rm + 9 * (i0 + s - 1), arg[5] = Fm + 3 * (i0 + s - 1), arg[6] = cv;
+                res[0] = nxt;
+                if (step2(arg, res, iw, w, 0)) rc = 1;
+                t = cur, cur = nxt, nxt = t;
+            }
+            if (s == 0) {
+                arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * i0, arg[3] = Fm + 3 * i0, arg[4] = cv;
                 res[0] = nxt;
                 if (step(arg, res, iw, w, 0)) rc = 1;
-                double *t = cur;
-                cur = nxt;
-                nxt = t;
+                t = cur, cur = nxt, nxt = t;
             }
             arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + n), arg[3] = cv;
             res[0] = o + k * width;

@@ -70,11 +70,12 @@ def kernel(lay: Layout, what: str, kind: Kind, rig: RigView, entry: Any) -> tupl
     return name, sizes[0], sizes[1]
 
 
-def summaries(nom: Nominal, first: np.ndarray, lay: Layout, step, finish, c: np.ndarray) -> np.ndarray:
+def summaries(nom: Nominal, first: np.ndarray, lay: Layout, fold, c: np.ndarray) -> np.ndarray:
     """The summary of the IMU samples of every interval starting at keyframes ``first``
-    (N × n_summary): the kind's fold over them, from the last sample to the first."""
+    (N × n_summary): the kind's fold over them (its kernels ``fold = (step, step2, finish)``),
+    from the last sample to the first."""
     out = np.empty((first.size, lay.n_summary))
-    module().fold(step, finish, np.ascontiguousarray(first, dtype=np.int64), nom.imu_per_keyframe, lay.n_samples,
+    module().fold(*fold, np.ascontiguousarray(first, dtype=np.int64), nom.imu_per_keyframe, lay.n_samples,
                   lay.n_state, np.ascontiguousarray(nom.imu_R), np.ascontiguousarray(nom.imu_f), c, out)
     return out
 
@@ -90,13 +91,13 @@ def jacobians(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock
     W = kind.whitening(nom, rig, entry, first)
     what = "lin" if W is None else "raw"
     lin = kernel(lay, what, kind, rig, entry)
-    fold = (kernel(lay, "step", kind, rig, entry), kernel(lay, "finish", kind, rig, entry)) if lay.n_summary else None
+    fold = tuple(kernel(lay, w, kind, rig, entry) for w in ("step", "step2", "finish")) if lay.n_summary else None
     if lin is None or (fold is not None and None in fold):
         from . import symbolic  # no compiled kernel and no compiler: CasADi's virtual machine
 
         return symbolic.blocks(kind, nom, rig, entry, whitening=W)
     c = constant_inputs(lay, constant_values(kind, rig, entry))
-    s = summaries(nom, first, lay, fold[0][0], fold[1][0], c) if fold else np.zeros((first.size, 0))
+    s = summaries(nom, first, lay, tuple(k[0] for k in fold), c) if fold else np.zeros((first.size, 0))
     q = quantity_inputs(lay, per_entry=True)
     N, nx, nt = first.size, 9 * lay.arity, lay.n_coordinates
     rows = lin[2][0] // nx

@@ -151,13 +151,15 @@ def coordinate_names(lay: Layout) -> list[str]:
 
 def output_size(lay: Layout, what: str) -> int | None:
     """The size of the first output of the kernel ``what`` (None: it depends on the entry's rows)."""
-    return {"step": lay.n_state, "finish": lay.n_summary}.get(what)
+    return {"step": lay.n_state, "step2": lay.n_state, "finish": lay.n_summary}.get(what)
 
 
 def input_sizes(lay: Layout, what: str) -> tuple[int, ...]:
     """The sizes of the inputs of the kernel ``what`` of an entry with layout ``lay``."""
     if what == "step":
         return lay.n_state, 9, 9, 3, lay.n_constants
+    if what == "step2":
+        return lay.n_state, 9, 9, 3, 9, 3, lay.n_constants
     if what == "finish":
         return lay.n_state, 9, 9, lay.n_constants
     return (KEYFRAME_INPUTS,) * lay.arity + (lay.n_summary, lay.n_entry_quantities, lay.n_constants)

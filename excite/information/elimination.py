@@ -19,7 +19,7 @@ plain-numpy reference the tests hold both to). Every drive is closed by its rig'
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -263,12 +263,14 @@ class DriveInformation:
     thread_ms: dict[str, float]
 
 
-def drive_information(trajs: Sequence[Trajectory], rig: RigView) -> DriveInformation:
+def drive_information(trajs: Sequence[Trajectory], rig: RigView,
+                      meanwhile: Callable[[], object] | None = None) -> DriveInformation:
     """Λ_θ of drives calibrated together, streamed: each drive is swept from both ends towards
     the chunk edge in its middle, the two sweeps in parallel on the thread pool. A sweep samples,
     linearises and eliminates one chunk after another, carrying the information of the keyframe
     it has reached and of θ into the next chunk (:func:`sweep`), so no whole-drive array is ever
-    formed; the middle keyframe is eliminated last. :func:`marginal` of :func:`build` gives the
+    formed; the middle keyframe is eliminated last; ``meanwhile()``, where given, runs in the
+    calling thread while the sweeps do. :func:`marginal` of :func:`build` gives the
     same Λ_θ from the whole linearised problem.
 
     Why not :class:`Piece` s: a chunk with both ends kept carries its first keyframe's state in the
@@ -288,7 +290,10 @@ def drive_information(trajs: Sequence[Trajectory], rig: RigView) -> DriveInforma
         meets.append(meet)
         offset += K
 
-    results = list(pool().map(lambda task: sweep(*task, rig, p, closure), tasks))
+    futures = [pool().submit(sweep, *task, rig, p, closure) for task in tasks]
+    if meanwhile is not None:  # the caller's own work, in this thread while the sweeps run
+        meanwhile()
+    results = [f.result() for f in futures]
     Lam = sum(met(results[2 * i][0], results[2 * i + 1][0], meet) for i, meet in enumerate(meets))
     spent = np.sum([r[3] for r in results], axis=0) * 1e3
     return DriveInformation(

@@ -9,6 +9,15 @@
 /* a pivot below this fraction of its diagonal entry has lost every digit to cancellation */
 #define PIVOT_RTOL 1e-12
 
+/* The hot loops in two versions, picked when the module is loaded: for x86-64 with AVX2 (four
+ * numbers per instruction) and for any CPU. No fused multiply-add either way (-ffp-contract=off):
+ * the same arithmetic, the same results, on every machine. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__GLIBC__)
+#define HOT __attribute__((target_clones("avx2", "default")))
+#else
+#define HOT
+#endif
+
 typedef struct {
     const double *Jx, *Jt;
     const int64_t *cols, *first, *xc;
@@ -26,8 +35,8 @@ typedef struct {
 
 /* Add JᵀJ of factors f0 … f1−1 of a block (see accumulate() in kernels.py). Returns 0, or -1
  * (memory) / -2 (a factor's states wider than the information's). */
-static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1, Py_ssize_t origin, int sign,
-                      const int64_t *comp) {
+HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1, Py_ssize_t origin, int sign,
+                          const int64_t *comp) {
     Py_ssize_t r = b->r, nx = b->nx, ns = b->ns, c = b->c, nxc = b->nxc, sd = I->sd, p = I->p;
     Py_ssize_t xd = nx / ns, M = nxc + c;
     if (xd > sd) return -2;
@@ -90,11 +99,24 @@ static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1, Py_
                     for (Py_ssize_t v = 0; v < M; ++v) wk[v] = 0.0;
                 }
             }
-            for (Py_ssize_t uu = 0; uu < M; ++uu) {
-                double a0 = W0[uu], a1 = W1[uu], a2 = W2[uu];
-                if (a0 != 0.0 || a1 != 0.0 || a2 != 0.0) {
-                    double *Gu = G + uu * M;
-                    for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v] + a1 * W1[v] + a2 * W2[v];
+            if (nr == 3) {
+                for (Py_ssize_t uu = 0; uu < M; ++uu) {
+                    double a0 = W0[uu], a1 = W1[uu], a2 = W2[uu];
+                    if (a0 != 0.0 || a1 != 0.0 || a2 != 0.0) {
+                        double *Gu = G + uu * M;
+                        for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v] + a1 * W1[v] + a2 * W2[v];
+                    }
+                }
+            } else { /* the last one or two rows: the same sums without the rows of zeros */
+                for (Py_ssize_t uu = 0; uu < M; ++uu) {
+                    double a0 = W0[uu], a1 = W1[uu];
+                    if (a0 != 0.0 || a1 != 0.0) {
+                        double *Gu = G + uu * M;
+                        if (nr == 2)
+                            for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v] + a1 * W1[v];
+                        else
+                            for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v];
+                    }
                 }
             }
         }
@@ -157,7 +179,7 @@ static inline void subtract_combination(double *x, const double *c, Py_ssize_t c
 }
 
 /* Hee −= ZT[:, :m] ZT[:, :m]ᵀ on the lower triangle (ZT: q × ld) */
-static void border_update(const double *ZT, Py_ssize_t q, Py_ssize_t ld, Py_ssize_t m, double *Hee) {
+HOT static void border_update(const double *ZT, Py_ssize_t q, Py_ssize_t ld, Py_ssize_t m, double *Hee) {
     for (Py_ssize_t e = 0; e < q; ++e) {
         const double *a = ZT + e * ld;
         for (Py_ssize_t e2 = 0; e2 <= e; ++e2) {
@@ -176,12 +198,18 @@ static void border_update(const double *ZT, Py_ssize_t q, Py_ssize_t ld, Py_ssiz
     }
 }
 
+/* The numbers eliminate() works in, for states of sd and a border of q. */
+static size_t workspace(Py_ssize_t D, Py_ssize_t sd, Py_ssize_t q) {
+    return (size_t)(sd * sd + sd + sd * (D * sd + q) + sd * (sd + q) + q * 16 * sd);
+}
+
 /* Eliminate the states lo … hi−1 of a block-banded system with a border (block Cholesky); see
- * eliminate() in kernels.py. Returns -1, the first state whose pivot failed, or -2 (memory). */
-static Py_ssize_t eliminate(double *band, Py_ssize_t D, Py_ssize_t n, Py_ssize_t sd, double *Hxe, Py_ssize_t q,
-                            double *Hee, Py_ssize_t lo, Py_ssize_t hi) {
+ * eliminate() in kernels.py; mem: workspace(D, sd, q) zeros (left as they were found but for the
+ * zeros), or NULL. Returns -1, the first state whose pivot failed, or -2 (memory). */
+HOT static Py_ssize_t eliminate(double *band, Py_ssize_t D, Py_ssize_t n, Py_ssize_t sd, double *Hxe, Py_ssize_t q,
+                                double *Hee, Py_ssize_t lo, Py_ssize_t hi, double *work) {
     Py_ssize_t wz = D * sd + q, zt = 16 * sd, yx = sd + q;
-    double *mem = calloc((size_t)(sd * sd + sd + sd * wz + sd * yx + q * zt), sizeof(double));
+    double *mem = work ? work : calloc(workspace(D, sd, q), sizeof(double));
     if (!mem) return -2;
     double *L = mem, *inv = L + sd * sd, *WZ = inv + sd, *YX = WZ + sd * wz, *ZT = YX + sd * yx;
     double *Zj = WZ + D * sd; /* columns D·sd … of WZ, row stride wz */
@@ -265,7 +293,7 @@ static Py_ssize_t eliminate(double *band, Py_ssize_t D, Py_ssize_t n, Py_ssize_t
     }
 done:
 #undef BLK
-    free(mem);
+    if (!work) free(mem);
     return bad;
 }
 
@@ -358,7 +386,7 @@ NATIVE_FUNCTION(native_eliminate) {
     }
     Py_ssize_t bad;
     Py_BEGIN_ALLOW_THREADS;
-    bad = eliminate(D(band), D1 - 1, n, sd, D(Hxe), q, D(Hee), lo, hi);
+    bad = eliminate(D(band), D1 - 1, n, sd, D(Hxe), q, D(Hee), lo, hi, NULL);
     Py_END_ALLOW_THREADS;
     if (bad == -2) return fail(&a, -1);
     native_release(&a);
@@ -399,7 +427,8 @@ NATIVE_FUNCTION(native_eliminate_slabs) {
     Py_ssize_t n_slabs = (m + slab - 1) / slab;
     Py_ssize_t *edge = malloc(sizeof(Py_ssize_t) * (n_slabs + 1));
     Py_ssize_t *bounds = malloc(sizeof(Py_ssize_t) * (nb * (n_slabs + 1) + 1));
-    if (!edge || !bounds) {
+    double *work = malloc(sizeof(double) * workspace(D, sd, I.p));
+    if (!edge || !bounds || !work) {
         rc = -1;
         goto out;
     }
@@ -448,7 +477,8 @@ NATIVE_FUNCTION(native_eliminate_slabs) {
             for (Py_ssize_t j = lo; j < n_in; ++j)
                 for (Py_ssize_t c = 0; c < 6; ++c) BAND(&I, 1, j)[(o + c) * sd + o + c] -= w2[c];
         }
-        Py_ssize_t bad = eliminate(I.band, D, I.n, sd, I.Hxt, I.p, I.Htt, 0, hi - s);
+        memset(work, 0, sizeof(double) * workspace(D, sd, I.p));
+        Py_ssize_t bad = eliminate(I.band, D, I.n, sd, I.Hxt, I.p, I.Htt, 0, hi - s, work);
         if (bad == -2) {
             rc = -1;
             goto out;
@@ -471,6 +501,7 @@ NATIVE_FUNCTION(native_eliminate_slabs) {
 out:
     free(edge);
     free(bounds);
+    free(work);
     Py_END_ALLOW_THREADS;
     if (rc) return fail(&a, rc);
     native_release(&a);

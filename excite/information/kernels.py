@@ -12,6 +12,10 @@ import numpy as np
 
 from ..core.native import module
 
+# loaded with this module, not at the first call: a process that limits its address space after
+# its imports (a live session's) has it mapped already
+module()
+
 
 def accumulate(Jx, Jt, cols, first, stride, n_states, band, Hxt, Htt, f0, f1, origin, sign, xc, comp) -> None:
     """Add ``JᵀJ`` of the factors ``f0 … f1−1`` of a stack to a block-banded information matrix.

@@ -51,7 +51,7 @@ class MotionSamples:
 
     @property
     def R_W_A(self) -> np.ndarray:
-        return self.R_W_V @ self.R_V_A
+        return np.einsum("nij,njk->nik", self.R_W_V, self.R_V_A)  # (a stack of 3×3: not per-matrix BLAS calls)
 
     @property
     def speed(self) -> np.ndarray:
@@ -100,7 +100,7 @@ def rigid_body(R_W_V: np.ndarray, p_W_V: np.ndarray, v_W: np.ndarray, omega_V: n
     ``v + R_W_V (ω × p_V_B)`` and ``R_V_Bᵀ ω``."""
     R_V_B = np.asarray(R_V_B, dtype=float)
     p_V_B = np.asarray(p_V_B, dtype=float)
-    R_W_B = R_W_V @ R_V_B
+    R_W_B = np.einsum("nij,jk->nik", R_W_V, R_V_B)  # (a stack of 3×3: not a BLAS call per matrix)
     p_W_B = p_W_V + np.einsum("nij,j->ni", R_W_V, p_V_B)
     v_W_B = v_W + np.einsum("nij,nj->ni", R_W_V, np.cross(omega_V, p_V_B))
     return R_W_B, p_W_B, v_W_B, omega_V @ R_V_B

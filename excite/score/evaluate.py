@@ -231,14 +231,23 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
         raise EvaluationError("no drive to evaluate")
     check_work(trajs, rig)
     t0 = time.perf_counter()
-    return report_of(drive_information(trajs, rig), rig, options, trajs, t0=t0)
+    warnings: list[str] = []
+
+    def check_motion() -> None:  # while the sweeps run
+        warnings.extend((f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t))
+
+    drives = drive_information(trajs, rig, meanwhile=check_motion)
+    return report_of(drives, rig, options, trajs, t0=t0, warnings=warnings)
 
 
 def report_of(drives: DriveInformation, rig: Rig, options: Options = Options(),
-              trajs: Sequence[Trajectory] = (), route: str | None = None, t0: float | None = None) -> Report:
+              trajs: Sequence[Trajectory] = (), route: str | None = None, t0: float | None = None,
+              warnings: list[str] | None = None) -> Report:
     """The report of the information ``drives`` of the drives ``trajs`` (needed for segments and
     the export only; ``route`` names them otherwise): :func:`evaluate`'s second half, shared with
-    the incremental evaluator (:mod:`excite.score.live`). ``t0``: when the information was started."""
+    the incremental evaluator (:mod:`excite.score.live`). ``t0``: when the information was started;
+    ``warnings``: what about the drives the model does not describe, where the caller has it
+    (:func:`excite.motion.vehicle.implausible` of ``trajs`` otherwise)."""
     trajs = list(trajs)
     if options.segments and not trajs:
         raise EvaluationError("segments need the drives themselves")
@@ -326,7 +335,8 @@ def report_of(drives: DriveInformation, rig: Rig, options: Options = Options(),
         spectrum_scaled=[float(x) for x in w], spectrum_unscaled=[float(x) for x in w_unscaled],
         spectrum_normalised=[float(x) for x in spec.normalised],
         column_map=column_map, parameters=params, weak_modes=modes, segments=segments,
-        warnings=[(f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t)] + notes,
+        warnings=(warnings if warnings is not None else
+                  [(f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t)]) + notes,
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
         information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig) if trajs else None, _all_columns=all_columns,
         _information_all=Lam_all,

@@ -91,6 +91,12 @@ def test_a_live_session_over_its_memory_limit_is_refused(tmp_path):
     with TestClient(app, base_url="http://localhost") as c, c.websocket_connect("ws://localhost/v1/live") as ws:
         ws.send_json({"type": "start"})
         ws.receive_json()
-        ws.send_json({"type": "poses", "poses": _poses(np.arange(0, 20, 0.1))})
-        p = _frame(ws)
+        # minutes of poses, message after message: the session's samples and blocks grow past
+        # what it may map
+        for k in range(10):
+            ws.send_json({"type": "poses", "poses": _poses(np.arange(400 * k, 400 * (k + 1), 0.1))})
+            msg = ws.receive_json()
+            if msg["type"] == "error":
+                break
+        p = msg["problem"]
         assert p["status"] in (413, 503) and ("memory" in p["detail"] or "ended" in p["detail"]), p

@@ -58,15 +58,16 @@ def _inputs(spec, fn) -> list[np.ndarray]:
     first = kind.factor_keyframes(rig, spec.entry, nom.n_keyframes, nom)
     k = int(first[min(7, first.size - 1)])
     stride = kind.stride(rig, spec.entry)
-    if spec.what in ("step", "finish"):
+    if spec.what in ("step", "step2", "finish"):
         rng = np.random.default_rng(5)
         state = rng.normal(size=lay.n_state) * 1e-2
         state[-1] = 3.0  # samples taken so far
         i0 = k * nom.imu_per_keyframe
         R = nom.imu_R[i0].ravel()
-        return ([state, R, nom.imu_R[i0 + 5].ravel(), nom.imu_f[i0 + 5], c] if spec.what == "step" else
-                [state, R, nom.imu_R[i0 + lay.n_samples].ravel(), c])
-    s = (kernels.summaries(nom, np.array([k]), lay, "step_" + kind.name, "finish_" + kind.name, c)[0]
+        sample = [nom.imu_R[i0 + 5].ravel(), nom.imu_f[i0 + 5]]
+        return {"step": [state, R, *sample, c], "step2": [state, R, *sample, nom.imu_R[i0 + 4].ravel(), nom.imu_f[i0 + 4], c],
+                "finish": [state, R, nom.imu_R[i0 + lay.n_samples].ravel(), c]}[spec.what]
+    s = (kernels.summaries(nom, np.array([k]), lay, tuple(f"{w}_{kind.name}" for w in ("step", "step2", "finish")), c)[0]
          if lay.n_summary else np.zeros(0))
     xs = [nom.keyframe_table[k + a * stride] for a in range(lay.arity)]
     return xs + [s, layout.quantity_inputs(lay, per_entry=True), c]

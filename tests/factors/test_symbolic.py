@@ -293,7 +293,7 @@ def _fold(rig, nom, f: int, sg: float | None = None, sa: float | None = None) ->
     if sg is not None:
         values.update(sigma_g=np.array(sg), sigma_a=np.array(sa))
     c = layout.constant_inputs(lay, values)
-    flat = kernels.summaries(nom, np.array([f]), lay, "step_imu", "finish_imu", c)[0]
+    flat = kernels.summaries(nom, np.array([f]), lay, ("step_imu", "step2_imu", "finish_imu"), c)[0]
     out, o = {}, 0
     for key, shape in inst.kind.summary_fields:
         size = int(np.prod(shape))
