@@ -4,7 +4,7 @@ Known failures (every :class:`~excite.errors.ExciteError`, unreadable or unwrita
 a one-line message on stderr and exit code 1; anything else is a bug and keeps its traceback.
 
 A command imports only what it uses: ``excite score`` never loads the optimizer, ``excite
---help`` neither scipy nor numba. Help text is plain (no rich markup: units such as ``[s]``
+--help`` neither numpy nor scipy. Help text is plain (no rich markup: units such as ``[s]``
 are text), and output to a pipe is not wrapped at 80 columns.
 """
 
@@ -23,8 +23,8 @@ from ..errors import ExciteError
 # command → the module that registers it on `app` (``serve`` is the service's own: the service sits
 # above the command line and adds its command to it)
 COMMANDS = {c: f"excite.cli.{m}" for c, m in {
-    "batch": "batch", "live": "live", "mine": "mine", "optimize": "optimize", "route": "route", "rig": "rig_import",
-    "score": "score", "validate": "validate"}.items()}
+    "batch": "batch", "data": "data", "live": "live", "mine": "mine", "optimize": "optimize", "route": "route",
+    "rig": "rig_import", "score": "score", "validate": "validate"}.items()}
 COMMANDS["serve"] = "api.command"
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,

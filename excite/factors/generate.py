@@ -206,11 +206,11 @@ def on_demand(kind: Kind, rig: RigView, entry: Any, what: str) -> tuple[tuple[in
     with symbolic.LOCK:
         fn = functions(kind, lay, what, entry, rig)
         code = "/* generated on demand by excite.factors.generate */\n" + _codegen([fn], "on_demand")
-    key = hashlib.sha256((code + repr(FLAGS)).encode()).hexdigest()[:24]
+    lib = cache_dir() / "kernels" / f"{fn.name()}_{hashlib.sha256((code + repr(FLAGS)).encode()).hexdigest()[:24]}.so"
+    key = str(lib)
     with _LOCK:
         if key in _LOADED:
             return _LOADED[key]
-        lib = cache_dir() / "kernels" / f"{fn.name()}_{key}.so"
         if not lib.exists():
             cc = _compiler()
             if cc is None:

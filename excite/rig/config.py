@@ -302,17 +302,17 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
     return Rig(cfg, tuple(coords), float(kf))
 
 
-# An example accuracy per unit (per kind where a unit is shared), for the lines an error offers
+# An example accuracy per unit (per quantity where a unit is shared), for the lines an error offers
 _EXAMPLE_TARGETS = {"m": "1 cm", "rad": "0.1 deg", "s": "1 ms", "rad/s": "0.01 deg/s", "m/s^2": "0.02 m/s^2",
                     "1": "0.001", ("ratio", "1"): "0.1"}
 
 
 def missing_targets(columns: list[Any]) -> str:
     """The error for parameters without a target: all of them named, and the lines to paste
-    under ``targets:`` (one glob per sensor and kind of parameter; the values are examples)."""
+    under ``targets:`` (one glob per sensor and quantity; the values are examples)."""
     groups: dict[tuple[str, str], list[Any]] = {}
     for c in columns:
-        groups.setdefault((c.block, c.kind), []).append(c)
+        groups.setdefault((c.block, c.quantity), []).append(c)
     lines = []
     for (block, _), cols in groups.items():
         suffixes = [c.name.split(".", 1)[1] for c in cols]
@@ -321,7 +321,7 @@ def missing_targets(columns: list[Any]) -> str:
         else:
             stem = os.path.commonprefix(suffixes)
             key = f"{block}.{stem.rsplit('_', 1)[0] + '_' if '_' in stem else stem}*"
-        value = _EXAMPLE_TARGETS.get((cols[0].kind, cols[0].unit), _EXAMPLE_TARGETS.get(cols[0].unit, "<value>"))
+        value = _EXAMPLE_TARGETS.get((cols[0].quantity, cols[0].unit), _EXAMPLE_TARGETS.get(cols[0].unit, "<value>"))
         lines.append(f'  "{key}": {value}')
     names = ", ".join(c.name for c in columns)
     return (f"targets: no accuracy target for {len(columns)} parameter{'s' if len(columns) > 1 else ''} "

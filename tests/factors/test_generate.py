@@ -1,7 +1,7 @@
 """The generator of the evaluator's kernels (:mod:`excite.factors.generate`): its output is what
 the kinds' statements give, it covers every registered kind and every variant the example rigs
 use, each compiled kernel equals its statement evaluated in CasADi's virtual machine, and a kind
-registered from outside excite (the speedometer of ``tests/test_additive_kind.py``) is generated
+registered from outside excite (the speedometer of ``tests/factors/test_base.py``) is generated
 and compiled on demand, or evaluated in the virtual machine where no compiler may run."""
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from excite.motion.vehicle import ControlProfile, drive
 from excite.rig import kernels as rig_kernels
 from excite.rig.config import RIGS_DIR, load_rig
 
-from test_additive_kind import Speedometer
 
 
 def test_the_committed_kernels_are_what_the_statements_give():
@@ -93,6 +92,8 @@ def test_each_compiled_kernel_equals_its_statement(name):
 
 @pytest.fixture(scope="module")
 def speedometer_rig():
+    from factors.test_base import Speedometer  # the kind declared in that test file alone
+
     registry.register(Speedometer())
     base = load_rig("robotaxi")
     data = base.config.model_dump()
