@@ -43,7 +43,7 @@ def print_report(rep: Report, console: Any, rig: Any = None) -> None:
             row.append(human(p.sigma_with_prior, p.unit) if p.sigma_with_prior is not None else "")
         t.add_row(*row)
     console.print(t)
-    if rig is not None and any(c.kind == "trans" for c in rig.scored):
+    if rig is not None and any(c.quantity == "trans" for c in rig.scored):
         from ..rig.config import body_axes
 
         console.print(f"trans_* are positions in the IMU frame B, whose axes point "

@@ -15,9 +15,15 @@ static int type_matches(const Py_buffer *v, char type) {
 }
 
 Py_buffer *native_array(Args *a, PyObject *o, char type, int ndim, int writable, const char *name) {
-    if (a->n >= MAX_ARGS) {
-        PyErr_SetString(PyExc_RuntimeError, "too many array arguments");
-        return NULL;
+    if (a->n >= a->cap) {
+        int cap = a->cap ? 2 * a->cap : 16;
+        Py_buffer *grown = PyMem_Realloc(a->view, sizeof(Py_buffer) * (size_t)cap);
+        if (!grown) {
+            PyErr_NoMemory();
+            return NULL;
+        }
+        a->view = grown;
+        a->cap = cap;
     }
     Py_buffer *v = &a->view[a->n];
     int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
@@ -38,7 +44,9 @@ Py_buffer *native_array(Args *a, PyObject *o, char type, int ndim, int writable,
 
 void native_release(Args *a) {
     for (int i = 0; i < a->n; ++i) PyBuffer_Release(&a->view[i]);
-    a->n = 0;
+    PyMem_Free(a->view);
+    a->view = NULL;
+    a->n = a->cap = 0;
 }
 
 long native_long(PyObject *o) { return PyLong_AsLong(o); }

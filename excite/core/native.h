@@ -15,12 +15,12 @@
 #include <stdint.h>
 #include <string.h>
 
-#define MAX_ARGS 48
+#define MAX_ARGS 48 /* inputs and outputs of one generated kernel's call */
 
-/* The buffers of one call: released together when the call ends. */
+/* The buffers of one call: released together when the call ends (grown as needed). */
 typedef struct {
-    Py_buffer view[MAX_ARGS];
-    int n;
+    Py_buffer *view;
+    int n, cap;
 } Args;
 
 /* A C-contiguous buffer of ``type`` ('d': float64, 'q': int64) with ``ndim`` dimensions (-1:

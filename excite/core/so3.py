@@ -7,7 +7,6 @@ Conventions (DESIGN.md): rotations act on column vectors, perturbations are righ
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 _SMALL = 1e-8
 _SERIES = 1e-2
@@ -60,11 +59,47 @@ def exp(phi: np.ndarray) -> np.ndarray:
     return R
 
 
-def log(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors ``(..., 3)`` of rotation matrices ``(..., 3, 3)``."""
+def to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(..., 4)`` (x, y, z, w; w ≥ 0) of rotation matrices ``(..., 3, 3)``: from the
+    largest of the trace and the diagonal (Markley 2008, as scipy's ``Rotation.from_matrix``), so
+    every angle is accurate, and normalised (a matrix slightly off SO(3) gives its nearest rotation's)."""
     R = np.asarray(R, dtype=float)
-    flat = R.reshape(-1, 3, 3)
-    return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
+    M = R.reshape(-1, 3, 3)
+    d = np.stack([M[:, 0, 0], M[:, 1, 1], M[:, 2, 2], M[:, 0, 0] + M[:, 1, 1] + M[:, 2, 2]], axis=1)
+    choice = np.argmax(d, axis=1)
+    q = np.empty((M.shape[0], 4))
+    tr = choice == 3
+    q[tr, 0] = M[tr, 2, 1] - M[tr, 1, 2]
+    q[tr, 1] = M[tr, 0, 2] - M[tr, 2, 0]
+    q[tr, 2] = M[tr, 1, 0] - M[tr, 0, 1]
+    q[tr, 3] = 1.0 + d[tr, 3]
+    for i in range(3):
+        sel = choice == i
+        if not sel.any():
+            continue
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[sel, i] = 1.0 - d[sel, 3] + 2.0 * M[sel, i, i]
+        q[sel, j] = M[sel, j, i] + M[sel, i, j]
+        q[sel, k] = M[sel, k, i] + M[sel, i, k]
+        q[sel, 3] = M[sel, k, j] - M[sel, j, k]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 3] < 0] *= -1.0
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def log(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(..., 3)`` of rotation matrices ``(..., 3, 3)`` (angle in [0, π]), through
+    their quaternion (:func:`to_quat`): ``θ = 2 atan2(|v|, w)``, ``φ = θ v/|v|``, by series below
+    1e-3 rad."""
+    q = to_quat(R)
+    v, w = q[..., :3], q[..., 3]
+    n = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(n, w)
+    small = angle <= 1e-3
+    a2 = angle * angle
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(small, 2.0 + a2 / 12.0 + 7.0 * a2 * a2 / 2880.0, angle / np.sin(0.5 * angle))
+    return scale[..., None] * v
 
 
 def rot_x(a: np.ndarray) -> np.ndarray:

@@ -224,27 +224,18 @@ def ring_order(sd: int, forward: bool) -> np.ndarray:
     return comp
 
 
-_NO_BLOCK = (np.zeros((0, 1, STATE_DIM)), np.zeros((0, 1, 0)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 1, 1,
-             np.zeros(0, dtype=np.int64))
-
-
 def as_kernel_blocks(blocks: Sequence[FactorBlock]) -> tuple:
     """``blocks`` for the compiled sweep (:func:`excite.information.kernels.eliminate_slabs`): a tuple of
-    ``(Jx, Jt, cols, first, stride, n_states, xcols)``, padded with empty blocks to a multiple of 8, so
-    that its type, and with it the compiled code, is the same for every rig (up to 8 blocks)."""
-    out = [(np.ascontiguousarray(b.Jx), np.ascontiguousarray(b.Jt), np.ascontiguousarray(b.cols, dtype=np.int64),
-            np.ascontiguousarray(b.first, dtype=np.int64), int(b.stride), int(b.n_states),
-            np.ascontiguousarray(b.nonzero_columns(), dtype=np.int64)) for b in blocks]
-    return tuple(out + [_NO_BLOCK] * (-len(out) % 8))
+    ``(Jx, Jt, cols, first, stride, n_states, xcols)``."""
+    return tuple((np.ascontiguousarray(b.Jx), np.ascontiguousarray(b.Jt), np.ascontiguousarray(b.cols, dtype=np.int64),
+                  np.ascontiguousarray(b.first, dtype=np.int64), int(b.stride), int(b.n_states),
+                  np.ascontiguousarray(b.nonzero_columns(), dtype=np.int64)) for b in blocks)
 
 
 def diagonal(blocks: Sequence[FactorBlock], p: int) -> np.ndarray:
     """diag H_θθ of ``blocks``: each calibration coordinate's information before the trajectory
-    is eliminated (compiled: :func:`excite.information.kernels.theta_diagonal`, 8 blocks at a time)."""
-    out = np.zeros(p)
-    for i in range(0, len(blocks), 8):
-        out += kernels.theta_diagonal(as_kernel_blocks(blocks[i:i + 8]), p)
-    return out
+    is eliminated (:func:`excite.information.kernels.theta_diagonal`)."""
+    return kernels.theta_diagonal(as_kernel_blocks(blocks), p)
 
 
 @dataclass(frozen=True)

@@ -403,21 +403,18 @@ NATIVE_FUNCTION(native_eliminate_slabs) {
         return NULL;
     }
     Py_ssize_t nb = PyTuple_GET_SIZE(args[0]);
-    if (nb > 8) {
-        PyErr_SetString(PyExc_ValueError, "blocks: at most 8 (each takes five buffers)");
-        return NULL;
-    }
-    Block blocks[8];
+    Block *blocks = PyMem_Calloc((size_t)nb + 1, sizeof(Block));
+    if (!blocks) return PyErr_NoMemory();
     for (Py_ssize_t i = 0; i < nb; ++i)
-        if (block_of(&a, PyTuple_GET_ITEM(args[0], i), &blocks[i])) return fail(&a, 0);
+        if (block_of(&a, PyTuple_GET_ITEM(args[0], i), &blocks[i])) return PyMem_Free(blocks), fail(&a, 0);
     Info I;
-    if (info_of(&a, args + 4, &I)) return fail(&a, 0);
+    if (info_of(&a, args + 4, &I)) return PyMem_Free(blocks), fail(&a, 0);
     Py_buffer *w2v = native_array(&a, args[7], 'd', 1, 0, "w2");
     Py_buffer *compv = w2v ? native_array(&a, args[9], 'q', 1, 0, "comp") : NULL;
-    if (!compv) return fail(&a, 0);
+    if (!compv) return PyMem_Free(blocks), fail(&a, 0);
     long m = native_long(args[1]), slab = native_long(args[2]);
     int forward = PyObject_IsTrue(args[3]), anchored = PyObject_IsTrue(args[8]);
-    if (PyErr_Occurred()) return fail(&a, 0);
+    if (PyErr_Occurred()) return PyMem_Free(blocks), fail(&a, 0);
     const double *w2 = D(w2v);
     Py_ssize_t nw = SHAPE(w2v, 0);
     const int64_t *comp = Q(compv);
@@ -503,6 +500,7 @@ out:
     free(bounds);
     free(work);
     Py_END_ALLOW_THREADS;
+    PyMem_Free(blocks);
     if (rc) return fail(&a, rc);
     native_release(&a);
     return PyLong_FromSsize_t(result);
@@ -512,16 +510,17 @@ out:
 NATIVE_FUNCTION(native_theta_diagonal) {
     CHECK_NARGS(2, "theta_diagonal");
     Args a = {.n = 0};
-    if (!PyTuple_Check(args[0]) || PyTuple_GET_SIZE(args[0]) > 8) {
-        PyErr_SetString(PyExc_TypeError, "blocks: a tuple of at most 8 blocks is needed");
+    if (!PyTuple_Check(args[0])) {
+        PyErr_SetString(PyExc_TypeError, "blocks: a tuple of blocks is needed");
         return NULL;
     }
     Py_ssize_t nb = PyTuple_GET_SIZE(args[0]);
-    Block blocks[8];
+    Block *blocks = PyMem_Calloc((size_t)nb + 1, sizeof(Block));
+    if (!blocks) return PyErr_NoMemory();
     for (Py_ssize_t i = 0; i < nb; ++i)
-        if (block_of(&a, PyTuple_GET_ITEM(args[0], i), &blocks[i])) return fail(&a, 0);
+        if (block_of(&a, PyTuple_GET_ITEM(args[0], i), &blocks[i])) return PyMem_Free(blocks), fail(&a, 0);
     Py_buffer *out = native_array(&a, args[1], 'd', 1, 1, "out");
-    if (!out) return fail(&a, 0);
+    if (!out) return PyMem_Free(blocks), fail(&a, 0);
     double *o = D(out);
     int rc = 0;
     Py_BEGIN_ALLOW_THREADS;
@@ -541,6 +540,7 @@ NATIVE_FUNCTION(native_theta_diagonal) {
         free(acc);
     }
     Py_END_ALLOW_THREADS;
+    PyMem_Free(blocks);
     if (rc) return fail(&a, rc);
     native_release(&a);
     Py_RETURN_NONE;
