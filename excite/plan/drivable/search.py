@@ -4,9 +4,10 @@
 
 1. **library** (:func:`.design.library`): every element of the catalogue's grids that fits the
    lot, driven alone and scored by the full evaluator (a few seconds);
-2. **design** (:func:`.design.e_design`): the E-optimal time shares over the library, and
-   variants of it without its leading kinds (different element sets to refine), each rounded to
-   whole laps (:func:`.design.repetitions`);
+2. **design** (:func:`.design.e_design`): the E-optimal time shares over the library, the same
+   set with its many-lap elements split in two (a driver's errors over an element average over
+   two), and variants without its leading kinds (different element sets to refine), each rounded
+   to whole laps (:func:`.design.repetitions`);
 3. **layout** (:func:`layout`): every element of a set placed in the lot (its centre and heading
    on a grid) so that its path stays the lot's margin inside the edges and keeps clear of every
    other element's cones, in the order with the shortest transits;
@@ -499,8 +500,9 @@ def _robust_task(args) -> tuple[int, Robust]:
 
 
 def element_sets(cands: list[Candidate], time_s: float, max_elements: int, kinds: tuple[str, ...]) -> list[tuple[list[tuple[int, int]], Design]]:
-    """The design's element set and variants without its leading kind, then without its two
-    leading kinds: (candidate, laps) per set, and the design."""
+    """The design's element set, the same with its elements of several laps split in two, and
+    variants without its leading kind, then without its two leading kinds: (candidate, laps) per
+    set, and the design."""
     rates = [c.rate for c in cands]
     out = []
     excluded: set[str] = set()
@@ -517,6 +519,13 @@ def element_sets(cands: list[Candidate], time_s: float, max_elements: int, kinds
         reps = repetitions(cands, w2 / w2.sum(), time_s)
         out.append((reps, Design(w2 / w2.sum(), d.value, d.iterations)))
         excluded.add(cands[int(np.argmax(w))].kind)
+    # the design's set with every element of several laps split in two, each half its own element
+    # (cones of its own, driven as a leg of its own): what a driver gets wrong over one element
+    # (its speed, its effort) then averages over two; the robust choice weighs it
+    reps, d = out[0]
+    split = [part for i, n in reps for part in ([(i, (n + 1) // 2), (i, n // 2)] if n >= 2 else [(i, n)])]
+    if len(split) > len(reps) and len(split) <= max_elements:
+        out.insert(1, (split, d))
     return out
 
 

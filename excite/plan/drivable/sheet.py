@@ -26,7 +26,7 @@ def sheet(built: Built, site, fmt: str = "png", title: str | None = None, notes:
     """The sheet of ``built`` in ``site`` as ``fmt`` (``png`` or ``pdf``) bytes: an A4 landscape
     page."""
     fig = Figure(figsize=(11.69, 8.27))
-    ax = fig.add_axes((0.04, 0.30, 0.60, 0.62))
+    ax = fig.add_axes((0.07, 0.30, 0.57, 0.62))
     _draw_lot(ax, site)
     legs = built.course.legs
     for k, leg in enumerate(legs):
@@ -52,7 +52,8 @@ def sheet(built: Built, site, fmt: str = "png", title: str | None = None, notes:
     ax.set_ylabel("y [m]" + (" (north)" if getattr(site, "origin", None) else ""))
     ax.grid(True, lw=0.3, alpha=0.5)
     _scale_bar(ax, site)
-    fig.suptitle(title or f"{built.plan.name}: {built.plan.duration_s:.0f} s, {len(built.plan.elements)} elements, "
+    n = len(built.plan.elements)
+    fig.suptitle(title or f"{built.plan.name}: {built.plan.duration_s:.0f} s, {n} element{'s' if n != 1 else ''}, "
                  f"{len(built.cones)} cones", x=0.04, ha="left", fontsize=13, fontweight="bold")
 
     # the instructions: one line per element, wrapped
