@@ -614,6 +614,8 @@ def test_page_and_its_files_are_served(server):
         assert httpx.get(server.url + u).status_code == 200
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_plan_a_drivable_maneuver_and_see_its_sheet_and_cones(page, shots, server):
     """Tick "drivable": the job plans elements from cones; the page lists the instructions, draws
     the cones in the lot, shows the driver's sheet and offers it (PDF, PNG), the cone layout and

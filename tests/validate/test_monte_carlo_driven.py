@@ -68,6 +68,8 @@ def test_errors_drawn_from_each_drives_own_covariance_pass_the_per_drive_nees_an
     assert not res.nees_interval[0] <= nees_one <= res.nees_interval[1]
 
 
+@pytest.mark.montecarlo
+@pytest.mark.slow
 def test_a_driven_plan_goes_through_simulation_and_calibration():
     from excite.cli.validate import with_imu_rate
     from excite.motion.driver import DriverModel, drive_course
