@@ -78,6 +78,9 @@ def run_drivable(out: Path, rig_name: str, duration: float, site: Any, seed: int
                                duration_s=plan.duration_s)
         extra: dict[str, Any] = {}
     else:
+        from ..plan.drivable.search import check_problem
+
+        check_problem(site, vehicle_limits(rig, settings.limits), speed_max)  # refused before the bar starts
         with Progress(TextColumn("[bold]{task.fields[phase]:<8}"), BarColumn(),
                       TextColumn("best {task.fields[best]}  {task.fields[detail]}"), TimeElapsedColumn(),
                       console=c, transient=False) as bar:
