@@ -3,6 +3,7 @@
     python benchmarks/bench_tests.py                 # the everyday loop: -m "not slow"
     python benchmarks/bench_tests.py --all           # everything (what .ci/run runs)
     python benchmarks/bench_tests.py --runs 3        # a range over three runs
+    python benchmarks/bench_tests.py --durations 30  # and the 30 slowest tests
 
 The machine is shared, so wall time moves with others' work: the CPU time of pytest and every
 process it starts (user + system, from the children's resource usage) is recorded beside it, with
@@ -24,8 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from results import ROOT, Session, spread  # noqa: E402
 
 
-def run_once(marker: str | None) -> dict:
-    args = [sys.executable, "-m", "pytest", "-q", "-rf", "-p", "no:cacheprovider"] + (["-m", marker] if marker else [])
+def run_once(marker: str | None, durations: int = 0) -> dict:
+    args = [sys.executable, "-m", "pytest", "-q", "-rf", "-p", "no:cacheprovider"] + (["-m", marker] if marker else []) \
+        + ([f"--durations={durations}"] if durations else [])
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(args, cwd=ROOT, capture_output=True, text=True)
@@ -35,7 +37,7 @@ def run_once(marker: str | None) -> dict:
     lines = proc.stdout.strip().splitlines()
     tail = lines[-1] if lines else ""
     for line in lines:
-        if line.startswith(("FAILED", "ERROR")):
+        if line.startswith(("FAILED", "ERROR")) or (durations and " call " in line and line[:1].isdigit()):
             print(line)
     counts = {k: int(v) for v, k in re.findall(r"(\d+) (passed|failed|skipped|deselected|errors?)", tail)}
     return {"wall_s": wall, "cpu_s": cpu, "counts": counts, "returncode": proc.returncode, "summary": tail}
@@ -45,10 +47,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--all", action="store_true", help="run every test (no marker expression)")
     ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--durations", type=int, default=0, metavar="N", help="also print the N slowest tests")
     a = ap.parse_args()
     marker = None if a.all else "not slow"
     session = Session()
-    runs = [run_once(marker) for _ in range(a.runs)]
+    runs = [run_once(marker, a.durations) for _ in range(a.runs)]
     for r in runs:
         print(f"{r['summary']}  (wall {r['wall_s']:.0f} s, CPU {r['cpu_s']:.0f} s)")
     name = "tests_all" if a.all else "tests_loop"
