@@ -21,7 +21,7 @@ differenced residual
 (the residual is both fixes' errors, the whitening ``[W, −φW]`` differences them)
 
 and the first fix of a drive enters at the stationary variance (:class:`GnssFirstFix`, the
-kind's :attr:`~excite.factors.base.Kind.opening`, added where a drive or a window closed as one
+kind's :attr:`~excite.factors.base.OpensChain.opening`, added where a drive or a window closed as one
 starts). Together they are the exact likelihood of the correlated fixes, with no state beyond the
 trajectory's: GNSS error states (3 per keyframe) would grow every keyframe's state from 9 (15
 with drifting biases) to 12 (18) and the elimination's cost with its cube, and the optimizer's

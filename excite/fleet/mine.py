@@ -58,7 +58,7 @@ class Summaries:
     ``T[c]`` is chunk ``c``'s information over ``[x_a, x_b, θ]`` (states of dimension ``sd``,
     θ over :func:`excite.information.problem.columns` of one drive); ``opening[c]`` and ``cap[c]`` the
     information a window adds at its first keyframe ``edges[c]`` (the gauge and the opening
-    factors of :meth:`~excite.information.closure.Closure.open`, over ``[x_a, θ]``) and at
+    factors of :meth:`~excite.information.closure.Closure.start`, over ``[x_a, θ]``) and at
     its last keyframe ``edges[c + 1]`` (the non-holonomic constraint there, over ``[x_b, θ]``); ``diag_tt[c]``
     diag H_θθ of the chunk before elimination."""
 
