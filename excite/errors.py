@@ -7,6 +7,7 @@
     │   ├── RigError                a rig config is malformed (names the key)
     │   ├── LimitError              a request for a drive cannot be met within the vehicle's limits
     │   ├── EvaluationError         the information model cannot be evaluated for this input
+    │   ├── SceneError              a scene file or scene data is malformed or too large (excite.scene)
     │   ├── OptimizeError           an optimization request is invalid (excite.plan)
     │   ├── ValidateError           a Monte Carlo validation request is invalid (excite.validate)
     │   ├── PlotError               a figure cannot be drawn as asked (excite.score.plots)
@@ -58,6 +59,15 @@ class LimitError(ExciteError, ValueError):
 
 class EvaluationError(ExciteError, ValueError):
     """The information model cannot be evaluated for this input."""
+
+
+class SceneError(ExciteError, ValueError):
+    """A scene file or scene data is malformed or too large; the message names the file and the field."""
+
+    def __init__(self, problem: str, *, source: str | None = None):
+        self.problem = problem
+        self.source = source
+        super().__init__(f"{source}: {problem}" if source else problem)
 
 
 class BagError(RouteError):

@@ -36,10 +36,17 @@ MAX_IMU_SAMPLES = 20_000_000
 MAX_SENSORS = 16
 """Most exteroceptive sensors on one rig."""
 MAX_NESTING = 12
+"""Deepest nesting of a rig document (the deepest real key, a rotation matrix entry, is 6)."""
 # keys and list items in one rig document, all levels together (a rig of 16 sensors with
 # targets and priors for each coordinate holds a few hundred): a bound on the work of checking it
 MAX_RIG_NODES = 5000
-"""Deepest nesting of a rig document (the deepest real key, a rotation matrix entry, is 6)."""
+"""Most keys and list items in one rig document."""
+MAX_SCENE_TRIANGLES = 2_000_000
+"""Most triangles of one scene (meshes, extruded vector scenes and the ground together)."""
+MAX_SCENE_POINTS = 20_000_000
+"""Most points of one point-cloud map."""
+MAX_SCENE_EXTENT_M = 20_000.0
+"""Largest horizontal extent of a scene [m] (a lot, a street, a test track)."""
 
 
 _TIGHTER: ContextVar[dict[str, float]] = ContextVar("excite_bounds", default={})

@@ -100,6 +100,9 @@ class Nominal:
     ``imu_omega`` and specific force ``imu_f``. ``R_V_B, p_V_B`` is the IMU pose in the vehicle frame.
     ``logs``: what a logged drive recorded of some of the rig's sensors, by sensor name
     (:class:`KeyframeLog`; a sensor without one measures at every one of its frames).
+    ``scene``: what a scene shows the rig's lidars at each keyframe, by sensor name (K × 6 × 6:
+    the registration information of a scan there, in world-aligned axes:
+    :class:`~excite.motion.trajectory.SceneView`); a lidar without one is scene-blind.
     """
 
     t: np.ndarray
@@ -116,6 +119,7 @@ class Nominal:
     p_V_B: np.ndarray
     length_m: float = 0.0  # path length of the rear axle (trapezoid over the keyframes)
     logs: dict[str, KeyframeLog] = field(default_factory=dict)
+    scene: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_keyframes(self) -> int:
@@ -137,7 +141,8 @@ class Nominal:
         return Nominal(t=self.t[kf], R=self.R[kf], p=self.p[kf], v=self.v[kf], omega=self.omega[kf],
                        R_V_A=self.R_V_A[kf], imu_R=self.imu_R[imu], imu_omega=self.imu_omega[imu],
                        imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B,
-                       logs={k: v.window(k0, k1) for k, v in self.logs.items()})
+                       logs={k: v.window(k0, k1) for k, v in self.logs.items()},
+                       scene={k: v[kf] for k, v in self.scene.items()})
 
     @staticmethod
     def grid(traj: Trajectory, rig: RigView, t_start: float | None = None,
@@ -176,8 +181,10 @@ class Nominal:
         R, p, v, omega = rigid_body(R_W_V, p_V, v_V, omega_V, R_V_B, p_V_B)
         length = float(np.trapezoid(np.linalg.norm(v_V, axis=1), t))
         logs = keyframe_logs(traj, rig, t, k0)
+        view = getattr(traj, "scene", None)
+        scene = {} if view is None else {name: view.at(name, t) for name in view.t}
         return cls(t=t, R=R, p=p, v=v, omega=omega, R_V_A=R_V_A, imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f,
-                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs)
+                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs, scene=scene)
 
 
 def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dict[str, KeyframeLog]:

@@ -37,6 +37,24 @@ densities, so the pairs stay independent and σ does not depend on the frame rat
 closing frame has no message with a covariance keeps the densities. The evaluator applies it to
 the pairs' rows (:meth:`Odometry.whitening`); the optimizer's planned drives and the simulator use
 the densities.
+
+**The scene.** Where the drive sees a scene (:mod:`excite.scene`), a lidar's frame pair is told
+only what the surfaces in view can tell: scan j registered against scan i by point-to-plane ICP
+holds the information ``A`` of scan j's points about the relative pose (:mod:`excite.scene.lidar`,
+a right perturbation ``δ = [φ, ρ]`` of ``T_ij`` in S_j), which in the residual's coordinates
+(``r_R = φ``, ``r_t = R_rel ρ``) is ``A_r = Mᵀ A M`` with ``M = diag(I, R_relᵀ)``. The
+registration's error and the odometry's drift add up (covariance ``A⁻¹ + Q``, Q the densities'
+or the reported covariance of the pair), so the pair's information is
+
+    Λ = A_r (I + Q A_r)⁻¹ = (A_r⁻¹ + Q)⁻¹,
+
+written so that it holds for a singular ``A_r``: a direction no surface constrains (a tunnel's
+axis, the open lot's x, y and yaw) has no information at all — an exact zero the rank test sees —
+and a rich scene approaches the densities' ``Q⁻¹`` (the drift a real odometry has bounds what a
+scene can give). This is scan-to-scan registration (each pair on its own, the map not kept);
+scan-to-map odometry would tie the pairs together and is not modelled. The scan's information
+is ray-cast at samples along the drive (:func:`excite.scene.along.seen`) and taken from the
+sample nearest each frame.
 """
 
 from __future__ import annotations
@@ -51,6 +69,7 @@ from ..core import so3
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
+from .optics import LIDAR_PRESETS, LidarBeams
 from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .symbolic import exp, residual_log
 
@@ -72,11 +91,17 @@ class OdometrySensor(SensorEntry):
     kind: Literal["lidar", "camera"]
     noise: OdometryNoise
     monocular: bool = False
+    beams: LidarBeams | str | None = None  # a lidar's pattern, or a preset's name (:mod:`excite.factors.optics`)
 
     @model_validator(mode="after")
     def _mono_is_camera(self) -> "OdometrySensor":
         if self.monocular and self.kind != "camera":
             raise ValueError("monocular applies to cameras only")
+        if self.beams is not None and self.kind != "lidar":
+            raise ValueError("beams applies to lidars only")
+        if isinstance(self.beams, str) and self.beams not in LIDAR_PRESETS:
+            raise ValueError(f"beams: {self.beams!r} is not a preset ({', '.join(LIDAR_PRESETS)}); "
+                             "or give vertical_angles_deg or channels and vertical_fov_deg")
         return self
 
 
@@ -156,9 +181,14 @@ class Odometry(Kind[OdometrySensor]):
         return 1.0 / f.c["sigma"]
 
     def whitening(self, nom: Nominal, rig: RigView, s: OdometrySensor, first: np.ndarray) -> np.ndarray | None:
-        """The reported covariance's whitening of every frame pair, where the rig asks for it and
-        the drive's log of ``s`` carries one (:func:`reported_whitening`)."""
-        return reported_whitening(nom, s, first, self.stride(rig, s))
+        """Every frame pair's whitening from data: the scene's information combined with the drift
+        (:func:`scene_whitening`) where the drive sees a scene, the reported covariance's
+        (:func:`reported_whitening`) where the rig asks for it and the drive's log carries one."""
+        stride = self.stride(rig, s)
+        reported = reported_whitening(nom, s, first, stride)
+        if s.name not in nom.scene:
+            return reported
+        return scene_whitening(nom, s, first, stride, reported)
 
     # --- simulation ---
 
@@ -206,3 +236,40 @@ def reported_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, strid
         Sigma = dt[:, None, None] * np.swapaxes(B, 1, 2) @ Q[ok] @ B
         W[ok] = np.linalg.inv(np.linalg.cholesky(0.5 * (Sigma + np.swapaxes(Sigma, 1, 2))))
     return W
+
+
+def sqrt_psd(Lam: np.ndarray, floor: float = 1e-12) -> np.ndarray:
+    """``W`` (… × 6 × 6) with ``WᵀW = Λ`` for symmetric positive semi-definite ``Λ`` (… × 6 × 6):
+    ``diag(√λ) Vᵀ`` of its eigen-decomposition, an eigenvalue below ``floor`` × the largest set to
+    exactly zero (a direction without information stays one, not a rounding error's worth)."""
+    lam, V = np.linalg.eigh(0.5 * (Lam + np.swapaxes(Lam, -1, -2)))
+    top = np.maximum(lam[..., -1:], 0.0)
+    lam = np.where(lam > floor * top, lam, 0.0)
+    return np.sqrt(lam)[..., :, None] * np.swapaxes(V, -1, -2)
+
+
+def scene_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: int,
+                    reported: np.ndarray | None = None) -> np.ndarray:
+    """``W_n`` (N × 6 × 6) of the frame pairs starting at keyframes ``first`` that see the scene
+    (the module docstring's ``Λ = A_r (I + Q A_r)⁻¹``), with Q the pair's drift covariance: the
+    densities', or ``(W_rᵀW_r)⁻¹`` of the ``reported`` whitening."""
+    i = np.asarray(first)
+    j = i + stride
+    R_BS = s.T_B_S.R
+    R_Si = nom.R[i] @ R_BS
+    R_Sj = nom.R[j] @ R_BS
+    B = np.zeros((j.size, 6, 6))
+    B[:, :3, :3] = B[:, 3:, 3:] = R_Sj
+    A = np.swapaxes(B, 1, 2) @ nom.scene[s.name][j] @ B  # scan j's information, in S_j
+    M = np.zeros((j.size, 6, 6))
+    M[:, :3, :3] = np.eye(3)
+    M[:, 3:, 3:] = np.swapaxes(R_Si, 1, 2) @ R_Sj  # R_rel
+    M[:, 3:, 3:] = np.swapaxes(M[:, 3:, 3:], 1, 2)  # R_relᵀ
+    A_r = np.swapaxes(M, 1, 2) @ A @ M
+    if reported is None:
+        sig_r, sig_t = pair_sigmas(s)
+        Q = np.broadcast_to(np.diag([sig_r**2] * 3 + [sig_t**2] * 3), A_r.shape)
+    else:
+        Q = np.linalg.inv(np.swapaxes(reported, 1, 2) @ reported)
+    Lam = A_r @ np.linalg.inv(np.eye(6) + Q @ A_r)
+    return sqrt_psd(Lam)

@@ -158,6 +158,33 @@ class SensorLog:
         return SensorLog(self.t, cov)
 
 
+@dataclass(frozen=True)
+class SceneView:
+    """What a scene shows the rig's lidars along a drive (:func:`excite.scene.along.seen`): per
+    sensor name, the times ``t`` of the scans ray-cast (increasing) and each scan's registration
+    information ``H_W`` (S × 6 × 6, [rotation, translation]) in world-aligned axes (the sensor's
+    frame turned to the world's: the information does not change as the sensor turns in place
+    but looks at the same surfaces). ``digest``: the scene's (equal scenes, equal digests)."""
+
+    digest: str
+    t: dict[str, np.ndarray]
+    H_W: dict[str, np.ndarray]
+
+    def at(self, name: str, t: np.ndarray) -> np.ndarray | None:
+        """``name``'s information at times ``t`` from the scan ray-cast nearest each (None where the
+        view has none of ``name``)."""
+        ts = self.t.get(name)
+        if ts is None:
+            return None
+        j = np.clip(np.searchsorted(ts, t), 1, max(1, ts.size - 1)) if ts.size > 1 else np.zeros(np.size(t), int)
+        if ts.size > 1:
+            j = np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
+        return self.H_W[name][j]
+
+    def shifted(self, dt_s: float) -> "SceneView":
+        return SceneView(self.digest, {k: v + dt_s for k, v in self.t.items()}, self.H_W)
+
+
 class Trajectory:
     """Continuous nominal motion of the vehicle frame V over ``[t_start, t_end]``.
 
@@ -205,11 +232,18 @@ class Trajectory:
         self.t_end = float(t[-1])
         self.name = name
         self.logs: dict[str, SensorLog] = {}  # what a log recorded of the rig's sensors, by sensor name
+        self.scene: SceneView | None = None  # what a scene shows the rig's lidars (excite.scene.along.seen)
 
     def with_logs(self, logs: dict[str, SensorLog]) -> "Trajectory":
         """The same drive carrying ``logs`` (by the rig's sensor name) besides its own."""
         out = copy.copy(self)
         out.logs = {**self.logs, **logs}
+        return out
+
+    def with_scene(self, view: SceneView | None) -> "Trajectory":
+        """The same drive seeing a scene (``view``: :func:`excite.scene.along.seen`; None: none)."""
+        out = copy.copy(self)
+        out.scene = view
         return out
 
     @property
@@ -285,7 +319,8 @@ class Trajectory:
         """The same drive moved rigidly in the world: ``x ↦ R x + p``.
 
         Only rotations about the vertical keep gravity where it was; the information model is
-        invariant under exactly those and under translations.
+        invariant under exactly those and under translations. A scene it saw stays behind (move
+        the scene with it and look again: :func:`excite.scene.along.seen`).
         """
         R = np.asarray(R, dtype=float)
         v = None if self._v is None else self._v @ R.T
@@ -297,7 +332,8 @@ class Trajectory:
         """The same drive with every time stamp moved by ``dt_s``."""
         out = Trajectory(self._t + dt_s, self._R, self._p, tilt_pitch_roll=self._tilt_samples,
                          velocity=self._v, name=self.name)
-        return out.with_logs({k: log.shifted(dt_s) for k, log in self.logs.items()})
+        out = out.with_logs({k: log.shifted(dt_s) for k, log in self.logs.items()})
+        return out.with_scene(None if self.scene is None else self.scene.shifted(dt_s))
 
     def cropped(self, t_start: float, t_end: float, name: str | None = None) -> "Trajectory":
         """The same motion restricted to ``[t_start, t_end]`` (within the drive): the same splines,

@@ -1,0 +1,72 @@
+"""A scene along a drive: what the rig's lidars see at samples of the drive, attached to it.
+
+:func:`seen` ray-casts a scan of each lidar (:mod:`excite.scene.lidar`) at samples of the drive —
+every :data:`SAMPLE_SPACING_M` of the vehicle's path and at least every
+:data:`SAMPLE_INTERVAL_S` — and returns the drive carrying them
+(:class:`~excite.motion.trajectory.SceneView`): every evaluation of it (score, live windows,
+mining, batch) then whitens each lidar frame pair by the scene's information
+(:mod:`excite.factors.odometry`). Samples are placed by the drive's own time and path from its
+start, so a window of a drive sees what the whole drive sees there.
+
+A scan's information is kept in world-aligned axes: turning in place, a 360° lidar sees the same
+surfaces, so between samples only the distance travelled changes what it sees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..factors.optics import lidar_beams
+from ..motion.trajectory import SceneView, Trajectory
+from .lidar import informations
+from .model import Scene
+
+SAMPLE_SPACING_M = 2.0
+"""Path between two scans ray-cast along a drive [m]."""
+SAMPLE_INTERVAL_S = 1.0
+"""Longest time between two scans ray-cast along a drive [s] (standing or turning in place)."""
+_GRID_HZ = 20.0
+
+
+def sample_times(traj: Trajectory) -> np.ndarray:
+    """The times the scans are ray-cast at: on a 20 Hz grid from the drive's start, the first
+    sample and each one where the path crossed another multiple of :data:`SAMPLE_SPACING_M` or
+    the time another multiple of :data:`SAMPLE_INTERVAL_S` since the previous one."""
+    t = np.arange(traj.t_start, traj.t_end + 1e-9, 1.0 / _GRID_HZ)
+    t = t[t <= traj.t_end]
+    p = traj.translation(t)[0]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    cell_s = np.floor(s / SAMPLE_SPACING_M)
+    cell_t = np.floor((t - traj.t_start) / SAMPLE_INTERVAL_S)
+    keep = np.r_[True, (np.diff(cell_s) != 0) | (np.diff(cell_t) != 0)]
+    return t[keep]
+
+
+def sensor_poses(traj: Trajectory, rig, sensor, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pose of ``sensor`` (a rig entry) in the world at times ``t``: ``R_W_S`` and ``p_W_S``."""
+    R_W_V = traj.rotation(t)[0]
+    p_W_V = traj.translation(t)[0]
+    T_V_B, T_B_S = rig.config.vehicle.T_V_B, sensor.T_B_S
+    R_W_B = R_W_V @ T_V_B.R
+    p_W_B = p_W_V + R_W_V @ T_V_B.p
+    return R_W_B @ T_B_S.R, p_W_B + R_W_B @ T_B_S.p
+
+
+def lidars(rig) -> list:
+    """The rig's lidar entries."""
+    return [s for s in rig.config.sensors if s.kind == "lidar"]
+
+
+def seen(traj: Trajectory, rig, scene: Scene, density: float = 1.0) -> Trajectory:
+    """``traj`` seeing ``scene`` with ``rig``'s lidars (see the module docstring; ``density``
+    multiplies the rays of each scan: a finer quadrature, for checks)."""
+    t = sample_times(traj)
+    times, H_W = {}, {}
+    for s in lidars(rig):
+        R_W_S, p_W_S = sensor_poses(traj, rig, s, t)
+        H = informations(scene, R_W_S, p_W_S, lidar_beams(s.beams), density).H
+        B = np.zeros((t.size, 6, 6))
+        B[:, :3, :3] = B[:, 3:, 3:] = R_W_S
+        times[s.name] = t
+        H_W[s.name] = B @ H @ np.swapaxes(B, 1, 2)
+    return traj.with_scene(SceneView(scene.digest, times, H_W))
