@@ -103,6 +103,7 @@ class Nominal:
     ``scene``: what a scene shows the rig's lidars at each keyframe, by sensor name (K × 6 × 6:
     the registration information of a scan there, in world-aligned axes:
     :class:`~excite.motion.trajectory.SceneView`); a lidar without one is scene-blind.
+    ``ground``: the same for the road plane fitted to its returns from the ground (K × 4 × 4).
     """
 
     t: np.ndarray
@@ -120,6 +121,7 @@ class Nominal:
     length_m: float = 0.0  # path length of the rear axle (trapezoid over the keyframes)
     logs: dict[str, KeyframeLog] = field(default_factory=dict)
     scene: dict[str, np.ndarray] = field(default_factory=dict)
+    ground: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_keyframes(self) -> int:
@@ -142,7 +144,8 @@ class Nominal:
                        R_V_A=self.R_V_A[kf], imu_R=self.imu_R[imu], imu_omega=self.imu_omega[imu],
                        imu_f=self.imu_f[imu], imu_per_keyframe=n, R_V_B=self.R_V_B, p_V_B=self.p_V_B,
                        logs={k: v.window(k0, k1) for k, v in self.logs.items()},
-                       scene={k: v[kf] for k, v in self.scene.items()})
+                       scene={k: v[kf] for k, v in self.scene.items()},
+                       ground={k: v[kf] for k, v in self.ground.items()})
 
     @staticmethod
     def grid(traj: Trajectory, rig: RigView, t_start: float | None = None,
@@ -182,9 +185,11 @@ class Nominal:
         length = float(np.trapezoid(np.linalg.norm(v_V, axis=1), t))
         logs = keyframe_logs(traj, rig, t, k0)
         view = getattr(traj, "scene", None)
-        scene = {} if view is None else {name: view.at(name, t) for name in view.t}
+        near = {} if view is None else {name: view.nearest(name, t) for name in view.t}
         return cls(t=t, R=R, p=p, v=v, omega=omega, R_V_A=R_V_A, imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f,
-                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs, scene=scene)
+                   imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs,
+                   scene={name: view.H_W[name][j] for name, j in near.items()},
+                   ground={name: view.G_W[name][j] for name, j in near.items()})
 
 
 def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dict[str, KeyframeLog]:

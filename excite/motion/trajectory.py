@@ -164,25 +164,25 @@ class SceneView:
     sensor name, the times ``t`` of the scans ray-cast (increasing) and each scan's registration
     information ``H_W`` (S × 6 × 6, [rotation, translation]) in world-aligned axes (the sensor's
     frame turned to the world's: the information does not change as the sensor turns in place
-    but looks at the same surfaces). ``digest``: the scene's (equal scenes, equal digests)."""
+    but looks at the same surfaces), and the information of the road plane fitted to its
+    returns from the ground ``G_W`` (S × 4 × 4, [normal, height], the normal's part in
+    world-aligned axes). ``digest``: the scene's (equal scenes, equal digests)."""
 
     digest: str
     t: dict[str, np.ndarray]
     H_W: dict[str, np.ndarray]
+    G_W: dict[str, np.ndarray]
 
-    def at(self, name: str, t: np.ndarray) -> np.ndarray | None:
-        """``name``'s information at times ``t`` from the scan ray-cast nearest each (None where the
-        view has none of ``name``)."""
-        ts = self.t.get(name)
-        if ts is None:
-            return None
-        j = np.clip(np.searchsorted(ts, t), 1, max(1, ts.size - 1)) if ts.size > 1 else np.zeros(np.size(t), int)
-        if ts.size > 1:
-            j = np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
-        return self.H_W[name][j]
+    def nearest(self, name: str, t: np.ndarray) -> np.ndarray:
+        """The index of the scan ray-cast nearest each of the times ``t`` of ``name``'s."""
+        ts = self.t[name]
+        if ts.size < 2:
+            return np.zeros(np.size(t), dtype=int)
+        j = np.clip(np.searchsorted(ts, t), 1, ts.size - 1)
+        return np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
 
     def shifted(self, dt_s: float) -> "SceneView":
-        return SceneView(self.digest, {k: v + dt_s for k, v in self.t.items()}, self.H_W)
+        return SceneView(self.digest, {k: v + dt_s for k, v in self.t.items()}, self.H_W, self.G_W)
 
 
 class Trajectory:

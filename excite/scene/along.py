@@ -21,7 +21,7 @@ from ..motion.trajectory import SceneView, Trajectory
 from .lidar import informations
 from .model import Scene
 
-SAMPLE_SPACING_M = 2.0
+SAMPLE_SPACING_M = 3.0
 """Path between two scans ray-cast along a drive [m]."""
 SAMPLE_INTERVAL_S = 1.0
 """Longest time between two scans ray-cast along a drive [s] (standing or turning in place)."""
@@ -40,6 +40,14 @@ def sample_times(traj: Trajectory) -> np.ndarray:
     cell_t = np.floor((t - traj.t_start) / SAMPLE_INTERVAL_S)
     keep = np.r_[True, (np.diff(cell_s) != 0) | (np.diff(cell_t) != 0)]
     return t[keep]
+
+
+def azimuth_offsets(t: np.ndarray) -> np.ndarray:
+    """Each sample's turn of the scan's azimuths, in steps (:func:`excite.scene.lidar.turned`): the
+    golden-ratio sequence over the sample's index on the 20 Hz grid of the drive's clock (the
+    same sample, the same turn, whatever window of the drive is looked at)."""
+    k = np.round(np.asarray(t, float) * _GRID_HZ)
+    return np.mod(k * 0.6180339887498949, 1.0)
 
 
 def sensor_poses(traj: Trajectory, rig, sensor, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,12 +69,16 @@ def seen(traj: Trajectory, rig, scene: Scene, density: float = 1.0) -> Trajector
     """``traj`` seeing ``scene`` with ``rig``'s lidars (see the module docstring; ``density``
     multiplies the rays of each scan: a finer quadrature, for checks)."""
     t = sample_times(traj)
-    times, H_W = {}, {}
+    times, H_W, G_W = {}, {}, {}
     for s in lidars(rig):
         R_W_S, p_W_S = sensor_poses(traj, rig, s, t)
-        H = informations(scene, R_W_S, p_W_S, lidar_beams(s.beams), density).H
+        scans = informations(scene, R_W_S, p_W_S, lidar_beams(s.beams), density, offsets=azimuth_offsets(t))
         B = np.zeros((t.size, 6, 6))
         B[:, :3, :3] = B[:, 3:, 3:] = R_W_S
         times[s.name] = t
-        H_W[s.name] = B @ H @ np.swapaxes(B, 1, 2)
-    return traj.with_scene(SceneView(scene.digest, times, H_W))
+        H_W[s.name] = B @ scans.H @ np.swapaxes(B, 1, 2)
+        B4 = np.zeros((t.size, 4, 4))
+        B4[:, :3, :3] = R_W_S
+        B4[:, 3, 3] = 1.0
+        G_W[s.name] = B4 @ scans.G @ np.swapaxes(B4, 1, 2)
+    return traj.with_scene(SceneView(scene.digest, times, H_W, G_W))

@@ -35,15 +35,19 @@ import numpy as np
 from ..factors.optics import LidarBeams
 from .model import Scene
 
-CAST_BEAMS = 32
+CAST_BEAMS = 16
 """Most beams a scan is cast with (more beams are represented by these, evenly chosen)."""
 AZIMUTHS = 256
 """Azimuths a scan is cast with over the lidar's horizontal field."""
 MIN_INCIDENCE_COS = 0.1
 """Returns whose ray meets the surface more obliquely than this (|n·d| below it: beyond 84°
 from the normal) are dropped, as a lidar's are: too little light comes back."""
-SCANS_PER_CALL = 256
+REFINE = 8
+"""Rays cast across the span between two neighbouring rays that see different surfaces."""
+SCANS_PER_CALL = 64
 """Scans ray-cast in one call to the ray caster (bounds the memory of a long drive)."""
+THREADS = 2
+"""Threads casting and summing chunks of scans at once (Embree and numpy release the GIL)."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,10 @@ class ScanPattern:
     min_range_m: float
     max_range_m: float
     range_noise_m: float
+    elevations: np.ndarray
+    azimuths: np.ndarray
+    azimuth_step: float
+    full_circle: bool
 
     @property
     def n_rays(self) -> int:
@@ -79,7 +87,8 @@ def pattern(beams: LidarBeams, density: float = 1.0) -> ScanPattern:
     per_azimuth = (fov / n_az) / max(np.radians(beams.horizontal_resolution_deg), corr)
     per_beam = (n_beams / n_elev) * min(1.0, beams.beam_spacing_rad / corr)
     w = np.full(d.shape[0], per_azimuth * per_beam)
-    return ScanPattern(d, w, beams.min_range_m, beams.max_range_m, beams.range_noise_m)
+    return ScanPattern(d, w, beams.min_range_m, beams.max_range_m, beams.range_noise_m, chosen, az, fov / n_az,
+                       beams.horizontal_fov_deg >= 360.0)
 
 
 def point_rows(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -99,10 +108,14 @@ def point_information(points: np.ndarray, normals: np.ndarray, sigma: float,
 @dataclass(frozen=True)
 class Scans:
     """Scans ray-cast at poses ``R_W_S, p_W_S`` (S × 3 × 3, S × 3): each scan's information about
-    its pose (``H``, S × 6 × 6 in the sensor frame, [rotation, translation]) and its number of
-    returns (``returns``)."""
+    its pose (``H``, S × 6 × 6 in the sensor frame, [rotation, translation]), the information of
+    the road plane fitted to its returns from the ground (``G``, S × 4 × 4: ``Σ w/σ² [p; 1][p; 1]ᵀ``
+    over the plane's ``[δn, δh]`` in the sensor frame, a point on the plane ``nᵀp + h = 0``, n its
+    upward normal and h the sensor's height above it: see
+    :mod:`excite.factors.ground`) and its number of returns (``returns``)."""
 
     H: np.ndarray
+    G: np.ndarray
     returns: np.ndarray
 
 
@@ -117,28 +130,90 @@ def cast_scan(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, scan: ScanPatt
     return pts, nrm, scan.weight[ok], hits.surface[ok]
 
 
+def _rows(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, scan: ScanPattern, which: np.ndarray,
+          elevation: np.ndarray, azimuth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays of scans ``which`` at ``elevation, azimuth`` (in each scan's sensor frame): whether each
+    returned (``ok``), the surface it hit (−1 for none), its row ``[p × n; n]`` and, for a return
+    from the ground, its row ``[p; 1]`` of the road plane's fit (zero rows otherwise)."""
+    ce = np.cos(elevation)
+    d_S = np.column_stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)])
+    R = R_W_S[which]
+    d_W = np.einsum("nij,nj->ni", R, d_S)
+    hits = scene.cast(p_W_S[which], d_W, scan.max_range_m)
+    facing = np.abs(np.einsum("ij,ij->i", hits.normal, d_W)) >= MIN_INCIDENCE_COS
+    ok = hits.hit & (hits.distance >= scan.min_range_m) & facing
+    pts = d_S * np.where(ok, hits.distance, 0.0)[:, None]
+    nrm = np.einsum("nji,nj->ni", R, hits.normal)
+    J = np.where(ok[:, None], np.hstack([np.cross(pts, nrm), nrm]), 0.0)
+    ground = ok & scene.is_ground()[np.maximum(hits.surface, 0)]
+    P = np.where(ground[:, None], np.hstack([pts, np.ones((pts.shape[0], 1))]), 0.0)
+    return ok, np.where(ok, hits.surface, -1), J, P
+
+
 def informations(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, beams: LidarBeams,
-                 density: float = 1.0) -> Scans:
+                 density: float = 1.0, offsets: np.ndarray | None = None) -> Scans:
     """The registration information of a scan at each of the poses (see the module docstring),
-    all scans cast :data:`SCANS_PER_CALL` at a time."""
+    :data:`SCANS_PER_CALL` scans cast at a time; ``offsets``: each scan's azimuths turned by that
+    fraction of a step (none: the same azimuths for every scan).
+
+    The quadrature is refined where it matters: between two neighbouring rays of a beam that
+    return from different surfaces (or one returns and the other does not: an edge, a pole, the
+    end of a wall), :data:`REFINE` rays are cast evenly over the span between them and take over
+    the two half-cells they cover, so that an edge's position is resolved to a fraction of a step."""
     R_W_S = np.asarray(R_W_S, float).reshape(-1, 3, 3)
     p_W_S = np.asarray(p_W_S, float).reshape(-1, 3)
     scan = pattern(beams, density)
-    S, Rn = R_W_S.shape[0], scan.n_rays
+    n_el, n_az = scan.elevations.size, scan.azimuths.size
+    S = R_W_S.shape[0]
+    off = np.zeros(S) if offsets is None else np.asarray(offsets, float)
     H = np.zeros((S, 6, 6))
+    G = np.zeros((S, 4, 4))
     returns = np.zeros(S, dtype=np.int64)
-    for a in range(0, S, SCANS_PER_CALL):
+    step = scan.azimuth_step
+    w0 = scan.weight[0] / scan.range_noise_m**2
+    def chunk(a: int) -> None:
         b = min(S, a + SCANS_PER_CALL)
-        d_W = scan.directions[None] @ np.swapaxes(R_W_S[a:b], 1, 2)
-        o = np.broadcast_to(p_W_S[a:b, None, :], d_W.shape)
-        hits = scene.cast(o.reshape(-1, 3), d_W.reshape(-1, 3), scan.max_range_m)
-        facing = np.abs(np.einsum("ij,ij->i", hits.normal, d_W.reshape(-1, 3))) >= MIN_INCIDENCE_COS
-        ok = (hits.hit & (hits.distance >= scan.min_range_m) & facing).reshape(b - a, Rn)
-        dist = np.where(ok, hits.distance.reshape(b - a, Rn), 0.0)
-        pts = scan.directions[None] * dist[..., None]
-        nrm = hits.normal.reshape(b - a, Rn, 3) @ R_W_S[a:b]
-        J = np.concatenate([np.cross(pts, nrm), nrm], axis=2)
-        w = np.where(ok, scan.weight[None], 0.0) / scan.range_noise_m**2
-        H[a:b] = np.swapaxes(J * w[..., None], 1, 2) @ J
-        returns[a:b] = ok.sum(axis=1)
-    return Scans(H=H, returns=returns)
+        m = b - a
+        which = np.repeat(np.arange(a, b), n_el * n_az)
+        el = np.tile(np.repeat(scan.elevations, n_az), m)
+        az = np.tile(np.tile(scan.azimuths, n_el), m) + np.repeat(off[a:b] * step, n_el * n_az)
+        ok, sid, J, P = _rows(scene, R_W_S, p_W_S, scan, which, el, az)
+        ok, sid = ok.reshape(m, n_el, n_az), sid.reshape(m, n_el, n_az)
+        w = np.full((m, n_el, n_az), w0)
+        # edges: a ray and its next neighbour along the beam see different things
+        nxt = np.roll(sid, -1, axis=2)
+        edge = sid != nxt
+        if scan.full_circle is False:
+            edge[:, :, -1] = False
+        ks, ke, ka = np.nonzero(edge)
+        if ks.size:
+            np.subtract.at(w, (ks, ke, ka), 0.5 * w0)
+            np.subtract.at(w, (ks, ke, (ka + 1) % n_az), 0.5 * w0)
+            frac = (np.arange(REFINE) + 0.5) / REFINE
+            r_s = np.repeat(ks, REFINE)
+            r_el = np.repeat(scan.elevations[ke], REFINE)
+            r_az = (np.repeat(scan.azimuths[ka] + off[a + ks] * step, REFINE) + np.tile(frac, ks.size) * step)
+            r_ok, _, r_J, r_P = _rows(scene, R_W_S, p_W_S, scan, r_s + a, r_el, r_az)
+            Hr = np.zeros((m, 6, 6))
+            np.add.at(Hr, r_s, (r_J * (w0 / REFINE))[:, :, None] * r_J[:, None, :])
+            H[a:b] += Hr
+            Gr = np.zeros((m, 4, 4))
+            np.add.at(Gr, r_s, (r_P * (w0 / REFINE))[:, :, None] * r_P[:, None, :])
+            G[a:b] += Gr
+            returns[a:b] += np.bincount(r_s, weights=r_ok, minlength=m).astype(np.int64)
+        Jf = J.reshape(m, n_el * n_az, 6)
+        H[a:b] += np.swapaxes(Jf * w.reshape(m, -1, 1), 1, 2) @ Jf
+        Pf = P.reshape(m, n_el * n_az, 4)
+        G[a:b] += np.swapaxes(Pf * w.reshape(m, -1, 1), 1, 2) @ Pf
+        returns[a:b] += ok.reshape(m, -1).sum(axis=1)
+
+    starts = range(0, S, SCANS_PER_CALL)
+    if THREADS > 1 and len(starts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(THREADS) as pool:
+            list(pool.map(chunk, starts))
+    else:
+        for a in starts:
+            chunk(a)
+    return Scans(H=H, G=G, returns=returns)
