@@ -9,13 +9,28 @@ import time
 from api import Settings, create_app
 
 
-def test_problem_bodies_are_capped():
-    from api.problems import MAX_DETAIL_CHARS, MAX_ERRORS, capped
+def test_problem_bodies_are_capped(tmp_path):
+    from fastapi.testclient import TestClient
 
-    body = capped({"detail": "x" * 100_000, "errors": [{"field": "f" * 1000, "message": "m" * 10_000}] * 5000})
+    from api.errors import MAX_DETAIL_CHARS, MAX_ERRORS, Problem
+
+    huge = Problem(422, "x" * 100_000, errors=[{"field": "f" * 1000, "message": "m" * 10_000}] * 5000)
+    body = huge.body("/v1/x")
     assert len(body["detail"]) <= MAX_DETAIL_CHARS and "characters more" in body["detail"]
     assert len(body["errors"]) == MAX_ERRORS + 1 and "4980 more" in body["errors"][-1]["message"]
     assert len(json.dumps(body)) < 20_000
+
+    # and so is the response that carries it
+    app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1))
+
+    @app.get("/huge")
+    def raise_huge():
+        raise huge
+
+    with TestClient(app, base_url="http://localhost") as c:
+        r = c.get("/huge")
+    assert r.status_code == 422 and r.headers["content-type"] == "application/problem+json"
+    assert len(r.content) < 20_000 and r.json()["errors"][-1]["message"] == "… and 4980 more errors"
 
 
 def test_the_connection_survives_a_500(tmp_path):
