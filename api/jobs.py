@@ -16,8 +16,8 @@ and, at the end, its outcome over its pipe, and reads "stop" from it. The dispat
   pipe; ended after ``cancel_grace_s``), purges finished jobs by the retention policy, and on
   shutdown ends its job processes and puts their jobs back in the queue.
 
-A fault of the store is logged once when it starts and once when it ends, and
-:attr:`JobRunner.fault` names it for ``/readyz``.
+A fault of the store is logged by the store (once when it starts, once when it ends);
+:attr:`JobRunner.fault` names the dispatcher's last one for ``/readyz``.
 
 :func:`run_optimization` is the default job: :func:`excite.plan.optimize` on the request,
 returning plain JSON data (the report, the comparison and the control profile for downloads).
@@ -371,11 +371,8 @@ class JobRunner:
 
     def _failed(self, exc: Exception) -> None:
         text = str(exc)
-        if text != self.fault:
-            if isinstance(exc, StoreError):
-                log.error("job store fault: %s", text)
-            else:
-                log.exception("job dispatcher", exc_info=exc)
+        if text != self.fault and not isinstance(exc, StoreError):  # the store logs its own faults
+            log.exception("job dispatcher", exc_info=exc)
         self.fault = text
 
     def _loop(self) -> None:
@@ -391,8 +388,7 @@ class JobRunner:
                 except Exception as exc:  # noqa: BLE001 — keep dispatching; back off while the store is faulty
                     ok = False
                     self._failed(exc)
-            if ok and self.fault is not None:
-                log.warning("job store answers again")
+            if ok:
                 self.fault = None
             delay = self.poll_s if ok else min(2.0, max(delay * 2, 0.5))
             self._wake.wait(delay)

@@ -39,8 +39,7 @@ def of(exc: BaseException, field: str | None = None, *, timeout_s: float | None 
     task past its deadline and the 413 of one out of memory."""
     if isinstance(exc, Problem):
         return exc
-    if isinstance(exc, StoreError):
-        log.error("job store fault: %s", exc)
+    if isinstance(exc, StoreError):  # logged by the store when the fault started
         return Problem(503, "the job store is unavailable; retry later (the fault is logged)",
                        type_="store-unavailable", headers={"Retry-After": "5"})
     if isinstance(exc, ExciteError):

@@ -33,16 +33,20 @@ the missing steps (:data:`ADDED`: the columns and tables each version added, fro
 statement of the schema) in one transaction. Databases of servers before versioning are version 1.
 
 Every failure of the database is a :class:`~api.errors.StoreError` naming the store and what is
-wrong (full, read-only, corrupt, unreachable), never a bare driver exception.
+wrong (full, read-only, corrupt, unreachable), never a bare driver exception. The store logs a
+fault once when it starts (whoever met it: the dispatcher, a request, a scrape) and once when
+the database answers again.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import secrets as _secrets
 import socket
+import threading
 import time
 import uuid
 from contextlib import contextmanager
@@ -53,6 +57,8 @@ import sqlalchemy as sa
 from sqlalchemy.schema import CreateColumn
 
 from .errors import OverQuota, StoreError
+
+log = logging.getLogger("excite.api")
 
 FINAL = ("succeeded", "failed", "cancelled")
 ACTIVE = ("queued", "running")
@@ -185,7 +191,11 @@ class JobStore:
                                            connect_args={"timeout": 30, "isolation_level": None})
             sa.event.listen(self.engine, "connect", _sqlite_connect)
             sa.event.listen(self.engine, "begin", lambda conn: conn.exec_driver_sql("BEGIN IMMEDIATE"))
+        self.fault: str | None = None  # the fault logged last, until the database answers again
+        self._fault_lock = threading.Lock()
+        self._opened = False  # a store that cannot be opened is the opener's error, not logged here
         self._migrate()
+        self._opened = True
 
     def describe(self) -> str:
         if not self.postgres:
@@ -210,8 +220,20 @@ class JobStore:
                 yield c
         except StoreError:
             raise
-        except (sa.exc.DBAPIError, sa.exc.TimeoutError) as exc:
+        except sa.exc.IntegrityError as exc:  # a constraint said no (a ticket used twice): no fault
             raise self._fault(getattr(exc, "orig", None) or exc) from None
+        except (sa.exc.DBAPIError, sa.exc.TimeoutError) as exc:
+            fault = self._fault(getattr(exc, "orig", None) or exc)
+            with self._fault_lock:
+                if self._opened and str(fault) != self.fault:
+                    log.error("job store fault: %s", fault)
+                self.fault = str(fault)
+            raise fault from None
+        if self.fault is not None:
+            with self._fault_lock:
+                if self.fault is not None:
+                    log.warning("job store answers again")
+                self.fault = None
 
     def _fault(self, exc: BaseException) -> StoreError:
         text = " ".join(str(exc).split())[:300]
