@@ -58,18 +58,22 @@ def test_a_nearly_full_disk_is_not_ready_and_uploads_wait(tmp_path):
         assert r.status_code == 503 and r.json()["type"].endswith("/disk-full")
 
 
-def test_a_read_only_store_says_so(tmp_path, monkeypatch):
+def test_a_read_only_store_says_so(tmp_path):
+    import sqlalchemy as sa
+
     from api.errors import StoreError
 
     store = SqliteStore(tmp_path / "j.sqlite3")
-
-    def refuse(*a, **k):
-        raise sqlite3.OperationalError("attempt to write a readonly database")
-
-    monkeypatch.setattr(sqlite3, "connect", refuse)
+    job = store.create("maneuver", {})
+    # SQLite refuses every write from here on, as it does on a read-only file (root writes any
+    # file whatever its mode, so the test cannot make one that way)
+    sa.event.listen(store.engine, "connect", lambda dbapi, _: dbapi.execute("PRAGMA query_only=ON"))
     with pytest.raises(StoreError) as exc:
         store.create("maneuver", {})
     assert "read-only" in str(exc.value) and "move it away" not in str(exc.value)
+    assert str(tmp_path / "j.sqlite3") in str(exc.value)
+    with pytest.raises(StoreError, match="read-only"):
+        store.cancel(job)
 
 
 def test_finished_jobs_are_purged_by_age_and_size_and_keep_only_what_downloads_need(tmp_path):
@@ -83,9 +87,23 @@ def test_finished_jobs_are_purged_by_age_and_size_and_keep_only_what_downloads_n
     assert store.request_of(ids[0]) == {"rig": "robotaxi", "name": "m", "origin": None}
     assert "request" not in store.get(ids[0])  # a GET never reads the request
     assert store.total_bytes() < 250_000  # the queued job's request, and four small ones
-    assert store.purge(max_age_s=3600, max_bytes=1 << 30) == 0
+    assert store.purge(max_age_s=3600, max_bytes=lambda key_id: 1 << 30) == 0
     with sqlite3.connect(tmp_path / "j.sqlite3") as db:
         db.execute("UPDATE jobs SET finished_at = finished_at - 7200 WHERE id = ?", (ids[0],))
-    assert store.purge(max_age_s=3600, max_bytes=1 << 30) == 1 and store.get(ids[0]) is None
-    assert store.purge(max_age_s=3600, max_bytes=1000) == 3  # the oldest finished ones, not the queued
+    assert store.purge(max_age_s=3600, max_bytes=lambda key_id: 1 << 30) == 1 and store.get(ids[0]) is None
+    # the oldest finished ones, not the queued
+    assert store.purge(max_age_s=3600, max_bytes=lambda key_id: 1000) == 3
     assert store.get(queued)["status"] == "queued" and store.runs(ids[1]) == []
+
+
+def test_retention_by_size_trims_only_the_key_over_its_quota(tmp_path):
+    store = SqliteStore(tmp_path / "j.sqlite3")
+    quiet = store.create("maneuver", {"rig": "robotaxi"}, key_id="quiet")
+    store.finish(*store.claim("r", 30), "succeeded", result={"score": 1.0})
+    loud = [store.create("maneuver", {"rig": "robotaxi"}, key_id="loud") for _ in range(3)]
+    for _ in loud:
+        store.finish(*store.claim("r", 30), "cancelled", result={"blob": "x" * 50_000})
+    # the quiet key's result is the oldest of all, and stays: each key is held to its own quota
+    assert store.purge(max_age_s=3600, max_bytes=lambda key_id: 60_000) == 2
+    assert store.get(quiet)["status"] == "succeeded"
+    assert [store.get(i) is None for i in loud] == [True, True, False]
