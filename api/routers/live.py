@@ -379,7 +379,8 @@ async def _session(ws: WebSocket, settings: Any) -> None:
                 msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
                     rig, name, plan = _start(msg)
-                    session = Session(settings, rig, name, plan)
+                    # starting the process writes the rig to it (1 MB): not in the event loop either
+                    session = await anyio.to_thread.run_sync(Session, settings, rig, name, plan)
                     started = await anyio.to_thread.run_sync(session.call)
                     await ws.send_json({"type": "started", **started})
                     continue
