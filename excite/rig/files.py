@@ -249,7 +249,11 @@ def detect(path: str | Path, text: str | None = None) -> tuple[str, str] | None:
         return "FAST-LIO" + ("/FAST-LIVO" if _has(data, "Rcl") else ""), f"excite rig from-fast-lio {path}"
     children = [c for v in data.values() if isinstance(v, dict) for c in v.values()]
     if children and all(isinstance(c, dict) and {"x", "y", "z", "roll", "pitch", "yaw"} <= set(c) for c in children):
-        return "Autoware calibration", f"excite rig from-autoware {path}"
+        frames = [str(f) for v in data.values() if isinstance(v, dict) for f in v]
+        if "base_link" in data and not any("imu" in f for f in frames):
+            # sensors_calibration.yaml: the kits on base_link; the IMU is in the kit's own file
+            return "Autoware calibration", f"excite rig from-autoware SENSOR_KIT_CALIBRATION {path}"
+        return "Autoware calibration", f"excite rig from-autoware {path} SENSORS_CALIBRATION"
     return None
 
 

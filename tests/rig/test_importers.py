@@ -388,6 +388,7 @@ def test_a_file_too_large_is_refused_before_it_is_read(tmp_path, capsys):
     ("lio_sam/params.yaml", "excite rig from-lio-sam"),
     ("fast_lio/velodyne.yaml", "excite rig from-fast-lio"),
     ("autoware/sensor_kit_calibration.yaml", "excite rig from-autoware"),
+    ("autoware/sensors_calibration.yaml", "excite rig from-autoware SENSOR_KIT_CALIBRATION"),
 ])
 def test_a_tool_file_given_as_a_rig_names_its_importer(data_dir, capsys, which, command):
     path = data_dir / "rig_files" / which
