@@ -3,7 +3,8 @@
     python benchmarks/bench_evaluate.py [--runs 7] [--skip-dense] [--baseline REV] [--when-idle S]
 
 The default rig (robotaxi) has an IMU at 200 Hz, keyframes at 10 Hz, a lidar and a monocular
-camera at 10 Hz, wheel encoders; all 24 calibration coordinates are estimated. Drives are
+camera at 10 Hz, wheel encoders; all 23 scored calibration coordinates are estimated, with 4
+nuisances (the camera's scale, tyre slip, scrub and slip angle: 27 columns). Drives are
 generated (varying speed and curvature, suspension on). Timed: trajectory → report, i.e.
 sampling the motion, linearising every factor, marginalising, eigen-analysis and the report.
 
