@@ -227,12 +227,12 @@ def build_rig(data: dict[str, Any], base_dir: Path | None = None) -> Rig:
         raise RigError("rig: expected a mapping at the top level")
     if bounds.nesting(data) > bounds.MAX_NESTING:
         raise RigError(f"rig: nested more than {bounds.MAX_NESTING} levels deep (a rig is at most 6)")
+    sensors = data.get("sensors")  # the bound that names what is too many, before the overall one
+    if isinstance(sensors, list) and len(sensors) > bounds.MAX_SENSORS:
+        raise RigError(f"sensors: {len(sensors)} sensors, over the limit of {bounds.MAX_SENSORS}")
     if bounds.size(data) > bounds.MAX_RIG_NODES:
         raise RigError(f"rig: more than {bounds.MAX_RIG_NODES} keys and list items (a rig of "
                        f"{bounds.MAX_SENSORS} sensors with a target per coordinate holds a few hundred)")
-    sensors = data.get("sensors")
-    if isinstance(sensors, list) and len(sensors) > bounds.MAX_SENSORS:
-        raise RigError(f"sensors: {len(sensors)} sensors, over the limit of {bounds.MAX_SENSORS}")
     data = dict(data)
     if isinstance(data.get("imu"), str):
         from .files import read_kalibr_imu  # Kalibr's input and output IMU files, OpenCV's header

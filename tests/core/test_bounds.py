@@ -127,6 +127,10 @@ def test_rig_structure_is_bounded():
     data["sensors"] = [dict(sensor, name=f"s{i}") for i in range(500)]
     with pytest.raises(RigError, match=f"500 sensors, over the limit of {bounds.MAX_SENSORS}"):
         build_rig(data)
+    data = _robotaxi()
+    data["targets"] = {f"*.r{i}*": "1 deg" for i in range(bounds.MAX_RIG_NODES)}
+    with pytest.raises(RigError, match=f"rig: more than {bounds.MAX_RIG_NODES} keys and list items"):
+        build_rig(data)
     deep: dict = {}
     node = deep
     for _ in range(950):
