@@ -12,7 +12,10 @@ and, at the end, its outcome over its pipe, and reads "stop" from it. The dispat
   time limit (its time budget plus the reserve) is ended and recorded failed, naming the limit;
 - renews the leases of exactly the runs it has (:meth:`~api.store.JobStore.heartbeat`) and ends
   a run whose lease it lost (another replica runs the job now: it ends once, there);
-- re-queues the jobs of replicas whose leases expired, stops a cancelled job (asked over the
+- re-queues the jobs of replicas whose leases expired — but not until the store has answered
+  this replica for a whole lease: after an outage every lease has expired, and each live
+  replica renews its own within that time (a replica that died meanwhile has its jobs re-queued
+  a lease later) — stops a cancelled job (asked over the
   pipe; ended after ``cancel_grace_s``), purges finished jobs by the retention policy, and on
   shutdown ends its job processes and puts their jobs back in the queue.
 
@@ -220,6 +223,7 @@ class JobRunner:
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self._last_beat = self._last_purge = 0.0
+        self._answering_since = -math.inf  # since when the store has answered every pass
 
     @property
     def alive(self) -> bool:
@@ -359,9 +363,11 @@ class JobRunner:
             run = self.runs.pop(key)
             log.warning("job %s attempt %d: lease lost, its run here is ended (the job runs elsewhere)", *key)
             run.proc.stop()
-        requeued = self.store.reclaim(self.replica)
-        if requeued:
-            log.warning("re-queued %d job(s) whose replica's lease expired: %s", len(requeued), ", ".join(requeued))
+        if now - self._answering_since >= self.lease_s:  # not just after a fault (see the module docstring)
+            requeued = self.store.reclaim(self.replica)
+            if requeued:
+                log.warning("re-queued %d job(s) whose replica's lease expired: %s", len(requeued),
+                            ", ".join(requeued))
         if now - self._last_purge >= self.purge_every_s:
             self._last_purge = now
             n = self.store.purge(self.retention_s, self.storage_bytes)
@@ -390,6 +396,10 @@ class JobRunner:
                     self._failed(exc)
             if ok:
                 self.fault = None
+            if not ok:
+                self._answering_since = math.inf
+            elif self._answering_since == math.inf:
+                self._answering_since = time.monotonic()
             delay = self.poll_s if ok else min(2.0, max(delay * 2, 0.5))
             self._wake.wait(delay)
             self._wake.clear()

@@ -1,6 +1,6 @@
 """The job store on a real PostgreSQL server: several replicas share it, jobs are
-claimed with leases and heartbeats, a replica that dies loses no job and a live replica's job is
-never taken over. The server is Debian's ``postgresql`` package, started here on loopback in a
+claimed with leases and heartbeats, a replica that dies loses no job, a live replica's job is
+never taken over, and an outage of the database longer than the lease ends every job once. The server is Debian's ``postgresql`` package, started here on loopback in a
 temporary folder and stopped at the end (``.ci/run`` installs it)."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import httpx
 import pytest
 
 from servers import LiveServer, free_port, job_result_file
@@ -30,9 +31,25 @@ def _binaries() -> Path | None:
 pytestmark = pytest.mark.postgres
 
 
+class Server:
+    """A PostgreSQL server of its own: ``url``, and ``stop()``/``start()`` for an outage."""
+
+    def __init__(self, run, bindir: Path, data: Path, log: Path, sock: Path, port: int):
+        self.run, self.bindir, self.data, self.log, self.sock, self.port = run, bindir, data, log, sock, port
+        self.url = f"postgresql://excite@127.0.0.1:{port}/excite_jobs"
+
+    def start(self) -> None:
+        self.run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-w", "-t", "60", "-o",
+                 f"-p {self.port} -k {self.sock} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200",
+                 "start")
+
+    def stop(self, mode: str = "fast") -> None:
+        self.run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-m", mode, "-w", "stop")
+
+
 @pytest.fixture(scope="module")
-def postgres():
-    """``postgresql://…`` of a fresh server on 127.0.0.1 (its own cluster in a temp folder)."""
+def postgres_server():
+    """A fresh server on 127.0.0.1 (its own cluster in a temp folder)."""
     pytest.importorskip("psycopg", reason="psycopg is not installed (pip install 'psycopg[binary]')")
     bindir = _binaries()
     if bindir is None:
@@ -61,17 +78,25 @@ def postgres():
 
     port = free_port()
     run(str(bindir / "initdb"), "-D", str(data), "-U", "excite", "--auth=trust", "-E", "UTF8", "--no-sync")
-    run(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(tmp / "server.log"), "-w", "-t", "60", "-o",
-        f"-p {port} -k {sock} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200", "start")
+    server = Server(run, bindir, data, tmp / "server.log", sock, port)
+    server.start()
     try:
         import psycopg
 
         with psycopg.connect(f"postgresql://excite@127.0.0.1:{port}/postgres", autocommit=True) as db:
             db.execute("CREATE DATABASE excite_jobs")
-        yield f"postgresql://excite@127.0.0.1:{port}/excite_jobs"
+        yield server
     finally:
-        run(str(bindir / "pg_ctl"), "-D", str(data), "-m", "fast", "-w", "stop")
-        shutil.rmtree(tmp, ignore_errors=True)
+        try:
+            server.stop()
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def postgres(postgres_server):
+    """``postgresql://…`` of the module's server."""
+    return postgres_server.url
 
 
 @pytest.fixture
@@ -164,3 +189,51 @@ def test_three_replicas_run_thirty_jobs_exactly_once_with_one_killed(tmp_path, p
         for srv in (a, b, c):
             if srv is not None:
                 srv.stop()
+
+
+@pytest.mark.slow
+def test_a_database_outage_during_running_jobs_ends_every_job_once(tmp_path, postgres_server, fresh):
+    """Three replicas (one job worker each, a 3 s lease) run six jobs; PostgreSQL is stopped for
+    10 s (longer than the lease) while three of them run. Every job succeeds, once: one run per
+    job, succeeded, written by the replica that kept it through the outage — no run lost and
+    re-run, none left running, and every replica ready afterwards."""
+    result = job_result_file(tmp_path / "result.json")
+    log = tmp_path / "completions.log"
+    common = {"database_url": postgres_server.url, "workers": 1, "job_lease_s": 3,
+              "job_function": "servers:quick_job", "test_job_result": result, "test_job_log": log}
+    replicas = []
+    try:
+        for name in "abc":
+            (tmp_path / name).mkdir()
+            replicas.append(LiveServer(tmp_path / name, **common).start())
+        ids = []
+        for i in range(6):
+            with replicas[i % 3].client() as client:
+                r = client.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 4, "name": f"j{i}"})
+                assert r.status_code == 202, r.text
+                ids.append(r.json()["id"])
+        deadline = time.monotonic() + 60
+        while fresh.counts().get("running", 0) < 3:
+            assert time.monotonic() < deadline, fresh.counts()
+            time.sleep(0.1)
+        postgres_server.stop("immediate")  # the outage: the running jobs' ends fall inside it
+        try:
+            time.sleep(10)
+        finally:
+            postgres_server.start()
+        deadline = time.monotonic() + 120
+        while fresh.counts().get("succeeded", 0) < 6:
+            assert time.monotonic() < deadline, fresh.counts()
+            time.sleep(0.5)
+        for job_id in ids:
+            runs = fresh.runs(job_id)
+            assert [r["outcome"] for r in runs] == ["succeeded"], runs
+            assert fresh.get(job_id)["result"]["status"] == "stand-in"
+        names = log.read_text().split()[0::3]
+        assert sorted(names) == sorted(f"j{i}" for i in range(6)), names  # each ran to its end once
+        for srv in replicas:
+            assert srv.proc.poll() is None
+            assert httpx.get(srv.url + "/readyz", timeout=10).status_code == 200
+    finally:
+        for srv in replicas:
+            srv.stop()
