@@ -638,7 +638,15 @@ def quantities(cfg: Any) -> list[tuple[Kind, Any, Quantity]]:
             continue
         for e in k.entries(view):
             out += [(k, e, q) for q in k.quantities(cfg, e)]
-    return out
+    # a kind that reads another's quantities (a lidar's road plane, its extrinsic) adds no columns
+    seen: set[tuple[str, ...]] = set()
+    unique = []
+    for k, e, q in out:
+        key = tuple(q.coordinate_names())
+        if key not in seen:
+            seen.add(key)
+            unique.append((k, e, q))
+    return unique
 
 
 def columns(cfg: Any) -> list[Column]:

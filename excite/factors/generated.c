@@ -32,6 +32,8 @@
 #define casadi_f15 CASADI_PREFIX(f15)
 #define casadi_f16 CASADI_PREFIX(f16)
 #define casadi_f17 CASADI_PREFIX(f17)
+#define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
@@ -67,6 +69,8 @@
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s30 CASADI_PREFIX(s30)
 #define casadi_s31 CASADI_PREFIX(s31)
+#define casadi_s32 CASADI_PREFIX(s32)
+#define casadi_s33 CASADI_PREFIX(s33)
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_s6 CASADI_PREFIX(s6)
@@ -129,19 +133,21 @@ static const casadi_int casadi_s15[3] = {19, 1, 1};
 static const casadi_int casadi_s16[3] = {18, 3, 1};
 static const casadi_int casadi_s17[3] = {4, 3, 1};
 static const casadi_int casadi_s18[3] = {9, 3, 1};
-static const casadi_int casadi_s19[3] = {18, 9, 1};
-static const casadi_int casadi_s20[3] = {6, 9, 1};
-static const casadi_int casadi_s21[3] = {9, 2, 1};
-static const casadi_int casadi_s22[3] = {1, 2, 1};
-static const casadi_int casadi_s23[3] = {12, 1, 1};
-static const casadi_int casadi_s24[3] = {21, 1, 1};
-static const casadi_int casadi_s25[3] = {18, 6, 1};
-static const casadi_int casadi_s26[3] = {8, 6, 1};
-static const casadi_int casadi_s27[3] = {18, 2, 1};
-static const casadi_int casadi_s28[3] = {7, 2, 1};
-static const casadi_int casadi_s29[3] = {7, 3, 1};
-static const casadi_int casadi_s30[3] = {5, 2, 1};
-static const casadi_int casadi_s31[3] = {4, 6, 1};
+static const casadi_int casadi_s19[3] = {12, 1, 1};
+static const casadi_int casadi_s20[3] = {9, 4, 1};
+static const casadi_int casadi_s21[3] = {6, 4, 1};
+static const casadi_int casadi_s22[3] = {18, 9, 1};
+static const casadi_int casadi_s23[3] = {6, 9, 1};
+static const casadi_int casadi_s24[3] = {9, 2, 1};
+static const casadi_int casadi_s25[3] = {1, 2, 1};
+static const casadi_int casadi_s26[3] = {21, 1, 1};
+static const casadi_int casadi_s27[3] = {18, 6, 1};
+static const casadi_int casadi_s28[3] = {8, 6, 1};
+static const casadi_int casadi_s29[3] = {18, 2, 1};
+static const casadi_int casadi_s30[3] = {7, 2, 1};
+static const casadi_int casadi_s31[3] = {7, 3, 1};
+static const casadi_int casadi_s32[3] = {5, 2, 1};
+static const casadi_int casadi_s33[3] = {4, 6, 1};
 
 /* finish_imu:(i0[76],i1[9],i2[9],i3[17])->(o0[117]) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -12712,8 +12718,154 @@ CASADI_SYMBOL_EXPORT int lin_gnss_first_fix_work_bytes(casadi_int *sz_arg, casad
   return 0;
 }
 
-/* lin_imu:(i0[27],i1[27],i2[117],i3[0],i4[17])->(o0[18x9],o1[6x9]) */
+/* lin_ground_plane:(i0[27],i1[0],i2[12],i3[16])->(o0[9x4],o1[6x4]) */
 static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0;
+  a0=0.;
+  if (res[0]!=0) res[0][0]=a0;
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[0]!=0) res[0][4]=a0;
+  if (res[0]!=0) res[0][5]=a0;
+  if (res[0]!=0) res[0][6]=a0;
+  if (res[0]!=0) res[0][7]=a0;
+  if (res[0]!=0) res[0][8]=a0;
+  if (res[0]!=0) res[0][9]=a0;
+  if (res[0]!=0) res[0][10]=a0;
+  if (res[0]!=0) res[0][11]=a0;
+  if (res[0]!=0) res[0][12]=a0;
+  if (res[0]!=0) res[0][13]=a0;
+  if (res[0]!=0) res[0][14]=a0;
+  if (res[0]!=0) res[0][15]=a0;
+  if (res[0]!=0) res[0][16]=a0;
+  if (res[0]!=0) res[0][17]=a0;
+  if (res[0]!=0) res[0][18]=a0;
+  if (res[0]!=0) res[0][19]=a0;
+  if (res[0]!=0) res[0][20]=a0;
+  if (res[0]!=0) res[0][21]=a0;
+  if (res[0]!=0) res[0][22]=a0;
+  if (res[0]!=0) res[0][23]=a0;
+  if (res[0]!=0) res[0][24]=a0;
+  if (res[0]!=0) res[0][25]=a0;
+  if (res[0]!=0) res[0][26]=a0;
+  if (res[0]!=0) res[0][27]=a0;
+  if (res[0]!=0) res[0][28]=a0;
+  if (res[0]!=0) res[0][29]=a0;
+  if (res[0]!=0) res[0][30]=a0;
+  if (res[0]!=0) res[0][31]=a0;
+  if (res[0]!=0) res[0][32]=a0;
+  if (res[0]!=0) res[0][33]=a0;
+  if (res[0]!=0) res[0][34]=a0;
+  if (res[0]!=0) res[0][35]=a0;
+  if (res[1]!=0) res[1][0]=a0;
+  if (res[1]!=0) res[1][1]=a0;
+  if (res[1]!=0) res[1][2]=a0;
+  if (res[1]!=0) res[1][3]=a0;
+  if (res[1]!=0) res[1][4]=a0;
+  if (res[1]!=0) res[1][5]=a0;
+  if (res[1]!=0) res[1][6]=a0;
+  if (res[1]!=0) res[1][7]=a0;
+  if (res[1]!=0) res[1][8]=a0;
+  if (res[1]!=0) res[1][9]=a0;
+  if (res[1]!=0) res[1][10]=a0;
+  if (res[1]!=0) res[1][11]=a0;
+  if (res[1]!=0) res[1][12]=a0;
+  if (res[1]!=0) res[1][13]=a0;
+  if (res[1]!=0) res[1][14]=a0;
+  if (res[1]!=0) res[1][15]=a0;
+  if (res[1]!=0) res[1][16]=a0;
+  if (res[1]!=0) res[1][17]=a0;
+  if (res[1]!=0) res[1][18]=a0;
+  if (res[1]!=0) res[1][19]=a0;
+  if (res[1]!=0) res[1][20]=a0;
+  if (res[1]!=0) res[1][21]=a0;
+  if (res[1]!=0) res[1][22]=a0;
+  if (res[1]!=0) res[1][23]=a0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int lin_ground_plane(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f7(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int lin_ground_plane_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void lin_ground_plane_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void lin_ground_plane_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void lin_ground_plane_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int lin_ground_plane_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int lin_ground_plane_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real lin_ground_plane_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* lin_ground_plane_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "i0";
+    case 1: return "i1";
+    case 2: return "i2";
+    case 3: return "i3";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* lin_ground_plane_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "o0";
+    case 1: return "o1";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* lin_ground_plane_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s5;
+    case 2: return casadi_s19;
+    case 3: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* lin_ground_plane_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s20;
+    case 1: return casadi_s21;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int lin_ground_plane_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int lin_ground_plane_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* lin_imu:(i0[27],i1[27],i2[117],i3[0],i4[17])->(o0[18x9],o1[6x9]) */
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -14924,7 +15076,7 @@ static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int lin_imu(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f7(arg, res, iw, w, mem);
+  return casadi_f8(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int lin_imu_checkout(void) {
@@ -14982,8 +15134,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_imu_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* lin_imu_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s19;
-    case 1: return casadi_s20;
+    case 0: return casadi_s22;
+    case 1: return casadi_s23;
     default: return 0;
   }
 }
@@ -15005,7 +15157,7 @@ CASADI_SYMBOL_EXPORT int lin_imu_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 }
 
 /* lin_nonholonomic:(i0[27],i1[0],i2[0],i3[17])->(o0[9x2],o1[1x2]) */
-static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -15352,7 +15504,7 @@ static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int lin_nonholonomic(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f8(arg, res, iw, w, mem);
+  return casadi_f9(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int lin_nonholonomic_checkout(void) {
@@ -15408,8 +15560,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_nonholonomic_sparsity_in(casadi_int i
 
 CASADI_SYMBOL_EXPORT const casadi_int* lin_nonholonomic_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s21;
-    case 1: return casadi_s22;
+    case 0: return casadi_s24;
+    case 1: return casadi_s25;
     default: return 0;
   }
 }
@@ -15431,7 +15583,7 @@ CASADI_SYMBOL_EXPORT int lin_nonholonomic_work_bytes(casadi_int *sz_arg, casadi_
 }
 
 /* lin_odometry:(i0[27],i1[27],i2[0],i3[12],i4[21])->(o0[18x6],o1[8x6]) */
-static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -17411,7 +17563,7 @@ static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int lin_odometry(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f9(arg, res, iw, w, mem);
+  return casadi_f10(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int lin_odometry_checkout(void) {
@@ -17461,16 +17613,16 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_odometry_sparsity_in(casadi_int i) {
     case 0: return casadi_s4;
     case 1: return casadi_s4;
     case 2: return casadi_s5;
-    case 3: return casadi_s23;
-    case 4: return casadi_s24;
+    case 3: return casadi_s19;
+    case 4: return casadi_s26;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* lin_odometry_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s25;
-    case 1: return casadi_s26;
+    case 0: return casadi_s27;
+    case 1: return casadi_s28;
     default: return 0;
   }
 }
@@ -17492,7 +17644,7 @@ CASADI_SYMBOL_EXPORT int lin_odometry_work_bytes(casadi_int *sz_arg, casadi_int*
 }
 
 /* lin_radar_2d:(i0[27],i1[27],i2[0],i3[12],i4[17])->(o0[18x2],o1[7x2]) */
-static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34;
@@ -17843,7 +17995,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int lin_radar_2d(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f10(arg, res, iw, w, mem);
+  return casadi_f11(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int lin_radar_2d_checkout(void) {
@@ -17893,7 +18045,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_radar_2d_sparsity_in(casadi_int i) {
     case 0: return casadi_s4;
     case 1: return casadi_s4;
     case 2: return casadi_s5;
-    case 3: return casadi_s23;
+    case 3: return casadi_s19;
     case 4: return casadi_s2;
     default: return 0;
   }
@@ -17901,8 +18053,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_radar_2d_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* lin_radar_2d_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s27;
-    case 1: return casadi_s28;
+    case 0: return casadi_s29;
+    case 1: return casadi_s30;
     default: return 0;
   }
 }
@@ -17924,7 +18076,7 @@ CASADI_SYMBOL_EXPORT int lin_radar_2d_work_bytes(casadi_int *sz_arg, casadi_int*
 }
 
 /* lin_radar_3d:(i0[27],i1[27],i2[0],i3[12],i4[18])->(o0[18x3],o1[7x3]) */
-static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -18398,7 +18550,7 @@ static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int lin_radar_3d(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f11(arg, res, iw, w, mem);
+  return casadi_f12(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int lin_radar_3d_checkout(void) {
@@ -18448,7 +18600,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_radar_3d_sparsity_in(casadi_int i) {
     case 0: return casadi_s4;
     case 1: return casadi_s4;
     case 2: return casadi_s5;
-    case 3: return casadi_s23;
+    case 3: return casadi_s19;
     case 4: return casadi_s11;
     default: return 0;
   }
@@ -18457,7 +18609,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_radar_3d_sparsity_in(casadi_int i) {
 CASADI_SYMBOL_EXPORT const casadi_int* lin_radar_3d_sparsity_out(casadi_int i) {
   switch (i) {
     case 0: return casadi_s16;
-    case 1: return casadi_s29;
+    case 1: return casadi_s31;
     default: return 0;
   }
 }
@@ -18479,7 +18631,7 @@ CASADI_SYMBOL_EXPORT int lin_radar_3d_work_bytes(casadi_int *sz_arg, casadi_int*
 }
 
 /* lin_wheel:(i0[27],i1[27],i2[0],i3[3],i4[16])->(o0[18x2],o1[5x2]) */
-static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -19844,7 +19996,7 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int lin_wheel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f12(arg, res, iw, w, mem);
+  return casadi_f13(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int lin_wheel_checkout(void) {
@@ -19902,8 +20054,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* lin_wheel_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* lin_wheel_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s27;
-    case 1: return casadi_s30;
+    case 0: return casadi_s29;
+    case 1: return casadi_s32;
     default: return 0;
   }
 }
@@ -19925,7 +20077,7 @@ CASADI_SYMBOL_EXPORT int lin_wheel_work_bytes(casadi_int *sz_arg, casadi_int* sz
 }
 
 /* raw_gnss:(i0[27],i1[27],i2[0],i3[3],i4[19])->(o0[18x6],o1[4x6]) */
-static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26;
@@ -20286,7 +20438,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int raw_gnss(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f13(arg, res, iw, w, mem);
+  return casadi_f14(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int raw_gnss_checkout(void) {
@@ -20344,8 +20496,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* raw_gnss_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* raw_gnss_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s25;
-    case 1: return casadi_s31;
+    case 0: return casadi_s27;
+    case 1: return casadi_s33;
     default: return 0;
   }
 }
@@ -20367,7 +20519,7 @@ CASADI_SYMBOL_EXPORT int raw_gnss_work_bytes(casadi_int *sz_arg, casadi_int* sz_
 }
 
 /* raw_gnss_first_fix:(i0[27],i1[0],i2[3],i3[18])->(o0[9x3],o1[4x3]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17;
   a00=arg[2]? arg[2][1] : 0;
@@ -20526,7 +20678,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int raw_gnss_first_fix(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f14(arg, res, iw, w, mem);
+  return casadi_f15(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int raw_gnss_first_fix_checkout(void) {
@@ -20604,8 +20756,254 @@ CASADI_SYMBOL_EXPORT int raw_gnss_first_fix_work_bytes(casadi_int *sz_arg, casad
   return 0;
 }
 
+/* raw_ground_plane:(i0[27],i1[0],i2[12],i3[16])->(o0[9x4],o1[6x4]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19;
+  a00=0.;
+  if (res[0]!=0) res[0][0]=a00;
+  if (res[0]!=0) res[0][1]=a00;
+  if (res[0]!=0) res[0][2]=a00;
+  if (res[0]!=0) res[0][3]=a00;
+  if (res[0]!=0) res[0][4]=a00;
+  if (res[0]!=0) res[0][5]=a00;
+  if (res[0]!=0) res[0][6]=a00;
+  if (res[0]!=0) res[0][7]=a00;
+  if (res[0]!=0) res[0][8]=a00;
+  if (res[0]!=0) res[0][9]=a00;
+  if (res[0]!=0) res[0][10]=a00;
+  if (res[0]!=0) res[0][11]=a00;
+  if (res[0]!=0) res[0][12]=a00;
+  if (res[0]!=0) res[0][13]=a00;
+  if (res[0]!=0) res[0][14]=a00;
+  if (res[0]!=0) res[0][15]=a00;
+  if (res[0]!=0) res[0][16]=a00;
+  if (res[0]!=0) res[0][17]=a00;
+  if (res[0]!=0) res[0][18]=a00;
+  if (res[0]!=0) res[0][19]=a00;
+  if (res[0]!=0) res[0][20]=a00;
+  if (res[0]!=0) res[0][21]=a00;
+  if (res[0]!=0) res[0][22]=a00;
+  if (res[0]!=0) res[0][23]=a00;
+  if (res[0]!=0) res[0][24]=a00;
+  if (res[0]!=0) res[0][25]=a00;
+  if (res[0]!=0) res[0][26]=a00;
+  if (res[0]!=0) res[0][27]=a00;
+  if (res[0]!=0) res[0][28]=a00;
+  if (res[0]!=0) res[0][29]=a00;
+  if (res[0]!=0) res[0][30]=a00;
+  if (res[0]!=0) res[0][31]=a00;
+  if (res[0]!=0) res[0][32]=a00;
+  if (res[0]!=0) res[0][33]=a00;
+  if (res[0]!=0) res[0][34]=a00;
+  if (res[0]!=0) res[0][35]=a00;
+  if (res[1]!=0) res[1][0]=a00;
+  a01=arg[0]? arg[0][20] : 0;
+  a02=arg[3]? arg[3][4] : 0;
+  a03=arg[2]? arg[2][2] : 0;
+  a04=(a02*a03);
+  a05=arg[3]? arg[3][5] : 0;
+  a06=arg[2]? arg[2][5] : 0;
+  a07=(a05*a06);
+  a04=(a04+a07);
+  a07=arg[3]? arg[3][6] : 0;
+  a08=arg[2]? arg[2][8] : 0;
+  a09=(a07*a08);
+  a04=(a04+a09);
+  a04=(a01*a04);
+  a09=arg[0]? arg[0][23] : 0;
+  a10=arg[3]? arg[3][7] : 0;
+  a11=(a10*a03);
+  a12=arg[3]? arg[3][8] : 0;
+  a13=(a12*a06);
+  a11=(a11+a13);
+  a13=arg[3]? arg[3][9] : 0;
+  a14=(a13*a08);
+  a11=(a11+a14);
+  a11=(a09*a11);
+  a04=(a04+a11);
+  a11=arg[0]? arg[0][26] : 0;
+  a14=arg[3]? arg[3][10] : 0;
+  a03=(a14*a03);
+  a15=arg[3]? arg[3][11] : 0;
+  a06=(a15*a06);
+  a03=(a03+a06);
+  a06=arg[3]? arg[3][12] : 0;
+  a08=(a06*a08);
+  a03=(a03+a08);
+  a03=(a11*a03);
+  a04=(a04+a03);
+  a03=(-a04);
+  if (res[1]!=0) res[1][1]=a03;
+  a03=arg[2]? arg[2][1] : 0;
+  a08=(a02*a03);
+  a16=arg[2]? arg[2][4] : 0;
+  a17=(a05*a16);
+  a08=(a08+a17);
+  a17=arg[2]? arg[2][7] : 0;
+  a18=(a07*a17);
+  a08=(a08+a18);
+  a08=(a01*a08);
+  a18=(a10*a03);
+  a19=(a12*a16);
+  a18=(a18+a19);
+  a19=(a13*a17);
+  a18=(a18+a19);
+  a18=(a09*a18);
+  a08=(a08+a18);
+  a03=(a14*a03);
+  a16=(a15*a16);
+  a03=(a03+a16);
+  a17=(a06*a17);
+  a03=(a03+a17);
+  a03=(a11*a03);
+  a08=(a08+a03);
+  if (res[1]!=0) res[1][2]=a08;
+  if (res[1]!=0) res[1][3]=a00;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a00;
+  if (res[1]!=0) res[1][6]=a04;
+  if (res[1]!=0) res[1][7]=a00;
+  a04=arg[2]? arg[2][0] : 0;
+  a03=(a02*a04);
+  a17=arg[2]? arg[2][3] : 0;
+  a16=(a05*a17);
+  a03=(a03+a16);
+  a16=arg[2]? arg[2][6] : 0;
+  a18=(a07*a16);
+  a03=(a03+a18);
+  a03=(a01*a03);
+  a18=(a10*a04);
+  a19=(a12*a17);
+  a18=(a18+a19);
+  a19=(a13*a16);
+  a18=(a18+a19);
+  a18=(a09*a18);
+  a03=(a03+a18);
+  a04=(a14*a04);
+  a17=(a15*a17);
+  a04=(a04+a17);
+  a16=(a06*a16);
+  a04=(a04+a16);
+  a04=(a11*a04);
+  a03=(a03+a04);
+  a04=(-a03);
+  if (res[1]!=0) res[1][8]=a04;
+  if (res[1]!=0) res[1][9]=a00;
+  if (res[1]!=0) res[1][10]=a00;
+  if (res[1]!=0) res[1][11]=a00;
+  a08=(-a08);
+  if (res[1]!=0) res[1][12]=a08;
+  if (res[1]!=0) res[1][13]=a03;
+  if (res[1]!=0) res[1][14]=a00;
+  if (res[1]!=0) res[1][15]=a00;
+  if (res[1]!=0) res[1][16]=a00;
+  if (res[1]!=0) res[1][17]=a00;
+  if (res[1]!=0) res[1][18]=a00;
+  if (res[1]!=0) res[1][19]=a00;
+  if (res[1]!=0) res[1][20]=a00;
+  a02=(a01*a02);
+  a10=(a09*a10);
+  a02=(a02+a10);
+  a14=(a11*a14);
+  a02=(a02+a14);
+  if (res[1]!=0) res[1][21]=a02;
+  a05=(a01*a05);
+  a12=(a09*a12);
+  a05=(a05+a12);
+  a15=(a11*a15);
+  a05=(a05+a15);
+  if (res[1]!=0) res[1][22]=a05;
+  a01=(a01*a07);
+  a09=(a09*a13);
+  a01=(a01+a09);
+  a11=(a11*a06);
+  a01=(a01+a11);
+  if (res[1]!=0) res[1][23]=a01;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int raw_ground_plane(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f16(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int raw_ground_plane_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void raw_ground_plane_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void raw_ground_plane_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void raw_ground_plane_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int raw_ground_plane_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int raw_ground_plane_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real raw_ground_plane_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* raw_ground_plane_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "i0";
+    case 1: return "i1";
+    case 2: return "i2";
+    case 3: return "i3";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* raw_ground_plane_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "o0";
+    case 1: return "o1";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* raw_ground_plane_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s5;
+    case 2: return casadi_s19;
+    case 3: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* raw_ground_plane_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s20;
+    case 1: return casadi_s21;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int raw_ground_plane_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int raw_ground_plane_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
 /* raw_odometry:(i0[27],i1[27],i2[0],i3[12],i4[21])->(o0[18x6],o1[8x6]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -22525,7 +22923,7 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int raw_odometry(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f15(arg, res, iw, w, mem);
+  return casadi_f17(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int raw_odometry_checkout(void) {
@@ -22575,16 +22973,16 @@ CASADI_SYMBOL_EXPORT const casadi_int* raw_odometry_sparsity_in(casadi_int i) {
     case 0: return casadi_s4;
     case 1: return casadi_s4;
     case 2: return casadi_s5;
-    case 3: return casadi_s23;
-    case 4: return casadi_s24;
+    case 3: return casadi_s19;
+    case 4: return casadi_s26;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* raw_odometry_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s25;
-    case 1: return casadi_s26;
+    case 0: return casadi_s27;
+    case 1: return casadi_s28;
     default: return 0;
   }
 }
@@ -22606,7 +23004,7 @@ CASADI_SYMBOL_EXPORT int raw_odometry_work_bytes(casadi_int *sz_arg, casadi_int*
 }
 
 /* step2_imu:(i0[76],i1[9],i2[9],i3[3],i4[9],i5[3],i6[17])->(o0[76]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -23345,7 +23743,7 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int step2_imu(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f16(arg, res, iw, w, mem);
+  return casadi_f18(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int step2_imu_checkout(void) {
@@ -23428,7 +23826,7 @@ CASADI_SYMBOL_EXPORT int step2_imu_work_bytes(casadi_int *sz_arg, casadi_int* sz
 }
 
 /* step_imu:(i0[76],i1[9],i2[9],i3[3],i4[17])->(o0[76]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
   a00=arg[0]? arg[0][0] : 0;
@@ -23883,7 +24281,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int step_imu(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f19(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int step_imu_checkout(void) {
@@ -23979,6 +24377,8 @@ static const long long lin_gnss_nnz_in[] = {27, 27, 0, 3, 19};
 static const long long lin_gnss_nnz_out[] = {54, 12};
 static const long long lin_gnss_first_fix_nnz_in[] = {27, 0, 3, 18};
 static const long long lin_gnss_first_fix_nnz_out[] = {27, 12};
+static const long long lin_ground_plane_nnz_in[] = {27, 0, 12, 16};
+static const long long lin_ground_plane_nnz_out[] = {36, 24};
 static const long long lin_imu_nnz_in[] = {27, 27, 117, 0, 17};
 static const long long lin_imu_nnz_out[] = {162, 54};
 static const long long lin_nonholonomic_nnz_in[] = {27, 0, 0, 17};
@@ -23995,6 +24395,8 @@ static const long long raw_gnss_nnz_in[] = {27, 27, 0, 3, 19};
 static const long long raw_gnss_nnz_out[] = {108, 24};
 static const long long raw_gnss_first_fix_nnz_in[] = {27, 0, 3, 18};
 static const long long raw_gnss_first_fix_nnz_out[] = {27, 12};
+static const long long raw_ground_plane_nnz_in[] = {27, 0, 12, 16};
+static const long long raw_ground_plane_nnz_out[] = {36, 24};
 static const long long raw_odometry_nnz_in[] = {27, 27, 0, 12, 21};
 static const long long raw_odometry_nnz_out[] = {108, 48};
 static const long long step2_imu_nnz_in[] = {76, 9, 9, 3, 9, 3, 17};
@@ -24002,7 +24404,7 @@ static const long long step2_imu_nnz_out[] = {76};
 static const long long step_imu_nnz_in[] = {76, 9, 9, 3, 17};
 static const long long step_imu_nnz_out[] = {76};
 
-const excite_kernel excite_kernels[18] = {
+const excite_kernel excite_kernels[20] = {
     {"finish_imu", (void *)finish_imu, (void *)finish_imu_work, 4, 1, finish_imu_nnz_in, finish_imu_nnz_out},
     {"lin_ackermann_mps_no_steering", (void *)lin_ackermann_mps_no_steering, (void *)lin_ackermann_mps_no_steering_work, 5, 2, lin_ackermann_mps_no_steering_nnz_in, lin_ackermann_mps_no_steering_nnz_out},
     {"lin_ackermann_mps_steering", (void *)lin_ackermann_mps_steering, (void *)lin_ackermann_mps_steering_work, 5, 2, lin_ackermann_mps_steering_nnz_in, lin_ackermann_mps_steering_nnz_out},
@@ -24010,6 +24412,7 @@ const excite_kernel excite_kernels[18] = {
     {"lin_ackermann_radps_steering", (void *)lin_ackermann_radps_steering, (void *)lin_ackermann_radps_steering_work, 5, 2, lin_ackermann_radps_steering_nnz_in, lin_ackermann_radps_steering_nnz_out},
     {"lin_gnss", (void *)lin_gnss, (void *)lin_gnss_work, 5, 2, lin_gnss_nnz_in, lin_gnss_nnz_out},
     {"lin_gnss_first_fix", (void *)lin_gnss_first_fix, (void *)lin_gnss_first_fix_work, 4, 2, lin_gnss_first_fix_nnz_in, lin_gnss_first_fix_nnz_out},
+    {"lin_ground_plane", (void *)lin_ground_plane, (void *)lin_ground_plane_work, 4, 2, lin_ground_plane_nnz_in, lin_ground_plane_nnz_out},
     {"lin_imu", (void *)lin_imu, (void *)lin_imu_work, 5, 2, lin_imu_nnz_in, lin_imu_nnz_out},
     {"lin_nonholonomic", (void *)lin_nonholonomic, (void *)lin_nonholonomic_work, 4, 2, lin_nonholonomic_nnz_in, lin_nonholonomic_nnz_out},
     {"lin_odometry", (void *)lin_odometry, (void *)lin_odometry_work, 5, 2, lin_odometry_nnz_in, lin_odometry_nnz_out},
@@ -24018,8 +24421,9 @@ const excite_kernel excite_kernels[18] = {
     {"lin_wheel", (void *)lin_wheel, (void *)lin_wheel_work, 5, 2, lin_wheel_nnz_in, lin_wheel_nnz_out},
     {"raw_gnss", (void *)raw_gnss, (void *)raw_gnss_work, 5, 2, raw_gnss_nnz_in, raw_gnss_nnz_out},
     {"raw_gnss_first_fix", (void *)raw_gnss_first_fix, (void *)raw_gnss_first_fix_work, 4, 2, raw_gnss_first_fix_nnz_in, raw_gnss_first_fix_nnz_out},
+    {"raw_ground_plane", (void *)raw_ground_plane, (void *)raw_ground_plane_work, 4, 2, raw_ground_plane_nnz_in, raw_ground_plane_nnz_out},
     {"raw_odometry", (void *)raw_odometry, (void *)raw_odometry_work, 5, 2, raw_odometry_nnz_in, raw_odometry_nnz_out},
     {"step2_imu", (void *)step2_imu, (void *)step2_imu_work, 7, 1, step2_imu_nnz_in, step2_imu_nnz_out},
     {"step_imu", (void *)step_imu, (void *)step_imu_work, 5, 1, step_imu_nnz_in, step_imu_nnz_out},
 };
-const int excite_n_kernels = 18;
+const int excite_n_kernels = 20;

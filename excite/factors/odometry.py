@@ -85,6 +85,18 @@ class OdometryNoise(Model):
     use_reported_covariance: bool = False
 
 
+class GroundPlaneConfig(Model):
+    """A lidar's fit of the road plane (:mod:`excite.factors.ground`): what the road adds to each
+    fit — its tilt and height under a patch of ``patch_length_m`` against the plane the vehicle
+    stands on — and how well the suspension's tilt is known (a fraction of itself)."""
+
+    enabled: bool = True
+    road_tilt_sigma_deg: PositiveFloat = 0.1
+    road_height_sigma_m: PositiveFloat = 0.005
+    patch_length_m: PositiveFloat = 5.0
+    suspension_uncertainty: float = 0.3
+
+
 class OdometrySensor(SensorEntry):
     """A lidar or camera whose odometry gives the relative pose between its frames."""
 
@@ -92,6 +104,7 @@ class OdometrySensor(SensorEntry):
     noise: OdometryNoise
     monocular: bool = False
     beams: LidarBeams | str | None = None  # a lidar's pattern, or a preset's name (:mod:`excite.factors.optics`)
+    ground_plane: GroundPlaneConfig = GroundPlaneConfig()  # a lidar's: the road plane it sees
 
     @model_validator(mode="after")
     def _mono_is_camera(self) -> "OdometrySensor":
@@ -124,7 +137,18 @@ class Odometry(Kind[OdometrySensor]):
     sensor_kinds = ("lidar", "camera")
     config = OdometrySensor
     ranges = {"noise.rotation_density_deg_per_sqrt_s": Range(1e-6, 90.0, "deg/√s"),
-              "noise.translation_density_m_per_sqrt_s": Range(1e-6, 100.0, "m/√s")}
+              "noise.translation_density_m_per_sqrt_s": Range(1e-6, 100.0, "m/√s"),
+              "ground_plane.road_tilt_sigma_deg": Range(1e-4, 10.0, "deg"),
+              "ground_plane.road_height_sigma_m": Range(1e-5, 1.0, "m"),
+              "ground_plane.patch_length_m": Range(0.1, 100.0, "m"),
+              "ground_plane.suspension_uncertainty": Range(0.0, 1.0, "1"),
+              "beams.channels": Range(1, 512, "1"),
+              "beams.horizontal_resolution_deg": Range(1e-3, 10.0, "deg"),
+              "beams.horizontal_fov_deg": Range(1.0, 360.0, "deg"),
+              "beams.min_range_m": Range(0.0, 100.0, "m"),
+              "beams.max_range_m": Range(1.0, 2000.0, "m"),
+              "beams.range_noise_m": Range(1e-5, 1.0, "m"),
+              "beams.correlation_deg": Range(1e-3, 10.0, "deg")}
     advice = {
         ("trans", 2): ("vertical lever arm: add pitch and roll (hard braking and acceleration, ramps, "
                        "brisk cornering); planar driving leaves it nearly undetermined",

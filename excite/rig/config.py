@@ -97,6 +97,7 @@ class SuspensionConfig(_Model):
 
 class VehicleConfig(_Model):
     T_V_B: Pose = Pose()  # pose of the IMU body frame B in the vehicle frame V (rear-axle centre)
+    axle_height_m: PositiveFloat = 0.35  # the rear axle's centre above the road (a wheel's radius)
     suspension: SuspensionConfig = SuspensionConfig()
     nonholonomic: NonHolonomic = NonHolonomic()
     slip: SlipConfig = SlipConfig()

@@ -29,6 +29,9 @@ import numpy as np
 import pytest
 import yaml
 
+from excite.scene import shapes
+from excite.scene.along import seen
+
 from excite.core import so3
 from excite.factors import base as registry
 from excite.factors import imu, kernels, layout, symbolic, wheel
@@ -118,8 +121,13 @@ _PROFILE = ControlProfile(_T, 5 + 2 * np.sin(_T), 0.1 * np.cos(0.7 * _T), grade_
                           bank_rad=0.04 * np.cos(1.3 * _T))
 
 
-def _nominal(rig):
-    return Nominal.of(drive(_PROFILE, rig.suspension), rig)
+def _nominal(rig, inst=None):
+    """The nominal of the test drive; for a kind whose factors need a scene (a lidar's road
+    plane), the drive seeing an open lot."""
+    traj = drive(_PROFILE, rig.suspension)
+    if inst is not None and inst.kind.name == "ground_plane":
+        traj = seen(traj, rig, shapes.ground(-300.0, -300.0, 300.0, 300.0))
+    return Nominal.of(traj, rig)
 
 
 def _cases():
@@ -184,7 +192,7 @@ def _moved(x: np.ndarray, q: np.ndarray, lay, dx: np.ndarray, dq: np.ndarray):
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
 def test_the_derivative_of_the_residual_equals_finite_differences(request, rig, slow_rig, name, which, k):
     r, inst = _instance(request, rig, slow_rig, which, k)
-    nom = _nominal(r)
+    nom = _nominal(r, inst)
     f = min(5, inst.kind.factor_keyframes(r, inst.entry, nom.n_keyframes).size - 1)
     lay, x, s, q = _factor_inputs(nom, r, inst, f)
     Jx, Jt = (np.array(a) for a in symbolic.linearisation(inst.kind, r, inst.entry)(x, s, q))
@@ -211,11 +219,13 @@ def test_the_derivative_of_the_residual_equals_finite_differences(request, rig, 
 @pytest.mark.parametrize("name, which, k", CASES, ids=[c[0] for c in CASES])
 def test_the_generated_kernel_equals_the_derivative_of_the_residual(request, rig, slow_rig, name, which, k):
     r, inst = _instance(request, rig, slow_rig, which, k)
-    nom = _nominal(r)
+    nom = _nominal(r, inst)
     lay = layout.layout(inst.kind, r, inst.entry)
     assert lay.name("lin") in kernels.compiled(), f"{lay.name('lin')} is not compiled in"
     fast = kernels.jacobians(inst.kind, nom, r, inst.entry)
-    ref = symbolic.blocks(inst.kind, nom, r, inst.entry)
+    first = inst.kind.factor_keyframes(r, inst.entry, nom.n_keyframes, nom)
+    ref = symbolic.blocks(inst.kind, nom, r, inst.entry,
+                          whitening=inst.kind.whitening(nom, r, inst.entry, first))
     assert np.array_equal(fast.first, ref.first) and fast.stride == ref.stride and fast.n_states == ref.n_states
     P = len(r.coordinates)
     _assert_close(fast.Jx, ref.Jx, 1e-12)
@@ -228,18 +238,39 @@ def test_the_symmetries_a_kind_keeps_leave_its_residual_unchanged(request, rig, 
     evaluator's local states rely on it); one that does not break yaw is invariant to a rotation
     of the whole drive about the vertical."""
     r, inst = _instance(request, rig, slow_rig, which, k)
-    nom = _nominal(r)
+    nom = _nominal(r, inst)
     blk = symbolic.blocks(inst.kind, nom, r, inst.entry)
     ks = blk.first[:, None] + blk.stride * np.arange(blk.n_states)[None, :]
     Jx = blk.Jx.reshape(blk.n_factors, blk.n_rows, blk.n_states, 9)
     scale = np.abs(Jx).max()
     if "position" not in inst.kind.breaks:
-        assert np.abs(Jx[..., 3:6].sum(axis=2)).max() < 1e-9 * scale
+        assert np.abs(Jx[..., 3:6].sum(axis=2)).max() <= 1e-9 * scale
     if "yaw" not in inst.kind.breaks:
         ez = np.array([0.0, 0.0, 1.0])
         g = np.concatenate([np.einsum("nkji,j->nki", nom.R[ks], ez), np.cross(ez, nom.p[ks]), np.cross(ez, nom.v[ks])],
                            axis=2)  # (N, states, 9): δθ = Rᵀe_z, δp = e_z × p, δv = e_z × v
-        assert np.abs(np.einsum("nrsc,nsc->nr", Jx, g)).max() < 1e-9 * scale * max(1.0, np.abs(nom.p).max())
+        assert np.abs(np.einsum("nrsc,nsc->nr", Jx, g)).max() <= 1e-9 * scale * max(1.0, np.abs(nom.p).max())
+
+
+def test_the_unwhitened_derivative_of_the_road_plane_equals_finite_differences(rig):
+    """The road plane's rows are whitened by the scene only (its statement's whitening is zero):
+    its derivative, not whitened, against finite differences of its measurement."""
+    inst = next(i for i in registry.instances(rig) if i.kind.name == "ground_plane")
+    nom = _nominal(rig, inst)
+    lay, x, s, q = _factor_inputs(nom, rig, inst, 5)
+    Jx, Jt = (np.array(a) for a in symbolic.raw_linearisation(inst.kind, rig, inst.entry)(x, s, q))
+    meas = symbolic.measurement_function(inst.kind, rig, inst.entry)
+    n_x, n_t = 9 * lay.arity, lay.n_theta
+    cols = []
+    for i in range(n_x + n_t):
+        d = np.zeros(n_x + n_t)
+        d[i] = EPS
+        up, dn = _moved(x, q, lay, d[:n_x], d[n_x:]), _moved(x, q, lay, -d[:n_x], -d[n_x:])
+        cols.append((np.array(meas(up[0], s, up[1])) - np.array(meas(dn[0], s, dn[1]))).ravel() / (2 * EPS))
+    fd = np.stack(cols, axis=1)
+    assert np.abs(fd[:, n_x:]).max() > 0.1  # it sees the lidar's extrinsic
+    _assert_close(Jt, fd[:, n_x:], 1e-6)
+    assert np.abs(Jx).max() == 0.0 and np.abs(fd[:, :n_x]).max() < 1e-9  # and no state
 
 
 def test_every_registered_kind_is_covered(rig, car_rig):
