@@ -67,6 +67,8 @@ def test_a_stop_holds_the_road_s_worth_and_no_more():
     # patch's m frames' worth), never better
     cov = np.linalg.pinv(Lam, hermitian=True)
     assert np.sqrt(cov[3, 3]) == pytest.approx(s.ground_plane.road_height_sigma_m * np.sqrt(m / n_st), rel=0.05)
+    tilt = np.radians(s.ground_plane.road_tilt_sigma_deg) * np.sqrt(m / n_st)
+    assert np.sqrt(cov[0, 0]) == pytest.approx(tilt, rel=0.05) and np.sqrt(cov[1, 1]) == pytest.approx(tilt, rel=0.05)
 
 
 @pytest.mark.parametrize("stop_s", [0.0, 10.0])

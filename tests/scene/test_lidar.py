@@ -19,6 +19,7 @@ AT = np.array([0.0, 0.0, 1.8])
 OPEN_LOT = shapes.ground(-100, -100, 100, 100)
 TUNNEL = shapes.tunnel(400.0, 10.0, 6.0, x0=-200.0)
 ONE_WALL = Scene.combine([OPEN_LOT, shapes.wall((-60, 8), (60, 8), 5.0)])
+CANYON = Scene.combine([OPEN_LOT, shapes.box(-100, 9, 100, 20, 15), shapes.box(-100, -20, 100, -9, 15)])
 BUILDINGS = Scene.combine([OPEN_LOT, shapes.box(-30, 10, 30, 25, 12), shapes.box(5, -30, 20, -12, 8),
                            shapes.cylinder((-8, -6), 0.2, 4.0)])
 
@@ -73,11 +74,16 @@ def null_space(H, rel=1e-9):
     (OPEN_LOT, [3, 4, 2]),  # x, y and yaw
     (TUNNEL, [3]),  # along its axis
     (ONE_WALL, [3]),  # along the wall (the ground takes z, roll and pitch, the wall y and yaw)
+    (CANYON, [3]),  # along the street
+    (BUILDINGS, []),  # nothing
 ])
 def test_degenerate_scenes_leave_exactly_their_null_directions(scene, null):
     H = info(scene)
     N = null_space(H)
     assert N.shape[1] == len(null)
+    if not null:
+        assert np.linalg.eigvalsh(H)[0] > 1e-6 * np.linalg.eigvalsh(H)[-1]
+        return
     expected = np.eye(6)[:, null]
     # the null space is spanned by the named directions
     assert np.linalg.norm(expected @ expected.T @ N - N) < 1e-9
