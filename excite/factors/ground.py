@@ -144,14 +144,9 @@ def information(nom: Nominal, rig: RigView, s: OdometrySensor, first: np.ndarray
     Q[:, :3, :3] = var_n[:, None, None] * P[:, :3, :3]
     Q[:, 3, 3] = cfg.road_height_sigma_m ** 2
     # the frames sharing each frame's patch of road: within half a patch of its position
-    x = nom.p[k]
-    d2 = np.sum((x[:, None, :] - x[None, :, :]) ** 2, axis=2) if k.size <= 4000 else None
-    if d2 is not None:
-        m = np.sum(d2 <= (0.5 * cfg.patch_length_m) ** 2, axis=1)
-    else:
-        from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree
 
-        tree = cKDTree(x)
-        m = np.array([len(v) for v in tree.query_ball_point(x, 0.5 * cfg.patch_length_m)])
+    x = nom.p[k]
+    m = np.asarray(cKDTree(x).query_ball_point(x, 0.5 * cfg.patch_length_m, return_length=True), dtype=float)
     Lam = F @ np.linalg.inv(np.eye(4) + m[:, None, None] * Q @ F)
     return 0.5 * (Lam + np.swapaxes(Lam, 1, 2))

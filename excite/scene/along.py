@@ -1,8 +1,8 @@
 """A scene along a drive: what the rig's lidars see at samples of the drive, attached to it.
 
 :func:`seen` ray-casts a scan of each lidar (:mod:`excite.scene.lidar`) at samples of the drive —
-every :data:`SAMPLE_SPACING_M` of the vehicle's path and at least every
-:data:`SAMPLE_INTERVAL_S` — and returns the drive carrying them
+every :data:`SAMPLE_SPACING_M` of the vehicle's path or every :data:`SAMPLE_INTERVAL_S`, whichever
+comes first — and returns the drive carrying them
 (:class:`~excite.motion.trajectory.SceneView`): every evaluation of it (score, live windows,
 mining, batch) then whitens each lidar frame pair by the scene's information
 (:mod:`excite.factors.odometry`). Samples are placed by the drive's own time and path from its
@@ -21,24 +21,29 @@ from ..motion.trajectory import SceneView, Trajectory
 from .lidar import informations
 from .model import Scene
 
-SAMPLE_SPACING_M = 3.0
+SAMPLE_SPACING_M = 4.0
 """Path between two scans ray-cast along a drive [m]."""
-SAMPLE_INTERVAL_S = 1.0
+SAMPLE_INTERVAL_S = 2.0
 """Longest time between two scans ray-cast along a drive [s] (standing or turning in place)."""
 _GRID_HZ = 20.0
 
 
 def sample_times(traj: Trajectory) -> np.ndarray:
     """The times the scans are ray-cast at: on a 20 Hz grid from the drive's start, the first
-    sample and each one where the path crossed another multiple of :data:`SAMPLE_SPACING_M` or
-    the time another multiple of :data:`SAMPLE_INTERVAL_S` since the previous one."""
+    sample and each one :data:`SAMPLE_SPACING_M` of path or :data:`SAMPLE_INTERVAL_S` after the
+    previous one, whichever comes first."""
     t = np.arange(traj.t_start, traj.t_end + 1e-9, 1.0 / _GRID_HZ)
     t = t[t <= traj.t_end]
     p = traj.translation(t)[0]
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    cell_s = np.floor(s / SAMPLE_SPACING_M)
-    cell_t = np.floor((t - traj.t_start) / SAMPLE_INTERVAL_S)
-    keep = np.r_[True, (np.diff(cell_s) != 0) | (np.diff(cell_t) != 0)]
+    keep = [0]
+    i = 0
+    while True:
+        nxt = min(np.searchsorted(s, s[i] + SAMPLE_SPACING_M), np.searchsorted(t, t[i] + SAMPLE_INTERVAL_S - 1e-9))
+        if nxt >= t.size:
+            break
+        keep.append(int(nxt))
+        i = int(nxt)
     return t[keep]
 
 

@@ -130,24 +130,48 @@ def cast_scan(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, scan: ScanPatt
     return pts, nrm, scan.weight[ok], hits.surface[ok]
 
 
-def _rows(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, scan: ScanPattern, which: np.ndarray,
-          elevation: np.ndarray, azimuth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rays of scans ``which`` at ``elevation, azimuth`` (in each scan's sensor frame): whether each
-    returned (``ok``), the surface it hit (−1 for none), its row ``[p × n; n]`` and, for a return
-    from the ground, its row ``[p; 1]`` of the road plane's fit (zero rows otherwise)."""
-    ce = np.cos(elevation)
-    d_S = np.column_stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)])
-    R = R_W_S[which]
-    d_W = np.einsum("nij,nj->ni", R, d_S)
-    hits = scene.cast(p_W_S[which], d_W, scan.max_range_m)
-    facing = np.abs(np.einsum("ij,ij->i", hits.normal, d_W)) >= MIN_INCIDENCE_COS
+def _rows(scene: Scene, R: np.ndarray, origin: np.ndarray, d_S: np.ndarray, scan: ScanPattern
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rays ``d_S`` (m × n × 3, in the sensor frames of m scans at ``R``, ``origin``: m × 3 × 3,
+    m × 3): whether each returned (``ok``), the surface it hit (−1 for none), its row
+    ``[p × n; n]`` and, for a return from the ground, its row ``[p; 1]`` of the road plane's fit
+    (zero rows otherwise); flat over the m·n rays."""
+    m, n = d_S.shape[:2]
+    d_W = (d_S @ np.swapaxes(R, 1, 2)).reshape(-1, 3)
+    hits = scene.cast(np.broadcast_to(origin[:, None, :], (m, n, 3)).reshape(-1, 3), d_W, scan.max_range_m)
+    facing = np.abs(np.sum(hits.normal * d_W, axis=1)) >= MIN_INCIDENCE_COS
     ok = hits.hit & (hits.distance >= scan.min_range_m) & facing
-    pts = d_S * np.where(ok, hits.distance, 0.0)[:, None]
-    nrm = np.einsum("nji,nj->ni", R, hits.normal)
-    J = np.where(ok[:, None], np.hstack([np.cross(pts, nrm), nrm]), 0.0)
-    ground = ok & scene.is_ground()[np.maximum(hits.surface, 0)]
-    P = np.where(ground[:, None], np.hstack([pts, np.ones((pts.shape[0], 1))]), 0.0)
+    pts = d_S.reshape(-1, 3) * np.where(ok, hits.distance, 0.0)[:, None]
+    nrm = (hits.normal.reshape(m, n, 3) @ R).reshape(-1, 3) * ok[:, None]
+    J = np.empty((m * n, 6))
+    J[:, 0] = pts[:, 1] * nrm[:, 2] - pts[:, 2] * nrm[:, 1]
+    J[:, 1] = pts[:, 2] * nrm[:, 0] - pts[:, 0] * nrm[:, 2]
+    J[:, 2] = pts[:, 0] * nrm[:, 1] - pts[:, 1] * nrm[:, 0]
+    J[:, 3:] = nrm
+    ground = (ok & scene.is_ground()[np.maximum(hits.surface, 0)]).astype(float)
+    P = np.empty((m * n, 4))
+    P[:, :3] = pts * ground[:, None]
+    P[:, 3] = ground
     return ok, np.where(ok, hits.surface, -1), J, P
+
+
+def _directions(elevation: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
+    """Unit directions of elevation and azimuth angles (broadcast together), … × 3."""
+    elevation, azimuth = np.broadcast_arrays(elevation, azimuth)
+    ce = np.cos(elevation)
+    return np.stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)], axis=-1)
+
+
+def _sum_by_scan(rows: np.ndarray, weight: float, scan_of: np.ndarray, m: int) -> np.ndarray:
+    """``Σ weight · r rᵀ`` of the rows of each of m scans (``scan_of``: each row's scan), m × d × d,
+    one weighted count per entry of the upper triangle."""
+    d = rows.shape[1]
+    out = np.zeros((m, d, d))
+    for i in range(d):
+        wi = rows[:, i] * weight
+        for j in range(i, d):
+            out[:, i, j] = out[:, j, i] = np.bincount(scan_of, weights=wi * rows[:, j], minlength=m)
+    return out
 
 
 def informations(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, beams: LidarBeams,
@@ -174,10 +198,9 @@ def informations(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, beams: Lida
     def chunk(a: int) -> None:
         b = min(S, a + SCANS_PER_CALL)
         m = b - a
-        which = np.repeat(np.arange(a, b), n_el * n_az)
-        el = np.tile(np.repeat(scan.elevations, n_az), m)
-        az = np.tile(np.tile(scan.azimuths, n_el), m) + np.repeat(off[a:b] * step, n_el * n_az)
-        ok, sid, J, P = _rows(scene, R_W_S, p_W_S, scan, which, el, az)
+        el = np.repeat(scan.elevations, n_az)[None, :]
+        az = np.tile(scan.azimuths, n_el)[None, :] + (off[a:b] * step)[:, None]
+        ok, sid, J, P = _rows(scene, R_W_S[a:b], p_W_S[a:b], _directions(el, az), scan)
         ok, sid = ok.reshape(m, n_el, n_az), sid.reshape(m, n_el, n_az)
         w = np.full((m, n_el, n_az), w0)
         # edges: a ray and its next neighbour along the beam see different things
@@ -187,19 +210,16 @@ def informations(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, beams: Lida
             edge[:, :, -1] = False
         ks, ke, ka = np.nonzero(edge)
         if ks.size:
-            np.subtract.at(w, (ks, ke, ka), 0.5 * w0)
-            np.subtract.at(w, (ks, ke, (ka + 1) % n_az), 0.5 * w0)
+            flat = np.concatenate([(ks * n_el + ke) * n_az + ka, (ks * n_el + ke) * n_az + (ka + 1) % n_az])
+            w -= 0.5 * w0 * np.bincount(flat, minlength=w.size).reshape(w.shape)
             frac = (np.arange(REFINE) + 0.5) / REFINE
             r_s = np.repeat(ks, REFINE)
             r_el = np.repeat(scan.elevations[ke], REFINE)
             r_az = (np.repeat(scan.azimuths[ka] + off[a + ks] * step, REFINE) + np.tile(frac, ks.size) * step)
-            r_ok, _, r_J, r_P = _rows(scene, R_W_S, p_W_S, scan, r_s + a, r_el, r_az)
-            Hr = np.zeros((m, 6, 6))
-            np.add.at(Hr, r_s, (r_J * (w0 / REFINE))[:, :, None] * r_J[:, None, :])
-            H[a:b] += Hr
-            Gr = np.zeros((m, 4, 4))
-            np.add.at(Gr, r_s, (r_P * (w0 / REFINE))[:, :, None] * r_P[:, None, :])
-            G[a:b] += Gr
+            d_r = _directions(r_el, r_az)[:, None, :]
+            r_ok, _, r_J, r_P = _rows(scene, R_W_S[a + r_s], p_W_S[a + r_s], d_r, scan)
+            H[a:b] += _sum_by_scan(r_J, w0 / REFINE, r_s, m)
+            G[a:b] += _sum_by_scan(r_P, w0 / REFINE, r_s, m)
             returns[a:b] += np.bincount(r_s, weights=r_ok, minlength=m).astype(np.int64)
         Jf = J.reshape(m, n_el * n_az, 6)
         H[a:b] += np.swapaxes(Jf * w.reshape(m, -1, 1), 1, 2) @ Jf
