@@ -26,6 +26,7 @@ from ..core import bounds
 from ..motion.maneuvers import EDGE_MARGIN_M, Lot
 from ..motion.vehicle import ControlProfile
 from ..errors import OptimizeError
+from ..scene.files import is_scene_feature
 from .terrain import Terrain
 
 ENTRY_TOL_M = 0.5  # the drive starts within this distance of the entry point ...
@@ -317,6 +318,8 @@ def read_site(source: str | Path | dict[str, Any], margin_m: float = EDGE_MARGIN
     Feature's) ``properties`` say ``"crs": "local"``. Optional Features: a ``Point`` with
     ``"role": "entry"`` and ``"heading_deg"`` (counter-clockwise from east / local x), and
     ``Polygon`` terrain features with ``"role": "ramp" | "bank" | "bump"`` (see :mod:`.terrain`).
+    Features of the scene around the lot (with a ``kind`` or a ``height``: buildings, walls,
+    poles, read by :mod:`excite.scene.files`) are passed over, so one file serves both.
 
     Refused, each with an :class:`OptimizeError` naming the part: a malformed document (a
     ``properties`` or ``geometry`` that is not an object, a position that is not two numbers),
@@ -368,6 +371,8 @@ def read_site(source: str | Path | dict[str, Any], margin_m: float = EDGE_MARGIN
         role = props.get("role", "lot")
         if props.get("crs") == "local":
             local = True
+        if is_scene_feature(props):
+            continue
         kind = geom.get("type")
         if kind == "Polygon" and role in ("lot", "ramp", "bank", "bump"):
             total += _count(geom.get("coordinates"), f"{name} ({role})")
