@@ -49,13 +49,6 @@ class GroundPlane(Kind[OdometrySensor]):
     name = "ground_plane"
     arity = 1
     rows = 4
-    advice = {
-        ("trans", 2): ("vertical lever arm: stop on level ground with the road in view, or drive over level "
-                       "road the lidar sees", "needs the road in view: stop on level ground"),
-        ("rot", 0): ("roll: stop on level ground with the road in view", "needs the road in view: stop on level ground"),
-        ("rot", 1): ("pitch: stop on level ground with the road in view", "needs the road in view: stop on level ground"),
-    }
-
     def entries(self, rig: RigView) -> list[OdometrySensor]:
         return _lidars(rig)
 

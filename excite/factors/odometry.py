@@ -151,13 +151,17 @@ class Odometry(Kind[OdometrySensor]):
               "beams.correlation_deg": Range(1e-3, 10.0, "deg")}
     advice = {
         ("trans", 2): ("vertical lever arm: add pitch and roll (hard braking and acceleration, ramps, "
-                       "brisk cornering); planar driving leaves it nearly undetermined",
-                       "needs pitch and roll: a ramp, hard braking, brisk cornering"),
+                       "brisk cornering); planar driving leaves it nearly undetermined — a lidar's is set by "
+                       "the road it sees (score it in its scene, with --scene; stop on level ground with the "
+                       "road in view)",
+                       "needs pitch and roll: a ramp, hard braking, brisk cornering; or a stop on level ground"),
         ("trans", 0): _LEVER,
         ("trans", 1): _LEVER,
         ("rot", 0): ("extrinsic rotation about the travel direction: add turns; straight driving "
-                     "leaves it undetermined", "needs turns: straight driving cannot reach it"),
-        ("rot", 1): ("extrinsic rotation about the lateral axis: add turns and pitch (braking, ramps)",
+                     "leaves it undetermined (a lidar's roll: also a stop on level ground with the road in view)",
+                     "needs turns: straight driving cannot reach it"),
+        ("rot", 1): ("extrinsic rotation about the lateral axis: add turns and pitch (braking, ramps; a lidar's "
+                     "pitch: also a stop on level ground with the road in view)",
                      "needs turns and pitch: braking, a ramp"),
         ("rot", 2): ("extrinsic rotation about the vertical axis: add straight runs and turns",
                      "needs straight runs and turns"),
