@@ -48,7 +48,8 @@ def sample_times(traj: Trajectory) -> np.ndarray:
 
 
 def azimuth_offsets(t: np.ndarray) -> np.ndarray:
-    """Each sample's turn of the scan's azimuths, in steps (:func:`excite.scene.lidar.turned`): the
+    """Each sample's turn of the scan's azimuths, in steps (``offsets`` of
+    :func:`excite.scene.lidar.informations`): the
     golden-ratio sequence over the sample's index on the 20 Hz grid of the drive's clock (the
     same sample, the same turn, whatever window of the drive is looked at)."""
     k = np.round(np.asarray(t, float) * _GRID_HZ)
