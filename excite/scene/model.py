@@ -102,6 +102,10 @@ class Scene:
         object.__setattr__(self, "face_surface", s)
         object.__setattr__(self, "surfaces", tuple(self.surfaces))
 
+    def __reduce__(self):
+        """Pickled without its ray caster (rebuilt on first use: a worker process casts its own)."""
+        return (Scene, (self.vertices, self.faces, self.face_surface, self.surfaces, self.source))
+
     # --- what it is ------------------------------------------------------------------------
 
     @property

@@ -183,3 +183,12 @@ def test_scene_refuses_what_it_cannot_hold():
         shapes.prism([(0, 0), (1, 0), (1, 1)], -3.0)
     with pytest.raises(SceneError, match="vertices, more than"):
         shapes.prism(np.random.default_rng(0).normal(size=(200_000, 2)), 3.0)
+
+
+def test_a_scene_travels_to_another_process_and_casts_there():
+    import pickle
+
+    BUILDINGS.cast(np.zeros((1, 3)) + AT, np.array([[1.0, 0.0, 0.0]]), 100.0)  # its caster built here
+    copy = pickle.loads(pickle.dumps(BUILDINGS))
+    assert copy.digest == BUILDINGS.digest
+    assert np.array_equal(info(copy), info(BUILDINGS))
