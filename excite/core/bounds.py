@@ -116,6 +116,20 @@ ROUTE = {
     "quaternion": Range(-2.0, 2.0),
 }
 
+# Recorded signals in bags: GNSS fixes (sensor_msgs/NavSatFix) and a car's own signals (wheel
+# speeds and steering as JointState, a radar's ego-velocity). Wheel speeds are rad/s or m/s as the
+# topic says; a steering joint is a road-wheel or a steering-wheel angle (a few turns at most).
+SIGNALS = {
+    "latitude_deg": Range(-90.0, 90.0, "deg"),
+    "longitude_deg": Range(-180.0, 180.0, "deg"),
+    "altitude_m": ROUTE["altitude_m"],
+    "position_covariance_m2": Range(-1e10, 1e10, "m^2"),
+    "wheel_speed": Range(-1000.0, 1000.0, "rad/s or m/s"),
+    "steering_rad": Range(-50.0, 50.0, "rad"),
+    "ego_velocity_mps": Range(-150.0, 150.0, "m/s"),
+    "velocity_covariance_m2ps2": Range(-1e6, 1e6, "m^2/s^2"),
+}
+
 # Vehicle and test limits (excite.motion.vehicle.Limits); positive, SI units.
 LIMITS = {
     "speed_max_mps": Range(0.1, 100.0, "m/s"),

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...core import bounds
 from ...errors import BagError
 from ...motion.trajectory import SensorLog, Trajectory
 from .decode import Cursor
@@ -98,11 +99,26 @@ def read_fixes(path: str | Path, topic: str, *, start_s: float | None = None,
     cov = np.array([r[6] for r in rows], dtype=float).reshape(-1, 3, 3)
     cov[np.array([r[7] for r in rows]) == COVARIANCE_UNKNOWN] = np.nan
     status = np.array([r[2] for r in rows], dtype=np.int8)
-    bad = status > STATUS_NO_FIX
-    bad &= ~np.all(np.isfinite(geo), axis=1)
+    fixed = status > STATUS_NO_FIX
+    if not fixed.any():
+        raise BagError(path, f"no fixes: each of its {len(rows)} messages says NO_FIX", topic)
+    bad = fixed & ~np.all(np.isfinite(geo), axis=1)
     if bad.any():
         raise BagError(path, f"fix {int(np.argmax(bad))} has a NaN or infinite position", topic)
+    for col, name in enumerate(("latitude_deg", "longitude_deg", "altitude_m")):
+        r = bounds.SIGNALS[name]
+        bad = fixed & ((geo[:, col] < r.lo) | (geo[:, col] > r.hi))
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise BagError(path, f"fix {k}: its {name.split('_')[0]} {geo[k, col]:.6g} is outside the sane range {r}",
+                           topic)
     known = np.all(np.isfinite(cov), axis=(1, 2))
+    r = bounds.SIGNALS["position_covariance_m2"]
+    bad = known & np.any((cov < r.lo) | (cov > r.hi), axis=(1, 2))
+    if bad.any():
+        k = int(np.argmax(bad))
+        worst = cov[k].flat[int(np.argmax(np.abs(cov[k])))]
+        raise BagError(path, f"fix {k}: its position_covariance entry {worst:.6g} is outside the sane range {r}", topic)
     if known.any():
         ev = np.linalg.eigvalsh(0.5 * (cov[known] + np.swapaxes(cov[known], 1, 2)))
         if np.any(ev[:, 0] <= 0):

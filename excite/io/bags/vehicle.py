@@ -136,6 +136,9 @@ def read_wheel_speeds(path: str | Path, topic: str, joints: tuple[str, str, str,
     v = np.array(v_out, dtype=float)
     st = np.array(s_out, dtype=float) if steering_joint else None
     _check(path, topic, t, v if st is None else np.column_stack([v, st]))
+    _in_range(path, topic, v, "wheel_speed", "wheel speed")
+    if st is not None:
+        _in_range(path, topic, st[:, None], "steering_rad", f"steering joint {steering_joint!r}'s position")
     return WheelSpeeds(t, v, st, tuple(joints), frame)
 
 
@@ -166,7 +169,11 @@ def read_ego_velocity(path: str | Path, topic: str, *, start_s: float | None = N
     t = np.array(t_out, dtype=np.int64)
     v = np.array(v_out, dtype=float)
     _check(path, topic, t, v)
-    return EgoVelocitySeries(t, v, np.array(c_out) if with_cov else None, frame)
+    _in_range(path, topic, v, "ego_velocity_mps", "linear velocity")
+    covariance = np.array(c_out) if with_cov else None
+    if covariance is not None:
+        _in_range(path, topic, covariance.reshape(len(covariance), 9), "velocity_covariance_m2ps2", "linear covariance entry")
+    return EgoVelocitySeries(t, v, covariance, frame)
 
 
 def _check(path: Path, topic: str, t: np.ndarray, values: np.ndarray) -> None:
@@ -174,6 +181,15 @@ def _check(path: Path, topic: str, t: np.ndarray, values: np.ndarray) -> None:
     if bad.any():
         raise BagError(path, f"message {int(np.argmax(bad))} has a NaN or infinite value", topic)
     check_stamps(path, topic, t)
+
+
+def _in_range(path: Path, topic: str, values: np.ndarray, name: str, what: str) -> None:
+    """Every finite value of ``values`` (a row per message) within :data:`~excite.core.bounds.SIGNALS`' ``name``."""
+    r = bounds.SIGNALS[name]
+    bad = (values < r.lo) | (values > r.hi)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise BagError(path, f"message {i}: its {what} {values[i, j]:.6g} is outside the sane range {r}", topic)
 
 
 def can_recording(wheels: WheelSpeeds, t0_ns: int) -> CanRecording:

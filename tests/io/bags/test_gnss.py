@@ -4,9 +4,11 @@ status and covariance, the drive carrying them, and the Husky bag scored with it
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 import excite.cli.score  # noqa: F401  (registers `excite score` on the app)
@@ -76,6 +78,50 @@ def test_clear_errors(tmp_path, eight):
         read_fixes(path, "/gps")
     with pytest.raises(BagError, match="no fixes in the window"):
         read_fixes(path, "/fix", start_s=100.0, end_s=200.0)
+
+
+def _edited_fixes(src, dst, edit):
+    """``src`` (a ROS 1 bag) rewritten to ``dst`` with every NavSatFix message passed through ``edit``."""
+    import dataclasses
+
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(src) as r, Writer(dst) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        for c, t, raw in r.messages():
+            if c.msgtype == "sensor_msgs/msg/NavSatFix":
+                raw = ts.serialize_ros1(edit(ts.deserialize_ros1(raw, c.msgtype), dataclasses.replace), c.msgtype)
+            w.write(conns[c.id], t, raw)
+    return dst
+
+
+@pytest.mark.parametrize("name, edit, words", [
+    ("no_fix", lambda m, re: re(m, status=re(m.status, status=-1)), "no fixes: each of its 300 messages says NO_FIX"),
+    ("lat91", lambda m, re: re(m, latitude=91.0), "fix 0: its latitude 91 is outside the sane range [-90, 90] deg"),
+    ("lat1e300", lambda m, re: re(m, latitude=1e300), "fix 0: its latitude 1e+300 is outside the sane range"),
+    ("lon", lambda m, re: re(m, longitude=-181.5), "fix 0: its longitude -181.5 is outside the sane range"),
+    ("alt", lambda m, re: re(m, altitude=1e9), "fix 0: its altitude 1e+09 is outside the sane range"),
+    ("cov", lambda m, re: re(m, position_covariance=np.diag([1e308, 1.0, 1.0]).ravel()),
+     "fix 0: its position_covariance entry 1e+308 is outside the sane range"),
+])
+def test_fixes_out_of_range_are_one_line_errors_in_the_cli(tmp_path, capsys, eight, name, edit, words):
+    """Fixes no receiver reports (a latitude past the pole, a covariance of 1e308 m², a topic of
+    NO_FIX only) are refused naming the fix, the number and the range: in the library and as the
+    command line's one-line error (exit 1, no traceback)."""
+    from excite.cli.app import main
+
+    base = write_bag(eight, tmp_path / "drive.bag", rate_hz=50.0, fix_topic="/fix")
+    path = _edited_fixes(base, tmp_path / f"{name}.bag", edit)
+    with pytest.raises(BagError, match=re.escape(words)):
+        read_fixes(path, "/fix")
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(yaml.safe_dump(gnss_rig().config.model_dump(mode="json", exclude_none=True)))
+    capsys.readouterr()
+    assert main(["score", str(path), "--topic", "/odom", "--gnss-topic", "/fix", "--rig", str(rig)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("excite: error:") and words in err[0], err
 
 
 def test_the_husky_bags_gps(data_dir):

@@ -5,6 +5,8 @@ errors for what is not supported."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -122,3 +124,34 @@ def test_a_simulated_can_stream_through_a_bag_is_the_kinds_measurement(tmp_path)
     a = agreement(traj, rig, "ackermann", direct)
     assert 0.8 < a.whitened_rms_nominal < 1.2  # the simulated noise, nothing else
     assert any(i.kind.name == "ackermann" for i in registry.instances(rig))
+
+
+@pytest.mark.parametrize("what, change, reader, words", [
+    ("wheel speed", {"wheel_speeds": 1e300}, "wheels", "message 7: its wheel speed 1e+300 is outside the sane range "
+                                                       "[-1000, 1000] rad/s or m/s"),
+    ("steering", {"steering": -400.0}, "wheels", "message 7: its steering joint 'steering_joint''s position -400 is "
+                                                 "outside the sane range [-50, 50] rad"),
+    ("ego-velocity", {"radar_v": 1e300}, "radar", "message 7: its linear velocity 1e+300 is outside the sane range "
+                                                  "[-150, 150] m/s"),
+    ("covariance", {"radar_sigma": 1e154}, "radar", "its linear covariance entry 1e+308 is outside the sane range"),
+])
+def test_signals_no_car_sends_are_refused_naming_the_message_and_range(tmp_path, what, change, reader, words):
+    """A wheel speed of 1e300, a steering angle of 400 rad, an ego-velocity of 1e300 m/s or a
+    velocity covariance of 1e308 is no car's: an error naming the message, the value and the range."""
+    t = np.arange(0.0, 2.0, 0.05)
+    data = {"wheel_speeds": np.full((t.size, 4), 30.0), "steering": 0.1 * np.sin(t),
+            "radar_v": np.column_stack([10 + 0 * t, 0 * t, 0 * t]), "radar_sigma": np.array([0.1, 0.4, 0.8])}
+    (name, value), = change.items()
+    if name == "radar_sigma":
+        data[name] = np.full(3, value)
+    else:
+        data[name] = data[name].copy()
+        data[name][7] = value
+    path = write_vehicle_bag(tmp_path / "car.bag", wheel_t_s=t, wheel_speeds=data["wheel_speeds"],
+                             steering=data["steering"], radar_t_s=t, radar_v=data["radar_v"],
+                             radar_sigma=data["radar_sigma"])
+    with pytest.raises(BagError, match=re.escape(words)):
+        if reader == "wheels":
+            read_wheel_speeds(path, "/joint_states", JOINTS, steering_joint="steering_joint")
+        else:
+            read_ego_velocity(path, "/radar/ego_velocity")
