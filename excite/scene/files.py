@@ -52,6 +52,7 @@ from ..core import bounds
 from ..errors import ExciteError, SceneError
 from . import shapes
 from .model import SURFACE_KINDS, Scene, Surface
+from .points import scene_from_points  # noqa: F401 (part of this module's interface)
 
 BUNDLED = Path(__file__).resolve().parent / "bundled"
 """Where the bundled example scenes are (one GeoJSON file each)."""

@@ -250,3 +250,362 @@ def test_malformed_documents_are_refused(tmp_path):
     refused(write(tmp_path, "x", "scene.xyz"), ".xyz")
     with pytest.raises(SceneError, match="scene.geojson"):
         load_scene("scene.geojson", data=b"\xff\xfe")
+
+
+# --- point-cloud maps ------------------------------------------------------------------------
+
+TILT = np.array([0.2, -0.3, 0.9])
+TILT = TILT / np.linalg.norm(TILT)
+
+
+def tilted_plane(n=4000, seed=0):
+    """Points on the plane n·x = 1 (n = TILT), over a 20 m × 20 m patch about its foot point."""
+    rng = np.random.default_rng(seed)
+    u = np.cross(TILT, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(TILT, u)
+    a, b = rng.uniform(-10, 10, (2, n))
+    return TILT + a[:, None] * u + b[:, None] * w
+
+
+def check_plane_map(scene, source_kind="map", spacing_rays=400):
+    """Every splat lies along the plane's normal, and rays from 5 m off the plane, along its
+    normal, within 8 m of its middle, meet it 5 m away (a few may pass between splats)."""
+    assert scene.surfaces[0].kind == source_kind
+    cos = np.abs(scene.face_normals @ TILT)
+    assert cos.min() > 1 - 1e-9
+    rng = np.random.default_rng(1)
+    u = np.cross(TILT, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(TILT, u)
+    a, b = rng.uniform(-8, 8, (2, spacing_rays))
+    origins = TILT + a[:, None] * u + b[:, None] * w + 5.0 * TILT
+    h = scene.cast(origins, np.broadcast_to(-TILT, origins.shape), 50.0)
+    assert h.hit.mean() > 0.99
+    assert np.allclose(h.distance[h.hit], 5.0, atol=1e-4)
+
+
+def write_pcd(path, points, encoding="binary", normals=None):
+    from pypcd4 import PointCloud
+
+    if normals is None:
+        pc = PointCloud.from_xyz_points(points.astype(np.float32))
+    else:
+        pc = PointCloud.from_xyz_normal_points(np.hstack([points, normals]).astype(np.float32))
+    pc.save(path, encoding=encoding)
+    return path
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary", "binary_compressed"])
+def test_a_pcd_map_of_a_plane_gives_the_planes_normal_and_range(tmp_path, encoding):
+    from pypcd4 import Encoding
+
+    path = write_pcd(tmp_path / "plane.pcd", tilted_plane(), Encoding(encoding))
+    scene = load_scene(path)
+    assert scene.n_triangles == 2 * 4000
+    check_plane_map(scene)
+
+
+def test_a_las_and_a_laz_map_of_a_plane(tmp_path):
+    import laspy
+
+    pts = tilted_plane() + np.array([500_000.0, 5_400_000.0, 300.0])  # UTM-sized coordinates
+    for name in ("plane.las", "plane.laz"):
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.scales = [0.0001, 0.0001, 0.0001]
+        header.offsets = [500_000.0, 5_400_000.0, 0.0]
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = pts.T
+        las.write(tmp_path / name)
+        scene = load_scene(tmp_path / name)
+        # quantised to 0.1 mm: the normals within 1e-4 rad, the splats within 0.1 mm of the plane
+        assert np.abs(scene.face_normals @ TILT).min() > 1 - 1e-7
+        centre = scene.vertices.reshape(-1, 4, 3).mean(axis=1) - np.array([500_000.0, 5_400_000.0, 300.0])
+        assert np.abs(centre @ TILT - 1.0).max() < 2e-4
+
+
+def test_a_ply_cloud_with_normals_keeps_them(tmp_path):
+    from plyfile import PlyData, PlyElement
+
+    pts = tilted_plane(2000)
+    rng = np.random.default_rng(3)
+    normals = np.tile(TILT, (2000, 1)) * rng.choice([-1.0, 1.0], (2000, 1))  # either sign
+    v = np.empty(2000, dtype=[(n, "f8") for n in ("x", "y", "z", "nx", "ny", "nz")])
+    for k, n in enumerate(("x", "y", "z")):
+        v[n] = pts[:, k]
+        v["n" + n] = normals[:, k]
+    PlyData([PlyElement.describe(v, "vertex")]).write(tmp_path / "plane.ply")
+    check_plane_map(load_scene(tmp_path / "plane.ply"))
+
+
+def test_a_real_scan_in_ply_is_read_point_for_point():
+    """small_gicp's test scan (``../shared/data/lidar_scan_pair_small_gicp/source.ply``, from
+    koide3/small_gicp, MIT licence, written by CloudCompare): the points read equal its binary
+    body decoded by numpy after the header, and every splat's normal is a unit vector."""
+    from pathlib import Path
+
+    from excite.scene.clouds import read_points
+
+    path = Path(__file__).resolve().parents[3] / "shared" / "data" / "lidar_scan_pair_small_gicp" / "source.ply"
+    raw = path.read_bytes()
+    body = raw[raw.index(b"end_header\n") + len(b"end_header\n"):]
+    ref = np.frombuffer(body, dtype="<f4").reshape(-1, 4)[:, :3]
+    cloud = read_points(path)
+    assert cloud.points.shape == (69792, 3) and cloud.normals is None
+    assert np.array_equal(cloud.points, ref.astype(float))
+    scene = load_scene(path)
+    assert scene.n_triangles == 2 * 69792
+    assert np.allclose(np.linalg.norm(scene.face_normals, axis=1), 1.0)
+
+
+def test_a_map_denser_than_the_splat_bound_is_thinned_to_its_voxels_centroids():
+    """The thinned map equals numpy's own grouping of the points by voxel (np.unique over the
+    cells at the side the thinning chose), and a grid half that side would hold too many."""
+    from excite.scene.points import thin
+
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0, 10, (100_000, 3))
+    out, _, side = thin(p, None, limit=5_000)
+    lo = p.min(axis=0)
+    cells, inverse, count = np.unique(np.floor((p - lo) / side).astype(int), axis=0, return_inverse=True,
+                                      return_counts=True)
+    ref = np.column_stack([np.bincount(inverse.ravel(), weights=p[:, j]) for j in range(3)]) / count[:, None]
+    assert out.shape == ref.shape and out.shape[0] <= 5_000
+    assert np.allclose(np.sort(out, axis=0), np.sort(ref, axis=0))
+    assert len(np.unique(np.floor((p - lo) / (side / 2)).astype(int), axis=0)) > 5_000
+
+
+def test_closed_form_normals_equal_numpys_eigenvectors():
+    from excite.scene.points import smallest_eigenvectors
+
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(5000, 9, 3)) * np.array([1.0, 0.5, 0.01])
+    X = X @ np.linalg.qr(rng.normal(size=(5000, 3, 3)))[0]
+    X -= X.mean(axis=1, keepdims=True)
+    for C in (np.einsum("nki,nkj->nij", X, X), np.einsum("nki,nkj->nij", X[:, :, :], X) + np.eye(3)):
+        v = smallest_eigenvectors(C)
+        ref = np.linalg.eigh(C)[1][:, :, 0]
+        assert np.allclose(np.abs(np.einsum("ij,ij->i", v, ref)), 1.0, atol=1e-9)
+
+
+# --- meshes ----------------------------------------------------------------------------------
+
+BOX_OBJ = """# a 10 m x 10 m x 8 m building
+v 10 -5 0
+v 20 -5 0
+v 20 5 0
+v 10 5 0
+v 10 -5 8
+v 20 -5 8
+v 20 5 8
+v 10 5 8
+f 1 2 6 5
+f 2 3 7 6
+f 3 4 8 7
+f 4 1 5 8
+f 5 6 7 8
+f 1 4 3 2
+"""
+
+
+def test_a_mesh_box_scans_as_the_same_box_built_from_shapes(tmp_path):
+    """An OBJ box (quads, trimesh triangulates them), and the same box written as STL and PLY
+    by trimesh: every scan of it holds the information a box built by shapes.box does."""
+    import trimesh
+
+    from excite.scene import shapes
+    from excite.scene.model import Scene
+
+    (tmp_path / "box.obj").write_text(BOX_OBJ)
+    mesh = trimesh.load_mesh(tmp_path / "box.obj", process=False)
+    (tmp_path / "box.stl").write_bytes(mesh.export(file_type="stl"))
+    (tmp_path / "box.ply").write_bytes(mesh.export(file_type="ply"))
+    m = GROUND_MARGIN_M
+    reference = Scene.combine([shapes.ground(10 - m, -5 - m, 20 + m, 5 + m), shapes.box(10, -5, 20, 5, 8.0)])
+    R = np.stack([np.eye(3), np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])])
+    p = np.array([[0.0, 1.0, 1.8], [15.0, -12.0, 1.8]])
+    H_ref = lidar.informations(reference, R, p, BEAMS).H
+    assert np.all(np.linalg.eigvalsh(H_ref)[:, -1] > 0)
+    for name in ("box.obj", "box.stl", "box.ply"):
+        scene = load_scene(tmp_path / name)
+        assert scene.area_by_kind()["mesh"] == pytest.approx(2 * 100 + 4 * 80, rel=1e-12)
+        H = lidar.informations(scene, R, p, BEAMS).H
+        assert np.allclose(H, H_ref, rtol=1e-6, atol=1e-6 * np.abs(H_ref).max()), name
+
+
+# --- PointCloud2 in a bag --------------------------------------------------------------------
+
+
+def pointcloud2(ts, points, frame="map", *, point_step=None, row_step=None, data=None, x_offset=0, dense=True):
+    M = ts.types
+    fields = [M["sensor_msgs/msg/PointField"](name=n, offset=x_offset + 4 * k, datatype=7, count=1)
+              for k, n in enumerate("xyz")]
+    step = point_step or 16
+    raw = data
+    if raw is None:
+        body = np.zeros((len(points), step), np.uint8)
+        body[:, :12] = np.ascontiguousarray(points, dtype="<f4").view(np.uint8).reshape(len(points), 12)
+        raw = body.ravel()
+    header = M["std_msgs/msg/Header"](stamp=M["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id=frame)
+    return M["sensor_msgs/msg/PointCloud2"](header=header, height=1, width=len(points), fields=fields,
+                                            is_bigendian=False, point_step=step,
+                                            row_step=row_step if row_step is not None else step * len(points),
+                                            data=raw, is_dense=dense)
+
+
+def write_cloud_bag(path, messages, ts):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection("/map", "sensor_msgs/msg/PointCloud2", typestore=ts)
+        for k, msg in enumerate(messages):
+            w.write(c, 1_700_000_000 * 10**9 + k, ts.serialize_cdr(msg, "sensor_msgs/msg/PointCloud2"))
+    return path
+
+
+def typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def test_a_pointcloud2_map_in_a_bag_is_a_scene(tmp_path):
+    ts = typestore()
+    pts = tilted_plane()
+    path = write_cloud_bag(tmp_path / "map_bag", [pointcloud2(ts, pts[:2500]), pointcloud2(ts, pts[2500:])], ts)
+    scene = load_scene(path, topic="/map")
+    assert scene.n_triangles == 2 * 4000 and scene.source.endswith(":/map")
+    check_plane_map(scene)
+    refused(path, "topic", "sensor_msgs/PointCloud2")  # no topic named
+    with pytest.raises(SceneError, match="/nothing"):
+        load_scene(path, topic="/nothing")
+
+
+def test_a_pointcloud2_whose_layout_disagrees_with_its_data_is_refused(tmp_path):
+    from excite.scene.clouds import pointcloud2_points
+
+    ts = typestore()
+    pts = tilted_plane(100)
+    good = pointcloud2(ts, pts)
+    assert pointcloud2_points(good, "m", "f").points.shape == (100, 3)
+    cases = [
+        (pointcloud2(ts, pts, data=np.zeros(1600 - 1, np.uint8)), "data holds 1,599 bytes"),
+        (pointcloud2(ts, pts, row_step=800), "row_step 800"),
+        (pointcloud2(ts, pts, x_offset=8), "fields.z: offset 16"),
+        (pointcloud2(ts, pts, point_step=8, row_step=800, data=np.zeros(800, np.uint8)), "beyond point_step 8"),
+    ]
+    for k, (msg, words) in enumerate(cases):
+        path = write_cloud_bag(tmp_path / f"bad{k}", [msg], ts)
+        refused(path, "/map", "message 0", words, topic="/map")
+    nan = pts.copy()
+    nan[7] = np.nan
+    assert pointcloud2_points(pointcloud2(ts, nan, dense=False), "m", "f").points.shape == (99, 3)
+    path = write_cloud_bag(tmp_path / "nan", [pointcloud2(ts, nan)], ts)
+    refused(path, "is_dense", "point 7", topic="/map")
+    path = write_cloud_bag(tmp_path / "frames", [good, pointcloud2(ts, pts, frame="odom")], ts)
+    refused(path, "message 1", "frame_id", topic="/map")
+
+
+# --- hostile point clouds and meshes ---------------------------------------------------------
+
+PCD_HEADER = """# .PCD v0.7
+VERSION 0.7
+FIELDS x y z
+SIZE 4 4 4
+TYPE F F F
+COUNT 1 1 1
+WIDTH {n}
+HEIGHT 1
+VIEWPOINT 0 0 0 1 0 0 0
+POINTS {n}
+DATA {data}
+"""
+
+
+def test_a_pcd_declaring_a_billion_points_is_refused_before_anything_is_allocated(tmp_path):
+    import tracemalloc
+
+    path = tmp_path / "huge.pcd"
+    path.write_bytes(PCD_HEADER.format(n=10**9, data="binary").encode() + b"\0" * 1200)
+    tracemalloc.start()
+    try:
+        refused(path, "POINTS", "1,000,000,000")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 20 * 2**20
+    # within the points bound, but the body too short for what it declares
+    path.write_bytes(PCD_HEADER.format(n=1_000_000, data="binary").encode() + b"\0" * 1200)
+    refused(path, "DATA", "12,000,000 bytes")
+    # a compressed body whose declared size is not that of its points
+    path.write_bytes(PCD_HEADER.format(n=100, data="binary_compressed").encode()
+                     + np.array([16, 4_000_000_000], "<u4").tobytes() + b"\0" * 16)
+    refused(path, "DATA", "4,000,000,000")
+    path.write_bytes(PCD_HEADER.format(n=100, data="binary").encode().replace(b"WIDTH 100", b"WIDTH 7")
+                     + b"\0" * 1200)
+    refused(path, "WIDTH × HEIGHT")
+    path.write_bytes(b"\0" * 70_000)
+    refused(path, "header", "not a PCD")
+    text = PCD_HEADER.format(n=20, data="ascii") + "\n".join(["1 2 3"] * 19 + ["nan 2 3"]) + "\n"
+    path.write_text(text)
+    refused(path, "point 19", "not a finite number")
+
+
+def _las_bytes(tmp_path):
+    import laspy
+
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = [0.001, 0.001, 0.001]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = tilted_plane(500).T
+    las.write(tmp_path / "ok.las")
+    return bytearray((tmp_path / "ok.las").read_bytes())
+
+
+def test_a_las_with_an_absurd_scale_or_count_is_refused(tmp_path):
+    import struct as st
+
+    base = _las_bytes(tmp_path)
+    assert load_scene(tmp_path / "ok.las").n_triangles == 1000
+    cases = {
+        "scale.las": (131, st.pack("<d", 1e30), ("header.scales", "1e+30")),
+        "zero.las": (139, st.pack("<d", 0.0), ("header.scales",)),
+        "offset.las": (155, st.pack("<d", float("nan")), ("header.offsets",)),
+        "count.las": (107, st.pack("<I", 10**9), ("header.point_count", "1,000,000,000")),
+        "short.las": (107, st.pack("<I", 5_000_000), ("header.point_count", "the file holds")),
+    }
+    for name, (offset, value, words) in cases.items():
+        raw = bytearray(base)
+        raw[offset:offset + len(value)] = value
+        (tmp_path / name).write_bytes(bytes(raw))
+        refused(tmp_path / name, *words)
+
+
+def test_a_ply_with_nan_vertices_or_an_absurd_count_is_refused(tmp_path):
+    head = "ply\nformat {fmt} 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    pts = tilted_plane(50).astype("<f4")
+    pts[3, 1] = np.nan
+    (tmp_path / "nan.ply").write_bytes(head.format(fmt="binary_little_endian", n=50).encode() + pts.tobytes())
+    refused(tmp_path / "nan.ply", "element vertex", "vertex 3")
+    ascii_body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in pts.astype(float)) + "\n"
+    (tmp_path / "nan_ascii.ply").write_text(head.format(fmt="ascii", n=50) + ascii_body)
+    refused(tmp_path / "nan_ascii.ply", "vertex 3")
+    (tmp_path / "huge.ply").write_bytes(head.format(fmt="binary_little_endian", n=10**9).encode() + b"\0" * 100)
+    refused(tmp_path / "huge.ply", "element vertex", "1,000,000,000")
+    (tmp_path / "short.ply").write_bytes(head.format(fmt="binary_little_endian", n=5000).encode() + b"\0" * 100)
+    refused(tmp_path / "short.ply", "element vertex", "60,000 bytes")
+    faces = head.format(fmt="binary_little_endian", n=3).replace(
+        "end_header", f"element face {10**9}\nproperty list uchar int vertex_indices\nend_header")
+    (tmp_path / "faces.ply").write_bytes(faces.encode() + b"\0" * 100)
+    refused(tmp_path / "faces.ply", "element face")
+
+
+def test_a_mesh_with_a_nan_vertex_or_a_lying_stl_header_is_refused(tmp_path):
+    (tmp_path / "nan.obj").write_text(BOX_OBJ.replace("v 20 5 8", "v 20 nan 8"))
+    refused(tmp_path / "nan.obj", "vertex 6", "not a finite number")
+    body = bytearray(84 + 50 * 2)
+    body[80:84] = (10**8).to_bytes(4, "little")
+    (tmp_path / "lie.stl").write_bytes(bytes(body))
+    refused(tmp_path / "lie.stl", "header", "100,000,000 triangles")
+    (tmp_path / "junk.obj").write_text("this is no mesh\n")
+    refused(tmp_path / "junk.obj", "mesh")
