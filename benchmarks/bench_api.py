@@ -33,7 +33,7 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from test_api_support import LiveServer  # noqa: E402
+from servers import LiveServer  # noqa: E402
 
 
 def route_text(duration_s: float = 600.0) -> str:
@@ -92,7 +92,7 @@ def main() -> int:
     errors: list[str] = []
     loads0 = load_avg()
 
-    from test_api_support import write_keys
+    from servers import write_keys
 
     with tempfile.TemporaryDirectory() as tmp:
         secrets = write_keys(Path(tmp) / "keys.yaml", {"bench": {"scopes": ["score"], "quota": {

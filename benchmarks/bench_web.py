@@ -19,8 +19,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from bench_api import machine  # noqa: E402
-from test_api_support import LiveServer  # noqa: E402
-from test_web import CHROMIUM_ARGS, _chromium  # noqa: E402
+from servers import LiveServer  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "api"))
+from test_page import CHROMIUM_ARGS, _chromium  # noqa: E402
 
 
 def main() -> int:
