@@ -24,7 +24,7 @@ from ..errors import ExciteError
 # above the command line and adds its command to it)
 COMMANDS = {c: f"excite.cli.{m}" for c, m in {
     "batch": "batch", "data": "data", "live": "live", "mine": "mine", "optimize": "optimize", "route": "route",
-    "rig": "rig_import", "score": "score", "validate": "validate"}.items()}
+    "rig": "rig_import", "scene": "scene", "score": "score", "validate": "validate"}.items()}
 COMMANDS["serve"] = "api.command"
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
+from . import seeing
 from .app import app, console
 
 if TYPE_CHECKING:
@@ -24,10 +25,17 @@ def _table(results: list[gate.RouteResult]):
 
     rigs = sorted({r.rig for r in results})
     one_rig = len(rigs) == 1
-    t = Table(title=f"excite batch, rig {rigs[0]}" if one_rig else "excite batch", title_justify="left")
+    scenes = {seeing.line(r.scene) for r in results if r.status != "error"}
+    one_scene = len(scenes) <= 1
+    title = "excite batch" + (f", rig {rigs[0]}" if one_rig else "")
+    if len(scenes) == 1 and None not in scenes:
+        title += f" in {escape(scenes.pop())}"
+    t = Table(title=title, title_justify="left")
     t.add_column("route", overflow="fold", ratio=1)
     if not one_rig:
         t.add_column("rig", overflow="fold")
+    if not one_scene:
+        t.add_column("scene", overflow="fold")
     t.add_column("score", justify="right")
     t.add_column("result")
     t.add_column("not met (σ > bound) / error", overflow="fold", ratio=1)
@@ -38,6 +46,8 @@ def _table(results: list[gate.RouteResult]):
             shown.append(f"… {len(r.failures) - _MAX_SHOWN} more (JUnit/--json list all)")
         detail = r.error if r.error is not None else "\n".join(shown + [f"[yellow]warning: {escape(w)}[/]" for w in r.warnings])
         rig = [] if one_rig else [r.rig]
+        if not one_scene:  # the file's name and the digest's start: the title names one in full
+            rig.append("—" if r.scene is None else escape(f"{Path(r.scene['name']).name} ({r.scene['digest'][:8]})"))
         t.add_row(r.name, *rig, "—" if r.score is None else f"{r.score:.3g}", verdict, detail or "")
     return t
 
@@ -58,12 +68,14 @@ def batch(
     imu_topic: Annotated[Optional[str], typer.Option(help="IMU topic of the bags given directly.")] = None,
     scheduler: Annotated[Optional[str], typer.Option(
         help="Dask scheduler to run on (tcp://host:8786; default $EXCITE_DASK_SCHEDULER, else local processes).")] = None,
+    scene: Annotated[Optional[str], typer.Option(
+        help=seeing.HELP + " Applies to the routes given directly and to manifest routes whose manifest names none.")] = None,
 ) -> None:
     """Evaluate routes against their expectations; exit 1 when any route fails or cannot be read."""
     from ..fleet import batch as gate
     from .mine import ProgressBar
 
-    specs = gate.collect(paths, rig=rig, min_score=min_score, topic=topic, imu_topic=imu_topic)
+    specs = gate.collect(paths, rig=rig, min_score=min_score, topic=topic, imu_topic=imu_topic, scene=scene)
     t0 = time.perf_counter()
     with ProgressBar("scoring", len(specs)) as bar:
         results = gate.run(specs, jobs=jobs, keep_reports=json_out is not None, scheduler=scheduler,

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Iterator, Optional
 
 import typer
 
+from . import seeing
 from .app import app, console
 
 if TYPE_CHECKING:
@@ -189,6 +190,7 @@ def _times(path: Optional[Path]) -> list[float] | None:
 
 def _table(update: dict[str, Any], rig_name: str) -> Any:
     from rich.console import Group
+    from rich.markup import escape
     from rich.progress_bar import ProgressBar
     from rich.table import Table
     from rich.text import Text
@@ -196,8 +198,10 @@ def _table(update: dict[str, Any], rig_name: str) -> Any:
     from ..core.units import human
 
     kind = "final (the batch evaluator on every pose)" if update["type"] == "final" else "live"
+    where = seeing.line(update.get("scene"))
     head = Text.from_markup(
-        f"[bold]{kind}[/]  rig {rig_name}  t = {update['t_s']:.0f} s  {update['length_m'] / 1000:.2f} km  "
+        f"[bold]{kind}[/]  rig {rig_name}" + (f" in {escape(where)}" if where else "")
+        + f"  t = {update['t_s']:.0f} s  {update['length_m'] / 1000:.2f} km  "
         f"score {update['score']:.3g}  " + ("[green]every parameter within target[/]" if update["passed"]
                                            else "[yellow]not yet[/]"))
     t = Table(box=None, pad_edge=False)
@@ -274,6 +278,7 @@ def live(
                                                  "excite optimize --drivable): say which element is being driven "
                                                  "and which is next, and when an element is cut short or the plan "
                                                  "ends short of its goal, what to repeat.")] = None,
+    scene: Annotated[Optional[str], typer.Option(help=seeing.HELP)] = None,
 ) -> None:
     """Live guidance during the drive: each parameter's progress to its target, the motion it
     still needs, and done. Exit code 0 when every parameter is within target, 1 when the source
@@ -286,6 +291,8 @@ def live(
         raise typer.BadParameter(f"must be positive, got {idle}", param_hint="--idle")
     speed = _speed(replay)
     r = load_rig(rig)
+    world = seeing.load(scene)
+    seeing.warn_blind(r, world)
     batches, name = _source(route, times, speed, topic, idle)
     from ..io.poses import DEFAULT_CUTOFF_HZ
     from ..io.routes import already_smooth
@@ -297,9 +304,9 @@ def live(
         from ..plan.drivable.guide import PlanStream
         from ..plan.drivable.plan import read_plan
 
-        stream = PlanStream(r, read_plan(plan), name=name, cutoff_hz=cutoff)
+        stream = PlanStream(r, read_plan(plan), name=name, cutoff_hz=cutoff, scene=world)
     else:
-        stream = PoseStream(r, name=name, cutoff_hz=cutoff)
+        stream = PoseStream(r, name=name, cutoff_hz=cutoff, scene=world)
     out = console()
 
     def emit(update: dict[str, Any], display: Any) -> None:

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
+from . import seeing
 from .app import app, console
 
 if TYPE_CHECKING:
@@ -83,6 +84,8 @@ def mine(
     jobs: Annotated[Optional[int], typer.Option(help="Local processes (default: one per core).")] = None,
     topic: Annotated[Optional[str], typer.Option(help="Trajectory source of the bags given directly.")] = None,
     imu_topic: Annotated[Optional[str], typer.Option(help="IMU topic of the bags given directly.")] = None,
+    scene: Annotated[Optional[str], typer.Option(
+        help=seeing.HELP + " Applies to the logs given directly and to manifest routes whose manifest names none.")] = None,
 ) -> None:
     """Rank the windows of LOGS that best determine the rig's calibration; exit 1 when a log
     cannot be read or (with --min-score/--targets) no log reaches the goal."""
@@ -100,7 +103,7 @@ def mine(
     if min_score is not None and not (math.isfinite(min_score) and min_score > 0):
         raise ExciteError(f"--min-score must be a number > 0, got {min_score:g}")
     goal = miner.Goal(min_score) if min_score is not None or targets else None
-    specs = gate.collect(logs, rig=rig, topic=topic, imu_topic=imu_topic)
+    specs = gate.collect(logs, rig=rig, topic=topic, imu_topic=imu_topic, scene=scene)
     tasks = [miner.Task(s, window, goal, per_log, chunk) for s in specs]
     t0 = time.perf_counter()
     with ProgressBar("mining", len(tasks)) as bar:
@@ -117,6 +120,8 @@ def mine(
             if r.error is None and r.shortest is None:
                 out.print(f"[yellow]{r.log}[/]: never reaches {goal.describe()}; the whole log scores "
                           f"{r.whole_score:.3g}")
+    for where in sorted({seeing.line(r.scene) for r in results if r.scene is not None}):
+        out.print(f"seen in {where}", markup=False, highlight=False)
     n_windows = sum(r.windows_evaluated for r in results)
     errors = [r for r in results if r.error is not None]
     for r in errors:

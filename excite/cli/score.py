@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import typer
 
 from ..core import bounds
+from . import seeing
 from .app import app, console
 
 if TYPE_CHECKING:
@@ -21,8 +22,11 @@ def print_report(rep: Report, console: Any, rig: Any = None) -> None:
     from ..core.units import human
 
     verdict = "[green]PASS[/]" if rep.passed else "[red]FAIL[/]"
-    console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]: {rep.duration_s:.1f} s, "
-                  f"{rep.length_m:.0f} m, {rep.n_keyframes} keyframes")
+    from rich.markup import escape
+
+    where = seeing.line(rep.scene)
+    console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]" + (f" in {escape(where)}" if where else "")
+                  + f": {rep.duration_s:.1f} s, {rep.length_m:.0f} m, {rep.n_keyframes} keyframes")
     cond = "∞" if rep.condition_number is None else f"{rep.condition_number:.3g}"
     console.print(f"score λ_min(SΛS) = [bold]{rep.score:.4g}[/]  {verdict}   rank {rep.rank}/"
                   f"{rep.rank + rep.nullity} (normalised threshold {rep.rank_threshold:.2g})   condition {cond}")
@@ -105,6 +109,7 @@ def score(
         help="Bags: a nav_msgs/Odometry or PoseWithCovarianceStamped topic whose pose covariance "
              "weighs the frame pairs of the rig's lidar or camera that sets "
              "noise.use_reported_covariance (each message's: its increment since the last).")] = None,
+    scene: Annotated[Optional[str], typer.Option(help=seeing.HELP)] = None,
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
     from ..score.evaluate import Options, evaluate, max_segments
@@ -136,7 +141,9 @@ def score(
         bag = BagSource(topic, imu_topic, start, end, vehicle_frame, axes, gnss_topic,
                         antennas[0] if antennas else "gnss", odometry_topic,
                         reported[0] if reported else "lidar")
-    traj = read_route(route, times=times, suspension=r.suspension, bag=bag)
+    world = seeing.load(scene)
+    seeing.warn_blind(r, world)
+    traj = seeing.seeing(read_route(route, times=times, suspension=r.suspension, bag=bag), r, world)
     for s in r.config.sensors:
         if s.kind in ("lidar", "camera") and s.noise.use_reported_covariance and s.name not in traj.logs:
             typer.secho(f"warning: {s.name} sets noise.use_reported_covariance and the drive carries no covariance "

@@ -34,7 +34,9 @@ def crop(traj: Trajectory, duration_s: float, rate_hz: float = 100.0) -> Traject
     if traj.has_tilt:
         ypr = so3.yaw_pitch_roll(np.swapaxes(s.R_V_A, 1, 2))  # R_A_V = Ry(pitch)·Rx(roll)
         tilt = ypr[:, 1:3]
-    return Trajectory(t, s.R_W_V, s.p_W_V, tilt_pitch_roll=tilt, velocity=s.v_W, name=traj.name)
+    out = Trajectory(t, s.R_W_V, s.p_W_V, tilt_pitch_roll=tilt, velocity=s.v_W, name=traj.name)
+    out.origin = traj.origin
+    return out
 
 
 def with_imu_rate(rig: Rig, rate_hz: float) -> Rig:

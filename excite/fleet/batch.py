@@ -20,6 +20,9 @@ Routes manifest (YAML)::
         name: highway_run                # test-case name (default: the file name)
         description: free text
         rig: robotaxi                    # this route's rig
+        scene: street_canyon             # the scene it is scored in: a scene file relative to the
+                                         #   manifest or a bundled scene's name (default: the
+                                         #   manifest's top-level scene, else the command line's)
         times: kitti_00_times.txt        # KITTI times file, relative to the manifest, or a URL
         topic: /odom                     # bags: pose topic or TF chain /tf:PARENT.CHILD
         imu_topic: /imu                  # bags: measured IMU (optional)
@@ -30,8 +33,8 @@ Routes manifest (YAML)::
           lidar.time_offset: observable  #   finite (not in the null space)
 
 Every error names the manifest and the key (``manifest.yaml: routes.2.determine."wheel.trak":
-matches no parameter of rig robotaxi``). Rigs are loaded and every ``determine`` key is matched
-against the rig's parameters when the manifest is read, before anything is evaluated.
+matches no parameter of rig robotaxi``). Rigs and scenes are loaded and every ``determine`` key
+is matched against the rig's parameters when the manifest is read, before anything is evaluated.
 
 Paths given to :func:`collect`: route files; bags (``.bag``, ``.mcap``, ROS 2 bag folders; the
 trajectory source is ``topic``); folders (their route files: ``.csv .tum .txt .geojson .json``
@@ -62,7 +65,7 @@ import yaml
 from ..core import engine
 from ..io import remote
 from ..errors import ExciteError, ManifestError, RigError
-from ..score.evaluate import Report, evaluate
+from ..score.evaluate import Report, evaluate, scene_text
 from ..rig.config import Rig, load_rig, parse_quantity
 from ..core.units import human
 
@@ -73,8 +76,9 @@ __all__ = [
 
 ROUTE_SUFFIXES = (".csv", ".tum", ".txt", ".geojson", ".json")
 _MANIFEST_SUFFIXES = (".yaml", ".yml")
-_ROUTE_KEYS = ("route", "name", "description", "rig", "times", "topic", "imu_topic", "min_score", "determine")
-_TOP_KEYS = ("version", "description", "rig", "routes")
+_ROUTE_KEYS = ("route", "name", "description", "rig", "scene", "times", "topic", "imu_topic", "min_score",
+               "determine")
+_TOP_KEYS = ("version", "description", "rig", "scene", "routes")
 COMMAND_LINE = "command line"
 
 
@@ -104,6 +108,7 @@ class RouteSpec:
     error: str | None = None
     topic: str | None = None  # bags: the trajectory source
     imu_topic: str | None = None
+    scene: str | None = None  # the scene it is scored in (a scene file or a bundled scene's name)
 
     @property
     def default_gate(self) -> bool:
@@ -161,6 +166,7 @@ class RouteResult:
     seconds: float = 0.0
     report: dict[str, Any] | None = None
     warnings: list[str] = field(default_factory=list)  # the report's: motion no car makes, fewer segments
+    scene: dict[str, str] | None = None  # the scene it was scored in, as the report names it
 
     @property
     def status(self) -> str:
@@ -217,6 +223,28 @@ def cached_rig(rig: str) -> Rig:
     return load_rig(rig)
 
 
+@lru_cache(maxsize=4)
+def cached_scene(ref: str) -> Any:
+    """The scene of a reference (a scene file or a bundled scene's name), read once per process."""
+    from ..scene.files import load_scene
+
+    return load_scene(ref)
+
+
+def _scene_ref(value: Any, base: Path, key: str, where: str) -> str:
+    """A manifest's scene: a bundled scene's name, or a file relative to the manifest (read now)."""
+    if not isinstance(value, str) or not value:
+        raise ManifestError(f"{where}: {key}: expected a scene file or a bundled scene's name, got {value!r}")
+    from ..scene.files import bundled_scenes
+
+    ref = value if value in bundled_scenes() else str(base / value)
+    try:
+        cached_scene(ref)
+    except ExciteError as exc:
+        raise ManifestError(f"{where}: {key}: {exc}") from None
+    return ref
+
+
 def _resolve_bounds(determine: Any, rig: Rig, rig_name: str, key: str, where: str) -> tuple[Bound, ...]:
     if not isinstance(determine, dict) or not determine:
         raise ManifestError(f"{where}: {key}: expected a mapping of parameter name or glob to "
@@ -262,7 +290,7 @@ def _rig_ref(value: Any, base: Path, key: str, where: str) -> str:
     return ref
 
 
-def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[RouteSpec]:
+def load_manifest(path: str | Path, default_rig: str = "robotaxi", default_scene: str | None = None) -> list[RouteSpec]:
     """The routes of a manifest with their expectations, validated (see the module docstring).
 
     Route paths, globs, times files and rig paths are relative to the manifest. A route whose
@@ -294,6 +322,7 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
         raise ManifestError(f"{where}: version: only version 1 is known, got {data['version']!r}")
     base = path.parent
     top_rig = _rig_ref(data["rig"], base, "rig", where) if "rig" in data else default_rig
+    top_scene = _scene_ref(data["scene"], base, "scene", where) if "scene" in data else default_scene
     routes = data.get("routes")
     if not isinstance(routes, list) or not routes:
         raise ManifestError(f"{where}: routes: expected a non-empty list of routes")
@@ -310,6 +339,7 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
             raise ManifestError(f"{where}: {key}.route: required, a route file or glob relative to the manifest")
         rig_ref = _rig_ref(entry["rig"], base, f"{key}.rig", where) if "rig" in entry else top_rig
         rig = cached_rig(rig_ref)
+        scene = _scene_ref(entry["scene"], base, f"{key}.scene", where) if "scene" in entry else top_scene
         times = entry.get("times")
         if times is not None and not isinstance(times, str):
             raise ManifestError(f"{where}: {key}.times: expected a path, got {times!r}")
@@ -323,7 +353,7 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
         if name is not None and not isinstance(name, str):
             raise ManifestError(f"{where}: {key}.name: expected text, got {name!r}")
         common = dict(rig=rig_ref, source=where, min_score=min_score, determine=bounds,
-                      topic=entry.get("topic"), imu_topic=entry.get("imu_topic"))
+                      topic=entry.get("topic"), imu_topic=entry.get("imu_topic"), scene=scene)
         times_path = None if times is None else times if remote.is_url(times) else str(base / times)
         if remote.is_url(route):
             specs.append(RouteSpec(route, name or remote.name_of(route), times=times_path, **common))
@@ -342,29 +372,36 @@ def load_manifest(path: str | Path, default_rig: str = "robotaxi") -> list[Route
 
 
 def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float | None = None,
-            topic: str | None = None, imu_topic: str | None = None) -> list[RouteSpec]:
+            topic: str | None = None, imu_topic: str | None = None, scene: str | None = None) -> list[RouteSpec]:
     """The routes named by ``paths`` (files, folders, globs, manifests), in order.
 
-    Routes from the command line get ``rig`` and ``min_score``; a manifest's routes carry their
-    own expectations (``rig`` is their default rig when the manifest names none); bags from the
-    command line are read with ``topic`` and ``imu_topic``. A path that does not exist becomes
-    that route's error.
+    Routes from the command line get ``rig``, ``scene`` and ``min_score``; a manifest's routes carry
+    their own expectations (``rig`` and ``scene`` are their defaults when the manifest names none);
+    bags from the command line are read with ``topic`` and ``imu_topic``. A path that does not
+    exist becomes that route's error; a scene that cannot be read is a :class:`ManifestError`
+    (``--scene: …``), before anything is evaluated.
     """
     if min_score is not None and not (math.isfinite(min_score) and min_score >= 0):
         raise ManifestError(f"--min-score must be a number ≥ 0, got {min_score}")
+    if scene is not None:
+        try:
+            cached_scene(scene)
+        except ExciteError as exc:
+            raise ManifestError(f"--scene: {exc}") from None
     specs: list[RouteSpec] = []
 
     def route(p: Path) -> None:
         specs.append(RouteSpec(str(p), _display(p), rig, min_score=min_score, times=_kitti_times(p),
-                               topic=topic, imu_topic=imu_topic))
+                               topic=topic, imu_topic=imu_topic, scene=scene))
 
     for raw in paths:
         text = str(raw)
         p = Path(text)
         if remote.is_url(text):  # read by whichever process evaluates it (excite.io.remote)
-            specs.append(RouteSpec(text, text, rig, min_score=min_score, topic=topic, imu_topic=imu_topic))
+            specs.append(RouteSpec(text, text, rig, min_score=min_score, topic=topic, imu_topic=imu_topic,
+                                   scene=scene))
         elif p.suffix.lower() in _MANIFEST_SUFFIXES and not _is_glob(text):
-            specs.extend(load_manifest(p, default_rig=rig))
+            specs.extend(load_manifest(p, default_rig=rig, default_scene=scene))
         elif p.is_dir() and not _is_route_file(p):
             files = sorted(q for q in p.iterdir() if _is_route_file(q))
             if not files:
@@ -379,7 +416,7 @@ def collect(paths: Sequence[str | Path], rig: str = "robotaxi", min_score: float
                 specs.append(RouteSpec(text, text, rig, min_score=min_score, error=f"no file matches {text!r}"))
             for m in matches:
                 if m.suffix.lower() in _MANIFEST_SUFFIXES:
-                    specs.extend(load_manifest(m, default_rig=rig))
+                    specs.extend(load_manifest(m, default_rig=rig, default_scene=scene))
                 elif _is_route_file(m):
                     route(m)
         else:
@@ -460,15 +497,21 @@ def _advice(report: Report, fails: list[Failure]) -> list[str]:
     return out
 
 
-def load(spec: RouteSpec) -> tuple[Rig, Any]:
-    """The rig and the trajectory of a route (the errors of :func:`excite.io.routes.read_route`)."""
+def load(spec: RouteSpec, see: bool = True) -> tuple[Rig, Any]:
+    """The rig and the trajectory of a route (the errors of :func:`excite.io.routes.read_route`),
+    seeing its scene where it has one (and ``see``: :func:`excite.scene.along.seen`)."""
     from ..io.bags import BagSource, is_bag
     from ..io.routes import read_route
 
     rig = cached_rig(spec.rig)
     with remote.local(spec.path) as path, remote.local(spec.times) as times:
         bag = BagSource(spec.topic, spec.imu_topic) if is_bag(path) else None
-        return rig, read_route(path, times=times, suspension=rig.suspension, bag=bag)
+        traj = read_route(path, times=times, suspension=rig.suspension, bag=bag)
+    if spec.scene is not None and see:
+        from ..scene.along import seen
+
+        traj = seen(traj, rig, cached_scene(spec.scene))
+    return rig, traj
 
 
 def error_text(exc: Exception, path: str) -> tuple[str, str | None]:
@@ -496,6 +539,7 @@ def evaluate_spec(spec: RouteSpec, keep_report: bool = False) -> RouteResult:
         res.error, res.error_detail = error_text(exc, spec.path)
     else:
         res.rig = rig.name
+        res.scene = rep.scene
         res.score = rep.score
         res.warnings = list(rep.warnings)
         res.failures = check(rep, spec)
@@ -571,7 +615,8 @@ def junit_xml(results: Sequence[RouteResult], total_s: float | None = None) -> s
                 el.text = r.error_detail or r.error
             elif r.status == "failed":
                 el = ET.SubElement(case, "failure", type="ExpectationNotMet", message=_failure_message(r))
-                lines = [f"route {_display(r.path)} with rig {r.rig}: score {r.score:.4g}", "not met:"]
+                where = f" in {scene_text(r.scene)}" if r.scene else ""
+                lines = [f"route {_display(r.path)} with rig {r.rig}{where}: score {r.score:.4g}", "not met:"]
                 lines += [f"  {f.text()}" for f in r.failures]
                 if r.advice:
                     lines.append("what it takes:")
@@ -579,7 +624,7 @@ def junit_xml(results: Sequence[RouteResult], total_s: float | None = None) -> s
                 el.text = "\n".join(lines)
             if r.score is not None:
                 out = ET.SubElement(case, "system-out")
-                out.text = f"score {r.score:.4g} with rig {r.rig}"
+                out.text = f"score {r.score:.4g} with rig {r.rig}" + (f" in {scene_text(r.scene)}" if r.scene else "")
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 

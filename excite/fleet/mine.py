@@ -38,7 +38,7 @@ import numpy as np
 from ..io import remote
 from ..score import spectrum
 from ..errors import EvaluationError
-from ..score.evaluate import evaluate, scaled, scored_mask
+from ..score.evaluate import evaluate, scaled, scene_of, scored_mask
 from ..factors.base import STATE_DIM, Nominal
 from ..information.closure import Closure
 from ..information.elimination import at_keyframe, piece
@@ -266,6 +266,7 @@ class LogResult:
     whole_score: float | None = None  # the whole log's (the best any window can reach)
     error: str | None = None
     seconds: float = 0.0
+    scene: dict[str, str] | None = None  # the scene it was mined in, as a report names it
 
 
 @dataclass(frozen=True)
@@ -430,6 +431,7 @@ def mine_task(task: Task) -> LogResult:
         return LogResult(spec.name, spec.path, error=error_text(exc, spec.path)[0],
                          seconds=time.perf_counter() - t0)
     res.path = spec.path
+    res.scene = scene_of([traj])
     for w in res.best + ([res.shortest] if res.shortest else []):
         w.path = spec.path
     return res
@@ -484,7 +486,7 @@ def results_json(results: list[LogResult], window_s: float, goal: Goal | None) -
             "logs": [{"log": r.log, "path": r.path, "duration_s": r.duration_s,
                       "windows_evaluated": r.windows_evaluated, "whole_score": r.whole_score,
                       "reached": None if goal is None else r.shortest is not None,
-                      "error": r.error, "seconds": r.seconds} for r in results]}
+                      "error": r.error, "seconds": r.seconds, "scene": r.scene} for r in results]}
 
 
 def write_crop(window: Window, spec: Any, folder: str | Path) -> list[Path]:
@@ -499,7 +501,7 @@ def write_crop(window: Window, spec: Any, folder: str | Path) -> list[Path]:
     name = remote.name_of(spec.path) if remote.is_url(spec.path) else str(spec.path)
     stem = f"{Path(name).stem or Path(name).name}_{window.start_s:.1f}-{window.end_s:.1f}s"
     with remote.local(spec.path) as path:  # a URL is fetched once, for the route and the bag
-        _, traj = load(replace(spec, path=path))
+        _, traj = load(replace(spec, path=path), see=False)
         tum = folder / f"{stem}.tum"
         write_tum(crop(traj, window.start_s, window.end_s), tum, rate_hz=CROP_RATE_HZ)
         out = [tum]

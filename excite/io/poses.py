@@ -85,7 +85,8 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
                           name: str = "route") -> Trajectory:
     """A smooth trajectory of V through noisy timed poses ``(t_s, p_m, R)``.
 
-    Times and positions are re-based on the first sample before any math. Positions and
+    Times and positions are re-based on the first sample before any math (the first position is
+    kept as the trajectory's ``origin``: a scene in the poses' frame is seen from there). Positions and
     (sign-unwrapped) quaternions are fitted with cubic smoothing splines whose penalty makes them
     a low-pass of bandwidth ``cutoff_hz`` (``λ = 1 / (h (2π f_c)⁴)`` for sample spacing ``h``); the
     fit is resampled on a uniform grid at ``rate_hz`` (default: the median input rate) and the
@@ -107,8 +108,10 @@ def trajectory_from_poses(t_s: np.ndarray, p_m: np.ndarray, R: np.ndarray, *,
     grid = np.linspace(0.0, t[-1], max(int(round(t[-1] * rate)) + 1, MIN_POSES))
     qg = quat(grid)
     qg /= np.linalg.norm(qg, axis=1, keepdims=True)
-    return Trajectory(grid, Rotation.from_quat(qg).as_matrix(), pos(grid),
-                      velocity=pos.derivative(1)(grid), name=name)
+    out = Trajectory(grid, Rotation.from_quat(qg).as_matrix(), pos(grid),
+                     velocity=pos.derivative(1)(grid), name=name)
+    out.origin = np.asarray(p_m, dtype=float)[0].copy()  # where the re-based positions start
+    return out
 
 
 def smoothing_spline(x: np.ndarray, y: np.ndarray, lam: float) -> CubicSpline:

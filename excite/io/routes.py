@@ -664,7 +664,7 @@ def write_tum(traj: Trajectory, path: str | Path, rate_hz: float = 10.0, as_log:
     s = traj.sample(traj.times(rate_hz))
     q = Rotation.from_matrix(s.R_W_V).as_quat()
     q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)  # canonical sign: w ≥ 0
-    data = np.column_stack([s.t, s.p_W_V, q])
+    data = np.column_stack([s.t, s.p_W_V + traj.origin, q])  # in the frame its poses came in
     mark = "" if as_log else f", {SMOOTH_MARK}"
     header = f"excite {traj.name}: pose of the vehicle frame V in W{mark}\nt tx ty tz qx qy qz qw"
     np.savetxt(path, data, fmt=["%.6f"] + ["%.6f"] * 3 + ["%.9f"] * 4, header=header)
@@ -686,7 +686,7 @@ def write_waypoints_csv(traj: Trajectory, path: str | Path, spacing_m: float = 2
         targets[-1] = dist[-1]
     # Arc length is flat where the car stands still: take the first moment at each distance.
     keep = np.concatenate([[True], np.diff(dist) > 1e-9])
-    xyz = np.column_stack([np.interp(targets, dist[keep], s.p_W_V[keep, i]) for i in range(3)])
+    xyz = np.column_stack([np.interp(targets, dist[keep], s.p_W_V[keep, i]) for i in range(3)]) + traj.origin
     speed = np.interp(targets, dist[keep], np.maximum(s.speed[keep], 0.0))
     np.savetxt(path, np.column_stack([xyz, speed]), fmt="%.4f", delimiter=",",
                header="x_m,y_m,z_m,speed_mps", comments="")
@@ -710,7 +710,8 @@ def control_profile_of(traj: Trajectory, rate_hz: float = 10.0,
     ypr = so3.yaw_pitch_roll(s.R_W_A)
     return ControlProfile(t_s=s.t, speed_mps=u, curvature_1pm=kappa, grade_rad=-ypr[:, 1],
                           bank_rad=ypr[:, 2],
-                          start=(float(s.p_W_V[0, 0]), float(s.p_W_V[0, 1]), float(ypr[0, 0])),
+                          start=(float(s.p_W_V[0, 0] + traj.origin[0]), float(s.p_W_V[0, 1] + traj.origin[1]),
+                                 float(ypr[0, 0])),
                           name=traj.name)
 
 

@@ -166,12 +166,14 @@ class SceneView:
     frame turned to the world's: the information does not change as the sensor turns in place
     but looks at the same surfaces), and the information of the road plane fitted to its
     returns from the ground ``G_W`` (S × 4 × 4, [normal, height], the normal's part in
-    world-aligned axes). ``digest``: the scene's (equal scenes, equal digests)."""
+    world-aligned axes). ``digest``: the scene's (equal scenes, equal digests); ``source``: its
+    name (a file, a bundled scene), for reports."""
 
     digest: str
     t: dict[str, np.ndarray]
     H_W: dict[str, np.ndarray]
     G_W: dict[str, np.ndarray]
+    source: str = "scene"
 
     def nearest(self, name: str, t: np.ndarray) -> np.ndarray:
         """The index of the scan ray-cast nearest each of the times ``t`` of ``name``'s."""
@@ -182,7 +184,7 @@ class SceneView:
         return np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
 
     def shifted(self, dt_s: float) -> "SceneView":
-        return SceneView(self.digest, {k: v + dt_s for k, v in self.t.items()}, self.H_W, self.G_W)
+        return SceneView(self.digest, {k: v + dt_s for k, v in self.t.items()}, self.H_W, self.G_W, self.source)
 
 
 class Trajectory:
@@ -233,6 +235,10 @@ class Trajectory:
         self.name = name
         self.logs: dict[str, SensorLog] = {}  # what a log recorded of the rig's sensors, by sensor name
         self.scene: SceneView | None = None  # what a scene shows the rig's lidars (excite.scene.along.seen)
+        # where W's origin lies in the frame the drive's poses were given in: logged poses are
+        # re-based on their first position (excite.io.poses.trajectory_from_poses); a scene in
+        # that frame is seen from p_W_V + origin
+        self.origin = np.zeros(3)
 
     def with_logs(self, logs: dict[str, SensorLog]) -> "Trajectory":
         """The same drive carrying ``logs`` (by the rig's sensor name) besides its own."""
@@ -326,12 +332,14 @@ class Trajectory:
         v = None if self._v is None else self._v @ R.T
         out = Trajectory(self._t, R @ self._R, self._p @ R.T + np.asarray(p, dtype=float),
                          tilt_pitch_roll=self._tilt_samples, velocity=v, name=name or self.name)
+        out.origin = R @ self.origin
         return out.with_logs({k: log.rotated(R) for k, log in self.logs.items()})
 
     def shifted(self, dt_s: float) -> "Trajectory":
         """The same drive with every time stamp moved by ``dt_s``."""
         out = Trajectory(self._t + dt_s, self._R, self._p, tilt_pitch_roll=self._tilt_samples,
                          velocity=self._v, name=self.name)
+        out.origin = self.origin
         out = out.with_logs({k: log.shifted(dt_s) for k, log in self.logs.items()})
         return out.with_scene(None if self.scene is None else self.scene.shifted(dt_s))
 

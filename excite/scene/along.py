@@ -57,9 +57,11 @@ def azimuth_offsets(t: np.ndarray) -> np.ndarray:
 
 
 def sensor_poses(traj: Trajectory, rig, sensor, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The pose of ``sensor`` (a rig entry) in the world at times ``t``: ``R_W_S`` and ``p_W_S``."""
+    """The pose of ``sensor`` (a rig entry) in the world at times ``t``: ``R_W_S`` and ``p_W_S``
+    (in the frame the drive's poses were given in: a logged drive's positions are re-based on
+    its first, :attr:`~excite.motion.trajectory.Trajectory.origin`)."""
     R_W_V = traj.rotation(t)[0]
-    p_W_V = traj.translation(t)[0]
+    p_W_V = traj.translation(t)[0] + traj.origin
     T_V_B, T_B_S = rig.config.vehicle.T_V_B, sensor.T_B_S
     R_W_B = R_W_V @ T_V_B.R
     p_W_B = p_W_V + R_W_V @ T_V_B.p
@@ -87,4 +89,4 @@ def seen(traj: Trajectory, rig, scene: Scene, density: float = 1.0) -> Trajector
         B4[:, :3, :3] = R_W_S
         B4[:, 3, 3] = 1.0
         G_W[s.name] = B4 @ scans.G @ np.swapaxes(B4, 1, 2)
-    return traj.with_scene(SceneView(scene.digest, times, H_W, G_W))
+    return traj.with_scene(SceneView(scene.digest, times, H_W, G_W, scene.source))

@@ -124,6 +124,7 @@ class Report:
     _drives: tuple[list[Trajectory], Rig] | None = field(default=None, repr=False)  # for the export
     _all_columns: list[dict[str, Any]] = field(default_factory=list, repr=False)  # incl. nuisances
     _information_all: np.ndarray | None = field(default=None, repr=False)  # Λ over all columns
+    scene: dict[str, str] | None = None  # the scene the drive was scored in: {"name", "digest"} (None: none)
 
     @property
     def null_space(self) -> np.ndarray:
@@ -161,6 +162,7 @@ class Report:
             "warnings": self.warnings,
             "score_with_priors": self.score_with_priors,
             "timings_ms": self.timings_ms,
+            "scene": self.scene,
         }
 
     def export_npz(self, path: str | Path) -> None:
@@ -240,14 +242,30 @@ def evaluate(traj: Trajectory | Sequence[Trajectory], rig: Rig, options: Options
     return report_of(drives, rig, options, trajs, t0=t0, warnings=warnings)
 
 
+def scene_of(trajs: Sequence[Trajectory]) -> dict[str, str] | None:
+    """The scene the drives ``trajs`` were scored in, as a report names it: ``{"name", "digest"}``
+    (the scene's source and its SHA-256; several scenes' joined by " + "), None when they see none."""
+    views = list({t.scene.digest: t.scene for t in trajs if t.scene is not None}.values())
+    if not views:
+        return None
+    return {"name": " + ".join(v.source for v in views), "digest": " + ".join(v.digest for v in views)}
+
+
+def scene_text(scene: dict[str, str]) -> str:
+    """``scene street_canyon (sha256 1a2b3c4d5e6f)``: how a report's text names its scene."""
+    short = " + ".join(d[:12] for d in scene["digest"].split(" + "))
+    return f"scene {scene['name']} (sha256 {short})"
+
+
 def report_of(drives: DriveInformation, rig: Rig, options: Options = Options(),
               trajs: Sequence[Trajectory] = (), route: str | None = None, t0: float | None = None,
-              warnings: list[str] | None = None) -> Report:
+              warnings: list[str] | None = None, scene: dict[str, str] | None = None) -> Report:
     """The report of the information ``drives`` of the drives ``trajs`` (needed for segments and
     the export only; ``route`` names them otherwise): :func:`evaluate`'s second half, shared with
     the incremental evaluator (:mod:`excite.score.live`). ``t0``: when the information was started;
     ``warnings``: what about the drives the model does not describe, where the caller has it
-    (:func:`excite.motion.vehicle.implausible` of ``trajs`` otherwise)."""
+    (:func:`excite.motion.vehicle.implausible` of ``trajs`` otherwise); ``scene``: the scene the
+    drives see, where ``trajs`` are not given (:func:`scene_of` of them otherwise)."""
     trajs = list(trajs)
     if options.segments and not trajs:
         raise EvaluationError("segments need the drives themselves")
@@ -339,5 +357,5 @@ def report_of(drives: DriveInformation, rig: Rig, options: Options = Options(),
                   [(f"{t.name}: " if len(trajs) > 1 else "") + w for t in trajs for w in implausible(t)]) + notes,
         score_with_priors=score_with_priors, timings_ms={k: round(v, 3) for k, v in timings.items()},
         information=Lam, information_scaled=Ls, eigenvectors_scaled=spec.vectors, _drives=(trajs, rig) if trajs else None, _all_columns=all_columns,
-        _information_all=Lam_all,
+        _information_all=Lam_all, scene=scene if scene is not None else scene_of(trajs),
     )

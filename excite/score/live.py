@@ -197,8 +197,9 @@ class Guide:
     remembers the recent information for the rates behind the ETAs, and whether ``done`` fired."""
 
     def __init__(self, rig: Rig, options: Options = Options(), window_s: float = RATE_WINDOW_S,
-                 horizon_s: float = HORIZON_S, name: str = "live"):
+                 horizon_s: float = HORIZON_S, name: str = "live", scene: dict[str, str] | None = None):
         self.rig, self.options, self.window_s, self.horizon_s, self.name = rig, options, window_s, horizon_s, name
+        self.scene = scene  # the scene the drive is seen in, as reports name it (excite.score.evaluate.scene_of)
         self.done = False  # every parameter was within target at some update
         self._stalled = False  # a "nothing more to gain" done fired, and nothing has gained since
         self._gained_s = 0.0  # drive time of the last update at which some parameter was gaining
@@ -208,7 +209,7 @@ class Guide:
         """The update for ``drive``, followed by a ``done`` event the first time every parameter
         is within target, or when nothing more is gained from the motion so far (see the module
         docstring). ``elapsed_s``: drive time (default: the keyframes' duration)."""
-        rep = report_of(drive, self.rig, self.options, route=self.name)
+        rep = report_of(drive, self.rig, self.options, route=self.name, scene=self.scene)
         t = drive.duration_s if elapsed_s is None else elapsed_s
         upd = self.describe(rep, t)
         out = [upd]
@@ -262,7 +263,7 @@ class Guide:
                        "detail": mode.advice}
         return {"type": kind, "t_s": float(t), "n_keyframes": rep.n_keyframes,
                 "duration_s": rep.duration_s, "length_m": rep.length_m, "score": rep.score,
-                "passed": rep.passed, "parameters": params, "weakest": weakest}
+                "passed": rep.passed, "parameters": params, "weakest": weakest, "scene": rep.scene}
 
 
 # --- poses in ----------------------------------------------------------------------------------
@@ -306,15 +307,22 @@ class PoseStream:
     so far if they completed a chunk (one update per call: a drive that delivers its poses about
     once a second gets about one update a second; a replay that delivers many seconds at once
     gets one for them all); :meth:`finish` ends the drive and returns the final update, which is the batch
-    evaluator's on the same poses (``type`` ``"final"``, with the whole report)."""
+    evaluator's on the same poses (``type`` ``"final"``, with the whole report).
+
+    ``scene``: the scene the drive is in (:mod:`excite.scene`): each committed chunk is seen in it
+    (:func:`excite.scene.along.seen` of the fit over the chunk: its scans are placed from the
+    chunk's start, where the batch evaluator places them from the drive's), and so is the
+    final fit."""
 
     def __init__(self, rig: Rig, *, name: str = "live", lookahead_s: float = LOOKAHEAD_S,
-                 cutoff_hz: float = DEFAULT_CUTOFF_HZ, options: Options = Options()):
+                 cutoff_hz: float = DEFAULT_CUTOFF_HZ, options: Options = Options(), scene: Any = None):
         if not lookahead_s > 0:
             raise EvaluationError(f"lookahead_s must be positive, got {lookahead_s!r}")
         self.rig, self.name, self.lookahead_s, self.cutoff_hz, self.options = rig, name, lookahead_s, cutoff_hz, options
+        self.scene = scene
         self.incremental = Incremental(rig)
-        self.guide = Guide(rig, options, name=name)
+        self.guide = Guide(rig, options, name=name,
+                           scene=None if scene is None else {"name": scene.source, "digest": scene.digest})
         self._poses = _Poses.empty()
         self._m = chunk_keyframes(rig)
         self._k = 0  # keyframes committed: the next chunk starts at keyframe _k (or 0)
@@ -362,6 +370,12 @@ class PoseStream:
         lo = max(self._poses.t[0], t0 - self.lookahead_s)
         tw, pw, Rw = self._poses.since(lo, t1 + self.lookahead_s)
         traj = trajectory_from_poses(tw, pw, Rw, cutoff_hz=self.cutoff_hz, name=self.name)
+        if self.scene is not None:
+            from ..scene.along import seen
+
+            a = max(traj.t_start, t0 - tw[0])
+            b = min(traj.t_end, t1 - tw[0])
+            traj = traj.with_scene(seen(traj.cropped(a, b), self.rig, self.scene).scene)
         for j in range(n):
             c1 = time.perf_counter()
             nom = Nominal.of(traj, self.rig, t_start=self._time(self._k) - tw[0], keyframes=(0, self._m))
@@ -377,6 +391,10 @@ class PoseStream:
             raise RouteError(f"too few poses: {n}, need at least {MIN_POSES}")
         traj = trajectory_from_poses(self._poses.t[:n], self._poses.p[:n], self._poses.R[:n],
                                      cutoff_hz=self.cutoff_hz, name=self.name)
+        if self.scene is not None:
+            from ..scene.along import seen
+
+            traj = seen(traj, self.rig, self.scene)
         rep = evaluate(traj, self.rig, self.options)
         out = self.guide.describe(rep, float(self._poses.t[n - 1] - self._poses.t[0]), kind="final")
         out["report"] = rep.to_dict()
@@ -388,7 +406,9 @@ def updates_of(traj: Trajectory, rig: Rig, options: Options = Options(),
                chunk_s: float = CHUNK_S) -> Iterator[dict[str, Any]]:
     """The updates a drive along ``traj`` gives, chunk by chunk (the exact keyframes of the
     batch evaluator: no pose fitting involved)."""
-    inc, guide = Incremental(rig), Guide(rig, options, name=traj.name)
+    from .evaluate import scene_of
+
+    inc, guide = Incremental(rig), Guide(rig, options, name=traj.name, scene=scene_of([traj]))
     for nom in chunks(traj, rig, chunk_s):
         inc.append(nom)
         if inc.n_keyframes >= 3:
