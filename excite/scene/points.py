@@ -65,6 +65,17 @@ def _spread(v: np.ndarray) -> np.ndarray:
     return v
 
 
+def morton(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Each point's Morton code (21 bits an axis over the points' bounding box) and the side of
+    the finest cell it resolves [m]: points close in space are close in the codes' order."""
+    lo = points.min(axis=0)
+    base = max(float((points.max(axis=0) - lo).max()) / (2**21 - 1), 1e-6)
+    code = np.zeros(points.shape[0], dtype=np.uint64)
+    for j in range(3):
+        code |= _spread(np.floor((points[:, j] - lo[j]) / base).astype(np.int64)) << np.uint64(j)
+    return code, base
+
+
 def thin(points: np.ndarray, normals: np.ndarray | None, limit: int = MAX_SPLATS
          ) -> tuple[np.ndarray, np.ndarray | None, float]:
     """The centroids (and summed normals) of the occupied cells of the finest voxel grid, among
@@ -74,11 +85,7 @@ def thin(points: np.ndarray, normals: np.ndarray | None, limit: int = MAX_SPLATS
     n = points.shape[0]
     if n <= limit:
         return points, normals, 0.0
-    lo = points.min(axis=0)
-    base = max(float((points.max(axis=0) - lo).max()) / (2**21 - 1), 1e-6)
-    code = np.zeros(n, dtype=np.uint64)
-    for j in range(3):
-        code |= _spread(np.floor((points[:, j] - lo[j]) / base).astype(np.int64)) << np.uint64(j)
+    code, base = morton(points)
     order = np.argsort(code)
     code = code[order]
     # the level at which each pair of neighbours in the sorted order falls into one cell: above
@@ -196,7 +203,11 @@ def scene_from_points(points: np.ndarray, normals: np.ndarray | None = None, *, 
         if nrm.shape != p.shape:
             raise SceneError(f"normals: shape {nrm.shape}, expected that of the points {p.shape}", source=source)
     p = np.asarray(p, dtype=float)
-    p, nrm, _ = thin(p, nrm)
+    p, nrm, voxel = thin(p, nrm)
+    if not voxel:  # not thinned: put the points in space-filling order (neighbour searches in cache)
+        order = np.argsort(morton(p)[0])
+        p = p[order]
+        nrm = None if nrm is None else nrm[order]
     dist, idx = neighbourhoods(p, workers=workers)
     nrm = pca_normals(p, idx) if nrm is None else _unit(nrm, source, "normals")
     del idx
