@@ -47,7 +47,7 @@ from excite.rig.config import load_rig
 from excite.io.routes import read_kitti
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from results import Session, spread  # noqa: E402
+from results import Session, idle_fraction, spread  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -74,17 +74,6 @@ def generated(duration_s: float, rig, vehicle=None):
 
 IDLE_WAIT_S = 0.0  # --when-idle
 _started_idle = [0, 0]  # timed runs that started on an idle machine, timed runs
-
-
-def idle_fraction(dt: float = 0.2) -> float:
-    """Fraction of the machine's CPU time that was idle over the next ``dt`` seconds."""
-    def read():
-        v = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-        return v[3] + v[4], sum(v)
-    i0, t0 = read()
-    time.sleep(dt)
-    i1, t1 = read()
-    return (i1 - i0) / max(1, t1 - t0)
 
 
 def timed(fn) -> tuple[float, float]:

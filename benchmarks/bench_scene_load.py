@@ -6,7 +6,10 @@ Each run is a fresh process (its peak memory is its own): wall and CPU time of t
 the scene built from the points (thinning, normals, splats) and of the index, over ``--runs``
 runs per format, alternating.
 
-    python benchmarks/bench_scene_load.py [--points 10000000] [--runs 3]
+    python benchmarks/bench_scene_load.py [--points 10000000] [--runs 3] [--when-idle S]
+
+``--when-idle S`` waits up to S seconds before each run until the machine's cores were ≥ 90 %
+idle over 0.2 s, and says how many runs started that way.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from results import Session, spread  # noqa: E402
+from results import Session, spread, wait_until_idle  # noqa: E402
 
 
 def street_map(n: int, seed: int = 0) -> np.ndarray:
@@ -87,6 +90,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=10_000_000)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--when-idle", type=float, default=0.0, metavar="S",
+                        help="wait up to S seconds before each run until the machine's cores are idle")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -97,15 +102,17 @@ def main() -> None:
         files = write_maps(street_map(args.points), Path(tmp))
         sizes = {k: p.stat().st_size for k, p in files.items()}
         runs: dict[str, list[dict]] = {k: [] for k in files}
+        started_idle = 0
         for _ in range(args.runs):
             for kind, path in files.items():
+                started_idle += wait_until_idle(args.when_idle) if args.when_idle else 0
                 out = subprocess.run([sys.executable, __file__, "--child", str(path)], capture_output=True, text=True,
                                      env=dict(os.environ), check=True)
                 r = json.loads(out.stdout.strip().splitlines()[-1])
                 runs[kind].append(r)
                 print(kind, {k: round(v, 2) if isinstance(v, float) else v for k, v in r.items()},
                       "load", " ".join(f"{x:.1f}" for x in os.getloadavg()), flush=True)
-    figures = {"points": args.points}
+    figures = {"points": args.points, "runs_started_idle": f"{started_idle} of {args.runs * len(files)}"}
     for kind, rs in runs.items():
         figures[f"{kind}_file_mib"] = round(sizes[kind] / 2**20, 1)
         figures[f"{kind}_splats"] = rs[0]["triangles"] // 2

@@ -24,6 +24,7 @@ import platform
 import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -60,6 +61,27 @@ def commit() -> dict[str, Any]:
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
 
     return {"sha": git("rev-parse", "HEAD") or None, "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+
+
+def idle_fraction(dt: float = 0.2) -> float:
+    """Fraction of the machine's CPU time that was idle over the next ``dt`` seconds."""
+    def read():
+        v = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+        return v[3] + v[4], sum(v)
+    i0, t0 = read()
+    time.sleep(dt)
+    i1, t1 = read()
+    return (i1 - i0) / max(1, t1 - t0)
+
+
+def wait_until_idle(limit_s: float, idle: float = 0.9) -> bool:
+    """Wait up to ``limit_s`` seconds until the machine's cores were at least ``idle`` idle over
+    0.2 s; whether they were."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        if idle_fraction() >= idle:
+            return True
+    return False
 
 
 def spread(values: Iterable[float], digits: int = 4) -> dict[str, Any]:

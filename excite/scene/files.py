@@ -44,12 +44,12 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from ..core import bounds
-from ..errors import ExciteError, SceneError
+from ..errors import SceneError
 from . import shapes
 from .model import SURFACE_KINDS, Scene, Surface
 from .points import scene_from_points  # noqa: F401 (part of this module's interface)
@@ -474,12 +474,3 @@ def _strip(line: np.ndarray, base: float, height: float):
     a = np.arange(K - 1)
     return v, np.vstack([np.column_stack([a, a + 1, a + 1 + K]), np.column_stack([a, a + 1 + K, a + K])])
 
-
-def scene_error(source: str, fn: Callable, *args, **kw):
-    """``fn(*args, **kw)`` with any excite error turned into a :class:`SceneError` naming ``source``."""
-    try:
-        return fn(*args, **kw)
-    except SceneError:
-        raise
-    except ExciteError as exc:
-        raise SceneError(str(exc), source=source) from None
