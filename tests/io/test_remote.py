@@ -77,8 +77,9 @@ routes:
     assert by_url.report["parameters"] == on_disk.report["parameters"]
 
 
-def test_urls_that_cannot_be_read_are_their_routes_errors(served, capsys):
+def test_urls_that_cannot_be_read_are_their_routes_errors(served, capsys, monkeypatch):
     base, _ = served
+    monkeypatch.setenv("COLUMNS", "200")  # the table as wide as a terminal: no cell wrapped
     code = main(["batch", f"{base}/no_such_route.tum", "nosuchscheme://host/a.tum", f"{base}/figure_eight.tum",
                  "--min-score", "0"])
     out = capsys.readouterr().out
