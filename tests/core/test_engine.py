@@ -172,6 +172,6 @@ def test_the_service_runs_batches_and_jobs_on_the_cluster(cluster, tmp_path):
         assert cancelled["status"] == "cancelled" and cancelled["result"]["cancelled"] is True, cancelled
         assert cancelled["result"]["iterations"] < 590  # stopped well before its 60 s of iterations
         ran = {str(t["key"]).split("-")[0] for t in stream.data}
-        assert {"score_task", "remote_job"} <= ran, ran
+        assert {"batch_item_task", "remote_job"} <= ran, ran  # /v1/batch's items, the job
     finally:
         srv.stop()
