@@ -26,6 +26,7 @@ from ..core import bounds
 from ..motion.maneuvers import EDGE_MARGIN_M, Lot
 from ..motion.vehicle import ControlProfile
 from ..errors import OptimizeError
+from ..io.geo import Projection
 from ..scene.files import is_scene_feature
 from .terrain import Terrain
 
@@ -458,30 +459,6 @@ def parse_lot(text: str, margin_m: float = EDGE_MARGIN_M) -> Site:
             raise OptimizeError(f"lot: no such file: {text}")
         raise OptimizeError(f"lot: expected XxY in metres such as 80x50 or a GeoJSON file, got {text!r}")
     return read_site(text, margin_m)
-
-
-@dataclass(frozen=True)
-class Projection:
-    """Transverse Mercator about ``origin`` (lon, lat): the local frame (x east, y north) of a
-    georeferenced lot, as :func:`excite.io.routes.read_geojson` projects."""
-
-    origin: tuple[float, float]
-
-    def _tm(self, inverse: bool):
-        from pyproj import Transformer
-
-        lon0, lat0 = self.origin
-        crs = (f"+proj=tmerc +lat_0={lat0!r} +lon_0={lon0!r} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m")
-        return Transformer.from_crs(crs, "EPSG:4326", always_xy=True) if inverse else \
-            Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-
-    def to_local(self, lonlat: np.ndarray) -> np.ndarray:
-        x, y = self._tm(False).transform(lonlat[:, 0], lonlat[:, 1])
-        return np.column_stack([x, y])
-
-    def to_lonlat(self, xy: np.ndarray) -> np.ndarray:
-        lon, lat = self._tm(True).transform(xy[:, 0], xy[:, 1])
-        return np.column_stack([lon, lat])
 
 
 def maneuver_geojson(p_W: np.ndarray, speed_mps: np.ndarray, origin: tuple[float, float], name: str) -> str:

@@ -333,19 +333,45 @@ class _Vector:
 
     # --- projection and building ---------------------------------------------------------------
 
-    def _site(self):
+    def _lot(self) -> "tuple[tuple[float, float] | None, list[np.ndarray]] | None":
+        """The lot the file may carry for the optimizer (the Polygon feature of role ``lot``, as
+        :func:`excite.plan.site.read_site` reads it): its origin (the mean of its outline's
+        vertices, lon/lat; None in local metres) and its rings, in the file's coordinates."""
         if not self.lot_features:
             return None
-        from ..errors import OptimizeError
-        from ..plan.site import read_site
-
-        doc = self.doc
-        if self.local and doc.get("type") == "FeatureCollection":
-            doc = dict(doc, properties=dict(doc.get("properties") or {}, crs="local"))
-        try:
-            return read_site(doc)
-        except OptimizeError as exc:
-            raise SceneError(str(exc), source=self.source) from None
+        collection = self.doc.get("type") == "FeatureCollection"
+        for i, f in enumerate(self.doc.get("features") if collection else [self.doc]):
+            if f.get("type") != "Feature":
+                continue
+            props, geom = f.get("properties") or {}, f.get("geometry")
+            if is_scene_feature(props) or not isinstance(geom, dict) or geom.get("type") != "Polygon":
+                continue
+            role = props.get("role", "lot")
+            if role in ("ramp", "bank", "bump"):
+                continue
+            if role != "lot":
+                self.fail(f"features[{i}].properties.role" if collection else "properties.role",
+                          f"{_show(role)}: a polygon without a kind or a height is the lot (role \"lot\") or its "
+                          "terrain (\"ramp\", \"bank\", \"bump\")")
+            where = f"features[{i}].geometry.coordinates" if collection else "geometry.coordinates"
+            rings = geom.get("coordinates")
+            if not isinstance(rings, list) or not rings:
+                self.fail(where, "a lot needs its outline (a list of rings)")
+            out = []
+            for k, ring in enumerate(rings):
+                try:
+                    r = np.asarray(ring, dtype=float)
+                except (TypeError, ValueError):
+                    self.fail(f"{where}[{k}]", "a ring must be a list of [x, y] positions")
+                if r.ndim != 2 or r.shape[1] < 2 or r.shape[0] < 3 or not np.all(np.isfinite(r)):
+                    self.fail(f"{where}[{k}]", "a ring must be at least 3 finite [x, y] positions")
+                if r.shape[0] > shapes.MAX_POLYGON_VERTICES:
+                    self.fail(f"{where}[{k}]", f"{r.shape[0]} vertices, over the limit of {shapes.MAX_POLYGON_VERTICES}")
+                r = r[:, :2]
+                out.append(r[:-1] if r.shape[0] > 3 and np.array_equal(r[0], r[-1]) else r)
+            origin = None if self.local else (float(out[0][:, 0].mean()), float(out[0][:, 1].mean()))
+            return origin, out
+        return None
 
     def _every(self):
         for gtype, _, _, arrays, _ in self.parts:
@@ -356,7 +382,7 @@ class _Vector:
                     yield np.atleast_2d(a)
 
     def scene(self, ground: bool) -> Scene:
-        site = self._site()
+        lot = self._lot()
         if not self.local:
             pts = [a for a in self._every()]
             if pts:
@@ -368,10 +394,12 @@ class _Vector:
                 if span.max() > MAX_LONLAT_SPAN_DEG:
                     self.fail("coordinates", f"span {span[0]:.3g}° of longitude and {span[1]:.3g}° of latitude, "
                                              f"over the limit of {MAX_LONLAT_SPAN_DEG:g}°")
-                origin = site.origin if site is not None else tuple(0.5 * (every.min(axis=0) + every.max(axis=0)))
-                from ..plan.site import Projection
+                origin = lot[0] if lot is not None else tuple(0.5 * (every.min(axis=0) + every.max(axis=0)))
+                from ..io.geo import Projection
 
                 to_local = Projection(origin).to_local
+                if lot is not None:
+                    lot = (lot[0], [to_local(r) for r in lot[1]])
                 self.parts = [(g, k, n, [[to_local(r) for r in a] if g == "Polygon" else
                                          (to_local(np.atleast_2d(a)) if g == "LineString" else
                                           to_local(np.atleast_2d(a))[0]) for a in arrays], nm)
@@ -380,8 +408,8 @@ class _Vector:
         has_ground = any(k == "ground" for _, k, _, _, _ in self.parts)
         if ground and not has_ground:
             xy = [a for a in self._every()]
-            if site is not None:
-                xy += [site.lot.polygon_m, *site.lot.holes]
+            if lot is not None:
+                xy += list(lot[1])
             if not xy:
                 self.fail("features", "nothing to place a ground under: no feature")
             every = np.vstack(xy)
