@@ -41,10 +41,30 @@ class Cloud:
     normals: np.ndarray | None = None
 
 
-def _read_bytes(path: Path, data: bytes | None, limit: int) -> bytes:
-    from .files import _bytes
+MAX_MESH_BYTES = 512 * 2**20
+"""Largest mesh file [bytes] (a binary STL of the most triangles a scene holds is 100 MB)."""
+GROUND_MARGIN_M = 20.0
+"""How far the ground added under a scene reaches beyond everything in it [m]."""
 
-    return _bytes(path, data, limit)
+
+def read_bounded(path: Path, data: bytes | None, limit: int) -> bytes:
+    """The file's bytes (or ``data``), refused beyond ``limit`` before they are read."""
+    if data is None:
+        try:
+            size = path.stat().st_size
+        except OSError:
+            raise SceneError("no such file", source=str(path)) from None
+        if size > limit:
+            raise SceneError(f"{size:,} bytes: more than the {limit:,} a scene file of this kind may have",
+                             source=str(path))
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            raise SceneError(f"cannot read: {exc.strerror}", source=str(path)) from None
+    if len(data) > limit:
+        raise SceneError(f"{len(data):,} bytes: more than the {limit:,} a scene file of this kind may have",
+                         source=str(path))
+    return data
 
 
 def _head(path: Path, data: bytes | None) -> tuple[bytes, int]:
@@ -377,13 +397,12 @@ def read_mesh(path: Path, data: bytes | None = None):
     bounded first; a vertex that is not finite is an error."""
     import trimesh
 
-    from .files import MAX_MESH_BYTES
 
     source = str(path)
     suffix = path.suffix.lower()
     if suffix == ".ply":
         _ply_header(path, data)
-    body = _read_bytes(path, data, MAX_MESH_BYTES)
+    body = read_bounded(path, data, MAX_MESH_BYTES)
     _mesh_counts(path, body, suffix)
     try:
         mesh = trimesh.load_mesh(io.BytesIO(body), file_type=suffix[1:], process=False)
@@ -404,7 +423,6 @@ def read_mesh(path: Path, data: bytes | None = None):
 
 
 def _mesh_scene(mesh, source: str, ground: bool) -> Scene:
-    from .files import GROUND_MARGIN_M
     from .model import Surface
 
     v, f = mesh

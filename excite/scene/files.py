@@ -24,7 +24,7 @@
   point, ramps, banks, bumps) may stand in the same file: they are checked as the optimizer
   checks them and otherwise passed over. The ground, unless the file has a ``kind: ground``
   feature, is a level rectangle at 0 m over everything in the file (the lot included) and
-  :data:`GROUND_MARGIN_M` beyond (``ground=False``: none).
+  :data:`~excite.scene.clouds.GROUND_MARGIN_M` beyond (``ground=False``: none).
 - **Meshes** (``.ply`` with faces, ``.obj``, ``.stl``) through ``trimesh``: one surface of kind
   ``mesh``; the ground as for GeoJSON, at the mesh's lowest point, unless ``ground=False``.
 - **Point-cloud maps** (``.pcd`` through ``pypcd4``, ``.ply`` without faces through
@@ -51,6 +51,7 @@ import numpy as np
 from ..core import bounds
 from ..errors import SceneError
 from . import shapes
+from .clouds import GROUND_MARGIN_M, MAX_MESH_BYTES, read_bounded  # noqa: F401 (part of this module's interface)
 from .model import SURFACE_KINDS, Scene, Surface
 from .points import scene_from_points  # noqa: F401 (part of this module's interface)
 
@@ -65,8 +66,6 @@ SUFFIXES = GEOJSON_SUFFIXES + (".ply",) + MESH_SUFFIXES + CLOUD_SUFFIXES
 
 MAX_GEOJSON_BYTES = 64 * 2**20
 """Largest GeoJSON scene file [bytes]."""
-MAX_MESH_BYTES = 512 * 2**20
-"""Largest mesh file [bytes] (a binary STL of the most triangles a scene holds is 100 MB)."""
 MAX_FEATURE_HEIGHT_M = 1000.0
 """Tallest building, wall or pole [m]."""
 MAX_ELEVATION_M = 10_000.0
@@ -75,8 +74,6 @@ MAX_RADIUS_M = 50.0
 """Largest radius of a pole or tree [m]."""
 MAX_LONLAT_SPAN_DEG = 0.5
 """Largest span of a lon/lat scene in either coordinate (a scene spans at most 20 km)."""
-GROUND_MARGIN_M = 20.0
-"""How far the ground added under a scene reaches beyond everything in it [m]."""
 POLE_SIDES = 12
 """Faces around a pole, a cone or a tree trunk."""
 
@@ -116,30 +113,10 @@ def load_scene(path: str | Path, *, data: bytes | None = None, ground: bool = Tr
         raise SceneError(f"cannot read a {suffix or 'file without a suffix'} as a scene (expected "
                          f"{', '.join(SUFFIXES)}, a bag with a topic, or a bundled scene)", source=name)
     if suffix in GEOJSON_SUFFIXES:
-        return read_geojson(_bytes(p, data, MAX_GEOJSON_BYTES), source=name, ground=ground)
+        return read_geojson(read_bounded(p, data, MAX_GEOJSON_BYTES), source=name, ground=ground)
     from . import clouds
 
     return clouds.read(p, data, suffix, ground=ground)
-
-
-def _bytes(path: Path, data: bytes | None, limit: int) -> bytes:
-    """The file's bytes (or ``data``), refused beyond ``limit`` before they are read."""
-    if data is None:
-        try:
-            size = path.stat().st_size
-        except OSError:
-            raise SceneError("no such file", source=str(path)) from None
-        if size > limit:
-            raise SceneError(f"{size:,} bytes: more than the {limit:,} a scene file of this kind may have",
-                             source=str(path))
-        try:
-            return path.read_bytes()
-        except OSError as exc:
-            raise SceneError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    if len(data) > limit:
-        raise SceneError(f"{len(data):,} bytes: more than the {limit:,} a scene file of this kind may have",
-                         source=str(path))
-    return data
 
 
 # --------------------------------------------------------------------------------------------
