@@ -36,14 +36,14 @@ from .context import Context
 from .jobs import JobRunner
 from .middleware import BodyLimit, Guard, Metrics, TimeLimit
 from .pool import WorkerPool
-from .routers import batch, health, jobs, live, maneuvers, page, rigs, score
+from .routers import batch, health, jobs, live, maneuvers, page, rigs, scenes, score
 from .scoring import warm
 from .settings import Settings
 from .store import open_store
 
 log = logging.getLogger("excite.api")
 
-ROUTERS = (score, batch, maneuvers, jobs, rigs, health, page, live)
+ROUTERS = (score, batch, scenes, maneuvers, jobs, rigs, health, page, live)
 DESCRIPTION = """\
 Score planned or logged drives for how well they determine every sensor calibration parameter
 of a rig, plan calibration maneuvers, and gate routes in CI. Errors are

@@ -74,7 +74,7 @@ class Quota(BaseModel):
     rate_per_s: float | None = Field(None, gt=0, le=100_000, description="Requests per second on average.")
     burst: int | None = Field(None, ge=1, le=100_000, description="Requests at once above the rate.")
     storage_mb: int | None = Field(None, ge=1, le=1_048_576, description="Stored jobs (requests and "
-                                                                         "results) of the key [MiB].")
+                                                                         "results) and scenes of the key [MiB].")
 
 
 class KeyEntry(BaseModel):

@@ -18,7 +18,7 @@ import logging
 from typing import Any, Callable
 
 from excite.errors import (BagError, EvaluationError, ExciteError, LimitError, RigError, RouteError,
-                           WorkerDied, WorkTimeout)
+                           SceneError, WorkerDied, WorkTimeout)
 
 from .errors import TITLES, Overloaded, OverQuota, Problem, StoreError, Unsendable
 
@@ -29,7 +29,7 @@ INTERNAL = "The server failed to handle this request; the error is logged."
 # the field a library error is reported against, by its class (the first that matches)
 FIELDS: tuple[tuple[type[ExciteError], str], ...] = (
     (BagError, "bag"), (RouteError, "route"), (RigError, "rig"), (LimitError, "limits"),
-    (EvaluationError, "evaluation"))
+    (EvaluationError, "evaluation"), (SceneError, "scene"))
 
 
 def of(exc: BaseException, field: str | None = None, *, timeout_s: float | None = None,

@@ -20,6 +20,10 @@ RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "cont
 RigName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$",
                                description="Name of a bundled rig (GET /v1/rigs).")]
 RouteName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")]
+SCENE_PATTERN = r"^([0-9a-f]{64}|[a-z][a-z0-9_]{0,63})$"
+SceneRef = Annotated[str, Field(pattern=SCENE_PATTERN, description=(
+    "The scene the route is scored in: a bundled scene's name (GET /v1/scenes), or the digest of a scene "
+    "this key uploaded (POST /v1/scenes). The rig's lidars see its surfaces along the route."))]
 
 
 def ranged(r: Range, description: str = "", **kw: Any) -> Any:
@@ -173,6 +177,7 @@ class RouteScoring(In):
     rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
     segments: int = Field(0, ge=0, le=100, description="Report this many route segments' information.")
     limits: LimitsIn | None = Field(None, description="Limits that shape waypoint routes without speeds.")
+    scene: SceneRef | None = None
 
 
 class ScoreRequest(RouteScoring):
@@ -198,6 +203,7 @@ class BatchRequest(In):
     rig: RigIn = Field("robotaxi", description=RIG_DESCRIPTION)
     segments: int = Field(0, ge=0, le=100)
     limits: LimitsIn | None = None
+    scene: SceneRef | None = None
 
 
 class Origin(In):
@@ -290,6 +296,44 @@ class SegmentOut(Out):
     parameter_information: dict[str, float]
 
 
+class SceneNamed(Out):
+    name: str = Field(description="The scene's file name or bundled name.")
+    digest: str = Field(description="SHA-256 of the scene's geometry and surfaces.")
+
+
+class SceneSummary(Out):
+    """A scene as read: its digest (what requests name it by), file name, triangles and surfaces."""
+
+    digest: str
+    name: str
+    triangles: int
+    surfaces: int
+    surfaces_by_kind: dict[str, int]
+    area_m2_by_kind: dict[str, float]
+    bounds_m: dict[str, list[float]] = Field(description="min and max corners [x, y, z].")
+    size_bytes: int | None = Field(None, description="The stored file's size (uploaded scenes).")
+    created_at: float | None = None
+    used_at: float | None = None
+
+
+class SceneOutline(Out):
+    surfaces: list[dict[str, Any]] = Field(description=(
+        "Per surface: kind, name, segments [[x0, y0, x1, y1], …] seen from above, boxed (its bounding "
+        "rectangle instead: too many segments)."))
+    bounds_m: list[list[float]]
+    boxed: int
+    omitted: int
+
+
+class SceneView(SceneSummary):
+    outline: SceneOutline
+
+
+class SceneList(Out):
+    bundled: list[str] = Field(description="The bundled scenes' names.")
+    uploaded: list[SceneSummary] = Field(description="This key's scenes, most recently used first.")
+
+
 class Report(Out):
     """The evaluator's report (excite.score.evaluate.Report.to_dict)."""
 
@@ -318,20 +362,40 @@ class Report(Out):
         "wrong axes, not a car), and fewer segments than asked (the drive holds fewer)."))
     score_with_priors: float | None
     timings_ms: dict[str, float]
+    scene: SceneNamed | None = Field(None, description="The scene the route was scored in (null: none).")
 
 
 class Track(Out):
-    """The route's path in the world frame W (x east/forward, y left), at equally spaced times."""
+    """The route's path in the frame its poses were given in (a scene's frame; x east/forward,
+    y left), at equally spaced times."""
 
     t_s: list[float]
     x_m: list[float]
     y_m: list[float]
 
 
+class SceneReading(Out):
+    """What the scene leaves undetermined at one scan ray-cast along the route (world-aligned axes)."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    status: Literal["clear", "weak", "degenerate", "blind"] = Field(description=(
+        "clear: every direction determined; weak: some direction's σ from one scan above a lidar "
+        "odometry's drift per scan pair (2 cm, 0.05°); degenerate: some direction without information; "
+        "blind: nothing in range."))
+    unobservable: list[str] = Field(description="The directions without information, in words.")
+    weak: list[str] = Field(description="The weak directions, in words.")
+    weakest_sigma_in_reference: float | None = Field(description=(
+        "σ along the weakest direction with information, in units of the drift per scan pair."))
+
+
 class ScoreResponse(Report):
-    """The report, and the route's path when the request asked for ``track_points``."""
+    """The report, and the route's path when the request asked for ``track_points`` (in a scene,
+    with what the scene leaves undetermined along it)."""
 
     track: Track | None = None
+    scene_track: list[SceneReading] | None = None
 
 
 class BatchItem(Out):

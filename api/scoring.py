@@ -1,5 +1,6 @@
-"""The work a request gives the scoring workers: a route and a rig → the evaluator's JSON report,
-a figure, a bag's report, a client's rig, lot or rig YAML checked, a maneuver file.
+"""The work a request gives the scoring workers: a route and a rig (and a scene) → the evaluator's
+JSON report, a figure, a bag's report, a client's rig, lot or rig YAML checked, a scene file read,
+a maneuver file.
 
 Every task here runs inside a worker process (:mod:`api.pool`), with the request's deadline and
 the worker's memory limit, and returns plain data or raises a :class:`~api.errors.Problem`
@@ -22,7 +23,7 @@ import numpy as np
 
 from excite.io import routes
 from excite.core.bounds import MAX_NESTING, MAX_RIG_NODES, nesting, size as doc_size, tightened
-from excite.errors import ExciteError, RigError, RouteError
+from excite.errors import ExciteError, RigError, RouteError, SceneError
 from excite.score.evaluate import Options, evaluate
 from excite.rig.config import Rig, build_rig, bundled_rigs, load_rig
 from excite.motion.trajectory import Trajectory
@@ -90,6 +91,77 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
         if named:
             raise Problem.at(f"{field}.{key}", msg.split(":", 1)[1].strip()) from None
         raise Problem.at(field, msg) from None
+
+
+# --------------------------------------------------------------------------------------------
+# Scenes
+
+SCENE_WORK = 20.0
+"""A route scored in a scene is this many times the work of the same route scene-blind (the scans
+ray-cast along it: :func:`work_size`)."""
+_SCENES: dict[str, Any] = {}  # a worker's scenes read last, by digest or bundled name (LRU, a few)
+_KEPT_SCENES = 4
+
+
+def scene_of(spec: tuple | None, field: str = "scene") -> Any:
+    """The scene a request names, resolved by its router (:func:`api.routers.scenes.scene_spec`):
+    ``("bundled", name)`` or ``("upload", digest, file name, bytes)`` (None: none); read once per
+    worker and kept (a scene's digest is what it holds: the same digest, the same scene)."""
+    if spec is None:
+        return None
+    from excite.scene.files import load_scene
+
+    key = spec[1]
+    scene = _SCENES.pop(key, None)
+    if scene is None:
+        try:
+            scene = load_scene(spec[1]) if spec[0] == "bundled" else load_scene(spec[2], data=spec[3])
+        except SceneError as exc:
+            raise Problem.at(field, str(exc)) from None
+        if spec[0] == "upload" and scene.digest != spec[1]:
+            raise Problem(500, "the stored scene no longer reads as the scene it was kept as")
+    _SCENES[key] = scene
+    while len(_SCENES) > _KEPT_SCENES:
+        _SCENES.pop(next(iter(_SCENES)))
+    return scene
+
+
+def scene_summary(scene: Any, name: str) -> dict[str, Any]:
+    """What ``POST /v1/scenes`` answers of a scene read from the file ``name``."""
+    lo, hi = scene.bounds
+    kinds: dict[str, int] = {}
+    for surf in scene.surfaces:
+        kinds[surf.kind] = kinds.get(surf.kind, 0) + 1
+    return {"digest": scene.digest, "name": name, "triangles": scene.n_triangles, "surfaces": len(scene.surfaces),
+            "surfaces_by_kind": kinds, "area_m2_by_kind": scene.area_by_kind(),
+            "bounds_m": {"min": lo.tolist(), "max": hi.tolist()}}
+
+
+def scene_file_task(name: str, data: bytes) -> dict[str, Any]:
+    """An uploaded scene file read (:func:`excite.scene.files.load_scene`): its summary; a file that
+    cannot be read is a problem about the form field ``file`` naming the file and its field."""
+    def run() -> dict[str, Any]:
+        from excite.scene.files import load_scene
+
+        scene = load_scene(name, data=data)
+        _SCENES[scene.digest] = scene
+        while len(_SCENES) > _KEPT_SCENES:
+            _SCENES.pop(next(iter(_SCENES)))
+        return scene_summary(scene, name)
+
+    return task(run, field="file")
+
+
+def scene_view_task(spec: tuple, name: str) -> dict[str, Any]:
+    """A scene's summary and its outline from above (:func:`excite.scene.outline.outlines`): what
+    the page draws under a route."""
+    def run() -> dict[str, Any]:
+        from excite.scene.outline import outlines
+
+        scene = scene_of(spec)
+        return {**scene_summary(scene, name), "outline": outlines(scene)}
+
+    return task(run, field="scene")
 
 
 # --------------------------------------------------------------------------------------------
@@ -247,15 +319,21 @@ def _finite(x: Any) -> Any:
 
 
 def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-               limits: dict[str, float] | None, bounds: Bounds, field: str, rig_field: str):
+               limits: dict[str, float] | None, bounds: Bounds, field: str, rig_field: str,
+               scene: tuple | None = None):
     r = resolve_rig(rig, rig_field)
     lim = Limits(**limits) if limits else Limits()
+    world = scene_of(scene)
     # the library refuses a planned or logged drive over the service's bounds before building it
     with tightened(duration_s=bounds.max_route_duration_s, length_m=bounds.max_route_length_m):
         traj = route_trajectory(route, r, lim, bounds, field)
         if traj.duration > bounds.max_route_duration_s:
             raise Problem.at(field, f"the route lasts {traj.duration:.1f} s, over the limit of "
                                        f"{bounds.max_route_duration_s:g} s")
+        if world is not None:
+            from excite.scene.along import seen
+
+            traj = seen(traj, r, world)
         return r, traj, evaluate(traj, r, Options(segments=segments))
 
 
@@ -274,62 +352,77 @@ def task(fn: Callable[..., Any], *args: Any, field: str = "route") -> Any:
 
 
 def track(traj: Trajectory, n: int) -> dict[str, list[float]]:
-    """The path of V in W at ``n`` equally spaced times (what a page draws the route with)."""
+    """The path of V at ``n`` equally spaced times, in the frame its poses were given in (what a
+    page draws the route with, over its scene)."""
     t = np.linspace(traj.t_start, traj.t_end, n)
-    p = traj.sample(t).p_W_V
+    p = traj.sample(t).p_W_V + traj.origin
     return {"t_s": t.tolist(), "x_m": p[:, 0].tolist(), "y_m": p[:, 1].tolist()}
 
 
 def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
                limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
-               rig_field: str = "rig", track_points: int = 0) -> dict[str, Any]:
-    """``{"report": …}`` (with ``"track"`` when ``track_points`` > 0)."""
+               rig_field: str = "rig", track_points: int = 0, scene: tuple | None = None) -> dict[str, Any]:
+    """``{"report": …}`` (with ``"track"`` when ``track_points`` > 0, and then in a ``scene``
+    also ``"scene_track"``: what the scene leaves undetermined at each scan along the route,
+    :func:`excite.scene.survey.along_route`)."""
     def run() -> dict[str, Any]:
-        _, traj, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field)
+        _, traj, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field, scene)
         out = {"report": _finite(report.to_dict())}
         if track_points:
             out["track"] = _finite(track(traj, track_points))
+            if scene is not None:
+                from excite.scene.survey import along_route
+
+                out["scene_track"] = _finite(along_route(traj))
         return out
 
     return task(run, field=field)
 
 
 def batch_item_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-                    limits: dict[str, float] | None, bounds: Bounds, index: int) -> dict[str, Any]:
+                    limits: dict[str, float] | None, bounds: Bounds, index: int,
+                    scene: tuple | None = None) -> dict[str, Any]:
     """One route of a batch: ``{"report": …}`` or ``{"error": problem document}`` (one bad route
     does not fail the others)."""
     field = f"routes[{index}]"
     try:
-        return score_task(route, rig, segments, limits, bounds, field)
+        return score_task(route, rig, segments, limits, bounds, field, scene=scene)
     except Problem as exc:
         return {"error": exc.body(f"/v1/batch#{field}")}
 
 
 def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | dict[str, Any],
-                   segments: int, bounds: Bounds) -> dict[str, Any]:
+                   segments: int, bounds: Bounds, scene: tuple | None = None) -> dict[str, Any]:
     """The report of an uploaded bag (saved at ``path``) read with ``source``
-    (:class:`excite.io.bags.BagSource` fields); problems name the form field, never the path."""
+    (:class:`excite.io.bags.BagSource` fields), seen in ``scene``; problems name the form field,
+    never the path."""
     from excite.io.bags import BagSource, read_bag_route
 
     def run() -> dict[str, Any]:
         r = resolve_rig(rig, "rig")
+        world = scene_of(scene)
         traj = read_bag_route(path, **BagSource(**source).options())
         traj.name = f"{filename}:{source['topic']}"
         if traj.duration > bounds.max_route_duration_s:
             raise Problem.at("bag", f"the drive lasts {traj.duration:.1f} s, over the limit of "
                                     f"{bounds.max_route_duration_s:g} s")
+        if world is not None:
+            from excite.scene.along import seen
+
+            traj = seen(traj, r, world)
         return _finite(evaluate(traj, r, Options(segments=segments)).to_dict())
 
     return task(run, field="bag")
 
 
 def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-              limits: dict[str, float] | None, bounds: Bounds, parameter: str | None) -> bytes:
-    """The PNG of ``excite score --plot`` for this route."""
+              limits: dict[str, float] | None, bounds: Bounds, parameter: str | None,
+              scene: tuple | None = None) -> bytes:
+    """The PNG of ``excite score --plot`` for this route (seen in ``scene``)."""
     from excite.score import plots
 
     def run() -> bytes:
-        r, traj, report = _evaluated(route, rig, segments, limits, bounds, "route", "rig")
+        r, traj, report = _evaluated(route, rig, segments, limits, bounds, "route", "rig", scene)
         if parameter is not None and parameter not in [c.name for c in r.scored]:
             raise Problem.at("parameter", f"{parameter!r} is not a parameter of rig {r.name} "
                                           f"(parameters: {', '.join(c.name for c in r.scored)})")
@@ -499,9 +592,14 @@ def maneuver_task(profile: dict[str, Any], rig: str | dict[str, Any], fmt: str, 
     return task(lambda: maneuver_file(profile, resolve_rig(rig), fmt, name, origin))
 
 
-def work_size(route: dict[str, Any]) -> float:
+def work_size(route: dict[str, Any], scene: Any = None) -> float:
     """The seconds of drive a route holds, estimated without reading it (what admission weighs):
-    the span of its times, or its length at 5 m/s, or one keyframe per line of text."""
+    the span of its times, or its length at 5 m/s, or one keyframe per line of text; in a
+    ``scene``, :data:`SCENE_WORK` times that."""
+    return (SCENE_WORK if scene is not None else 1.0) * _drive_seconds(route)
+
+
+def _drive_seconds(route: dict[str, Any]) -> float:
     try:
         if route.get("control") is not None:
             t = route["control"]["t_s"]

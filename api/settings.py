@@ -93,9 +93,10 @@ class Settings(BaseSettings):
                                     description="Requests per second per key, on average (per replica).")
     quota_burst: int = Field(40, ge=1, le=100_000, description="Requests per key at once above the rate.")
     quota_storage_mb: int = Field(256, ge=1, le=1_048_576,
-                                  description="Stored jobs per key (requests and results) [MiB]: beyond it "
-                                              "the key's own oldest finished jobs are deleted, and a new job "
-                                              "that its unfinished ones leave no room for is refused (429).")
+                                  description="Stored jobs (requests and results) and scenes per key [MiB]: "
+                                              "beyond it the key's own oldest finished jobs and least recently "
+                                              "used scenes are deleted, and a new job or scene that its "
+                                              "unfinished jobs leave no room for is refused (429).")
     score_share: float = Field(0.5, gt=0, le=1, allow_inf_nan=False,
                                description="Share of the scoring workers one key may hold at once while "
                                            "other keys wait (at least one worker).")
@@ -127,6 +128,9 @@ class Settings(BaseSettings):
                                 description="Address-space limit of each /v1/live session's process [MiB] (0: none).")
     max_live_sessions: int = Field(16, ge=0, le=64,
                                    description="/v1/live sessions streaming at once (each its own process).")
+    max_scene_bytes: int = Field(16 * 1024 * 1024, ge=1024, le=1024**3,
+                                 description="Largest scene file POST /v1/scenes keeps [bytes] (the body "
+                                             "limit EXCITE_MAX_BODY_BYTES bounds the upload too).")
 
     dask_scheduler: str | None = Field(
         None, description="Dask scheduler (tcp://host:8786) that runs batch routes and optimization jobs "

@@ -1,5 +1,6 @@
 """The job store: accepted optimization jobs, durable before the 202 goes out, shared by every
-replica of the service; and the replicas' shared ticket secret and redeemed tickets.
+replica of the service; the scenes keys uploaded; and the replicas' shared ticket secret and
+redeemed tickets.
 
 One schema (:data:`jobs`, :data:`job_runs`, …), stated once with SQLAlchemy Core, and one set of
 queries over it, on SQLite (a file; the embedded default, one host, WAL, fsync on commit) or
@@ -24,9 +25,13 @@ lease held by a dead process on this very host is reclaimed at once.
 **Fairness.** :meth:`JobStore.claim` serves the key with the fewest running jobs first, then the
 one served longest ago, then the oldest job.
 
-**Retention.** Per key: a key's finished jobs older than an age are deleted, and beyond its
-storage quota its own oldest finished ones (never another key's). :meth:`JobStore.finish` keeps
-of the request only what the result's downloads need (:data:`KEPT_REQUEST_KEYS`).
+**Retention.** Per key: a key's finished jobs older than an age are deleted, and so are its
+scenes unused for as long; beyond its storage quota its own oldest finished jobs and least recently
+used scenes (never another key's). :meth:`JobStore.finish` keeps of the request only what the
+result's downloads need (:data:`KEPT_REQUEST_KEYS`).
+
+**Scenes.** A scene file a key uploaded (:meth:`JobStore.put_scene`) is kept under the digest of
+the scene it holds, for that key alone: another key neither sees nor uses it.
 
 **Migrations.** The schema carries a version (table ``excite_schema``); opening a store applies
 the missing steps (:data:`ADDED`: the columns and tables each version added, from the one
@@ -114,11 +119,24 @@ redeemed = sa.Table(
     sa.Column("expires_at", Seconds, nullable=False),
 )
 schema = sa.Table("excite_schema", meta, sa.Column("version", sa.Integer, nullable=False))
+scenes = sa.Table(
+    "scenes", meta,
+    sa.Column("key_id", sa.Text, primary_key=True),
+    sa.Column("digest", sa.Text, primary_key=True),  # the scene's (excite.scene.model.Scene.digest)
+    sa.Column("name", sa.Text, nullable=False),  # the uploaded file's name (its suffix says how to read it)
+    sa.Column("summary", sa.Text, nullable=False),  # what POST /v1/scenes answered, as JSON
+    sa.Column("data", sa.LargeBinary, nullable=False),
+    sa.Column("size_bytes", sa.Integer, nullable=False),
+    sa.Column("created_at", Seconds, nullable=False),
+    sa.Column("used_at", Seconds, nullable=False),
+    sa.Index("scenes_key_used", "key_id", "used_at"),
+)
 
 # what each version added to version 1 (the jobs table's first columns): append, never edit
 ADDED: dict[int, tuple[tuple[str, ...], tuple[sa.Table, ...]]] = {
     2: (("key_id", "owner", "lease_owner", "lease_expires", "size_bytes"), (job_runs,)),
     3: ((), (shared_secrets, redeemed)),
+    4: ((), (scenes,)),
 }
 SCHEMA_VERSION = max(ADDED)
 _VIEW = [c for c in jobs.c if c.name not in ("request", "size_bytes")]
@@ -486,30 +504,50 @@ class JobStore:
         return True
 
     def purge(self, max_age_s: float, max_bytes: Callable[[str], int]) -> int:
-        """Per key: delete its finished jobs older than ``max_age_s`` and, while its jobs hold more
-        than ``max_bytes(key_id)``, its oldest finished ones; returns how many were deleted."""
+        """Per key: delete its finished jobs older than ``max_age_s`` and its scenes unused for as
+        long, and while its jobs and scenes hold more than ``max_bytes(key_id)``, its oldest finished
+        jobs and least recently used scenes; returns how many were deleted."""
         deleted = 0
+        before = time.time() - max_age_s
         with self._tx("claim") as c:
             old = c.execute(sa.select(jobs.c.id).where(jobs.c.status.in_(FINAL),
-                                                       jobs.c.finished_at < time.time() - max_age_s)).scalars().all()
+                                                       jobs.c.finished_at < before)).scalars().all()
             deleted += self._delete(c, old)
-            for key_id in c.execute(sa.select(jobs.c.key_id).distinct()).scalars().all():
+            deleted += c.execute(scenes.delete().where(scenes.c.used_at < before)).rowcount
+            keys = set(c.execute(sa.select(jobs.c.key_id).distinct()).scalars().all())
+            keys |= set(c.execute(sa.select(scenes.c.key_id).distinct()).scalars().all())
+            for key_id in sorted(keys):
                 deleted += self._trim(c, key_id, max_bytes(key_id))
             c.execute(redeemed.delete().where(redeemed.c.expires_at < time.time()))
         return deleted
 
     def _trim(self, c: sa.Connection, key_id: str, max_bytes: int) -> int:
-        mine = jobs.c.key_id == key_id
-        total = c.execute(sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0)).where(mine)).scalar()
-        gone = []
-        if total > max_bytes:
-            for job_id, size in c.execute(sa.select(jobs.c.id, jobs.c.size_bytes).where(
-                    mine, jobs.c.status.in_(FINAL)).order_by(jobs.c.finished_at)).all():
-                if total <= max_bytes:
-                    break
-                gone.append(job_id)
-                total -= size
-        return self._delete(c, gone)
+        """While the key's jobs and scenes hold more than ``max_bytes``: delete its oldest finished
+        job or least recently used scene, whichever is older."""
+        total = self._key_bytes(c, key_id)
+        if total <= max_bytes:
+            return 0
+        done = c.execute(sa.select(jobs.c.finished_at, jobs.c.id, jobs.c.size_bytes).where(
+            jobs.c.key_id == key_id, jobs.c.status.in_(FINAL))).all()
+        kept = c.execute(sa.select(scenes.c.used_at, scenes.c.digest, scenes.c.size_bytes).where(
+            scenes.c.key_id == key_id)).all()
+        candidates = sorted([(t or 0.0, 0, i, n) for t, i, n in done] + [(t, 1, d, n) for t, d, n in kept])
+        gone_jobs, gone_scenes = [], []
+        for _, is_scene, ident, size in candidates:
+            if total <= max_bytes:
+                break
+            (gone_scenes if is_scene else gone_jobs).append(ident)
+            total -= size
+        for i in range(0, len(gone_scenes), 500):
+            c.execute(scenes.delete().where(scenes.c.key_id == key_id, scenes.c.digest.in_(gone_scenes[i:i + 500])))
+        return self._delete(c, gone_jobs) + len(gone_scenes)
+
+    @staticmethod
+    def _key_bytes(c: sa.Connection, key_id: str) -> int:
+        held = c.execute(sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0)).where(
+            jobs.c.key_id == key_id)).scalar()
+        return held + c.execute(sa.select(sa.func.coalesce(sa.func.sum(scenes.c.size_bytes), 0)).where(
+            scenes.c.key_id == key_id)).scalar()
 
     @staticmethod
     def _delete(c: sa.Connection, ids: list[str]) -> int:
@@ -521,11 +559,66 @@ class JobStore:
         return n
 
     def total_bytes(self, key_id: str | None = None) -> int:
+        """What the jobs and scenes hold [bytes] (of ``key_id``, or of every key)."""
         q = sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0))
+        qs = sa.select(sa.func.coalesce(sa.func.sum(scenes.c.size_bytes), 0))
         if key_id is not None:
             q = q.where(jobs.c.key_id == key_id)
+            qs = qs.where(scenes.c.key_id == key_id)
         with self._tx() as c:
-            return c.execute(q).scalar()
+            return c.execute(q).scalar() + c.execute(qs).scalar()
+
+    # -- scenes -------------------------------------------------------------------------------
+
+    def put_scene(self, key_id: str, digest: str, name: str, summary: dict[str, Any], data: bytes,
+                  max_bytes: int | None = None) -> bool:
+        """Keep the scene file ``data`` (named ``name``) of ``key_id`` under the scene's ``digest``
+        with its ``summary``; False when the key has it already (then only marked used). In the same
+        transaction: :class:`OverQuota` when the key's unfinished jobs leave no room for it within
+        ``max_bytes``; the key's oldest finished jobs and least recently used scenes make room."""
+        now = time.time()
+        this = (scenes.c.key_id == key_id) & (scenes.c.digest == digest)
+        with self._tx(f"key:{key_id}") as c:
+            if c.execute(scenes.update().where(this).values(used_at=now)).rowcount:
+                return False
+            if max_bytes is not None:
+                active = c.execute(sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0)).where(
+                    jobs.c.key_id == key_id, jobs.c.status.in_(ACTIVE))).scalar()
+                if active + len(data) > max_bytes:
+                    raise OverQuota(f"the key {key_id}'s unfinished jobs hold {active} bytes; this scene "
+                                    f"({len(data)} bytes) would exceed its storage quota of {max_bytes} bytes")
+            c.execute(scenes.insert().values(key_id=key_id, digest=digest, name=name, summary=json.dumps(summary),
+                                             data=data, size_bytes=len(data), created_at=now, used_at=now))
+            if max_bytes is not None:
+                self._trim(c, key_id, max_bytes)
+        return True
+
+    def scene(self, key_id: str, digest: str) -> tuple[str, bytes] | None:
+        """The name and bytes of ``key_id``'s scene ``digest`` (marked used), or None."""
+        this = (scenes.c.key_id == key_id) & (scenes.c.digest == digest)
+        with self._tx() as c:
+            row = c.execute(sa.select(scenes.c.name, scenes.c.data).where(this)).first()
+            if row is not None:
+                c.execute(scenes.update().where(this).values(used_at=time.time()))
+        return None if row is None else (row.name, bytes(row.data))
+
+    def scene_summaries(self, key_id: str, digest: str | None = None) -> list[dict[str, Any]]:
+        """The key's scenes (or its scene ``digest``), most recently used first: each one's summary
+        with its digest, name, size and times."""
+        q = sa.select(scenes.c.digest, scenes.c.name, scenes.c.summary, scenes.c.size_bytes, scenes.c.created_at,
+                      scenes.c.used_at).where(scenes.c.key_id == key_id)
+        if digest is not None:
+            q = q.where(scenes.c.digest == digest)
+        with self._tx() as c:
+            rows = c.execute(q.order_by(scenes.c.used_at.desc())).mappings().all()
+        return [{**json.loads(r["summary"]), "digest": r["digest"], "name": r["name"], "size_bytes": r["size_bytes"],
+                 "created_at": r["created_at"], "used_at": r["used_at"]} for r in rows]
+
+    def delete_scene(self, key_id: str, digest: str) -> bool:
+        """Delete ``key_id``'s scene ``digest``; False when it has none."""
+        with self._tx(f"key:{key_id}") as c:
+            return bool(c.execute(scenes.delete().where(scenes.c.key_id == key_id,
+                                                        scenes.c.digest == digest)).rowcount)
 
     # -- tickets ------------------------------------------------------------------------------
 

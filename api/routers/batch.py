@@ -12,6 +12,7 @@ from ..errors import Problem
 from ..schemas import BatchRequest, BatchResponse
 from ..scoring import batch_item_task, work_size
 from .common import SCORED
+from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["batch"])
 
@@ -27,9 +28,10 @@ def batch(body: BatchRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
         raise Problem.at("routes", f"{len(body.routes)} routes exceed the limit of {n_max}")
     limits = body.limits.model_dump() if body.limits else None
     routes = [r.model_dump() for r in body.routes]
+    scene = scene_spec(ctx, who, body.scene)
     results = ctx.run_all(request, who, batch_item_task,
-                          [(r, body.rig, body.segments, limits, ctx.bounds, i) for i, r in enumerate(routes)],
-                          [work_size(r) for r in routes], cluster=True)
+                          [(r, body.rig, body.segments, limits, ctx.bounds, i, scene) for i, r in enumerate(routes)],
+                          [work_size(r, scene) for r in routes], cluster=True)
     items, scores, passed = [], [], 0
     for i, (route, res) in enumerate(zip(body.routes, results)):
         rep = res.get("report")

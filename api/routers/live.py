@@ -4,7 +4,8 @@ receives the live guidance of :mod:`excite.score.live` (the same updates as ``ex
 Protocol (text frames, one JSON object each):
 
 - client → ``{"type": "start", "rig": "robotaxi" | {inline rig}, "name": "drive 7"}`` first;
-  with ``"plan": {plan.json of a drivable plan}`` the guidance follows the plan (as
+  with ``"scene"`` (a bundled scene's name or the digest of one uploaded with ``POST /v1/scenes``)
+  the drive is seen in that scene (the updates and the final report name it); with ``"plan": {plan.json of a drivable plan}`` the guidance follows the plan (as
   ``excite live --plan``): the server also sends ``element`` (the element being driven and the
   next), ``element_done``/``element_short`` (an element left, with its laps) and ``proposal``
   (what to repeat when an element was cut short or the plan ends short of its goal:
@@ -44,6 +45,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import time
 from typing import Any
 
@@ -57,6 +59,7 @@ from .. import auth
 from ..auth import LIVE_PROTOCOL, LiveClient, RateLimiter, Scorer
 from ..context import Ctx, Context
 from ..errors import Problem, Refusal
+from ..schemas import SCENE_PATTERN
 
 log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
@@ -200,17 +203,18 @@ class Drive:
 # The session's process
 
 
-def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: float, plan: Any = None) -> None:
-    """A session's evaluator: the rig resolved here (a client's rig can cost seconds to check),
-    then each ``("poses", t, p, R)`` or ``("end",)`` answered ``("ok", value)`` or
-    ``("problem", Problem)``."""
+def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: float, plan: Any = None,
+                  scene: tuple | None = None) -> None:
+    """A session's evaluator: the rig and the scene resolved here (a client's rig can cost seconds
+    to check, a scene to read), then each ``("poses", t, p, R)`` or ``("end",)`` answered
+    ``("ok", value)`` or ``("problem", Problem)``."""
     from excite.core.bounds import tightened
     from excite.errors import ExciteError
     from excite.score.live import PoseStream
 
     from .. import problems
     from ..pool import trim
-    from ..scoring import resolve_rig
+    from ..scoring import resolve_rig, scene_of
 
     with tightened(duration_s=duration_s, length_m=length_m):
         try:
@@ -219,17 +223,23 @@ def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: f
             conn.send(("problem", problems.of(exc, "rig")))
             return
         try:
+            world = scene_of(scene)
+        except (Problem, ExciteError, MemoryError, RecursionError) as exc:
+            conn.send(("problem", problems.of(exc, "scene")))
+            return
+        try:
             if plan is None:
-                stream = PoseStream(r, name=name)
+                stream = PoseStream(r, name=name, scene=world)
             else:
                 from excite.plan.drivable.guide import PlanStream
                 from excite.plan.drivable.plan import plan_from_dict
 
-                stream = PlanStream(r, plan_from_dict(plan, "plan"), name=name)
+                stream = PlanStream(r, plan_from_dict(plan, "plan"), name=name, scene=world)
         except (Problem, ExciteError, MemoryError, RecursionError) as exc:
             conn.send(("problem", problems.of(exc, "plan")))
             return
-        conn.send(("ok", {"rig": r.name, "parameters": [c.name for c in r.scored]}))
+        conn.send(("ok", {"rig": r.name, "parameters": [c.name for c in r.scored],
+                          "scene": None if world is None else {"name": world.source, "digest": world.digest}}))
         while True:
             try:
                 msg = conn.recv()
@@ -252,11 +262,11 @@ class Session:
     """One session's evaluator in a supervised process (forked from the scoring pool's
     forkserver, with ``EXCITE_LIVE_MEMORY_MB``); every call has the request time limit."""
 
-    def __init__(self, s: Any, rig: Any, name: str, plan: Any = None):
+    def __init__(self, s: Any, rig: Any, name: str, plan: Any = None, scene: tuple | None = None):
         from ..pool import forkserver
 
         self.timeout_s = s.request_timeout_s
-        self.proc = Supervised(_session_main, rig, name, s.max_route_duration_s, s.max_route_length_m, plan,
+        self.proc = Supervised(_session_main, rig, name, s.max_route_duration_s, s.max_route_length_m, plan, scene,
                                context=forkserver(), memory_mb=s.live_memory_mb, name="excite-live")
         self.memory_mb = s.live_memory_mb
 
@@ -293,7 +303,7 @@ def ticket(request: Request, ctx: Ctx, who: Scorer) -> dict[str, Any]:
     return {"ticket": auth.ticket(request.app.state.ticket_secret, who.key_id), "expires_in_s": auth.TICKET_TTL_S}
 
 
-def _start(msg: dict[str, Any]) -> tuple[Any, str, Any]:
+def _start(msg: dict[str, Any]) -> tuple[Any, str, Any, str | None]:
     if msg["type"] != "start":
         raise refused(422, "type", f"the first message must be 'start', got {msg['type']!r}")
     rig = msg.get("rig", "robotaxi")
@@ -305,7 +315,26 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str, Any]:
     plan = msg.get("plan")
     if plan is not None and not isinstance(plan, dict):
         raise refused(422, "plan", "must be a drivable plan object (plan.json of excite optimize --drivable)")
-    return rig, name, plan
+    scene = msg.get("scene")
+    if scene is not None and not (isinstance(scene, str) and re.match(SCENE_PATTERN, scene)):
+        raise refused(422, "scene", "must be a bundled scene's name or the digest of an uploaded scene")
+    return rig, name, plan, scene
+
+
+def _scene(ctx: Context | None, who: Any, ref: str | None) -> tuple | None:
+    """The start's scene for the session's process (:func:`api.routers.scenes.scene_spec`)."""
+    from excite.scene.files import bundled_scenes
+
+    from .scenes import scene_spec
+
+    try:
+        if ctx is None:  # the router alone, without the service's store: bundled scenes only
+            if ref is not None and ref not in bundled_scenes():
+                raise Problem.at("scene", f"{ref!r} is not a bundled scene ({', '.join(bundled_scenes())})")
+            return None if ref is None else ("bundled", ref)
+        return scene_spec(ctx, who, ref)
+    except Problem as exc:
+        raise Refusal(exc) from None
 
 
 def _subprotocol(ws: WebSocket) -> str | None:
@@ -334,7 +363,7 @@ async def live(ws: WebSocket, who: LiveClient) -> None:
     _sessions["open"] += 1
     counts[who.key_id] = mine + 1
     try:
-        await _session(ws, settings)
+        await _session(ws, settings, ctx, who)
     except WebSocketDisconnect:
         pass  # the client went away: its stream is dropped with this frame
     except Exception:
@@ -364,7 +393,7 @@ async def _receive_text(ws: WebSocket) -> str | None:
     return None
 
 
-async def _session(ws: WebSocket, settings: Any) -> None:
+async def _session(ws: WebSocket, settings: Any, ctx: Context | None, who: Any) -> None:
     name_of_session = f"session-{id(ws)}"
     session: Session | None = None
     drive = Drive(settings)
@@ -378,9 +407,10 @@ async def _session(ws: WebSocket, settings: Any) -> None:
                     raise refused(429, "message", f"more than {MAX_MESSAGES_PER_S:g} messages per second")
                 msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
-                    rig, name, plan = _start(msg)
+                    rig, name, plan, scene_ref = _start(msg)
+                    scene = await anyio.to_thread.run_sync(_scene, ctx, who, scene_ref)
                     # starting the process writes the rig to it (1 MB): not in the event loop either
-                    session = await anyio.to_thread.run_sync(Session, settings, rig, name, plan)
+                    session = await anyio.to_thread.run_sync(Session, settings, rig, name, plan, scene)
                     started = await anyio.to_thread.run_sync(session.call)
                     await ws.send_json({"type": "started", **started})
                     continue

@@ -16,9 +16,10 @@ from fastapi.responses import Response
 from ..auth import Scorer
 from ..context import Ctx
 from ..errors import Problem
-from ..schemas import PlotRequest, Report, ScoreRequest, ScoreResponse
-from ..scoring import bag_score_task, plot_task, score_task, work_size
+from ..schemas import SCENE_PATTERN, PlotRequest, Report, ScoreRequest, ScoreResponse
+from ..scoring import SCENE_WORK, bag_score_task, plot_task, score_task, work_size
 from .common import SCORED
+from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["score"])
 
@@ -27,13 +28,15 @@ router = APIRouter(prefix="/v1", tags=["score"])
              summary="Score a route: how well does it determine every calibration parameter?")
 def score(body: ScoreRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
-    control profile); the rig by bundled name or inline. CPU-bound: runs in a worker process.
+    control profile); the rig by bundled name or inline; the scene, if any, by a bundled name or
+    the digest of one uploaded with ``POST /v1/scenes``. CPU-bound: runs in a worker process.
     A recorded bag is scored by ``POST /v1/score/bag``."""
     route = body.route.model_dump()
+    scene = scene_spec(ctx, who, body.scene)
     out = ctx.run(request, who, score_task, route, body.rig, body.segments,
                   body.limits.model_dump() if body.limits else None, ctx.bounds, "route", "rig",
-                  body.track_points, size=work_size(route))
-    return {**out["report"], "track": out.get("track")}
+                  body.track_points, scene, size=work_size(route, scene))
+    return {**out["report"], "track": out.get("track"), "scene_track": out.get("scene_track")}
 
 
 @router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
@@ -44,9 +47,10 @@ def score_plot(body: PlotRequest, request: Request, ctx: Ctx, who: Scorer) -> Re
     information it carries on ``parameter`` (or the weakest mode), the scaled spectrum with the
     pass line, and σ against target per parameter."""
     route = body.route.model_dump()
+    scene = scene_spec(ctx, who, body.scene)
     png = ctx.run(request, who, plot_task, route, body.rig, body.segments,
-                  body.limits.model_dump() if body.limits else None, ctx.bounds, body.parameter,
-                  size=work_size(route))
+                  body.limits.model_dump() if body.limits else None, ctx.bounds, body.parameter, scene,
+                  size=work_size(route, scene))
     return Response(content=png, media_type="image/png")
 
 
@@ -76,7 +80,9 @@ def score_bag(request: Request, ctx: Ctx, who: Scorer,
               end_s: Annotated[float | None, Form(allow_inf_nan=False, description="End [s into the bag].")] = None,
               segments: Annotated[int, Form(ge=0, le=1000)] = 0,
               vehicle_frame: Annotated[str | None, Form(max_length=200)] = None,
-              axes: Annotated[str, Form(max_length=40, description="vehicle or body.")] = "vehicle") -> Any:
+              axes: Annotated[str, Form(max_length=40, description="vehicle or body.")] = "vehicle",
+              scene: Annotated[str | None, Form(pattern=SCENE_PATTERN, description=(
+                  "A bundled scene's name or the digest of one uploaded with POST /v1/scenes."))] = None) -> Any:
     """The upload is written to disk once, as it arrives (within the body limit; a server whose
     temporary folder is nearly full answers 503), read by the worker through a link named as its
     kind, and deleted after scoring; a truncated or corrupt bag is a 422 naming the problem."""
@@ -87,6 +93,7 @@ def score_bag(request: Request, ctx: Ctx, who: Scorer,
     if suffix not in (".bag", ".mcap"):
         raise Problem.at("bag", f"the file name must end in .bag or .mcap, got {filename[:200]!r}")
     rig_value = _rig_field(rig)
+    world = scene_spec(ctx, who, scene or None)
     if free_mb(Path(tempfile.gettempdir())) < ctx.settings.min_free_mb:
         raise Problem(503, "the server's temporary folder is nearly full; retry later", type_="disk-full",
                       headers={"Retry-After": "30"})
@@ -99,6 +106,7 @@ def score_bag(request: Request, ctx: Ctx, who: Scorer,
         os.symlink(f"/proc/{os.getpid()}/fd/{bag.file.fileno()}", path)
         try:
             return ctx.run(request, who, bag_score_task, str(path), filename, source, rig_value, segments,
-                           ctx.bounds, size=max(1.0, os.fstat(bag.file.fileno()).st_size / 20_000))
+                           ctx.bounds, world, size=(SCENE_WORK if world else 1.0) *
+                           max(1.0, os.fstat(bag.file.fileno()).st_size / 20_000))
         finally:
             bag.file.close()

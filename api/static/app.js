@@ -4,7 +4,8 @@
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const SVG_NS = "http://www.w3.org/2000/svg";
-const state = { rigs: [], uploadedRig: null, report: null, track: null, sort: { key: null, dir: 1 }, job: null, schema: null };
+const state = { rigs: [], uploadedRig: null, report: null, track: null, sort: { key: null, dir: 1 }, job: null, schema: null,
+  scenes: { bundled: [], uploaded: [] }, outlines: {}, outline: null };
 
 function el(tag, attrs = {}, ...children) {
   const node = tag.startsWith("svg:") ? document.createElementNS(SVG_NS, tag.slice(4)) : document.createElement(tag);
@@ -193,6 +194,67 @@ function currentRig() {
 }
 
 // ------------------------------------------------------------------------------------------
+// Scene: a bundled one by name, or a file uploaded once (POST /v1/scenes) and named by its digest.
+
+async function initScenes() {
+  state.scenes = await api("GET", "/v1/scenes");
+  fillScenes($("#scene-select").value);
+  if (!state.scenesWired) {
+    state.scenesWired = true;
+    $("#scene-select").addEventListener("change", onSceneChange);
+    $("#scene-file").addEventListener("change", onSceneFile);
+  }
+}
+
+function fillScenes(selected) {
+  const { bundled, uploaded } = state.scenes;
+  const select = $("#scene-select");
+  select.replaceChildren(el("option", { value: "", text: "none: scene-blind" }),
+    ...bundled.map((n) => el("option", { value: n, text: `${n} (bundled)` })),
+    ...uploaded.map((u) => el("option", { value: u.digest, text: `${u.name} (${u.digest.slice(0, 12)})` })),
+    el("option", { value: "@upload", text: "upload a scene file…" }));
+  select.value = [...select.options].some((o) => o.value === selected) ? selected : "";
+  onSceneChange();
+}
+
+function onSceneChange() {
+  $("#scene-upload").hidden = $("#scene-select").value !== "@upload";
+  $("#scene-error").textContent = "";
+}
+
+async function onSceneFile() {
+  const file = $("#scene-file").files[0];
+  if (!file) return;
+  const form = new FormData();
+  form.append("file", file, file.name);
+  $("#score-busy").textContent = "reading the scene…";
+  try {
+    const r = await authFetch("/v1/scenes", { method: "POST", body: form, headers: { Accept: "application/json" } });
+    const data = (r.headers.get("content-type") || "").includes("json") ? await r.json() : { detail: await r.text() };
+    if (!r.ok) throw new Problem(data, r.status);
+    state.scenes.uploaded = [data, ...state.scenes.uploaded.filter((u) => u.digest !== data.digest)];
+    fillScenes(data.digest);
+  } catch (err) {
+    if (!(err instanceof Problem)) throw err;
+    showProblem($("#score-form"), err, $("#scene-error"));
+  } finally {
+    $("#score-busy").textContent = "";
+  }
+}
+
+function currentScene() {
+  const v = $("#scene-select").value;
+  if (v === "@upload") throw new Problem({ errors: [{ field: "scene", message: "choose a scene file first" }] }, 0);
+  return v || null;
+}
+
+// The scene's outline from above, fetched once per scene.
+async function sceneOutline(ref) {
+  if (!state.outlines[ref]) state.outlines[ref] = (await api("GET", `/v1/scenes/${encodeURIComponent(ref)}`)).outline;
+  return state.outlines[ref];
+}
+
+// ------------------------------------------------------------------------------------------
 // Score view
 
 function detectFormat(name, text) {
@@ -249,6 +311,8 @@ async function scoreBag(file) {
   const form = new FormData();
   form.append("bag", file, file.name);
   form.append("topic", topic);
+  const scene = currentScene();
+  if (scene) form.append("scene", scene);
   const rig = currentRig();
   form.append("rig", typeof rig === "string" ? rig : JSON.stringify(rig));
   form.append("segments", String(Number($("#segments").value)));
@@ -267,7 +331,9 @@ async function onScoreReference() {
   try {
     const text = await (await fetch("/static/figure_eight_control.csv")).text();
     const route = { name: "figure_eight_control", format: "control_csv", text };
-    showReport(await api("POST", "/v1/score", { route, rig: currentRig(), segments: Number($("#segments").value), track_points: 1500 }));
+    const scene = currentScene();
+    await showReport(await api("POST", "/v1/score", { route, rig: currentRig(), segments: Number($("#segments").value), track_points: 1500,
+      ...(scene ? { scene } : {}) }), scene);
   } catch (err) {
     if (!(err instanceof Problem)) throw err;
     showProblem(form, err, $("#score-error"));
@@ -285,9 +351,11 @@ async function onScore(ev) {
   busy.textContent = "scoring…";
   try {
     const file = $("#route-file").files[0];
+    const scene = currentScene();
     const report = isBag(file) ? await scoreBag(file)
-      : await api("POST", "/v1/score", { route: await routeFromInputs(), rig: currentRig(), segments: Number($("#segments").value), track_points: 1500 });
-    showReport(report);
+      : await api("POST", "/v1/score", { route: await routeFromInputs(), rig: currentRig(), segments: Number($("#segments").value), track_points: 1500,
+        ...(scene ? { scene } : {}) });
+    await showReport(report, scene);
   } catch (err) {
     if (!(err instanceof Problem)) throw err;
     $("#score-result").hidden = true;
@@ -298,18 +366,31 @@ async function onScore(ev) {
   }
 }
 
-function showReport(rep) {
+async function showReport(rep, scene) {
   state.report = rep;
+  state.outline = null;
+  if (scene && rep.track) {
+    try {
+      state.outline = await sceneOutline(scene);
+    } catch (err) {
+      if (!(err instanceof Problem)) throw err;
+      $("#scene-error").textContent = `the scene's outline cannot be drawn: ${err.message}`;
+    }
+  }
   $("#score-result").hidden = false;
   const badge = el("span", { class: rep.passed ? "badge pass" : "badge fail", text: rep.passed ? "PASS" : "FAIL" });
   $("#summary").replaceChildren(
     el("div", { class: "big" }, el("span", { class: "label", text: "score " }), el("output", { id: "score-value", text: fmt(rep.score, 4) }), " ", badge),
-    el("div", { class: "facts", text: `${rep.route} · rig ${rep.rig} · ${rep.duration_s.toFixed(1)} s · ${rep.length_m.toFixed(0)} m · ` +
+    el("div", { class: "facts", text: `${rep.route} · rig ${rep.rig}` +
+      (rep.scene ? ` · scene ${rep.scene.name} (sha256 ${rep.scene.digest.slice(0, 12)})` : "") +
+      ` · ${rep.duration_s.toFixed(1)} s · ${rep.length_m.toFixed(0)} m · ` +
       `rank ${rep.rank} of ${rep.column_map.length}` + (rep.nullity ? ` (${rep.nullity} unobservable)` : "") +
       ` · score ≥ 1 means every σ within its target` }),
     ...(rep.warnings || []).map((w) => el("div", { class: "warning", role: "alert", text: `warning: ${w}` })));
   const names = rep.column_map.map((c) => c.name);
-  $("#colour-by").replaceChildren(el("option", { value: "@weak", text: "information on the weakest mode" }),
+  $("#colour-by").replaceChildren(
+    ...(rep.scene_track && rep.scene_track.length ? [el("option", { value: "@scene", text: "the lidar's information along its weakest direction (scene)" })] : []),
+    el("option", { value: "@weak", text: "information on the weakest mode" }),
     el("option", { value: "@score", text: "segment score (its own λ_min)" }),
     ...names.map((n) => el("option", { value: n, text: `information on ${n}` })));
   renderParams();
@@ -442,6 +523,45 @@ function polylinePoints(xs, ys, i0, i1) {
   return pts.join(" ");
 }
 
+// The scene under the route: each surface's outline from above, one path a surface.
+function sceneShapes(outline) {
+  return outline.surfaces.map((s) => el("svg:path", {
+    d: s.segments.map(([x0, y0, x1, y1]) => `M${x0} ${-y0}L${x1} ${-y1}`).join(""),
+    class: `scene scene-${s.kind}${s.boxed ? " boxed" : ""}` }, el("svg:title", { text: `${s.kind}${s.name ? ": " + s.name : ""}` })));
+}
+
+// What one scan along the route leaves undetermined, in words.
+function readingText(r) {
+  const parts = [];
+  if (r.unobservable.length) parts.push(`no information along ${r.unobservable.join(", ")}`);
+  if (r.weak.length) parts.push(`weak along ${r.weak.join(", ")}`);
+  if (r.status === "blind") parts.push("nothing in range");
+  if (!parts.length) parts.push("every direction determined");
+  return parts.join("; ");
+}
+
+// Information along the weakest direction of one scan, in (drift per scan pair)⁻²; 0 without any.
+function readingValue(r) {
+  if (r.status === "degenerate" || r.status === "blind" || r.weakest_sigma_in_reference === null) return 0;
+  return 1 / (r.weakest_sigma_in_reference * r.weakest_sigma_in_reference);
+}
+
+function drawSceneTrack(tr, children, idx) {
+  const readings = state.report.scene_track;
+  const scale = logScale(readings.map(readingValue));
+  readings.forEach((r, k) => {
+    const a = k ? (readings[k - 1].t_s + r.t_s) / 2 : tr.t_s[0];
+    const b = k + 1 < readings.length ? (r.t_s + readings[k + 1].t_s) / 2 : tr.t_s[tr.t_s.length - 1];
+    const i0 = Math.max(0, idx(a) - (k ? 1 : 0)), i1 = idx(b);
+    if (i1 <= i0) return;
+    const v = readingValue(r);
+    children.push(el("svg:polyline", { points: polylinePoints(tr.x_m, tr.y_m, i0, i1), class: v > 0 ? "seg" : "seg none",
+      stroke: v > 0 ? colour(scale.u(v)) : null, tabindex: "0", "data-reading": String(k),
+      "aria-label": `scan at ${r.t_s.toFixed(1)} s: ${readingText(r)}` }));
+  });
+  return scale;
+}
+
 function drawRoute() {
   const rep = state.report, tr = rep.track, svg = $("#route-map");
   $("#map-figure").hidden = !tr;  // a bag's report carries no path to draw
@@ -450,9 +570,21 @@ function drawRoute() {
   const box = fitBox(tr.x_m, tr.y_m, 0.05);
   makeZoomable(svg, box);
   const segs = rep.segments;
-  const scale = logScale(segs.map((s) => segmentValue(s, key)));
-  const children = [el("svg:polyline", { points: polylinePoints(tr.x_m, tr.y_m, 0, tr.t_s.length - 1), class: "base" })];
+  const children = state.outline ? [el("svg:g", { class: "scene-outline" }, ...sceneShapes(state.outline))] : [];
+  children.push(el("svg:polyline", { points: polylinePoints(tr.x_m, tr.y_m, 0, tr.t_s.length - 1), class: "base" }));
   const idx = (t) => { let i = 0; while (i < tr.t_s.length - 1 && tr.t_s[i] < t - 1e-9) i++; return i; };
+  if (key === "@scene") {
+    const scale = drawSceneTrack(tr, children, idx);
+    children.push(el("svg:circle", { cx: tr.x_m[0], cy: -tr.y_m[0], r: 0.008 * Math.max(box[2], box[3]), class: "start" }));
+    svg.replaceChildren(...children);
+    $("#legend").replaceChildren(el("span", { text: "the lidar's information along its weakest direction, per scan [(drift per scan pair)⁻²], log scale: " }),
+      el("span", { class: "ramp", style: `background: linear-gradient(to right, ${[0, 0.25, 0.5, 0.75, 1].map(colour).join(",")})` }),
+      el("span", { text: scale.hi > scale.lo ? ` ${fmt(10 ** scale.lo)} … ${fmt(10 ** scale.hi)}` : "" }),
+      el("span", { class: "none-key", text: " · red: a direction without information" }),
+      el("span", { class: "hint", text: " · ● start · hover or Tab to the route for what the scene leaves weak there" }));
+    return;
+  }
+  const scale = logScale(segs.map((s) => segmentValue(s, key)));
   segs.forEach((s, k) => {
     const i0 = Math.max(0, idx(s.t_start_s) - (k ? 1 : 0)), i1 = idx(s.t_end_s);
     if (i1 <= i0) return;
@@ -471,14 +603,23 @@ function drawRoute() {
 
 function showSegment(target, ev) {
   const k = target?.dataset?.index;  // undefined off a segment, and for null (pointer left, focus out)
+  const j = target?.dataset?.reading;  // a scan along the route, coloured by the scene
   const tip = $("#tooltip");
-  if (k === undefined) { tip.hidden = true; return; }
-  const s = state.report.segments[Number(k)];
-  const top = Object.entries(s.parameter_information).sort((a, b) => a[1] - b[1]);
-  tip.replaceChildren(el("strong", { text: `segment ${Number(k) + 1}: ${s.t_start_s.toFixed(1)}–${s.t_end_s.toFixed(1)} s` }),
-    el("div", { text: `segment score ${fmt(s.score)} · weakest-mode information ${fmt(s.weakest_mode_information)}` }),
-    el("div", { class: "hint", text: "least informed parameters here [targets⁻²]:" }),
-    el("table", {}, el("tbody", {}, ...top.slice(0, 6).map(([n, v]) => el("tr", {}, el("th", { text: n }), el("td", { text: fmt(v) }))))));
+  if (k === undefined && j === undefined) { tip.hidden = true; return; }
+  if (j !== undefined) {
+    const r = state.report.scene_track[Number(j)];
+    tip.replaceChildren(el("strong", { text: `scan at ${r.t_s.toFixed(1)} s (x ${r.x_m.toFixed(1)} m, y ${r.y_m.toFixed(1)} m)` }),
+      el("div", { text: readingText(r) }),
+      el("div", { class: "hint", text: r.weakest_sigma_in_reference === null ? "" :
+        `σ along the weakest direction with information: ${fmt(r.weakest_sigma_in_reference)} × the drift per scan pair (2 cm, 0.05°)` }));
+  } else {
+    const s = state.report.segments[Number(k)];
+    const top = Object.entries(s.parameter_information).sort((a, b) => a[1] - b[1]);
+    tip.replaceChildren(el("strong", { text: `segment ${Number(k) + 1}: ${s.t_start_s.toFixed(1)}–${s.t_end_s.toFixed(1)} s` }),
+      el("div", { text: `segment score ${fmt(s.score)} · weakest-mode information ${fmt(s.weakest_mode_information)}` }),
+      el("div", { class: "hint", text: "least informed parameters here [targets⁻²]:" }),
+      el("table", {}, el("tbody", {}, ...top.slice(0, 6).map(([n, v]) => el("tr", {}, el("th", { text: n }), el("td", { text: fmt(v) }))))));
+  }
   tip.hidden = false;
   const box = $("#route-map").closest(".map-box").getBoundingClientRect();
   const r = ev && ev.clientX !== undefined ? { x: ev.clientX, y: ev.clientY } : (() => { const b = target.getBoundingClientRect(); return { x: b.right, y: b.top }; })();
@@ -489,7 +630,7 @@ function showSegment(target, ev) {
 function initMap() {
   const svg = $("#route-map");
   svg.addEventListener("pointerover", (ev) => showSegment(ev.target, ev));
-  svg.addEventListener("pointermove", (ev) => { if (ev.target.dataset.index !== undefined) showSegment(ev.target, ev); });
+  svg.addEventListener("pointermove", (ev) => { if (ev.target.dataset.index !== undefined || ev.target.dataset.reading !== undefined) showSegment(ev.target, ev); });
   svg.addEventListener("pointerleave", () => showSegment(null));
   svg.addEventListener("focusin", (ev) => showSegment(ev.target));
   svg.addEventListener("focusout", () => showSegment(null));
@@ -926,9 +1067,12 @@ function main() {
     else sessionStorage.removeItem("excite-key");
     $("#key-error").textContent = "";
     state.schema = null;
+    state.outlines = {};
     initRigs().catch((err) => { $("#rig-error").textContent = `cannot list the rigs: ${err.message}`; });
+    initScenes().catch((err) => { $("#scene-error").textContent = `cannot list the scenes: ${err.message}`; });
   });
   initRigs().catch((err) => { $("#rig-error").textContent = `cannot list the rigs: ${err.message}`; });
+  initScenes().catch((err) => { $("#scene-error").textContent = `cannot list the scenes: ${err.message}`; });
   document.body.dataset.ready = "1";
 }
 

@@ -25,13 +25,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..factors.optics import LidarBeams, lidar_beams
 from .lidar import informations
 from .model import Scene
+
+if TYPE_CHECKING:
+    from ..motion.trajectory import Trajectory
 
 SPACING_M = 5.0
 """Distance between the points of the survey's grid [m]."""
@@ -307,3 +310,23 @@ def survey(scene: Scene, spacing_m: float = SPACING_M, height_m: float = HEIGHT_
     readings = [flat[j * x.size:(j + 1) * x.size] for j in range(y.size)]
     return Survey(scene, s, height_m, float(spacing_m), b, x, y, z.reshape(y.size, x.size), readings,
                   seconds=time.perf_counter() - t0)
+
+
+def along_route(traj: "Trajectory", sensor: str | None = None) -> list[dict[str, Any]]:
+    """What the scene leaves undetermined along a drive that sees it (:func:`excite.scene.along.seen`):
+    at each scan ray-cast along it for ``sensor`` (default: the first lidar seeing it), its time,
+    where the vehicle was (in the scene's frame) and the scan's :class:`Reading` (in world-aligned
+    axes, as the survey's map). Empty when the drive sees no scene."""
+    view = traj.scene
+    if view is None or not view.t:
+        return []
+    name = sensor if sensor is not None else next(iter(view.t))
+    t = view.t[name]
+    p = traj.translation(t)[0] + traj.origin
+    out = []
+    for k, H in enumerate(view.H_W[name]):
+        r = read_scan(H, 1 if np.any(H) else 0)
+        out.append({"t_s": float(t[k]), "x_m": float(p[k, 0]), "y_m": float(p[k, 1]), "status": r.status,
+                    "unobservable": list(r.unobservable), "weak": list(r.weak),
+                    "weakest_sigma_in_reference": r.weakest_sigma_in_reference})
+    return out

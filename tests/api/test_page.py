@@ -696,6 +696,78 @@ def test_a_bag_scores_through_the_route_input(page, data_dir):
     assert not page.is_visible("#map-figure")
 
 
+@pytest.mark.browser
+@pytest.mark.slow
+def test_the_scene_is_drawn_under_the_route_coloured_by_the_lidar(page, shots, tmp_path):
+    """Scored in a bundled scene, the route is drawn over the scene's outlines (its buildings,
+    one path each) and coloured scan by scan by the lidar's information along its weakest
+    direction, each scan saying in words what the scene leaves weak there (the library's
+    reading of the same scan); a scene file uploaded from the page is kept and used, a bad one
+    named next to the scene field."""
+    import json
+
+    from excite.io.routes import read_tum
+    from excite.rig.config import load_rig
+    from excite.scene.along import seen
+    from excite.scene.files import load_scene
+    from excite.scene.outline import outlines
+    from excite.scene.survey import along_route
+
+    page.wait_for_selector("#scene-select option[value=street_canyon]", state="attached")
+    page.select_option("#scene-select", "street_canyon")
+    page.set_input_files("#route-file", str(FIGURE_EIGHT))
+    page.click("#score-button")
+    page.wait_for_selector("#score-value")
+    canyon = load_scene("street_canyon")
+    assert f"scene street_canyon (sha256 {canyon.digest[:12]})" in page.inner_text("#summary")
+    assert page.input_value("#colour-by") == "@scene"
+    buildings = [x for x in outlines(canyon)["surfaces"] if x["kind"] == "building"]
+    assert page.locator("#route-map path.scene-building").count() == len(buildings)
+    expected = along_route(seen(read_tum(FIGURE_EIGHT), load_rig("robotaxi"), canyon))
+    scans = page.locator("#route-map polyline[data-reading]")
+    assert scans.count() == len(expected)
+    labels = scans.evaluate_all("ls => ls.map(l => l.getAttribute('aria-label'))")
+    words = {"degenerate": "no information along", "clear": "every direction determined"}
+    for label, r in zip(labels, expected):
+        t = float(re.match(r"scan at (\S+) s: ", label).group(1))
+        assert t == pytest.approx(r["t_s"], abs=0.051)  # the page rounds to 0.1 s
+        assert words.get(r["status"], r["status"]) in label, (label, r)
+    scans.nth(len(expected) // 2).focus()
+    assert "scan at" in page.inner_text("#tooltip")
+    save_shot(page, shots, "web-scene.png")
+
+    # a scene file from the page: two walls along x leave every scan's x translation
+    walls = {"type": "FeatureCollection", "properties": {"crs": "local"}, "features": [
+        {"type": "Feature", "properties": {"kind": "wall", "height": 4.0},
+         "geometry": {"type": "LineString", "coordinates": [[-150.0, y], [150.0, y]]}} for y in (-40.0, 40.0)]}
+    path = tmp_path / "walls.geojson"
+    path.write_text(json.dumps(walls))
+    page.select_option("#scene-select", "@upload")
+    page.set_input_files("#scene-file", str(path))
+    digest = load_scene("walls.geojson", data=path.read_bytes()).digest
+    page.wait_for_selector(f"#scene-select option[value='{digest}']", state="attached")
+    assert page.input_value("#scene-select") == digest
+    page.click("#score-button")
+    page.wait_for_selector(f"#summary:has-text('walls.geojson (sha256 {digest[:12]})')")
+    labels = page.locator("#route-map polyline[data-reading]").evaluate_all(
+        "ls => ls.map(l => l.getAttribute('aria-label'))")
+    assert labels and all(label.endswith("no information along x translation") for label in labels)
+    assert page.locator("#route-map polyline.seg.none").count() == len(labels)
+    assert page.locator("#route-map path.scene-wall").count() == 2
+
+    bad = tmp_path / "bad.geojson"
+    bad.write_text(json.dumps({"type": "FeatureCollection", "properties": {"crs": "local"}, "features": [
+        {"type": "Feature", "properties": {"kind": "wall", "height": -1.0},
+         "geometry": {"type": "LineString", "coordinates": [[0.0, 0.0], [10.0, 0.0]]}}]}))
+    page.select_option("#scene-select", "@upload")
+    page.set_input_files("#scene-file", str(bad))
+    page.wait_for_selector("#scene-error:has-text('height')")
+    assert "bad.geojson" in page.inner_text("#scene-error")
+    # the only console error is the browser's own note of the refused upload
+    assert page.console.errors == ["Failed to load resource: the server responded with a status of 422 "
+                                   "(Unprocessable Entity)"]
+
+
 def test_the_page_shows_the_command_lines_units():
     """The page's table of display units is the command line's (excite.core.units), and the
     bundled drive it scores is trajectories/figure_eight_control.csv."""
