@@ -40,23 +40,26 @@ def write_drivable(out: Path, built: Any, site: Any, rig: Any, report: Any, robu
 
 
 def run_drivable(out: Path, rig_name: str, duration: float, site: Any, seed: int, budget_s: float,
-                 plan_file: Path | None, speed_max: float | None, draws: int) -> None:
+                 plan_file: Path | None, speed_max: float | None, draws: int, scene_ref: str | None = None) -> None:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ..plan.drivable.plan import build, read_plan
     from ..plan.drivable.robust import robust_scores
-    from ..plan.drivable.search import DrivableSettings, optimize_drivable, safe_speed_mps
+    from ..plan.drivable.search import DrivableSettings, Scorer, optimize_drivable, safe_speed_mps
     from ..plan.settings import vehicle_limits
     from ..rig.config import load_rig
     from ..errors import OptimizeError
+    from . import seeing
 
     rig = load_rig(rig_name)
+    scene = seeing.load(scene_ref)
+    seeing.warn_blind(rig, scene)
     settings = DrivableSettings(duration_s=duration, site=site, seed=seed, time_budget_s=max(budget_s, 1.0),
-                                speed_max_mps=speed_max, draws=draws)
+                                speed_max_mps=speed_max, draws=draws, scene=scene)
+    scorer = Scorer(rig, scene)
     c = console()
     if plan_file is not None:
         from ..motion.vehicle import drive
-        from ..score.evaluate import evaluate
 
         plan = read_plan(plan_file)
         limits = vehicle_limits(rig, settings.limits)
@@ -73,9 +76,9 @@ def run_drivable(out: Path, rig_name: str, duration: float, site: Any, seed: int
         bad = violations(built, built.timed(), site)
         if bad:
             raise OptimizeError(f"{plan_file}: " + "; ".join(bad))
-        rep = evaluate(drive(built.timed().profile, rig.suspension), rig)
+        rep = scorer(drive(built.timed().profile, rig.suspension))
         robust = robust_scores(built.course, rig, limits, draws, rep.score, seed, settings.driver,
-                               duration_s=plan.duration_s)
+                               duration_s=plan.duration_s, evaluate=scorer)
         extra: dict[str, Any] = {}
     else:
         from ..plan.drivable.search import check_problem
@@ -99,6 +102,9 @@ def run_drivable(out: Path, rig_name: str, duration: float, site: Any, seed: int
                     + ("  ◀" if r["chosen"] else ""))
     for i, text in enumerate(built.instructions):
         c.print(f"{i + 1}. {text}", markup=False, highlight=False)
+    where = seeing.line(rep.scene)
+    if where is not None:
+        c.print(where)
     c.print(f"score {rep.score:.4g}; 10th percentile over {robust.scores.size} drives by the driver model "
             f"{robust.low:.4g} ({100 * robust.ratio:.0f} % of it); {len(built.cones)} cones")
     for p in write_drivable(out, built, site, rig, rep, robust, extra):

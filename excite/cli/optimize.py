@@ -112,6 +112,12 @@ def optimize(
                                                        "speed).")] = None,
     draws: Annotated[int, typer.Option(help="With --drivable: drives of the driver model per plan in the robust "
                                             "choice; range [5, 1000].")] = 30,
+    scene: Annotated[Optional[str], typer.Option(help="With --drivable: plan in this scene (in the lot's frame): "
+                                                      "a scene file (.geojson, .ply, .obj, .stl, .pcd, .las, "
+                                                      ".laz) or a bundled scene's name (excite scene list); every "
+                                                      "drive the search scores is seen by the rig's lidars in it, "
+                                                      "so where and at what heading each element goes is chosen "
+                                                      "by what they see there.")] = None,
     compile_only: Annotated[bool, typer.Option("--compile-only", help="Compile the optimizer's model for this "
                                                "rig and duration with the C compiler, score the "
                                                "reference maneuvers for this lot, both into the cache "
@@ -136,8 +142,11 @@ def optimize(
         from .drivable import run_drivable
 
         run_drivable(out, rig, duration, site, seed, time_budget - _process_age_s() - _WRITE_S, plan, speed_max,
-                     draws)
+                     draws, scene)
         return
+    if scene is not None:
+        raise typer.BadParameter("plans in a scene with --drivable (or --plan); the free-form optimizer plans blind",
+                                 param_hint="--scene")
     OptimizeSettings(time_budget_s=time_budget, starts=starts)  # validate the budget as given
     if compile_only:
         from ..plan.compiled import cache_dir

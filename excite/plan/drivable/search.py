@@ -21,6 +21,13 @@
    choosing drivers' quantile is optimistic: the plan that did best on them won).
 
 The result is re-scored by the full evaluator on the drive as instructed (the 100 Hz grid).
+
+With a ``scene`` (:class:`~excite.scene.model.Scene`, in the lot's frame) every drive the search
+scores — the library's elements, every plan the refinement tries, the driver model's drives and
+the result — is first seen in it (:func:`excite.scene.along.seen`, its default sampling) and
+then evaluated (:class:`Scorer`): where each element goes and at what heading is chosen by what
+the lidars see there. A drive seen in a scene costs several times a blind evaluation (the ray
+casting), so the refinement tries fewer plans within the same budget.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ from ...errors import OptimizeError
 from ...motion.driver import DriverModel
 from ...motion.vehicle import Limits, drive
 from ...rig.config import Rig
+from ...scene.model import Scene
 from ..site import Site
 from .design import (Candidate, Design, describe, e_design, half_extent, lambda_min, library, repeat_param,
                      repetitions)
@@ -65,7 +73,8 @@ class DrivableSettings:
     ``max_elements``: at most this many elements; ``speed_max_mps``: the fastest speed the
     instructions may ask for (None: ``MARGIN`` × the speed limit; above the lot's safe speed it is
     refused); ``driver``: the driver model; ``draws`` drives per plan in the robust choice;
-    ``quantile`` the plans are chosen by; ``seed``: the drivers and CMA-ES.
+    ``quantile`` the plans are chosen by; ``seed``: the drivers and CMA-ES; ``scene``: the scene
+    every drive is scored in (in the lot's frame; None: blind).
     """
 
     duration_s: float = 90.0
@@ -82,6 +91,7 @@ class DrivableSettings:
     quantile: float = QUANTILE
     seed: int = 0
     workers: int | None = None
+    scene: Scene | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         for k in self.kinds:
@@ -98,6 +108,8 @@ class DrivableSettings:
             raise OptimizeError(f"duration_s must be 10 to 600 s, got {self.duration_s:g}")
         if not (1.0 <= self.time_budget_s <= 3600.0):
             raise OptimizeError(f"time_budget_s must be 1 to 3600 s, got {self.time_budget_s:g}")
+        if self.scene is not None:
+            check_scene(self.scene, self.lot)
 
     @property
     def lot(self) -> Site:
@@ -121,6 +133,36 @@ def safe_speed_mps(site: Site, limits: Limits) -> tuple[float, float]:
             best = max(best, 2 * site.reach_m(p, d))
     a, b = MARGIN * limits.accel_max_mps2, MARGIN * limits.decel_max_mps2
     return math.sqrt(2 * best * a * b / (a + b)), best
+
+
+def check_scene(scene: Scene, site: Site) -> None:
+    """Refuse a scene that does not reach over the lot (a lot and a scene in different frames:
+    a lot given as ``XxY`` is centred on the origin, a GeoJSON lot is in its file's frame)."""
+    lo, hi = site.lot.polygon_m.min(axis=0), site.lot.polygon_m.max(axis=0)
+    b = scene.bounds
+    if np.any(b[0, :2] > hi) or np.any(b[1, :2] < lo):
+        raise OptimizeError(f"scene: {scene.source} spans x {b[0, 0]:.0f} to {b[1, 0]:.0f} m, y {b[0, 1]:.0f} to "
+                            f"{b[1, 1]:.0f} m and the lot x {lo[0]:.0f} to {hi[0]:.0f} m, y {lo[1]:.0f} to "
+                            f"{hi[1]:.0f} m: they do not overlap (the scene must be in the lot's frame)")
+
+
+@dataclass(frozen=True)
+class Scorer:
+    """The full evaluator's report of a drive with ``rig``, the drive first seen in ``scene``
+    (:func:`excite.scene.along.seen`) when there is one. Pickles (a worker process builds the
+    scene's ray caster again)."""
+
+    rig: Rig
+    scene: Scene | None = None
+
+    def __call__(self, traj):
+        from ...score.evaluate import evaluate
+
+        if self.scene is not None:
+            from ...scene.along import seen
+
+            traj = seen(traj, self.rig, self.scene)
+        return evaluate(traj, self.rig)
 
 
 def check_problem(site: Site, limits: Limits, speed_max_mps: float | None = None) -> None:
@@ -484,9 +526,9 @@ def refine(plan: DrivablePlan, shares: list[float], rig: Rig, limits: Limits, si
 
 
 def _refine_task(args) -> list[tuple[dict, float]]:
-    plan, shares, rig, limits, site, vmax, deadline_s, seed = args
+    plan, shares, rig, limits, site, vmax, deadline_s, seed, scorer = args
     deadline = time.monotonic() + deadline_s
-    res = refine(plan, shares, rig, limits, site, vmax, deadline, seed)
+    res = refine(plan, shares, rig, limits, site, vmax, deadline, seed, scorer)
     return [(s.plan.to_dict(), s.score) for s in res if s.penalty == 0][:6]
 
 
@@ -496,7 +538,8 @@ def _robust_task(args) -> tuple[int, Robust]:
     i, doc, rig, limits, settings, nominal = args
     built = build(plan_from_dict(doc), limits)
     return i, robust_scores(built.course, rig, limits, settings.draws, nominal, settings.seed, settings.driver,
-                            duration_s=settings.duration_s, quantile=settings.quantile)
+                            duration_s=settings.duration_s, quantile=settings.quantile,
+                            evaluate=Scorer(rig, settings.scene))
 
 
 # --------------------------------------------------------------------------------------------
@@ -537,14 +580,13 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
                       progress: Callable[[Progress], None] | None = None,
                       should_stop: Callable[[], bool] | None = None) -> DrivableResult:
     """The drivable plan of the problem (see the module docstring)."""
-    from ...score.evaluate import evaluate
-
     t0 = time.monotonic()
     budget = settings.time_budget_s
     site, limits = settings.lot, settings.limits
     from ..settings import vehicle_limits
 
     limits = vehicle_limits(rig, limits)
+    scorer = Scorer(rig, settings.scene)
     check_problem(site, limits, settings.speed_max_mps)
     vmax = MARGIN * limits.speed_max_mps
     if settings.speed_max_mps is not None:
@@ -559,7 +601,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
 
     report("library")
     lib = library(rig, limits_plan, site, settings.kinds,
-                  evaluate=lambda tr: evaluate(tr, rig), progress=lambda i, n: report("library", f"{i}/{n}"))
+                  evaluate=scorer, progress=lambda i, n: report("library", f"{i}/{n}"))
     timings["library"] = time.monotonic() - t0
     transit_guess = 6.0  # seconds per transit, taken off the time the design shares out
     sets = element_sets(lib, settings.duration_s - transit_guess * (settings.max_elements - 1),
@@ -602,7 +644,8 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     if workers > 1:
         with cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             with hidden_main():
-                futs = [pool.submit(_refine_task, (p, sh, rig, limits_plan, site, vmax, per_set, settings.seed + k))
+                futs = [pool.submit(_refine_task, (p, sh, rig, limits_plan, site, vmax, per_set, settings.seed + k,
+                                                          scorer))
                         for k, (p, sh) in enumerate(starts)]
             while futs:
                 done, _ = cf.wait(futs, timeout=0.5)
@@ -619,7 +662,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     else:
         for k, (p, sh) in enumerate(starts):
             deadline = time.monotonic() + per_set
-            for s in refine(p, sh, rig, limits_plan, site, vmax, deadline, settings.seed + k,
+            for s in refine(p, sh, rig, limits_plan, site, vmax, deadline, settings.seed + k, scorer,
                             report=lambda b: (best_so_far.__setitem__(0, max(best_so_far[0], b)), report("refine"))):
                 if s.penalty == 0:
                     results.append((s.plan, s.score))
@@ -673,7 +716,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     built = build(plan, limits_plan)
     timed = built.timed()
     traj = drive(timed.profile, rig.suspension)
-    rep = evaluate(traj, rig)
+    rep = scorer(traj)
     # the chosen plan's quantile over drivers it was not chosen by (the choosing drivers' is
     # optimistic: the plan that did best on them was picked), as many as the time left allows
     chosen_by = robust[k]
@@ -684,7 +727,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
             break
         c0 = time.monotonic()
         sc, w = driven_scores(built.course, rig, limits_plan, 1, settings.seed + FRESH_SEED, settings.driver,
-                              settings.duration_s, first=len(fresh))
+                              settings.duration_s, scorer, first=len(fresh))
         fresh.append(float(sc[0]))
         fresh_w.append(float(w[0]))
         t_draw = max(t_draw, time.monotonic() - c0)
