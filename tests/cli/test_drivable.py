@@ -37,3 +37,37 @@ def test_a_plan_file_is_driven_into_its_sheet_cones_and_report(tmp_path, capsys)
     (tmp_path / "bad.json").write_text(json.dumps(plan))
     assert main(["optimize", "--plan", str(tmp_path / "bad.json"), "-o", str(out)]) == 1
     assert "below twice the vehicle's turning radius" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--scene", "lot_buildings_one_side"], "--scene"),  # the free-form optimizer plans blind
+    (["--drivable", "--scene", "no_such_scene.ply"], "no_such_scene.ply"),
+])
+def test_a_bad_scene_is_one_line_and_a_non_zero_exit(tmp_path, capsys, args, words):
+    from excite.cli.app import main
+
+    assert main(["optimize", "-o", str(tmp_path / "out"), *args]) != 0
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if line.strip()]
+    assert any(words in line for line in err), err
+
+
+def test_a_plan_file_is_scored_in_the_scene_it_is_given(tmp_path, capsys):
+    from excite.cli.app import main
+    from excite.io.routes import read_route
+    from excite.rig.config import load_rig
+    from excite.scene.along import seen
+    from excite.scene.files import load_scene
+    from excite.score.evaluate import evaluate
+
+    plan = {"duration_s": 30, "elements": [{"kind": "circles", "params": {
+        "radius_m": 8, "speed_mps": 6, "laps": 1, "stops_per_lap": 0}, "pose": {"x_m": 0, "y_m": 5, "heading_deg": 0}}]}
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    out = tmp_path / "out"
+    assert main(["optimize", "--plan", str(tmp_path / "plan.json"), "--draws", "5", "--scene",
+                 "lot_buildings_one_side", "-o", str(out)]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    scene = load_scene("lot_buildings_one_side")
+    assert rep["scene"]["digest"] == scene.digest
+    rig = load_rig("robotaxi")
+    traj = read_route(out / "control.csv", suspension=rig.suspension)
+    assert rep["score"] == pytest.approx(evaluate(seen(traj, rig, scene), rig).score, rel=1e-3)
