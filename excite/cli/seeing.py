@@ -1,6 +1,6 @@
 """``--scene``: the scene a command's drives are scored in (:mod:`excite.scene`).
 
-Every command that evaluates a drive (``score``, ``live``, ``mine``, ``batch``) takes
+Every command that evaluates a drive (``score``, ``live``, ``mine``, ``validate``, ``batch``) takes
 ``--scene FILE`` — a scene file (GeoJSON, a mesh, a point-cloud map) or a bundled scene's name —
 read by :func:`excite.scene.files.load_scene` and seen along each drive before it is evaluated
 (:func:`excite.scene.along.seen`): the rig's lidars are then told what the surfaces in view can

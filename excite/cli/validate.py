@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
+from . import seeing
 from .app import app, console
 
 if TYPE_CHECKING:
@@ -56,6 +57,7 @@ def _fmt(value: float | None, unit: str) -> str:
 
 def print_result(res: MonteCarloResult, console: Any) -> None:
     """The Monte Carlo comparison as tables for a terminal."""
+    from rich.markup import escape
     from rich.table import Table
 
     from ..core.units import display_unit
@@ -63,7 +65,9 @@ def print_result(res: MonteCarloResult, console: Any) -> None:
     rep = res.report
     n = len(res.trials)
     conf = int(round(100 * res.settings.confidence))
-    console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]: {rep.duration_s:.1f} s, "
+    where = seeing.line(rep.scene)
+    console.print(f"[bold]{rep.route}[/] with rig [bold]{rep.rig}[/]" + (f" in {escape(where)}" if where else "")
+                  + f": {rep.duration_s:.1f} s, "
                   f"{rep.n_keyframes} keyframes, rank {rep.rank}/{rep.rank + rep.nullity}; "
                   f"{n} trials (seed {res.settings.seed}), true offsets "
                   f"{res.settings.offset_in_targets:g} × target, {res.seconds:.0f} s")
@@ -139,6 +143,8 @@ def validate(
                                                           "optimize --drivable): every trial drives it as another "
                                                           "person would (the driver model), and the prediction is "
                                                           "made from each trial's own drive.")] = False,
+    scene: Annotated[Optional[str], typer.Option(help=seeing.HELP + " The simulated lidar pairs then carry the "
+                                                 "registration error the scene's information predicts.")] = None,
 ) -> None:
     """Simulate the rig's sensors on the route, calibrate N times, compare with the predicted σ."""
     from ..rig.config import load_rig
@@ -151,6 +157,8 @@ def validate(
     r = load_rig(rig)
     if imu_rate is not None:
         r = with_imu_rate(r, imu_rate)
+    world = seeing.load(scene)
+    seeing.warn_blind(r, world)
     drives = None
     if driver and duration is not None:
         from ..errors import ValidateError
@@ -173,11 +181,12 @@ def validate(
             def drives(i: int):
                 dc = drive_course(built.course, limits, DriverModel(), np.random.default_rng([seed, i]),
                                   duration_s=built.plan.duration_s)
-                return drive(dc.profile, r.suspension)
+                return seeing.seeing(drive(dc.profile, r.suspension), r, world)
     else:
         traj = read_route(route, times=times, suspension=r.suspension)
     if duration is not None:
         traj = crop(traj, duration)
+    traj = seeing.seeing(traj, r, world)
     if simulator not in ("physical", "model"):
         raise ValidateError(f"--simulator must be 'physical' or 'model', got {simulator!r}")
     sim = SimulationSettings() if simulator == "physical" else SimulationSettings.model()

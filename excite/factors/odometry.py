@@ -281,6 +281,19 @@ def scene_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: 
     """``W_n`` (N × 6 × 6) of the frame pairs starting at keyframes ``first`` that see the scene
     (the module docstring's ``Λ = A_r (I + Q A_r)⁻¹``), with Q the pair's drift covariance: the
     densities', or ``(W_rᵀW_r)⁻¹`` of the ``reported`` whitening."""
+    A_r = scene_information(nom, s, first, stride)
+    if reported is None:
+        sig_r, sig_t = pair_sigmas(s)
+        Q = np.broadcast_to(np.diag([sig_r**2] * 3 + [sig_t**2] * 3), A_r.shape)
+    else:
+        Q = np.linalg.inv(np.swapaxes(reported, 1, 2) @ reported)
+    Lam = A_r @ np.linalg.inv(np.eye(6) + Q @ A_r)
+    return sqrt_psd(Lam)
+
+
+def scene_information(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: int) -> np.ndarray:
+    """``A_r`` (N × 6 × 6): the scene's information about each frame pair starting at keyframes
+    ``first``, in the odometry residual's coordinates (the module docstring's ``Mᵀ A M``)."""
     i = np.asarray(first)
     j = i + stride
     R_BS = s.T_B_S.R
@@ -293,11 +306,4 @@ def scene_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: 
     M[:, :3, :3] = np.eye(3)
     M[:, 3:, 3:] = np.swapaxes(R_Si, 1, 2) @ R_Sj  # R_rel
     M[:, 3:, 3:] = np.swapaxes(M[:, 3:, 3:], 1, 2)  # R_relᵀ
-    A_r = np.swapaxes(M, 1, 2) @ A @ M
-    if reported is None:
-        sig_r, sig_t = pair_sigmas(s)
-        Q = np.broadcast_to(np.diag([sig_r**2] * 3 + [sig_t**2] * 3), A_r.shape)
-    else:
-        Q = np.linalg.inv(np.swapaxes(reported, 1, 2) @ reported)
-    Lam = A_r @ np.linalg.inv(np.eye(6) + Q @ A_r)
-    return sqrt_psd(Lam)
+    return np.swapaxes(M, 1, 2) @ A @ M

@@ -309,31 +309,44 @@ def raw_linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
     return _cached("raw", kind, rig, entry, build)
 
 
-def recorded_linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
+def recorded_linearisation(kind: Kind, rig: RigView, entry: Any, whitened: bool = True) -> ca.Function:
     """``(x, imu, q, meas) → (Jx, Jt)`` of one factor at a recorded measurement (:func:`derivatives`),
-    compiled once per entry: the derivative of :func:`residual_function`."""
+    compiled once per entry: the derivative of :func:`residual_function` (``whitened=False``: of
+    its rows not whitened, :func:`raw_recorded_linearisation`)."""
     def build():
         lay, x, s, q, cv = _entry_symbols(kind, rig, entry)
         f = inputs(kind, lay, x, s, q, cv, entry=entry, rig=rig)
         meas = ca.SX.sym("m", kind.measurement(f).numel())
-        Jx, Jt = derivatives(kind, lay, x, s, q, cv, meas, entry=entry, rig=rig)
-        return ca.Function(f"rlin_{kind.name}", [x, s, q, meas], [Jx, Jt[:, lay.estimated_columns().tolist()]],
-                           {"cse": True})
+        Jx, Jt = derivatives(kind, lay, x, s, q, cv, meas, whitened=whitened, entry=entry, rig=rig)
+        return ca.Function(f"{'' if whitened else 'raw_'}rlin_{kind.name}", [x, s, q, meas],
+                           [Jx, Jt[:, lay.estimated_columns().tolist()]], {"cse": True})
 
-    return _cached("rlin", kind, rig, entry, build)
+    return _cached("rlin" if whitened else "raw_rlin", kind, rig, entry, build)
 
 
-def residual_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
-    """``(x, imu, q, meas) → W r`` of one factor, compiled once per entry."""
+def raw_recorded_linearisation(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
+    """:func:`recorded_linearisation` of the residual's rows not whitened (another whitening is
+    applied to them: :meth:`~excite.factors.base.Kind.whitening`)."""
+    return recorded_linearisation(kind, rig, entry, whitened=False)
+
+
+def residual_function(kind: Kind, rig: RigView, entry: Any, whitened: bool = True) -> ca.Function:
+    """``(x, imu, q, meas) → W r`` of one factor, compiled once per entry (``whitened=False``:
+    ``r``, :func:`raw_residual_function`)."""
     def build():
         lay, x, s, q, cv = _entry_symbols(kind, rig, entry)
         f = inputs(kind, lay, x, s, q, cv, entry=entry, rig=rig)
         meas = ca.SX.sym("m", kind.measurement(f).numel())
         res = kind.residual(f, meas)
-        r = whiten(kind.sqrt_information(f), res, res.numel())
-        return ca.Function(f"res_{kind.name}", [x, s, q, meas], [r], {"cse": True})
+        r = whiten(kind.sqrt_information(f), res, res.numel()) if whitened else res
+        return ca.Function(f"{'' if whitened else 'raw_'}res_{kind.name}", [x, s, q, meas], [r], {"cse": True})
 
-    return _cached("res", kind, rig, entry, build)
+    return _cached("res" if whitened else "raw_res", kind, rig, entry, build)
+
+
+def raw_residual_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
+    """:func:`residual_function` not whitened (another whitening is applied to its rows)."""
+    return residual_function(kind, rig, entry, whitened=False)
 
 
 def measurement_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
@@ -363,7 +376,10 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
         first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
         if first.size == 0:
             return None
-        fn = (linearisation if whitening is None else raw_linearisation) if meas is None else recorded_linearisation
+        if meas is None:
+            fn = linearisation if whitening is None else raw_linearisation
+        else:
+            fn = recorded_linearisation if whitening is None else raw_recorded_linearisation
         lay, args = _args(kind, nom, rig, entry, first, values)
         if meas is not None:
             args.append(np.asarray(meas, dtype=float).T)
@@ -380,17 +396,20 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
 
 
 def residuals(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndarray, meas: np.ndarray,
-              values: dict[str, Any] | None = None) -> np.ndarray:
+              values: dict[str, Any] | None = None, whitening: np.ndarray | None = None) -> np.ndarray:
     """Whitened residuals (N × rows) of the measurements ``meas`` (N × m) of the factors starting at
     keyframes ``first``, at the states and samples of ``nom`` and the quantity ``values`` (by name;
-    the nominal ones otherwise)."""
+    the nominal ones otherwise); whitened by ``whitening`` (N × rows × the residual's rows) in
+    place of the statement's where given."""
     with LOCK:
-        G = residual_function(kind, rig, entry)
+        fn = residual_function if whitening is None else raw_residual_function
+        G = fn(kind, rig, entry)
         if first.size == 0:
             return np.zeros((0, G.size1_out(0)))
         _, args = _args(kind, nom, rig, entry, first, values)
-        r = _mapped("res", kind, rig, entry, residual_function, first.size)(*args, np.asarray(meas, dtype=float).T)
-        return np.asarray(r).T
+        r = np.asarray(_mapped(fn.__name__, kind, rig, entry, fn, first.size)(*args,
+                                                                              np.asarray(meas, dtype=float).T)).T
+        return r if whitening is None else np.einsum("nij,nj->ni", whitening, r)
 
 
 def measurements(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndarray,

@@ -41,7 +41,7 @@ SPACING_M = 5.0
 HEIGHT_M = 1.8
 """Height of the lidar above the ground under each point [m] (a roof lidar's)."""
 MAX_CELLS = 3000
-"""Most points a survey scans (about 6 ms each on one core)."""
+"""Most points a survey scans (each a ray-cast scan of the lidar)."""
 MAX_COLUMNS = 160
 """Most points across the map (the width of a terminal's line)."""
 NULL_RTOL = 1e-9

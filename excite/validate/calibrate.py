@@ -137,7 +137,7 @@ class CalibrationResult:
     iterations: int
     initial_cost: float
     cost: float
-    n_residuals: int
+    n_residuals: int  # that carry information (a row whitened by zero measures nothing)
     n_unknowns: int
     calibration: Calibration
     states: States
@@ -189,6 +189,8 @@ class _Problem:
         self.n_x = 9 * self.K
         self.gauge_R = gauge_R
         self.gauge_p = np.zeros(3) if gauge_p is None else gauge_p
+        self.empty_rows: dict[str, int] = {}  # per kind: rows its whitening from data sets to zero
+        self.whitenings: dict[str, np.ndarray | None] = {}  # per kind: its whitening from data, held
         # (kind, entry, what it recorded, its label): every entry that recorded data, and the
         # factors that open its chains at the drive's start (a GNSS antenna's first fix)
         self.instances = [(i.kind, i.entry, i.name, i.name) for i in registry.instances(self.rig)
@@ -201,6 +203,11 @@ class _Problem:
         # in a bias to far better than that over such a step)
         self.bias_columns = [(i, 1e-3 * c.target) for i, c in enumerate(rig.coordinates)
                              if c.block == "imu" and c.quantity in ("gyro_bias", "accel_bias")]
+
+    @property
+    def n_empty(self) -> int:
+        """Residual rows whitened by zero at the last evaluation (they carry no information)."""
+        return sum(self.empty_rows.values())
 
     def nominal(self, X: States, cal: Calibration) -> Nominal:
         """The motion the factors are evaluated on: the estimated states, the IMU samples
@@ -215,22 +222,31 @@ class _Problem:
         imu_R[-1] = X.R[-1]
         return Nominal(t=d.t, R=X.R, p=X.p, v=X.v, omega=keyframe_rates(d, b_g), R_V_A=d.R_V_A, imu_R=imu_R,
                        imu_omega=d.imu.gyro - b_g, imu_f=d.imu.accel - b_a, imu_per_keyframe=n,
-                       R_V_B=d.R_V_B, p_V_B=d.p_V_B, logs=d.logs)
+                       R_V_B=d.R_V_B, p_V_B=d.p_V_B, logs=d.logs, scene=d.scene, ground=d.ground)
 
     def evaluate(self, X: States, cal: Calibration, jacobian: bool):
         """Whitened residual vector at ``(X, cal)``, and with ``jacobian`` its :class:`Linearisation`
         (sparse whitened Jacobians in the closure's states)."""
         nom = self.nominal(X, cal)
         parts, kinds, recorded, predicted = [], [], [], []
+        self.empty_rows = {}
         for kind, entry, record, label in self.instances:
             first = kind.factor_keyframes(self.rig, entry, self.K, nom)
             meas, values = kind.measured(self.rig, entry, self.data.recorded[record],
                                          cal.for_entry(kind, self.rig, entry))
-            parts.append(symbolic.residuals(kind, nom, self.rig, entry, first, meas, values).ravel())
+            # the factors' whitening from data (a scene's information, a reported covariance):
+            # at the first estimate, then held (a weight that moved with the estimate would move
+            # the cost under the solver's steps)
+            if label not in self.whitenings:
+                self.whitenings[label] = kind.whitening(nom, self.rig, entry, first) if first.size else None
+            W = self.whitenings[label]
+            if W is not None:
+                self.empty_rows[label] = int((~np.any(W != 0, axis=2)).sum())
+            parts.append(symbolic.residuals(kind, nom, self.rig, entry, first, meas, values, whitening=W).ravel())
             if jacobian:
                 # the residual's own derivative, and the evaluator's (at the estimate's values)
                 for out, v, m in ((recorded, values, meas), (predicted, cal.for_entry(kind, self.rig, entry), None)):
-                    b = symbolic.blocks(kind, nom, self.rig, entry, v, meas=m)
+                    b = symbolic.blocks(kind, nom, self.rig, entry, v, meas=m, whitening=W)
                     if b is not None:
                         out.append(b)
             kinds.append(label)
@@ -400,7 +416,7 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
             fisher = _Normal(lin.predicted, r, prob.n_x, scale)
             info0 = fisher.factor(0.0)[3]
             # spurious information of an estimate's error grows with it, as its excess cost does
-            excess = max(1.0, 2.0 * cost / max(r.size - lin.recorded.shape[1], 1))
+            excess = max(1.0, 2.0 * cost / max(r.size - prob.n_empty - lin.recorded.shape[1], 1))
             basis, tol, cond_t = fisher.rank(info0, settings.rank_rtol * excess)
             y0 = nrm.step(fac0, basis)  # the undamped Gauss–Newton step
         except FactorisationError as e:
@@ -467,8 +483,10 @@ def calibrate(data: SensorData, rig: Rig, initial: Calibration, initial_states: 
             pass
     _emit(log, dict(event="stop", status=status, reason=reason, iterations=it, step_trials=trials,
                     initial_cost=cost0, cost=cost))
-    rms = {k: float(np.sqrt(np.mean(r[sl] ** 2))) for k, sl in prob.kinds.items() if k != "gauge"}
-    return CalibrationResult(status, reason, it, cost0, cost, int(r.size), int(lin.recorded.shape[1]), cal, X, info, rms)
+    rms = {k: float(np.sqrt(np.sum(r[sl] ** 2) / max(sl.stop - sl.start - prob.empty_rows.get(k, 0), 1)))
+           for k, sl in prob.kinds.items() if k != "gauge"}
+    return CalibrationResult(status, reason, it, cost0, cost, int(r.size) - prob.n_empty, int(lin.recorded.shape[1]),
+                             cal, X, info, rms)
 
 
 _ROUNDING = 1e-13  # relative rounding of the cost, a sum of ~10⁴ squares

@@ -187,7 +187,7 @@ class MonteCarloResult:
 
     def to_dict(self) -> dict:
         return {
-            "route": self.report.route, "rig": self.report.rig, "runs": len(self.trials),
+            "route": self.report.route, "rig": self.report.rig, "scene": self.report.scene, "runs": len(self.trials),
             "seed": self.settings.seed, "offset_in_targets": self.settings.offset_in_targets,
             "score": self.report.score, "rank": self.report.rank, "nullity": self.report.nullity,
             "parameters": [{"name": p.name, "unit": p.unit, "target": p.target, "predicted_sigma": p.predicted_sigma,

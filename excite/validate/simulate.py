@@ -214,6 +214,8 @@ class SensorData:
     p_V_B: np.ndarray
     truth: Truth = field(repr=False)
     logs: dict = field(default_factory=dict, repr=False)
+    scene: dict = field(default_factory=dict, repr=False)  # what a scene shows the lidars (Nominal.scene)
+    ground: dict = field(default_factory=dict, repr=False)  # and the road plane they fit (Nominal.ground)
 
     @property
     def n_keyframes(self) -> int:
@@ -271,7 +273,9 @@ def _with_slip_angle(traj: Trajectory, deg_per_mps2: float, rate_hz: float = 50.
     R_A_V = np.swapaxes(smp.R_V_A, 1, 2)
     R = smp.R_W_V @ smp.R_V_A @ so3.rot_z(beta) @ R_A_V
     tilt = so3.yaw_pitch_roll(R_A_V)[:, 1:3] if traj.has_tilt else None
-    return Trajectory(t, R, smp.p_W_V, tilt_pitch_roll=tilt, velocity=smp.v_W, name=traj.name)
+    out = Trajectory(t, R, smp.p_W_V, tilt_pitch_roll=tilt, velocity=smp.v_W, name=traj.name)
+    out.origin = traj.origin
+    return out.with_scene(traj.scene)  # the yaw of a slip angle turns no 360° scan's world-aligned view
 
 
 def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Generator,
@@ -293,7 +297,33 @@ def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Gene
             recorded[inst.name] = inst.kind.simulate(sim, inst.entry)
         except ValueError as exc:
             raise ValidateError(f"{inst.name}: {exc}") from None
+        if settings.noise and inst.kind.name == "odometry" and inst.entry.name in nom.scene:
+            recorded[inst.name] = _registration_noise(sim, inst.kind, inst.entry, recorded[inst.name])
     imu = recorded["imu"]
     return SensorData(t=nom.t, imu_per_keyframe=nom.imu_per_keyframe, recorded=recorded, R_V_A=nom.R_V_A,
                       R_V_B=nom.R_V_B, p_V_B=nom.p_V_B,
-                      truth=Truth(nom.R, nom.p, nom.v, truth, imu.gyro_bias, imu.accel_bias), logs=nom.logs)
+                      truth=Truth(nom.R, nom.p, nom.v, truth, imu.gyro_bias, imu.accel_bias), logs=nom.logs,
+                      scene=nom.scene, ground=nom.ground)
+
+
+def _registration_noise(sim: Simulation, kind: Kind, entry: Any, pairs: np.ndarray) -> np.ndarray:
+    """A lidar's frame pairs (``[R_rel, t_rel]`` rows) in a scene, with each pair's registration
+    error added to the drift the odometry simulated: drawn from the scene's information about the
+    pair (:func:`excite.factors.odometry.scene_information`, its pseudo-inverse: none along the
+    directions it does not see), so that the pair's error has the covariance ``A_r⁻¹ + Q`` whose
+    inverse the model weighs it by. The registration is the model's, not a ray-cast scan's."""
+    from ..factors.odometry import scene_information
+
+    first = kind.factor_keyframes(sim.rig, entry, sim.nom.n_keyframes)
+    if first.size == 0:
+        return pairs
+    A = scene_information(sim.nom, entry, first, kind.stride(sim.rig, entry))
+    lam, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
+    keep = lam > 1e-12 * np.maximum(lam[:, -1:], 0.0)
+    scale = np.where(keep, 1.0 / np.sqrt(np.where(keep, lam, 1.0)), 0.0)
+    e = np.einsum("nij,nj->ni", V * scale[:, None, :], sim.rng.normal(size=(first.size, 6)))
+    out = pairs.copy()
+    R = out[:, :9].reshape(-1, 3, 3) @ so3.exp(e[:, :3])
+    out[:, :9] = R.reshape(-1, 9)
+    out[:, 9:12] += e[:, 3:]
+    return out

@@ -111,7 +111,7 @@ def test_a_scene_that_cannot_be_read_is_each_command_s_one_line_error(logged, tm
          "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [10, 0], [10, 10], [0, 0]]]}}]}))
     missing = tmp_path / "missing.geojson"
     for argv in (["score", str(route)], ["live", str(route), "--replay", "1000x"], ["mine", str(route)],
-                 ["batch", str(route)], ["scene", "info"]):
+                 ["batch", str(route)], ["validate", str(route), "--runs", "2"], ["scene", "info"]):
         line = _error(capsys, argv + ["--scene", str(bad)] if argv[0] != "scene" else argv + [str(bad)])
         assert line.startswith(f"excite: error: ") and str(bad) in line and "height" in line, line
         line = _error(capsys, argv + ["--scene", str(missing)] if argv[0] != "scene" else argv + [str(missing)])
@@ -191,3 +191,15 @@ def test_scene_info_prints_what_the_scene_holds_and_where_a_lidar_is_degenerate(
     for line in text.splitlines():
         if line.strip().startswith(tuple(symbols)) and "points)" in line:
             assert symbols[line.strip()[0]] in line
+
+
+@pytest.mark.montecarlo
+def test_validate_names_the_scene_it_checks_in(logged, capsys):
+    route, scene = logged
+    capsys.readouterr()
+    assert main(["validate", str(route), "--scene", str(scene), "--runs", "2", "--duration", "8",
+                 "--simulator", "model", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["scene"] == {"name": str(scene), "digest": load_scene(scene).digest}
+    z = next(p for p in doc["parameters"] if p["name"] == "lidar.trans_z")
+    assert z["predicted_sigma"] < 0.01  # the road in view (scene-blind: decimetres)
