@@ -108,7 +108,10 @@ def run_drivable(request: dict[str, Any], rig: Any, progress: Callable[[dict[str
 
     from .scoring import drivable_settings
 
-    settings = drivable_settings(request)
+    if request.get("scene") is not None and request.get("_scene") is None:
+        raise Problem.at("scene", f"the scene {request['scene'][:12]}… is no longer kept for this key "
+                                  "(deleted, or unused for the retention period): upload it again")
+    settings = drivable_settings(request, request.get("_scene"))
     res = optimize_drivable(rig, settings, lambda p: progress(plain({"phase": p.phase, "elapsed_s": p.elapsed_s,
                                                                       "score": p.best or None})), should_stop)
     out = plain(res.to_dict())
@@ -284,11 +287,24 @@ class JobRunner:
         request = self.store.request_of(job_id, attempt)
         if request is None:
             return
+        if request.get("scene") is not None:  # the scene's file goes to the run, not into the stored request
+            request = {**request, "_scene": self._scene(job_id, request["scene"])}
         limit = self.time_limit_s(request)
         proc = Supervised(job_main, self.function, request, f"/v1/jobs/{job_id}", self.scheduler,
                           context="spawn", memory_mb=self.memory_mb, name="excite-job")
         self.runs[(job_id, attempt)] = Run(job_id, attempt, proc, time.monotonic() + limit, limit)
         log.info("job %s attempt %d started (pid %d)", job_id, attempt, proc.pid)
+
+    def _scene(self, job_id: str, ref: str) -> tuple | None:
+        """The scene a job's request names (:func:`api.scoring.scene_of`'s spec): a bundled one, or
+        its key's file of that digest (None when it is no longer kept: the run says so)."""
+        from excite.scene.files import bundled_scenes
+
+        if ref in bundled_scenes():
+            return ("bundled", ref)
+        job = self.store.get(job_id)
+        kept = None if job is None else self.store.scene(job["key_id"], ref)
+        return None if kept is None else ("upload", ref, kept[0], kept[1])
 
     def _listen(self, run: Run) -> None:
         """Read what the run's process sent; note its outcome when it ended without one."""

@@ -242,6 +242,10 @@ class ManeuverRequest(In):
         "fastest a car reaches and stops from again along the lot's longest straight)."))
     draws: int = Field(30, ge=5, le=200, description="Drivable plans: drives of the driver model per plan "
                                                      "in the robust choice.")
+    scene: SceneRef | None = Field(None, description=(
+        "Drivable plans: plan in this scene (in the lot's frame; a bundled scene's name or the digest of one "
+        "uploaded with POST /v1/scenes): every drive the search scores is seen by the rig's lidars in it. "
+        "The free-form optimizer plans scene-blind."))
 
 
 # --------------------------------------------------------------------------------------------

@@ -532,8 +532,9 @@ def lot_task(lot: dict[str, Any] | None, max_vertices: int, rig: str | dict[str,
     return errors
 
 
-def drivable_settings(request: dict[str, Any]):
-    """The drivable search's settings of a maneuver request (as data)."""
+def drivable_settings(request: dict[str, Any], scene: tuple | None = None):
+    """The drivable search's settings of a maneuver request (as data), in the ``scene`` it names
+    (:func:`scene_of`'s spec, resolved by the router or the job runner)."""
     from excite.motion.vehicle import Limits
     from excite.plan.drivable.search import DrivableSettings
     from excite.plan.site import read_site
@@ -542,20 +543,24 @@ def drivable_settings(request: dict[str, Any]):
                             site=read_site(request["lot"]) if request.get("lot") else None,
                             limits=Limits(**request["limits"]), time_budget_s=request["time_budget_s"],
                             speed_max_mps=request.get("speed_max_mps"), draws=request.get("draws", 30),
-                            seed=request["seed"], workers=1)
+                            seed=request["seed"], workers=1, scene=scene_of(scene))
 
 
-def drivable_check_task(request: dict[str, Any]) -> list[dict[str, str]]:
+def drivable_check_task(request: dict[str, Any], scene: tuple | None = None) -> list[dict[str, str]]:
     """What a drivable plan's request is refused for before it becomes a job (a lot too small for
-    any element, an instructed speed above the lot's safe speed), as ``errors``."""
+    any element, an instructed speed above the lot's safe speed, a scene that does not reach over
+    the lot), as ``errors``."""
     from excite.plan.drivable.search import check_problem
 
     try:
-        settings = drivable_settings(request)
+        settings = drivable_settings(request, scene)
         check_problem(settings.lot, settings.limits, settings.speed_max_mps)
+    except Problem as exc:
+        return exc.errors or [{"field": "scene", "message": exc.detail}]
     except ExciteError as exc:
-        field = "speed_max_mps" if str(exc).startswith("speed_max_mps") else "lot"
-        return [{"field": field, "message": str(exc)}]
+        text = str(exc)
+        field = next((f for f in ("speed_max_mps", "scene") if text.startswith(f)), "lot")
+        return [{"field": field, "message": text}]
     return []
 
 

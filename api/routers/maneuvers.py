@@ -18,6 +18,7 @@ from ..schemas import Job, ManeuverRequest
 from ..scoring import drivable_check_task, lot_task
 from .common import BODY
 from .jobs import job_view
+from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["maneuvers"])
 MAX_STORED_REQUEST_BYTES = 1 << 20  # a request with an inline rig and a GeoJSON lot is a few KiB
@@ -46,8 +47,17 @@ def create_maneuver(body: ManeuverRequest, request: Request, ctx: Ctx, response:
         errors.append({"field": str(exc).split(" ", 1)[0], "message": str(exc)})
     if body.lot is not None or isinstance(body.rig, dict):  # a client's lot and rig: in a worker
         errors += ctx.run(request, who, lot_task, body.lot, s.max_lot_vertices, body.rig)
-    if body.drivable and not errors:  # the lot's room for an element and its safe speed
-        errors += ctx.run(request, who, drivable_check_task, body.model_dump())
+    scene = None
+    if body.scene is not None and not body.drivable:
+        errors.append({"field": "scene", "message": "plans in a scene with drivable: true (the free-form "
+                                                    "optimizer plans scene-blind)"})
+    elif body.scene is not None:
+        try:
+            scene = scene_spec(ctx, who, body.scene)
+        except Problem as exc:
+            errors += exc.errors or []
+    if body.drivable and not errors:  # the lot's room for an element, its safe speed, the scene over it
+        errors += ctx.run(request, who, drivable_check_task, body.model_dump(), scene)
     if errors:
         raise Problem(422, "; ".join(e["message"] if e["message"].startswith(e["field"]) else
                                      f"{e['field']}: {e['message']}" for e in errors), errors=errors)

@@ -5,6 +5,7 @@ bad files are problems naming the field, sizes and storage bounded, another key'
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 from fastapi.testclient import TestClient
@@ -20,7 +21,7 @@ from servers import write_keys
 
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
 KEYS = {"scorer": {"scopes": ["score"]}, "other": {"scopes": ["score"]}, "planner": {"scopes": ["plan"]},
-        "small": {"scopes": ["score"], "quota": {"storage_mb": 1}}}
+        "small": {"scopes": ["score"], "quota": {"storage_mb": 1}}, "both": {"scopes": ["score", "plan"]}}
 CONTROL = (REPO / "trajectories" / "figure_eight_control.csv").read_text()
 
 
@@ -175,3 +176,46 @@ def test_a_live_session_sees_its_scene(keyed):
         ws.send_json({"type": "start", "scene": "f" * 64})
         msg = ws.receive_json()
         assert msg["type"] == "error" and msg["problem"]["errors"][0]["field"] == "scene"
+
+
+def test_a_drivable_plan_may_be_planned_in_a_scene(keyed):
+    """A maneuver request names a scene for a drivable plan only; a scene that does not reach over
+    the lot, or another key's, is refused naming the field; an accepted job keeps the scene's name
+    or digest in its request (the run is given the file)."""
+    c, s = keyed
+    body = _problem(c.post("/v1/maneuvers", json={"scene": "open_lot"}, headers=_h(s, "both")), 422, "scene")
+    assert "drivable" in body["detail"]
+    far = b'{"type": "FeatureCollection", "properties": {"crs": "local"}, "features": [{"type": "Feature", ' \
+          b'"properties": {"kind": "ground"}, "geometry": {"type": "Polygon", "coordinates": ' \
+          b'[[[1000, 1000], [1200, 1000], [1200, 1200], [1000, 1200], [1000, 1000]]]}}]}'
+    digest = _upload(c, s, "both", "far.geojson", far).json()["digest"]
+    body = _problem(c.post("/v1/maneuvers", json={"drivable": True, "scene": digest}, headers=_h(s, "both")),
+                    422, "scene")
+    assert "do not overlap" in body["detail"]
+    _problem(c.post("/v1/maneuvers", json={"drivable": True, "scene": digest}, headers=_h(s, "planner")),
+             422, "scene")  # the planner's key did not upload it
+    r = c.post("/v1/maneuvers", json={"drivable": True, "scene": "open_lot"}, headers=_h(s, "both"))
+    assert r.status_code == 202, r.text[:300]
+    store = c.app.state.ctx.store
+    assert store.request_of(r.json()["id"])["scene"] == "open_lot"
+    runner = c.app.state.ctx.runner
+    assert runner._scene(r.json()["id"], "open_lot") == ("bundled", "open_lot")
+    assert runner._scene(r.json()["id"], digest) == ("upload", digest, "far.geojson", far)
+    theirs = c.post("/v1/maneuvers", json={"drivable": True}, headers=_h(s, "planner")).json()["id"]
+    assert runner._scene(theirs, digest) is None  # a job of another key is not given it
+
+
+@pytest.mark.slow
+def test_a_drivable_job_in_a_scene_reports_it(tmp_path):
+    app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=1, score_workers=1))
+    with TestClient(app, base_url="http://localhost", raise_server_exceptions=False) as c:
+        r = c.post("/v1/maneuvers", json={"drivable": True, "duration_s": 60, "time_budget_s": 20, "draws": 5,
+                                          "scene": "lot_buildings_one_side"})
+        assert r.status_code == 202, r.text
+        deadline = time.monotonic() + 300
+        while (job := c.get(r.headers["location"]).json())["status"] in ("queued", "running"):
+            assert time.monotonic() < deadline, job
+            time.sleep(1.0)
+    assert job["status"] == "succeeded", job
+    scene = load_scene("lot_buildings_one_side")
+    assert job["result"]["report"]["scene"] == {"name": "lot_buildings_one_side", "digest": scene.digest}
