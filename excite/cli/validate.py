@@ -143,8 +143,9 @@ def validate(
                                                           "optimize --drivable): every trial drives it as another "
                                                           "person would (the driver model), and the prediction is "
                                                           "made from each trial's own drive.")] = False,
-    scene: Annotated[Optional[str], typer.Option(help=seeing.HELP + " The simulated lidar pairs then carry the "
-                                                 "registration error the scene's information predicts.")] = None,
+    scene: Annotated[Optional[str], typer.Option(help=seeing.HELP + " The simulator then ray-casts each lidar "
+                                                 "frame pair's scans in it (--simulator model: the registration "
+                                                 "error the scene's information predicts).")] = None,
 ) -> None:
     """Simulate the rig's sensors on the route, calibrate N times, compare with the predicted σ."""
     from ..rig.config import load_rig
@@ -203,16 +204,16 @@ def validate(
     if drives is not None:
         from ..validate.monte_carlo import monte_carlo_driven
 
-        res = monte_carlo_driven(drives, r, traj, settings, progress)
+        res = monte_carlo_driven(drives, r, traj, settings, progress, scene=world)
     elif log is None:
-        res = monte_carlo(traj, r, settings, progress)
+        res = monte_carlo(traj, r, settings, progress, scene=world)
     else:
         try:
             fh = log.open("w")
         except OSError as e:
             raise ValidateError(f"--log: cannot write {log}: {e.strerror}") from None
         with fh:
-            res = monte_carlo(traj, r, settings, progress, lambda rec: fh.write(json.dumps(rec) + "\n"))
+            res = monte_carlo(traj, r, settings, progress, lambda rec: fh.write(json.dumps(rec) + "\n"), scene=world)
     if json_out:
         typer.echo(json.dumps(res.to_dict(), indent=2))
     else:

@@ -408,6 +408,7 @@ class SimulationView(Protocol):
     truth: Any  # the true calibration (:class:`excite.validate.simulate.Calibration`)
     rng: np.random.Generator
     settings: Any  # :class:`excite.validate.simulate.SimulationSettings`
+    scan_pairs: dict  # a lidar's frame pairs in a scene, by name (:class:`excite.validate.scans.PairNoise`)
 
     @property
     def noisy(self) -> bool: ...

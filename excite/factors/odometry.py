@@ -223,7 +223,9 @@ class Odometry(Kind[OdometrySensor]):
     def simulate(self, sim: SimulationView, s: OdometrySensor) -> np.ndarray:
         """Relative poses between the sensor's frames at its own clock: the frame stamped ``t``
         shows the body at ``t + t_d`` (the exact pose of the drive; the factor takes it to first
-        order); a monocular camera's translations carry its true scale."""
+        order); a monocular camera's translations carry its true scale. A lidar whose scans the
+        simulator ray-cast in a scene (``sim.scan_pairs``: :mod:`excite.validate.scans`) measures
+        each pair as registering its two scans does (:func:`registered`), the drift added."""
         first = self.factor_keyframes(sim.rig, s, sim.nom.n_keyframes)
         frames = np.r_[first, first[-1] + self.stride(sim.rig, s)] if first.size else first
         if frames.size < 2:
@@ -236,12 +238,34 @@ class Odometry(Kind[OdometrySensor]):
         R_iT = np.swapaxes(R_S[:-1], 1, 2)
         R_rel = R_iT @ R_S[1:]
         t_rel = np.einsum("nij,nj->ni", R_iT, p_S[1:] - p_S[:-1]) * truth.scalar(s.name, "scale")
+        pairs = getattr(sim, "scan_pairs", {}).get(s.name)
+        if pairs is not None:
+            R_rel, t_rel = registered(R_rel, t_rel, pairs, first, sim.rng if sim.noisy else None)
         if sim.noisy:
             F = frames.size - 1
             sig_r, sig_t = pair_sigmas(s)
             R_rel = R_rel @ so3.exp(sim.rng.normal(0.0, sig_r, (F, 3)))
             t_rel = t_rel + sim.rng.normal(0.0, sig_t, (F, 3))
         return np.hstack([R_rel.reshape(-1, 9), t_rel])
+
+
+def registered(R_rel: np.ndarray, t_rel: np.ndarray, pairs, first: np.ndarray,
+               rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
+    """The relative poses ``R_rel, t_rel`` (F × 3 × 3, F × 3) of the pairs starting at keyframes
+    ``first`` as scan-to-scan registration in the scene reports them
+    (:class:`~excite.validate.scans.PairNoise`): along the directions its scans do not see, no
+    motion (the perturbation that takes the pair to no motion, projected on those directions:
+    exact for a translation, to second order in the pair's rotation for a rotation); elsewhere, with
+    ``rng``, an error drawn from the registration's covariance — a right perturbation
+    ``δ = [φ, ρ]`` of the pair's pose in S_j: ``R_rel Exp(φ)``, ``t_rel + R_rel ρ``."""
+    if not np.array_equal(pairs.first, first):
+        raise ValueError("the scan pairs were cast for another drive or rate")
+    # the perturbation that takes the pair's pose to no motion: R_rel Exp(φ) = I, t_rel + R_rel ρ = 0
+    back = -np.hstack([so3.log(R_rel), np.einsum("nji,nj->ni", R_rel, t_rel)])
+    delta = np.einsum("nij,nj->ni", pairs.null, back)
+    if rng is not None:
+        delta = delta + np.einsum("nij,nj->ni", pairs.root, rng.normal(size=back.shape))
+    return R_rel @ so3.exp(delta[:, :3]), t_rel + np.einsum("nij,nj->ni", R_rel, delta[:, 3:])
 
 
 def reported_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: int) -> np.ndarray | None:
@@ -281,7 +305,12 @@ def scene_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: 
     """``W_n`` (N × 6 × 6) of the frame pairs starting at keyframes ``first`` that see the scene
     (the module docstring's ``Λ = A_r (I + Q A_r)⁻¹``), with Q the pair's drift covariance: the
     densities', or ``(W_rᵀW_r)⁻¹`` of the ``reported`` whitening."""
-    A_r = scene_information(nom, s, first, stride)
+    return drift_whitening(s, scene_information(nom, s, first, stride), reported)
+
+
+def drift_whitening(s: OdometrySensor, A_r: np.ndarray, reported: np.ndarray | None = None) -> np.ndarray:
+    """``W_n`` of frame pairs whose registration holds ``A_r`` (N × 6 × 6, residual coordinates),
+    its error and the drift added: ``Λ = A_r (I + Q A_r)⁻¹`` (see :func:`scene_whitening`)."""
     if reported is None:
         sig_r, sig_t = pair_sigmas(s)
         Q = np.broadcast_to(np.diag([sig_r**2] * 3 + [sig_t**2] * 3), A_r.shape)
@@ -294,16 +323,25 @@ def scene_whitening(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: 
 def scene_information(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: int) -> np.ndarray:
     """``A_r`` (N × 6 × 6): the scene's information about each frame pair starting at keyframes
     ``first``, in the odometry residual's coordinates (the module docstring's ``Mᵀ A M``)."""
+    j = np.asarray(first) + stride
+    R_Sj = nom.R[j] @ s.T_B_S.R
+    B = np.zeros((j.size, 6, 6))
+    B[:, :3, :3] = B[:, 3:, 3:] = R_Sj
+    A = np.swapaxes(B, 1, 2) @ nom.scene[s.name][j] @ B  # scan j's information, in S_j
+    return residual_information(nom, s, first, stride, A)
+
+
+def residual_information(nom: Nominal, s: OdometrySensor, first: np.ndarray, stride: int,
+                         A: np.ndarray) -> np.ndarray:
+    """``A_r = Mᵀ A M`` (N × 6 × 6): the information ``A`` of scan j about each frame pair (a right
+    perturbation of its pose in S_j, [rotation, translation]) in the odometry residual's
+    coordinates, ``M = diag(I, R_relᵀ)`` at the orientations of ``nom``."""
     i = np.asarray(first)
     j = i + stride
     R_BS = s.T_B_S.R
     R_Si = nom.R[i] @ R_BS
     R_Sj = nom.R[j] @ R_BS
-    B = np.zeros((j.size, 6, 6))
-    B[:, :3, :3] = B[:, 3:, 3:] = R_Sj
-    A = np.swapaxes(B, 1, 2) @ nom.scene[s.name][j] @ B  # scan j's information, in S_j
     M = np.zeros((j.size, 6, 6))
     M[:, :3, :3] = np.eye(3)
-    M[:, 3:, 3:] = np.swapaxes(R_Si, 1, 2) @ R_Sj  # R_rel
-    M[:, 3:, 3:] = np.swapaxes(M[:, 3:, 3:], 1, 2)  # R_relᵀ
+    M[:, 3:, 3:] = np.swapaxes(R_Sj, 1, 2) @ R_Si  # R_relᵀ
     return np.swapaxes(M, 1, 2) @ A @ M

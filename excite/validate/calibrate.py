@@ -42,7 +42,8 @@ from ..factors import symbolic
 from ..factors.base import Nominal
 from ..factors.imu import preintegrate_all
 from ..factors.nonholonomic import sigma_mps
-from ..factors.odometry import Odometry, pair_sigmas
+from ..factors.odometry import (Odometry, drift_whitening, pair_sigmas, reported_whitening,
+                                residual_information, sqrt_psd)
 from ..factors.wheel import increment_sigma_rad
 from ..information import dense
 from ..information import kernels as info_kernels
@@ -234,11 +235,16 @@ class _Problem:
             first = kind.factor_keyframes(self.rig, entry, self.K, nom)
             meas, values = kind.measured(self.rig, entry, self.data.recorded[record],
                                          cal.for_entry(kind, self.rig, entry))
-            # the factors' whitening from data (a scene's information, a reported covariance):
-            # at the first estimate, then held (a weight that moved with the estimate would move
-            # the cost under the solver's steps)
+            # the factors' whitening from data (a scene's information, a reported covariance; a
+            # lidar pair's ray-cast scans by what their registration reports): at the first
+            # estimate, then held (a weight that moved with the estimate would move the cost under
+            # the solver's steps)
             if label not in self.whitenings:
-                self.whitenings[label] = kind.whitening(nom, self.rig, entry, first) if first.size else None
+                W = None
+                if first.size:
+                    W = _lidar_whitening(self.data, self.rig, entry, nom, first) if isinstance(kind, Odometry) else None
+                    W = kind.whitening(nom, self.rig, entry, first) if W is None else W
+                self.whitenings[label] = W
             W = self.whitenings[label]
             if W is not None:
                 self.empty_rows[label] = int((~np.any(W != 0, axis=2)).sum())
@@ -601,9 +607,15 @@ def initialise(data: SensorData, rig: Rig, nominal: Calibration, R0: np.ndarray,
                 A[:, :, i_td] = gyro.rate(t[1:]) - gyro.rate(t[:-1])
             if est_b:
                 A[:, :, nb:nb + 3] = -np.diff(t)[:, None, None] * np.eye(3)
-            rows.append(A.reshape(-1, n) / sig)
-            rhs.append(-e.ravel() / sig)
-            rms[s.name] = float(np.sqrt(np.mean((e / sig) ** 2)))
+            weights = _start_weights(data, rig, s, frames, R0 @ gyro.at(data.t))
+            if weights is None:
+                W = np.broadcast_to(np.eye(3) / sig, (F, 3, 3))
+            else:  # the pair's rotation information, its residual turned from S into B
+                W = weights[0] @ R_BS[s.name].T
+            A, e = W @ A, np.einsum("nij,nj->ni", W, e)
+            rows.append(A.reshape(-1, n))
+            rhs.append(-e.ravel())
+            rms[s.name] = float(np.sqrt(np.mean(e ** 2)))
         prior = np.zeros(n)
         for s in sensors:
             i_rot, i_td = layout[s.name]
@@ -651,10 +663,15 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
     blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (rows, cols, vals, rhs)
     row0 = 0
 
-    def add(coef: list[tuple[np.ndarray, np.ndarray]], rhs: np.ndarray, sigma: float | np.ndarray):
-        """Rows ``Σ M_k x_{idx_k} = rhs`` (M: (F, m, 3) blocks on unknown triples at column idx (F,))."""
+    def add(coef: list[tuple[np.ndarray, np.ndarray]], rhs: np.ndarray, sigma: float | np.ndarray,
+            weight: np.ndarray | None = None):
+        """Rows ``Σ M_k x_{idx_k} = rhs`` (M: (F, m, 3) blocks on unknown triples at column idx (F,)),
+        whitened by ``1/sigma`` or by the matrices ``weight`` (F, m, m)."""
         nonlocal row0
         F, m = rhs.shape
+        if weight is not None:
+            coef = [(weight @ M, idx) for M, idx in coef]
+            rhs, sigma = np.einsum("nij,nj->ni", weight, rhs), 1.0
         w = 1.0 / np.broadcast_to(np.asarray(sigma, dtype=float), (m,))
         rid = row0 + np.arange(F * m).reshape(F, m)
         for M, idx in coef:
@@ -690,7 +707,9 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
         RSiT = np.swapaxes(Rb[:-1] @ R_BS, 1, 2)
         lever = np.einsum("nij,j->ni", Rb, p_BS)
         rhs = t_rel - np.einsum("nij,nj->ni", RSiT, lever[1:] - lever[:-1])
-        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs, pair_sigmas(s)[1])
+        weights = _start_weights(data, rig, s, frames, R)
+        add([(RSiT, P(fj)), (-RSiT, P(fi)), (RSiT * td, V(fj)), (-RSiT * td, V(fi))], rhs, pair_sigmas(s)[1],
+            None if weights is None else weights[1])
     # non-holonomic: lateral and vertical velocity of the axle ≈ 0
     R_BV = data.R_V_B.T
     p_BV = -R_BV @ data.p_V_B
@@ -720,6 +739,38 @@ def _positions_and_velocities(data: SensorData, rig: Rig, cal: Calibration, R: n
     x = spla.spsolve((A.T @ A).tocsc(), A.T @ rhs)
     x = x.reshape(K, 6)
     return x[:, 0:3], x[:, 3:6]
+
+
+def _lidar_whitening(data: SensorData, rig: Rig, s, nom, first: np.ndarray) -> np.ndarray | None:
+    """``W_n`` of the frame pairs of lidar ``s`` starting at keyframes ``first`` whose scans the
+    simulator ray-cast in a scene: the information each pair's registration reports
+    (``data.registration``: in the sensor's own frame, nothing along what its scans do not see)
+    with the drift, as the evaluator combines the scene's
+    (:func:`~excite.factors.odometry.drift_whitening`), at the orientations of ``nom`` (anything with
+    the keyframes' ``R``); None for any other entry. (The evaluator's own whitening of such a pair,
+    whose null directions the extrinsic's error turns away from the true ones, would let the motion
+    the scans do not see — metres — leak into what they do.)"""
+    A = data.registration.get(getattr(s, "name", None))
+    if A is None or getattr(s, "kind", None) != "lidar":
+        return None
+    if A.shape[0] != first.size:
+        raise ValidateError(f"internal: {s.name}'s registrations are of {A.shape[0]} pairs, not {first.size}")
+    stride = registry.kind_of_sensor(s.kind).stride(rig, s)
+    reported = reported_whitening(nom, s, first, stride) if getattr(nom, "logs", None) is not None else None
+    return drift_whitening(s, residual_information(nom, s, first, stride, A), reported)
+
+
+def _start_weights(data: SensorData, rig: Rig, s, frames: np.ndarray, R: np.ndarray):
+    """Square roots of a ray-cast lidar pair's rotation and translation information (F × 3 × 3
+    each, the blocks of :func:`_lidar_whitening` at the body orientations ``R`` of the keyframes,
+    the other held known, as each step of :func:`initialise` holds it); None for other sensors."""
+    from types import SimpleNamespace
+
+    W = _lidar_whitening(data, rig, s, SimpleNamespace(R=R), frames[:-1])
+    if W is None:
+        return None
+    Lam = np.swapaxes(W, 1, 2) @ W
+    return sqrt_psd(Lam[:, :3, :3]), sqrt_psd(Lam[:, 3:, 3:])
 
 
 def _odometry_sensors(data: SensorData, rig: Rig) -> list:

@@ -213,16 +213,17 @@ class MonteCarloResult:
 
 
 def run_trial(traj: Trajectory, rig: Rig, index: int, settings: MonteCarloSettings,
-              log: Callable[[dict], None] | None = None) -> Trial:
+              log: Callable[[dict], None] | None = None, scan_pairs: dict | None = None) -> Trial:
     """One seeded trial (see the module docstring); ``log`` gets the solver's records, each
-    tagged with the trial's index."""
+    tagged with the trial's index; ``scan_pairs``: the lidars' frame pairs where the drive sees a
+    scene (:func:`scene_pairs`)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng([settings.seed, index])
     nominal = Calibration.nominal(rig)
     offset = rng.normal(0.0, 1.0, len(rig.coordinates)) * offset_sigma(rig, settings.offset_in_targets,
                                                                         settings.scale_offset)
     truth = nominal.plus(rig, offset)
-    data = simulate(traj, rig, truth, rng, settings.simulation)
+    data = simulate(traj, rig, truth, rng, settings.simulation, scan_pairs)
     tr = data.truth
     # the first keyframe's pose is the start of the drive at rest (gravity and the stand-still
     # give its orientation; position and yaw are the gauge)
@@ -280,13 +281,14 @@ def statistics(report: Report, rig: Rig, trials: list[Trial], settings: MonteCar
                             names=[c.name for c in rig.scored])
 
 
-def systematic_error(traj: Trajectory, rig: Rig, report: Report, settings: MonteCarloSettings) -> dict[str, float]:
+def systematic_error(traj: Trajectory, rig: Rig, report: Report, settings: MonteCarloSettings,
+                     scan_pairs: dict | None = None) -> dict[str, float]:
     """What the simulator's physics alone does to the estimate: noise-free data of the nominal
     calibration, calibrated from the truth, its error per observable parameter in predicted σ.
     Residuals cannot show an effect the trajectory absorbs (the IMU's discretisation); this can."""
     truth = Calibration.nominal(rig)
     data = simulate(traj, rig, truth, np.random.default_rng([settings.seed, 0, 1]),
-                    replace(settings.simulation, noise=False))
+                    replace(settings.simulation, noise=False), scan_pairs)
     tr = data.truth
     res = calibrate(data, rig, truth, States(tr.R, tr.p, tr.v), settings.solver)
     truth = truth.with_values("imu", gyro_bias=tr.gyro_bias.mean(axis=0), accel_bias=tr.accel_bias.mean(axis=0))
@@ -294,24 +296,57 @@ def systematic_error(traj: Trajectory, rig: Rig, report: Report, settings: Monte
     return {p.name: float(x / p.sigma) for p, x in zip(report.parameters, e) if p.sigma}
 
 
+def _seeing(traj: Trajectory, rig: Rig, scene) -> Trajectory:
+    """``traj`` seeing ``scene`` (itself when it already does, or when there is none)."""
+    view = getattr(traj, "scene", None)
+    if scene is None or (view is not None and view.digest == scene.digest):
+        return traj
+    from ..scene.along import seen
+
+    return seen(traj, rig, scene)
+
+
+def scene_pairs(traj: Trajectory, rig: Rig, scene, settings: MonteCarloSettings) -> tuple[Trajectory, dict]:
+    """``traj`` seeing ``scene`` (as it is when it already sees it) and, where the simulator
+    ray-casts (:attr:`SimulationSettings.ray_cast <excite.validate.simulate.SimulationSettings>`),
+    its lidars' frame pairs in it (:func:`excite.validate.scans.pair_noise`, by name). A drive that
+    already sees a scene needs the scene itself to be ray-cast."""
+    view = getattr(traj, "scene", None)
+    if scene is None:
+        if view is not None and settings.simulation.ray_cast:
+            raise ValidateError(f"the drive sees the scene {view.source}: give the scene itself, which the "
+                                "simulator ray-casts")
+        return traj, {}
+    from ..scene.along import lidars
+    from .scans import pair_noise
+
+    traj = _seeing(traj, rig, scene)
+    if not settings.simulation.ray_cast:
+        return traj, {}
+    return traj, {s.name: pair_noise(scene, traj, rig, s) for s in lidars(rig)}
+
+
 def monte_carlo(traj: Trajectory, rig: Rig, settings: MonteCarloSettings = MonteCarloSettings(),
                 progress: Callable[[Trial], None] | None = None,
-                log: Callable[[dict], None] | None = None) -> MonteCarloResult:
+                log: Callable[[dict], None] | None = None, scene=None) -> MonteCarloResult:
     """N seeded trials of simulate → calibrate on ``traj`` with ``rig``, against the evaluator
     (``log``: the solver's records of every trial, see :func:`run_trial`), and with the physical
-    simulator its :func:`systematic_error`."""
+    simulator its :func:`systematic_error`. In a ``scene`` (:class:`~excite.scene.model.Scene`)
+    the evaluator scores the drive seeing it and the simulator ray-casts the lidars' scans in it
+    (:mod:`excite.validate.scans`)."""
     t0 = time.perf_counter()
+    traj, pairs = scene_pairs(traj, rig, scene, settings)
     # the calibrator estimates constant biases (drifting ones, from the physical simulator, against
     # their mean over the drive): predict the same
     report = evaluate(traj, rig.with_constant_biases())
     trials = []
     for i in range(settings.runs):
-        trials.append(run_trial(traj, rig, i, settings, log))
+        trials.append(run_trial(traj, rig, i, settings, log, pairs))
         if progress is not None:
             progress(trials[-1])
     res = statistics(report, rig, trials, settings)
     if settings.simulation.physical:
-        res.systematic = systematic_error(traj, rig, report, settings)
+        res.systematic = systematic_error(traj, rig, report, settings, pairs)
     res.seconds = time.perf_counter() - t0
     return res
 
@@ -357,24 +392,24 @@ def statistics_driven(reports: list[Report], rig: Rig, trials: list[Trial], sett
 def monte_carlo_driven(drives: Callable[[int], Trajectory], rig: Rig, nominal: Trajectory,
                        settings: MonteCarloSettings = MonteCarloSettings(),
                        progress: Callable[[Trial], None] | None = None,
-                       log: Callable[[dict], None] | None = None) -> MonteCarloResult:
+                       log: Callable[[dict], None] | None = None, scene=None) -> MonteCarloResult:
     """N seeded trials of simulate → calibrate, trial ``i`` on its own drive ``drives(i)`` (a plan
     as the ``i``-th person drives it), against the evaluator's prediction from each trial's own
     drive (:func:`statistics_driven`); the physical simulator's :func:`systematic_error` on the
-    first drive."""
+    first drive. In a ``scene``, every drive seeing it (:func:`scene_pairs`)."""
     t0 = time.perf_counter()
     crig = rig.with_constant_biases()
     trials, reports = [], []
     first = None
     for i in range(settings.runs):
-        traj = drives(i)
-        first = first or traj
+        traj, pairs = scene_pairs(drives(i), rig, scene, settings)
+        first = first or (traj, pairs)
         reports.append(evaluate(traj, crig))
-        trials.append(run_trial(traj, rig, i, settings, log))
+        trials.append(run_trial(traj, rig, i, settings, log, pairs))
         if progress is not None:
             progress(trials[-1])
-    res = statistics_driven(reports, rig, trials, settings, evaluate(nominal, crig))
+    res = statistics_driven(reports, rig, trials, settings, evaluate(_seeing(nominal, rig, scene), crig))
     if settings.simulation.physical and first is not None:
-        res.systematic = systematic_error(first, rig, reports[0], settings)
+        res.systematic = systematic_error(first[0], rig, reports[0], settings, first[1])
     res.seconds = time.perf_counter() - t0
     return res

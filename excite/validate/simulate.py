@@ -147,6 +147,9 @@ class SimulationSettings:
     non-holonomic constraint is violated by ``v·tan β``).
     ``slip_noise``: the non-holonomic pseudo-measurement with white slip of its σ.
     ``noise``: False gives noise-free data (the estimator must then return the truth).
+    ``ray_cast``: where the drive sees a scene, each lidar frame pair is what registering its two
+    ray-cast scans gives (:mod:`excite.validate.scans`: the scene itself is needed); False: the
+    registration error the scene's information predicts, as the model assumes.
     """
 
     noise: bool = True
@@ -157,19 +160,21 @@ class SimulationSettings:
     wheel_scrub_per_g2: float = 0.01
     slip_angle_deg_per_mps2: float = 0.15
     slip_noise: bool = True
+    ray_cast: bool = True
 
     @classmethod
     def model(cls, **changes) -> "SimulationSettings":
         """Data as the information model assumes it: increment-equivalent IMU samples, constant
-        biases, wheels turning with the model's chord, no tyre slip angle."""
+        biases, wheels turning with the model's chord, no tyre slip angle, lidar pairs in a scene
+        with the error its information predicts."""
         base = dict(imu_oversampling=0, bias_random_walk=False, wheel_slip_per_g=0.0, wheel_scrub_per_g2=0.0,
-                    slip_angle_deg_per_mps2=0.0)
+                    slip_angle_deg_per_mps2=0.0, ray_cast=False)
         return cls(**{**base, **changes})
 
     @property
     def physical(self) -> bool:
         return (self.imu_oversampling > 0 or self.bias_random_walk or self.wheel_slip_per_g != 0
-                or self.wheel_scrub_per_g2 != 0 or self.slip_angle_deg_per_mps2 != 0)
+                or self.wheel_scrub_per_g2 != 0 or self.slip_angle_deg_per_mps2 != 0 or self.ray_cast)
 
     def __post_init__(self) -> None:
         if self.wheel_ticks_per_rev < 0:
@@ -216,6 +221,9 @@ class SensorData:
     logs: dict = field(default_factory=dict, repr=False)
     scene: dict = field(default_factory=dict, repr=False)  # what a scene shows the lidars (Nominal.scene)
     ground: dict = field(default_factory=dict, repr=False)  # and the road plane they fit (Nominal.ground)
+    # per lidar whose scans were ray-cast in a scene: the information each pair's registration
+    # reports (N × 6 × 6 in S_j: excite.validate.scans.PairNoise), what a calibrator weighs it by
+    registration: dict = field(default_factory=dict, repr=False)
 
     @property
     def n_keyframes(self) -> int:
@@ -235,7 +243,8 @@ class SensorData:
 class Simulation:
     """What a kind's :meth:`~excite.factors.base.Kind.simulate` reads: the (physical) drive
     ``traj`` and its nominal motion ``nom`` for ``rig``, the true calibration, the random stream,
-    the settings and whether to add noise."""
+    the settings and whether to add noise, and where the simulator ray-cast a scene its lidars'
+    frame pairs (``scan_pairs``, by name: :mod:`excite.validate.scans`)."""
 
     traj: Trajectory
     nom: Nominal
@@ -243,6 +252,7 @@ class Simulation:
     truth: Calibration
     rng: np.random.Generator
     settings: "SimulationSettings"
+    scan_pairs: dict = field(default_factory=dict)
 
     @property
     def noisy(self) -> bool:
@@ -279,31 +289,36 @@ def _with_slip_angle(traj: Trajectory, deg_per_mps2: float, rate_hz: float = 50.
 
 
 def simulate(traj: Trajectory, rig: Rig, truth: Calibration, rng: np.random.Generator,
-             settings: SimulationSettings = SimulationSettings()) -> SensorData:
+             settings: SimulationSettings = SimulationSettings(), scan_pairs: dict | None = None) -> SensorData:
     """Noisy raw data of ``traj`` driven with ``rig`` whose true calibration is ``truth``.
 
     ``rig`` gives the noise levels, rates and known geometry; ``truth`` the values the data is
-    generated with. Same ``rng`` state, same data.
+    generated with. Same ``rng`` state, same data. Where ``traj`` sees a scene, ``scan_pairs``
+    holds its lidars' frame pairs ray-cast in it (:func:`excite.validate.scans.pair_noise`, by
+    name); a lidar without them has the registration error the scene's information predicts.
     """
     if settings.slip_angle_deg_per_mps2:
         traj = _with_slip_angle(traj, settings.slip_angle_deg_per_mps2)
     nom = Nominal.of(traj, rig)
     if nom.n_keyframes < 3:
         raise ValidateError(f"the drive is too short to simulate: {nom.n_keyframes} keyframes")
-    sim = Simulation(traj, nom, rig, truth, rng, settings)
+    scan_pairs = dict(scan_pairs or {})
+    sim = Simulation(traj, nom, rig, truth, rng, settings, scan_pairs)
     recorded = {}
     for inst in registry.instances(rig):
         try:
             recorded[inst.name] = inst.kind.simulate(sim, inst.entry)
         except ValueError as exc:
             raise ValidateError(f"{inst.name}: {exc}") from None
-        if settings.noise and inst.kind.name == "odometry" and inst.entry.name in nom.scene:
+        if (settings.noise and inst.kind.name == "odometry" and inst.entry.name in nom.scene
+                and inst.entry.name not in scan_pairs):
             recorded[inst.name] = _registration_noise(sim, inst.kind, inst.entry, recorded[inst.name])
     imu = recorded["imu"]
     return SensorData(t=nom.t, imu_per_keyframe=nom.imu_per_keyframe, recorded=recorded, R_V_A=nom.R_V_A,
                       R_V_B=nom.R_V_B, p_V_B=nom.p_V_B,
                       truth=Truth(nom.R, nom.p, nom.v, truth, imu.gyro_bias, imu.accel_bias), logs=nom.logs,
-                      scene=nom.scene, ground=nom.ground)
+                      scene=nom.scene, ground=nom.ground,
+                      registration={k: v.information for k, v in scan_pairs.items()})
 
 
 def _registration_noise(sim: Simulation, kind: Kind, entry: Any, pairs: np.ndarray) -> np.ndarray:
