@@ -100,9 +100,10 @@ class Nominal:
     ``imu_omega`` and specific force ``imu_f``. ``R_V_B, p_V_B`` is the IMU pose in the vehicle frame.
     ``logs``: what a logged drive recorded of some of the rig's sensors, by sensor name
     (:class:`KeyframeLog`; a sensor without one measures at every one of its frames).
-    ``scene``: what a scene shows the rig's lidars at each keyframe, by sensor name (K × 6 × 6:
-    the registration information of a scan there, in world-aligned axes:
-    :class:`~excite.motion.trajectory.SceneView`); a lidar without one is scene-blind.
+    ``scene``: what a scene shows the rig's lidars and cameras at each keyframe, by sensor name
+    (K × 6 × 6: the information of a scan's registration or a camera pair's bearings there, in
+    world-aligned axes: :class:`~excite.motion.trajectory.SceneView`); a sensor without one is
+    scene-blind.
     ``ground``: the same for the road plane fitted to its returns from the ground (K × 4 × 4).
     """
 
@@ -189,7 +190,7 @@ class Nominal:
         return cls(t=t, R=R, p=p, v=v, omega=omega, R_V_A=R_V_A, imu_R=imu_R, imu_omega=imu_w, imu_f=imu_f,
                    imu_per_keyframe=n, R_V_B=R_V_B, p_V_B=p_V_B, length_m=length, logs=logs,
                    scene={name: view.H_W[name][j] for name, j in near.items()},
-                   ground={name: view.G_W[name][j] for name, j in near.items()})
+                   ground={name: view.G_W[name][j] for name, j in near.items() if name in view.G_W})
 
 
 def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dict[str, KeyframeLog]:

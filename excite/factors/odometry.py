@@ -38,10 +38,12 @@ closing frame has no message with a covariance keeps the densities. The evaluato
 the pairs' rows (:meth:`Odometry.whitening`); the optimizer's planned drives and the simulator use
 the densities.
 
-**The scene.** Where the drive sees a scene (:mod:`excite.scene`), a lidar's frame pair is told
-only what the surfaces in view can tell: scan j registered against scan i by point-to-plane ICP
-holds the information ``A`` of scan j's points about the relative pose (:mod:`excite.scene.lidar`,
-a right perturbation ``δ = [φ, ρ]`` of ``T_ij`` in S_j), which in the residual's coordinates
+**The scene.** Where the drive sees a scene (:mod:`excite.scene`), a lidar's or a camera's frame
+pair is told only what the surfaces in view can tell: scan j registered against scan i by
+point-to-plane ICP holds the information ``A`` of scan j's points about the relative pose
+(:mod:`excite.scene.lidar`), a camera's pair the information of its features' bearings with the
+landmarks eliminated (:mod:`excite.scene.camera`) — both about a right perturbation ``δ = [φ, ρ]``
+of ``T_ij`` in S_j, which in the residual's coordinates
 (``r_R = φ``, ``r_t = R_rel ρ``) is ``A_r = Mᵀ A M`` with ``M = diag(I, R_relᵀ)``. The
 registration's error and the odometry's drift add up (covariance ``A⁻¹ + Q``, Q the densities'
 or the reported covariance of the pair), so the pair's information is
@@ -52,9 +54,12 @@ written so that it holds for a singular ``A_r``: a direction no surface constrai
 axis, the open lot's x, y and yaw) has no information at all — an exact zero the rank test sees —
 and a rich scene approaches the densities' ``Q⁻¹`` (the drift a real odometry has bounds what a
 scene can give). This is scan-to-scan registration (each pair on its own, the map not kept);
-scan-to-map odometry would tie the pairs together and is not modelled. The scan's information
-is ray-cast at samples along the drive (:func:`excite.scene.along.seen`) and taken from the
-sample nearest each frame.
+scan-to-map odometry would tie the pairs together and is not modelled. A camera's pair is
+bearing-only: the length of its translation is not in its bearings, and is taken as known as
+well as the translation's other two directions (the odometry keeps one scale from pair to pair
+through its landmarks; a monocular camera's overall scale stays the drive's nuisance ``s``:
+:mod:`excite.scene.camera`). The scan's or pair's information is ray-cast at samples along the
+drive (:func:`excite.scene.along.seen`) and taken from the sample nearest each frame.
 """
 
 from __future__ import annotations
@@ -69,7 +74,7 @@ from ..core import so3
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
-from .optics import LIDAR_PRESETS, LidarBeams
+from .optics import LIDAR_PRESETS, CameraOptics, LidarBeams
 from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .symbolic import exp, residual_log
 
@@ -104,6 +109,7 @@ class OdometrySensor(SensorEntry):
     noise: OdometryNoise
     monocular: bool = False
     beams: LidarBeams | str | None = None  # a lidar's pattern, or a preset's name (:mod:`excite.factors.optics`)
+    optics: CameraOptics | None = None  # a camera's image, focal length and noise (:mod:`excite.factors.optics`)
     ground_plane: GroundPlaneConfig = GroundPlaneConfig()  # a lidar's: the road plane it sees
 
     @model_validator(mode="after")
@@ -112,6 +118,8 @@ class OdometrySensor(SensorEntry):
             raise ValueError("monocular applies to cameras only")
         if self.beams is not None and self.kind != "lidar":
             raise ValueError("beams applies to lidars only")
+        if self.optics is not None and self.kind != "camera":
+            raise ValueError("optics applies to cameras only")
         if isinstance(self.beams, str) and self.beams not in LIDAR_PRESETS:
             raise ValueError(f"beams: {self.beams!r} is not a preset ({', '.join(LIDAR_PRESETS)}); "
                              "or give vertical_angles_deg or channels and vertical_fov_deg")
@@ -148,7 +156,14 @@ class Odometry(Kind[OdometrySensor]):
               "beams.min_range_m": Range(0.0, 100.0, "m"),
               "beams.max_range_m": Range(1.0, 2000.0, "m"),
               "beams.range_noise_m": Range(1e-5, 1.0, "m"),
-              "beams.correlation_deg": Range(1e-3, 10.0, "deg")}
+              "beams.correlation_deg": Range(1e-3, 10.0, "deg"),
+              "optics.width_px": Range(16, 20000, "px"),
+              "optics.height_px": Range(16, 20000, "px"),
+              "optics.focal_px": Range(1.0, 1e5, "px"),
+              "optics.pixel_noise_px": Range(1e-3, 100.0, "px"),
+              "optics.min_range_m": Range(0.0, 100.0, "m"),
+              "optics.max_range_m": Range(1.0, 2000.0, "m"),
+              "optics.max_features": Range(1, 100000, "1")}
     advice = {
         ("trans", 2): ("vertical lever arm: add pitch and roll (hard braking and acceleration, ramps, "
                        "brisk cornering); planar driving leaves it nearly undetermined — a lidar's is set by "

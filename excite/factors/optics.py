@@ -1,4 +1,5 @@
-"""What a lidar's beams are: the pattern a scene is ray-cast with (:mod:`excite.scene.lidar`).
+"""What a lidar's beams and a camera's optics are: what a scene is ray-cast with
+(:mod:`excite.scene.lidar`, :mod:`excite.scene.camera`).
 
 A rig's lidar entry may name a preset (``beams: vlp16``) or give its pattern: the vertical angles
 of its beams (or their count and vertical field of view, evenly spaced), its horizontal
@@ -11,6 +12,13 @@ pattern is denser near the horizon).
 ``correlation_deg``: the angle within which a lidar's range errors are correlated (the beam's
 footprint and the surface's roughness): points closer than this count as one measurement of the
 surface, so that a finer pattern does not invent information the surface cannot give.
+
+A rig's camera entry may give its optics (``optics: {width_px: 1280, …}``): the image's size and
+focal length (a pinhole with the principal point at the image's centre; the entry's ``T_B_S`` is
+the optical frame, z forward, x right, y down), the features' pixel noise, the range within
+which features are tracked and the detector's budget of features per frame. Without one, a
+camera is :data:`DEFAULT_CAMERA`: a 1920 × 1080 automotive camera of 1000 px focal length (88° ×
+57° field of view), 1 px noise, features tracked from 0.5 to 80 m, 2000 per frame.
 """
 
 from __future__ import annotations
@@ -95,3 +103,36 @@ def lidar_beams(value: "LidarBeams | str | None") -> LidarBeams:
     if isinstance(value, str):
         return LIDAR_PRESETS[value]
     return value
+
+
+class CameraOptics(Model):
+    """A camera's image, focal length, pixel noise, tracking range and feature budget (see the
+    module docstring)."""
+
+    width_px: int = Field(1920, ge=16, le=20000)
+    height_px: int = Field(1080, ge=16, le=20000)
+    focal_px: float = Field(1000.0, ge=1.0, le=1e5)
+    pixel_noise_px: PositiveFloat = 1.0
+    min_range_m: float = Field(0.5, ge=0.0, le=100.0)
+    max_range_m: float = Field(80.0, gt=0.0, le=2000.0)
+    max_features: int = Field(2000, ge=1, le=100000)
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "CameraOptics":
+        if self.max_range_m <= self.min_range_m:
+            raise ValueError("max_range_m must exceed min_range_m")
+        return self
+
+    @property
+    def bearing_sigma(self) -> float:
+        """σ of a feature's normalized image coordinates, per axis (pixel noise / focal length)."""
+        return self.pixel_noise_px / self.focal_px
+
+    @property
+    def half_extent(self) -> tuple[float, float]:
+        """The image's half width and half height in normalized image coordinates (x/z, y/z)."""
+        return 0.5 * self.width_px / self.focal_px, 0.5 * self.height_px / self.focal_px
+
+
+DEFAULT_CAMERA = CameraOptics()
+"""The optics of a camera whose rig entry gives none."""

@@ -160,11 +160,12 @@ class SensorLog:
 
 @dataclass(frozen=True)
 class SceneView:
-    """What a scene shows the rig's lidars along a drive (:func:`excite.scene.along.seen`): per
-    sensor name, the times ``t`` of the scans ray-cast (increasing) and each scan's registration
-    information ``H_W`` (S × 6 × 6, [rotation, translation]) in world-aligned axes (the sensor's
-    frame turned to the world's: the information does not change as the sensor turns in place
-    but looks at the same surfaces), and the information of the road plane fitted to its
+    """What a scene shows the rig's lidars and cameras along a drive (:func:`excite.scene.along.seen`):
+    per sensor name, the times ``t`` of the scans (or camera frame pairs) ray-cast (increasing) and
+    each one's information about its relative pose ``H_W`` (S × 6 × 6, [rotation, translation]) in
+    world-aligned axes (the sensor's frame turned to the world's: the information does not change
+    as the sensor turns in place but looks at the same surfaces), and, for a lidar, the
+    information of the road plane fitted to its
     returns from the ground ``G_W`` (S × 4 × 4, [normal, height], the normal's part in
     world-aligned axes). ``digest``: the scene's (equal scenes, equal digests); ``source``: its
     name (a file, a bundled scene), for reports."""
@@ -234,7 +235,7 @@ class Trajectory:
         self.t_end = float(t[-1])
         self.name = name
         self.logs: dict[str, SensorLog] = {}  # what a log recorded of the rig's sensors, by sensor name
-        self.scene: SceneView | None = None  # what a scene shows the rig's lidars (excite.scene.along.seen)
+        self.scene: SceneView | None = None  # what a scene shows the rig's lidars and cameras (excite.scene.along.seen)
         # where W's origin lies in the frame the drive's poses were given in: logged poses are
         # re-based on their first position (excite.io.poses.trajectory_from_poses); a scene in
         # that frame is seen from p_W_V + origin

@@ -1,23 +1,31 @@
-"""A scene along a drive: what the rig's lidars see at samples of the drive, attached to it.
+"""A scene along a drive: what the rig's lidars and cameras see at samples of the drive, attached to it.
 
-:func:`seen` ray-casts a scan of each lidar (:mod:`excite.scene.lidar`) at samples of the drive —
+:func:`seen` ray-casts a scan of each lidar (:mod:`excite.scene.lidar`) and a frame pair of each
+camera (:mod:`excite.scene.camera`) at samples of the drive —
 every :data:`SAMPLE_SPACING_M` of the vehicle's path or every :data:`SAMPLE_INTERVAL_S`, whichever
 comes first — and returns the drive carrying them
 (:class:`~excite.motion.trajectory.SceneView`): every evaluation of it (score, live windows,
-mining, batch) then whitens each lidar frame pair by the scene's information
+mining, batch) then whitens each lidar and camera frame pair by the scene's information
 (:mod:`excite.factors.odometry`). Samples are placed by the drive's own time and path from its
 start, so a window of a drive sees what the whole drive sees there.
 
 A scan's information is kept in world-aligned axes: turning in place, a 360° lidar sees the same
-surfaces, so between samples only the distance travelled changes what it sees.
+surfaces, so between samples only the distance travelled changes what it sees. A camera's pair
+is the one that ends at the sample (its frames one frame interval apart, on the drive's own
+motion: what the pair tells depends on that motion), its information about the right
+perturbation of ``T_ij`` (in S_j) turned to the world's axes by frame j's orientation, as a
+lidar scan's: the keyframe that closes a pair near the sample turns it back into its own S_j.
+A camera looks one way, so a keyframe that has turned since its sample reads what the camera saw
+looking the sample's way (the samples are close enough that this stays small: DESIGN, Scenes).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..factors.optics import lidar_beams
+from ..factors.optics import DEFAULT_CAMERA, lidar_beams
 from ..motion.trajectory import SceneView, Trajectory
+from . import camera
 from .lidar import informations
 from .model import Scene
 
@@ -73,9 +81,28 @@ def lidars(rig) -> list:
     return [s for s in rig.config.sensors if s.kind == "lidar"]
 
 
+def cameras(rig) -> list:
+    """The rig's camera entries."""
+    return [s for s in rig.config.sensors if s.kind == "camera"]
+
+
+def camera_pairs(traj: Trajectory, rig, sensor, t: np.ndarray, scene: Scene, density: float = 1.0) -> np.ndarray:
+    """The information of ``sensor``'s frame pairs that end at the times ``t`` (at the drive's
+    start, the first pair), in world-aligned axes (S × 6 × 6; see the module docstring)."""
+    dt = 1.0 / sensor.rate_hz
+    t_j = np.clip(np.maximum(t, traj.t_start + dt), traj.t_start, traj.t_end)
+    t_i = np.maximum(t_j - dt, traj.t_start)
+    R_i, p_i = sensor_poses(traj, rig, sensor, t_i)
+    R_j, p_j = sensor_poses(traj, rig, sensor, t_j)
+    pairs = camera.informations(scene, R_i, p_i, R_j, p_j, sensor.optics or DEFAULT_CAMERA, density)
+    B = np.zeros((t.size, 6, 6))
+    B[:, :3, :3] = B[:, 3:, 3:] = R_j
+    return B @ pairs.H @ np.swapaxes(B, 1, 2)
+
+
 def seen(traj: Trajectory, rig, scene: Scene, density: float = 1.0) -> Trajectory:
-    """``traj`` seeing ``scene`` with ``rig``'s lidars (see the module docstring; ``density``
-    multiplies the rays of each scan: a finer quadrature, for checks)."""
+    """``traj`` seeing ``scene`` with ``rig``'s lidars and cameras (see the module docstring;
+    ``density`` multiplies the rays of each scan and frame: a finer quadrature, for checks)."""
     t = sample_times(traj)
     times, H_W, G_W = {}, {}, {}
     for s in lidars(rig):
@@ -89,4 +116,7 @@ def seen(traj: Trajectory, rig, scene: Scene, density: float = 1.0) -> Trajector
         B4[:, :3, :3] = R_W_S
         B4[:, 3, 3] = 1.0
         G_W[s.name] = B4 @ scans.G @ np.swapaxes(B4, 1, 2)
+    for s in cameras(rig):
+        times[s.name] = t
+        H_W[s.name] = camera_pairs(traj, rig, s, t, scene, density)
     return traj.with_scene(SceneView(scene.digest, times, H_W, G_W, scene.source))
