@@ -31,6 +31,7 @@ import multiprocessing
 import multiprocessing.connection
 import multiprocessing.util
 import os
+import queue
 import signal
 import sys
 import threading
@@ -292,11 +293,24 @@ def serve(conn: Any, warm: Callable[[], Any] | None = None, after: Callable[[], 
     if warm is not None:
         warm()
     conn.send(("ready", None, False))
+    # Tasks are read as they come, by a thread of their own: an owner that sends a large task
+    # while this process sends a large answer would otherwise wait on a full pipe each way.
+    tasks: queue.SimpleQueue[Any] = queue.SimpleQueue()
+
+    def read() -> None:
+        while True:
+            try:
+                tasks.put(conn.recv())
+            except BaseException:  # noqa: BLE001 — closed, broken or unreadable: the worker ends
+                tasks.put(None)
+                return
+
+    threading.Thread(target=read, name="excite-tasks", daemon=True).start()
     while True:
-        try:
-            fn, args = conn.recv()
-        except (EOFError, OSError):
+        task = tasks.get()
+        if task is None:
             return
+        fn, args = task
         try:
             kind, value = "ok", fn(*args)
         except BaseException as exc:  # noqa: BLE001 — returned to the owner as data

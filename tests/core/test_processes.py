@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -118,6 +119,30 @@ def test_tasks_return_values_and_exceptions_and_a_deadline_ends_the_worker():
         assert _wait_gone([w.pid]) == []
         with pytest.raises(WorkerDied):
             w.run(sleep, 0.0)
+    finally:
+        w.stop()
+
+
+def test_a_large_task_sent_while_the_worker_sends_a_large_answer_does_not_deadlock():
+    # the first task's answer and the next tasks' arguments are each larger than the pipe holds:
+    # both sides write at once, and the owner reads nothing until it has sent every task
+    w = processes.Worker(context="spawn", name="excite-test-pipe", start_deadline=time.monotonic() + 60)
+    try:
+        n = 8 << 20
+        sent = threading.Event()
+
+        def submit_all() -> None:
+            w.submit(big, n)
+            time.sleep(1.0)  # the worker is writing its answer now
+            for _ in range(3):
+                w.submit(len, b"y" * n)
+            sent.set()
+
+        threading.Thread(target=submit_all, daemon=True).start()
+        assert sent.wait(60), "the owner's send waited on the worker's answer"
+        deadline = time.monotonic() + 60
+        assert len(w.result(deadline)) == n
+        assert [w.result(deadline) for _ in range(3)] == [n] * 3
     finally:
         w.stop()
 
