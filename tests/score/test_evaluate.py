@@ -224,18 +224,41 @@ def _scaled(L, rig):
     return L * np.outer(S, S)
 
 
+def _small_drive(rig):
+    t = np.linspace(0, 12, 13)
+    return Nominal.of(drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
+                            rig.suspension), rig)
+
+
+@pytest.fixture(scope="module")
+def dense_references(rig):
+    """The small drive's marginal by dense numpy, with the gauge prior or with the gauge removed
+    altogether (pseudo-inverse), in local and in world-frame states, each with the tolerance the
+    fast path must meet against it. Built with the default chunking: the dense marginal does not
+    depend on it, so each chunking of the fast path is held to the same four matrices."""
+    nom = _small_drive(rig)
+    # Round-off differs between the parametrisations: in local states with the gauge prior the
+    # dense reference agrees to ~1e-11; world-frame states (the fast path's or the dense one's)
+    # and the pseudo-inverse without a gauge lose digits (measured 2e-7 … 2.4e-6 on this drive;
+    # since the wheels' scrub nuisance, nearly collinear with the radii on this drive, the
+    # eigenvalues of world states without a gauge agree to 5e-6 … 1.1e-5, the rest unchanged).
+    return [
+        (_scaled(dense.marginal_dense(problem.build(nom, rig)), rig), 1e-9),
+        (_scaled(dense.marginal_dense(problem.build(nom, rig), gauge=False), rig), 1e-5),
+        (_scaled(dense.marginal_dense(problem.build(nom, rig, local=False)), rig), 1e-5),
+        (_scaled(dense.marginal_dense(problem.build(nom, rig, local=False), gauge=False), rig), 3e-5),
+    ]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("chunk", [500, 7])
-def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
+def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk, dense_references):
     """Small drive: the chunked elimination (one chunk, or chunks of 7 keyframes) in both
     parametrisations vs dense numpy, with the gauge prior or with the gauge removed altogether
     (pseudo-inverse)."""
     monkeypatch.setattr(problem, "CHUNK_KEYFRAMES", chunk)
     monkeypatch.setattr(elimination, "CHUNK_KEYFRAMES", chunk)
-    t = np.linspace(0, 12, 13)
-    traj = drive(ControlProfile(t, 5 + 2 * np.sin(t), 0.1 * np.sin(t / 2), grade_rad=0.02 * np.cos(t)),
-                 rig.suspension)
-    nom = Nominal.of(traj, rig)
+    nom = _small_drive(rig)
     fast = _scaled(elimination.marginal(problem.build(nom, rig)), rig)
     fast_world = _scaled(elimination.marginal(problem.build(nom, rig, local=False)), rig)
     d = np.sqrt(np.diag(fast))
@@ -243,20 +266,8 @@ def test_fast_path_equals_dense_reference(rig, monkeypatch, chunk):
     def err(ref):  # correlation-normalised: independent of units and targets
         return (np.abs(fast - ref) / np.outer(d, d)).max()
 
-    # Round-off differs between the parametrisations: in local states with the gauge prior the
-    # dense reference agrees to ~1e-11; world-frame states (the fast path's or the dense one's)
-    # and the pseudo-inverse without a gauge lose digits (measured 2e-7 … 2.4e-6 on this drive;
-    # since the wheels' scrub nuisance, nearly collinear with the radii on this drive, the
-    # eigenvalues of world states without a gauge agree to 5e-6 … 1.1e-5, the rest unchanged).
     assert err(fast_world) < 1e-5
-    references = [
-        (dense.marginal_dense(problem.build(nom, rig)), 1e-9),
-        (dense.marginal_dense(problem.build(nom, rig), gauge=False), 1e-5),
-        (dense.marginal_dense(problem.build(nom, rig, local=False)), 1e-5),
-        (dense.marginal_dense(problem.build(nom, rig, local=False), gauge=False), 3e-5),
-    ]
-    for ref, tol in references:
-        ref = _scaled(ref, rig)
+    for ref, tol in dense_references:
         assert err(ref) < tol
         np.testing.assert_allclose(np.linalg.eigvalsh(fast), np.linalg.eigvalsh(ref), rtol=tol, atol=0)
 
