@@ -1,4 +1,4 @@
-"""What the test suite costs: wall time and CPU time of `python -m pytest` with a marker expression.
+"""What the test suite costs: wall and CPU time of the README's `python -m pytest -q -n auto`, with a marker expression.
 
     python benchmarks/bench_tests.py                 # the everyday loop: -m "not slow"
     python benchmarks/bench_tests.py --all           # everything (what .ci/run runs)
@@ -14,6 +14,7 @@ the load average before and after (benchmarks/results.py). Writes benchmarks/res
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import resource
 import subprocess
@@ -26,7 +27,8 @@ from results import ROOT, Session, spread  # noqa: E402
 
 
 def run_once(marker: str | None, durations: int = 0) -> dict:
-    args = [sys.executable, "-m", "pytest", "-q", "-rf", "-p", "no:cacheprovider"] + (["-m", marker] if marker else []) \
+    args = [sys.executable, "-m", "pytest", "-q", "-n", "auto", "-rf", "-p", "no:cacheprovider"] \
+        + (["-m", marker] if marker else []) \
         + ([f"--durations={durations}"] if durations else [])
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
@@ -58,8 +60,9 @@ def main() -> int:
     session.record(name, {"wall_s": spread([r["wall_s"] for r in runs], 1),
                           "cpu_s": spread([r["cpu_s"] for r in runs], 1),
                           "counts": runs[-1]["counts"], "all_passed": all(r["returncode"] == 0 for r in runs)},
-                   note=(f"python -m pytest -m '{marker}'" if marker else "python -m pytest (every test)")
-                   + "; CPU = user + system time of pytest and every process it started")
+                   note=(f"python -m pytest -n auto -m '{marker}'" if marker else "python -m pytest -n auto (every test)")
+                   + f" on {os.cpu_count()} CPUs; CPU = user + system time of pytest, its workers and every "
+                   "process they started")
     return 0 if all(r["returncode"] == 0 for r in runs) else 1
 
 

@@ -230,7 +230,7 @@ def test_the_docs_have_examples():
     assert first[0] == ("excite score trajectories/figure_eight_control.csv", 0)
     assert readme[0].body.splitlines() == [
         'python3 -m pip install -e ".[test]" && excite score trajectories/figure_eight_control.csv',
-        "python3 -m pytest -q"]
+        "python3 -m pytest -q -n auto"]
     runs = [c for b in RUN if b.lang == "bash" for c, _ in commands(b.body)]
     for cmd in ("excite score", "excite optimize", "excite validate", "excite live", "excite serve", "excite batch",
                 "excite mine"):
