@@ -70,6 +70,8 @@ MIN_INCIDENCE_COS = 0.05
 normal, its texture foreshortened twentyfold) are not found."""
 REFINE = 3
 """Rays across and down a cell that is cast again (see :func:`informations`)."""
+THREADS = 2
+"""Threads casting and summing chunks of pairs at once (Embree and numpy release the GIL)."""
 PAIRS_PER_CALL = 64
 """Frame pairs ray-cast in one call to the ray caster (bounds the memory of a long drive)."""
 
@@ -275,27 +277,33 @@ def _cast(scene: Scene, R: np.ndarray, p: np.ndarray, pair: np.ndarray, u: np.nd
     plane its central ray meets, the quadrilateral where the plane meets its four corner rays
     (exact for a plane); where a corner misses the plane, leaves the range or meets it too
     obliquely, the footprint is ``Δω r² / |cos θ|`` of the central ray and the cell an edge."""
-    q = np.stack([u, v, np.ones(u.size)], axis=1)
-    qn = np.linalg.norm(q, axis=1)
-    d = q / qn[:, None]
-    d_W = np.einsum("nij,nj->ni", R[pair], d)
+    qn = np.sqrt(u * u + v * v + 1.0)
+    d = np.stack([u / qn, v / qn, 1.0 / qn], axis=1)
+    Rp = R[pair]
+    d_W = np.einsum("nij,nj->ni", Rp, d)
     hits = scene.cast(p[pair], d_W, optics.max_range_m)
-    cos = np.abs(np.sum(hits.normal * d_W, axis=1))
+    n_S = np.einsum("nji,nj->ni", Rp, hits.normal)  # the normal in S_i
+    nx, ny, nz = n_S[:, 0], n_S[:, 1], n_S[:, 2]
+    nd = (nx * u + ny * v + nz) / qn  # n·d
+    cos = np.abs(nd)
     ok = hits.hit & (hits.distance >= optics.min_range_m) & (cos >= MIN_INCIDENCE_COS)
     surface = np.where(ok, hits.surface, -1)
-    n_S = np.einsum("nji,nj->ni", R[pair], hits.normal)  # the normal in S_i
-    c = hits.distance * np.sum(n_S * d, axis=1)  # the plane n·X = c (c < 0: n faces the camera)
+    c = hits.distance * nd  # the plane n·X = c (c < 0: n faces the camera)
     corners = []
     whole = ok.copy()
     for su, sv in ((-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)):
-        qc = q + np.array([su * du, sv * dv, 0.0])
-        nq = np.sum(n_S * qc, axis=1)
+        uc, vc = u + su * du, v + sv * dv
+        nq = nx * uc + ny * vc + nz
         lam = np.where(nq < 0, c / np.where(nq < 0, nq, -1.0), -1.0)
-        rng = lam * np.linalg.norm(qc, axis=1)
-        cos_c = np.abs(nq) / np.linalg.norm(qc, axis=1)
-        whole &= (lam > 0) & (rng <= optics.max_range_m) & (rng >= optics.min_range_m) & (cos_c >= MIN_INCIDENCE_COS)
-        corners.append(qc * lam[:, None])
-    quad = 0.5 * np.linalg.norm(_cross(corners[2] - corners[0], corners[3] - corners[1]), axis=1)
+        norm = np.sqrt(uc * uc + vc * vc + 1.0)
+        rng = lam * norm
+        whole &= ((lam > 0) & (rng <= optics.max_range_m) & (rng >= optics.min_range_m)
+                  & (np.abs(nq) >= MIN_INCIDENCE_COS * norm))
+        corners.append((uc * lam, vc * lam, lam))
+    (x0, y0, z0), (x1, y1, z1), (x2, y2, z2), (x3, y3, z3) = corners
+    ax, ay, az = x2 - x0, y2 - y0, z2 - z0  # the quadrilateral's diagonals
+    bx, by, bz = x3 - x1, y3 - y1, z3 - z1
+    quad = 0.5 * np.sqrt((ay * bz - az * by) ** 2 + (az * bx - ax * bz) ** 2 + (ax * by - ay * bx) ** 2)
     point = du * dv / qn**3 * hits.distance**2 / np.maximum(cos, MIN_INCIDENCE_COS)
     area = np.where(whole, quad, point)
     expected = np.where(ok, per_m2[np.maximum(surface, 0)] * area, 0.0)
@@ -341,7 +349,7 @@ def informations(scene: Scene, R_W_Si: np.ndarray, p_W_Si: np.ndarray, R_W_Sj: n
     SU, SV = np.meshgrid(sub * grid.du, sub * grid.dv, indexing="ij")
     SU, SV = SU.ravel(), SV.ravel()
     fields = ("pair", "d", "r", "normal", "share", "expected")
-    for a in range(0, P, PAIRS_PER_CALL):
+    def chunk(a: int) -> None:
         b = min(P, a + PAIRS_PER_CALL)
         m = b - a
         Ra, pa = R_i[a:b], p_i[a:b]
@@ -389,4 +397,14 @@ def informations(scene: Scene, R_W_Si: np.ndarray, p_W_Si: np.ndarray, R_W_Sj: n
         g = epipolar_rows(P_i, R_ij[pr], t_ij[pr], sigma) * np.sqrt(w)[:, None]
         A = _pair_sums(g, pr, m)
         H[a:b] = with_length(A, R_ij, t_ij)
+
+    starts = range(0, P, PAIRS_PER_CALL)
+    if THREADS > 1 and len(starts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(THREADS) as pool:
+            list(pool.map(chunk, starts))
+    else:
+        for a in starts:
+            chunk(a)
     return Pairs(H=H, features=features)
