@@ -22,23 +22,3 @@ def pool() -> ThreadPoolExecutor:
                                                  thread_name_prefix="excite"))
     return _POOL[1]
 
-
-class hidden_main:
-    """Within it, processes started by the ``spawn`` method do not re-run the parent's
-    ``__main__`` script (a spawned child imports it unless it is hidden: a script calling the
-    library without an ``if __name__ == "__main__"`` guard would run again in it). Submit the
-    tasks that start a spawned pool's processes inside it; the tasks must live in importable
-    modules."""
-
-    def __enter__(self) -> "hidden_main":
-        import sys
-
-        self.main = sys.modules["__main__"]
-        self.hidden = {k: self.main.__dict__.get(k) for k in ("__file__", "__spec__") if k in self.main.__dict__}
-        self.main.__dict__.pop("__file__", None)
-        self.main.__spec__ = None
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.main.__dict__.pop("__spec__", None)
-        self.main.__dict__.update(self.hidden)

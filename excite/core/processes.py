@@ -37,7 +37,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Sequence
 
 from ..errors import WorkerDied, WorkTimeout
 
@@ -374,43 +374,60 @@ class Worker(Supervised):
 
 def map_ordered(fn: Callable[[Any], Any], items: Sequence[Any], jobs: int, *,
                 failed: Callable[[Any, BaseException], Any], context: Any = "fork",
-                on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
+                on_result: Callable[[int, Any], None] | None = None,
+                poll: Callable[[], bool] | None = None, poll_s: float = 0.5) -> list[Any]:
     """``fn(item)`` for every item on ``jobs`` workers, results in order; an item whose worker
-    died gets ``failed(item, exception)`` (and a fresh worker takes the next). Interrupted
-    (Ctrl-C), every worker is stopped before the exception leaves."""
+    died gets ``failed(item, exception)`` (and a fresh worker takes the next). ``poll()`` runs
+    every ``poll_s`` seconds while results are awaited and after each result: True ends the map
+    early (the items not done are None). Ended early, interrupted (Ctrl-C) or when an exception
+    leaves ``failed``, ``on_result`` or ``poll``, every worker is stopped before it returns."""
     results: list[Any] = [None] * len(items)
-    todo: Iterable[int] = iter(range(len(items)))
-    busy: dict[Any, tuple[Worker, int]] = {}
+    todo = list(range(len(items)))[::-1]  # the next item last
+    starting: dict[Any, Worker] = {}  # its first task is sent when it is ready: the owner never
+    busy: dict[Any, tuple[Worker, int]] = {}  # waits on a pipe that a starting worker does not read yet
     workers: list[Worker] = []
 
+    def start() -> None:
+        w = Worker(context=context)
+        workers.append(w)
+        starting[w.conn] = w
+
     def give(w: Worker) -> bool:
-        i = next(todo, None)  # type: ignore[call-overload]
-        if i is None:
+        if not todo:
             return False
+        i = todo.pop()
         w.submit(fn, items[i])
         busy[w.conn] = (w, i)
         return True
 
     try:
         for _ in range(min(jobs, len(items))):
-            w = Worker(context=context)
-            workers.append(w)
-            give(w)
-        while busy:
-            for conn in multiprocessing.connection.wait(list(busy)):
+            start()
+        while busy or starting:
+            ready = multiprocessing.connection.wait([*starting, *busy], timeout=None if poll is None else poll_s)
+            for conn in ready:
+                if conn in starting:
+                    w = starting.pop(conn)
+                    w.wait_ready()  # WorkerDied when it ended before it was ready
+                    if not give(w):
+                        w.stop()
+                    continue
                 w, i = busy.pop(conn)
                 try:
                     r = w.result()
                 except Exception as exc:  # noqa: BLE001 — its process died, or fn raised
                     r = failed(items[i], exc)
                     if not w.alive:
-                        w = Worker(context=context)
-                        workers.append(w)
+                        w = None  # type: ignore[assignment]
+                        if todo:
+                            start()
                 results[i] = r
                 if on_result is not None:
                     on_result(i, r)
-                if not give(w):
+                if w is not None and not give(w):
                     w.stop()
+            if poll is not None and poll():
+                break
     finally:
         for w in workers:
             w.stop()

@@ -152,6 +152,24 @@ def test_map_ordered_keeps_order_and_survives_a_worker_that_dies():
     assert out == [("failed", i) if i == 5 else i * i for i in range(12)]
 
 
+def test_map_ordered_ended_by_its_poll_stops_every_worker_at_once():
+    """Two workers, four items: the first takes 0.1 s, the others an hour. The poll ends the map
+    once the first is in; the workers running hour-long items are stopped, not waited for."""
+    seen: set[int] = set()
+
+    def poll() -> bool:
+        seen.update(w.pid for w in processes.running("excite-worker"))
+        return out_so_far[0] is not None
+
+    out_so_far: list = [None]
+    t0 = time.monotonic()
+    out = processes.map_ordered(sleep, [0.1, 3600, 3600, 3600], 2, failed=lambda i, e: e, poll=poll, poll_s=0.05,
+                                on_result=lambda i, r: out_so_far.__setitem__(i, r))
+    assert out == [0.1, None, None, None]
+    assert time.monotonic() - t0 < 60  # an hour-long item was not waited for
+    assert len(seen) == 2 and processes.running() == [] and _wait_gone(sorted(seen)) == []
+
+
 def _square_or_die(i: int) -> int:
     if i == 5:
         os._exit(3)

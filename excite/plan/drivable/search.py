@@ -32,10 +32,8 @@ casting), so the refinement tries fewer plans within the same budget.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import itertools
 import math
-import multiprocessing
 import os
 import time
 from dataclasses import dataclass, field, replace
@@ -43,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ...core.parallel import hidden_main
+from ...core import processes
 from ...errors import OptimizeError
 from ...motion.driver import DriverModel
 from ...motion.vehicle import Limits, drive
@@ -532,6 +530,10 @@ def _refine_task(args) -> list[tuple[dict, float]]:
     return [(s.plan.to_dict(), s.score) for s in res if s.penalty == 0][:6]
 
 
+def _reraise(_: Any, exc: BaseException) -> Any:
+    raise exc
+
+
 def _robust_task(args) -> tuple[int, Robust]:
     from .plan import plan_from_dict
 
@@ -642,23 +644,21 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     from .plan import plan_from_dict
 
     if workers > 1:
-        with cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            with hidden_main():
-                futs = [pool.submit(_refine_task, (p, sh, rig, limits_plan, site, vmax, per_set, settings.seed + k,
-                                                          scorer))
-                        for k, (p, sh) in enumerate(starts)]
-            while futs:
-                done, _ = cf.wait(futs, timeout=0.5)
-                for f in done:
-                    futs.remove(f)
-                    for doc, sc in f.result():
-                        results.append((plan_from_dict(doc), sc))
-                        best_so_far[0] = max(best_so_far[0], sc)
-                report("refine", f"{len(starts) - len(futs)}/{len(starts)} element sets done")
-                if should_stop is not None and should_stop():
-                    for f in futs:
-                        f.cancel()
-                    break
+        def refined(k: int, found: list[tuple[dict, float]]) -> None:
+            nonlocal sets_done
+            sets_done += 1
+            best_so_far[0] = max([best_so_far[0]] + [sc for _, sc in found])
+
+        def refining() -> bool:
+            report("refine", f"{sets_done}/{len(starts)} element sets done")
+            return should_stop is not None and should_stop()
+
+        sets_done = 0
+        tasks = [(p, sh, rig, limits_plan, site, vmax, per_set, settings.seed + k, scorer)
+                 for k, (p, sh) in enumerate(starts)]
+        for found in processes.map_ordered(_refine_task, tasks, workers, failed=_reraise, context="spawn",
+                                           on_result=refined, poll=refining):
+            results += [(plan_from_dict(doc), sc) for doc, sc in found or []]
     else:
         for k, (p, sh) in enumerate(starts):
             deadline = time.monotonic() + per_set
@@ -687,20 +687,12 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     robust: list[Robust | None] = [None] * len(picked)
     args = [(i, p.to_dict(), rig, limits_plan, settings, sc) for i, (p, sc) in enumerate(picked)]
     if workers > 1 and len(picked) > 1:
-        with cf.ProcessPoolExecutor(min(workers, len(picked)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            with hidden_main():
-                futs = [pool.submit(_robust_task, a) for a in args]
-            for f in futs:
-                try:
-                    i, r = f.result(timeout=max(deadline - time.monotonic(), 0.0) if robust[0] is not None else None)
-                except cf.TimeoutError:
-                    break
-                robust[i] = r
-            for f in futs:
-                f.cancel()
-            for proc in list((pool._processes or {}).values()):  # noqa: SLF001 — cut a late plan's drives short
-                if proc.is_alive():
-                    proc.terminate()
+        def choosing() -> bool:  # a plan whose drives are not in by the deadline is cut short with its worker
+            report("robust", f"{sum(r is not None for r in robust)}/{len(picked)} plans driven")
+            return robust[0] is not None and time.monotonic() > deadline
+
+        processes.map_ordered(_robust_task, args, min(workers, len(picked)), failed=_reraise, context="spawn",
+                              on_result=lambda _, ir: robust.__setitem__(*ir), poll=choosing)
     else:
         for a in args:
             if robust[0] is not None and time.monotonic() > deadline:
