@@ -33,6 +33,8 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results import Session  # noqa: E402
 from servers import LiveServer  # noqa: E402
 
 
@@ -83,6 +85,7 @@ def main() -> int:
     ap.add_argument("--score-workers", type=int,
                     default=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 2)
     args = ap.parse_args()
+    session = Session()
 
     if args.minutes:
         text, name = route_text(60.0 * args.minutes), f"figure_eight_{args.minutes:g}min"
@@ -149,7 +152,20 @@ def main() -> int:
     print(f"errors: {len(errors)}")
     for e in errors[:5]:
         print("  ", e)
-    return 1 if errors else 0
+    if errors:
+        return 1
+    ms = lambda xs, q: round(1e3 * pct(xs, q), 1)  # noqa: E731
+    session.record("api", {
+        "one_client_auth_off_p50_p99_ms": [ms(seq_open, 50), ms(seq_open, 99)],
+        "one_client_auth_on_p50_p99_ms": [ms(seq_keyed, 50), ms(seq_keyed, 99)],
+        "auth_on_over_off_p50": round(p50k / p50o, 3),
+        f"{args.clients}_clients_throughput_req_per_s": round(len(conc) / wall, 2),
+        f"{args.clients}_clients_p50_p99_ms": [ms(conc, 50), ms(conc, 99)],
+    }, note=f"POST /v1/score over loopback, route {name} ({len(text) / 1024:.0f} KiB TUM text), rig robotaxi, "
+            f"{args.score_workers} scoring workers; one client alternating between a server without and one with "
+            f"API keys ({args.sequential} requests each), then {args.clients} concurrent clients on the one with keys "
+            f"({len(conc)} requests)")
+    return 0
 
 
 if __name__ == "__main__":

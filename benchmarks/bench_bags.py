@@ -22,7 +22,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_routes import cpu_model  # the same machine line as the other benchmarks
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results import Session, cpu_model, spread  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -71,6 +72,7 @@ def main() -> None:
     if args.child is not None:
         print(json.dumps(one_run(args.child)))
         return
+    session = Session()
     path = args.cache / f"drive_{args.minutes:g}min"
     if not path.exists():
         args.cache.mkdir(parents=True, exist_ok=True)
@@ -93,6 +95,11 @@ def main() -> None:
         vals = [r[key] for r in runs]
         print(f"  {label}: median {statistics.median(vals):.2f}, range {min(vals):.2f}–{max(vals):.2f}")
     print(f"  score {runs[0]['score']:.4g} over {runs[0]['duration_s']:.0f} s; {args.runs} runs")
+    session.record("bags", {"bag_mb": round(size_mb), **{key: spread([r[key] for r in runs], 2) for key in (
+        "decode_s", "route_s", "score_s", "total_s", "peak_rss_mb")}},
+        note=f"a synthetic {args.minutes:g}-minute ROS 2 MCAP (/odom 100 Hz + /imu 200 Hz), each run a fresh process: "
+             "poses and IMU out of the bag (decode), the route (decode + smoothing fit), the robotaxi rig's score "
+             "(the first evaluation in the process), bag to scored report (total), peak resident set")
 
 
 if __name__ == "__main__":

@@ -20,12 +20,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from results import Session  # noqa: E402
 
 from excite.cli.validate import with_imu_rate
 from excite.io.routes import read_route
@@ -54,6 +59,7 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a SimulationSettings field (repeatable), e.g. bias_random_walk=false")
     args = ap.parse_args()
+    session = Session()
     sim = SimulationSettings()
     for spec in args.set:
         key, sep, value = spec.partition("=")
@@ -77,6 +83,8 @@ def main() -> int:
     conv = np.array([t.status == "converged" for t in res.trials])
     lo, hi = res.nees_interval
     print(f"NEES all {res.nees_mean:.2f} [{lo:.2f}, {hi:.2f}] (dof {dof}, {len(res.trials)} trials)")
+    figures = {"trials": len(res.trials), "converged": int(conv.sum()), "nees": round(res.nees_mean, 2),
+               "nees_95_interval": [round(lo, 2), round(hi, 2)], "dof": dof}
     for label, mask in (("converged", conv), ("stopped at the cap", ~conv)):
         if mask.any():
             lo, hi = interval(int(mask.sum()), dof)
@@ -112,6 +120,13 @@ def main() -> int:
         for t in stopped:
             print(f"  trial {t.index}: NEES {res.nees[t.index]:.1f} → {res2.nees[t.index]:.1f}")
         out["nees_again"] = res2.nees.tolist()
+        figures["nees_stopped_trials_solved_again"] = round(res2.nees_mean, 2)
+    ratio = {p.name: round(p.ratio, 2) for p in res.parameters if p.ratio and abs(p.ratio - 1) > 0.12}
+    figures["sigma_ratios_off_by_over_12_percent"] = ratio
+    session.record("car_mc", figures, note=f"{args.route.name} with the {args.rig} rig (IMU at {args.imu_rate:g} Hz) "
+                   f"in the physical simulator{' (' + ', '.join(args.set) + ')' if args.set else ''}, seed {args.seed}; "
+                   "the trials stopped at the solver's iteration cap solved again with a cap of "
+                   f"{args.rerun_iterations}; σ ratio = empirical / predicted")
     if args.json is not None:
         args.json.write_text(json.dumps(out, indent=1))
     print(f"done {time.strftime('%H:%M:%S')}, load {os.getloadavg()[0]:.2f}")

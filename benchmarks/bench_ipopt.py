@@ -38,9 +38,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from results import Session  # noqa: E402
 
 from excite.plan import OptimizeSettings, candidates as cand, solver
 from excite.plan.pipeline import CHECK_ITERATES
@@ -179,11 +185,12 @@ def run(name: str, rig, s: OptimizeSettings, start, tr_opts, sol_opts, max_itera
             "model": out.score, "full": full}
 
 
-def exact_vs_lbfgs(rig, duration_s: float, max_iterations: int) -> None:
+def exact_vs_lbfgs(rig, duration_s: float, max_iterations: int) -> dict:
     s = OptimizeSettings(duration_s=duration_s)
     tr = transcribe(Problem.of(rig, s), TranscriptionOptions(compile="never"))
     best = max(starts(rig, s), key=lambda p: solver.model_value(tr, z_from_profile(tr.grid, tr.scales, p)))
     z0 = z_from_profile(tr.grid, tr.scales, best)
+    rows = {}
     for h in ("limited-memory", "exact"):
         t0 = time.perf_counter()
         out = solver.solve(tr, z0, time.perf_counter() + 7200, max_iterations=max_iterations,
@@ -192,6 +199,9 @@ def exact_vs_lbfgs(rig, duration_s: float, max_iterations: int) -> None:
         print(f"{duration_s:g} s problem, from {best.name}, Hessian {h:<15}: {out.ipopt_status:<28} "
               f"{out.iterations:>4} it  {el:7.1f} s ({1e3 * el / max(out.iterations, 1):.0f} ms/it)  model λ_min "
               f"{out.score:.4g}  (virtual machine)", flush=True)
+        rows[f"{duration_s:g}s_hessian_{h}"] = {"status": out.ipopt_status, "iterations": out.iterations,
+                                                "seconds": round(el, 1), "model": float(f"{out.score:.4g}")}
+    return rows
 
 
 def hessian_cost(rig) -> None:
@@ -223,6 +233,7 @@ def main() -> None:
     ap.add_argument("--print-level", type=int, default=0, help="IPOPT's print_level (5: a line per iteration)")
     ap.add_argument("--hessian-cost", action="store_true", help="time one exact Hessian on the 90 s problem (minutes)")
     args = ap.parse_args()
+    session = Session()
     rig = load_rig("robotaxi")
     chosen = [(spec, *start_of(rig, spec)) for spec in args.start]
     rows = {}
@@ -238,10 +249,16 @@ def main() -> None:
             r = [rows[name, spec] for spec, _, _ in chosen]
             print(f"{name:<24}" + "".join(f"{x['iterations']:>9} {x['full']:10.4g}" for x in r)
                   + f"{max(x['iterations'] for x in r):>9}")
+    figures = {(name if len(chosen) == 1 else f"{name}:{spec}"): {
+        "status": r["status"], "iterations": r["iterations"], "seconds": round(r["seconds"], 1),
+        "model": float(f"{r['model']:.4g}"), "full": float(f"{r['full']:.4g}")} for (name, spec), r in rows.items()}
     if args.exact_duration:
-        exact_vs_lbfgs(rig, args.exact_duration, args.max_iterations)
+        figures.update(exact_vs_lbfgs(rig, args.exact_duration, args.max_iterations))
     if args.hessian_cost:
         hessian_cost(rig)
+    session.record("ipopt", figures, note="the default problem (robotaxi, 90 s, 80 × 50 m) from "
+                   + ", ".join(args.start) + " to convergence per variant: IPOPT's status, iterations, solve seconds "
+                   "(wall), the model's λ_min and the full evaluator's score of the best iterate that passes the check")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,8 @@
 
     python benchmarks/bench_live.py [--minutes 60] [--runs 1]
 
+Writes ``benchmarks/results/live.json``.
+
 The default rig (robotaxi: IMU at 200 Hz, keyframes at 10 Hz, lidar and monocular camera at
 10 Hz, wheels, random-walk biases, 24 scored coordinates). A generated drive (varying speed and
 curvature, suspension on: the same generator as bench_evaluate.py) is streamed as the vehicle
@@ -25,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_evaluate import cpu_model, generated
+from results import Session
 
 from excite.score import live
 from excite.rig.config import load_rig
@@ -75,6 +78,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=int, default=60)
     parser.add_argument("--runs", type=int, default=1)
     args = parser.parse_args()
+    session = Session()
     rig = load_rig("robotaxi")
     traj = generated(args.minutes * 60.0, rig)
     print(f"{cpu_model()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; "
@@ -90,6 +94,17 @@ def main() -> None:
                   f"            {pct(b, 50):8.2f} / {pct(b, 99):6.2f}                  {rss:8.0f}")
         print(f"  RSS at the end of the stream {r['rss'][-1]:.0f} MB (the kept poses: {r['poses_mb']:.1f} MB); "
               f"final batch evaluation (finish) {r['finish_s']:.2f} s")
+    spans = [f"{10 * k}-{10 * k + 10}" for k in range(len(r["latency"]))]
+    session.record("live", {
+        "update_p50_p99_ms_by_minute": {m: [round(pct(a, 50), 1), round(pct(a, 99), 1)]
+                                        for m, a in zip(spans, r["latency"])},
+        "elimination_alone_p50_p99_ms_by_minute": {m: [round(pct(b, 50), 2), round(pct(b, 99), 2)]
+                                                   for m, b in zip(spans, e)},
+        "rss_mib_at_10_minute_marks": [round(x) for x in r["rss"]],
+        "finish_s": round(r["finish_s"], 2),
+    }, note=f"a {args.minutes}-minute generated drive streamed to PoseStream.add one second (10 poses) per call, "
+            "robotaxi rig; latency of one update (wall, last run) per 10 minutes of drive, and of the elimination "
+            "alone; resident memory; the final batch evaluation")
 
 
 if __name__ == "__main__":

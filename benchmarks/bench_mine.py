@@ -37,6 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_evaluate import cpu_model  # noqa: E402
+from results import Session, spread  # noqa: E402
 
 from excite.fleet import batch as gate
 from excite.fleet import mine
@@ -76,6 +77,11 @@ def main() -> None:
     ap.add_argument("--dask-default-env", action="store_true",
                     help="workers with Dask's default MALLOC_TRIM_THRESHOLD_ (not excite's WORKER_CONFIG)")
     args = ap.parse_args()
+    session = Session()
+    figures: dict = {}
+    note = (f"excite's mining of {args.logs} synthetic logs × {args.hours:g} h (control CSV), {args.window:g} s windows on "
+            f"{args.chunk:g} s chunks, robotaxi rig, from file paths to ranked windows; against every window "
+            "evaluated from scratch (timed on a sample of one log's windows)")
     rig = load_rig("robotaxi")
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start")
     with tempfile.TemporaryDirectory() as d:
@@ -96,6 +102,10 @@ def main() -> None:
               f"{args.runs} runs; {n_windows} windows, {n_windows / statistics.median(local):.0f} windows/s; "
               f"best window {best.log} {best.start_s:.0f}–{best.end_s:.0f} s score {best.score:.3g} "
               f"(exact {best.confirmed_score:.3g})")
+
+        figures["local_engine_wall_s"] = spread(local, 1)
+        figures["windows"] = n_windows
+        figures["local_windows_per_s"] = round(n_windows / statistics.median(local))
 
         # one log in this process, stage by stage
         t0_read = time.perf_counter()
@@ -126,7 +136,11 @@ def main() -> None:
               f"log once either way, {scratch_total:.0f} s on {cores} cores against the local engine's "
               f"{statistics.median(local):.0f} s: ×{scratch_total / statistics.median(local):.1f}")
 
+        figures["from_scratch_ms_per_window"] = round(per_window * 1e3)
+        figures["one_log_speedup_evaluation_alone"] = round(per_window * sc.size / mined, 1)
+        figures["fleet_speedup_vs_from_scratch"] = round(scratch_total / statistics.median(local), 1)
         if args.no_dask:
+            session.record("mine", figures, note=note)
             return
         import dask
         from distributed import Client, LocalCluster
@@ -149,6 +163,12 @@ def main() -> None:
         print(f"LocalCluster (2 workers × 1 thread): wall {min(remote):.1f}–{max(remote):.1f} s; "
               f"{n_windows / statistics.median(remote):.0f} windows/s; dask/local wall ratio "
               f"{statistics.median(remote) / statistics.median(local):.2f}; same windows as local: {same}")
+        figures["dask_localcluster_2_workers_wall_s"] = spread(remote, 1)
+        figures["dask_over_local_wall"] = round(statistics.median(remote) / statistics.median(local), 2)
+        figures["dask_same_windows_as_local"] = same
+        if args.dask_default_env:
+            note += "; Dask workers with Dask's default environment"
+        session.record("mine", figures, note=note)
     print(f"load average {os.getloadavg()[0]:.1f} at end")
 
 

@@ -25,9 +25,14 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from results import Session  # noqa: E402
 
 from excite.plan import OptimizeSettings, candidates as cand
 from excite.plan.pipeline import TRANSCRIPTION, rank, rank_starts
@@ -74,9 +79,10 @@ def by_problem(runs: list[dict]) -> dict[tuple, list[dict]]:
     return groups
 
 
-def replay(runs: list[dict]) -> None:
+def replay(runs: list[dict]) -> dict:
     groups = by_problem(runs)
     print(f"\n{'k':>5} {'m':>4}  {'cases':>5} {'stopped':>7} {'wrong':>5}  {'largest loss':>12}  iterations saved  wrong on")
+    table = {}
     for k, m in RULES:
         cases = stopped = wrong = saved = 0
         losses, where = [], []
@@ -98,15 +104,19 @@ def replay(runs: list[dict]) -> None:
                         where.append(f"{problem}{'' if problem != '90 s' else f' seed {seed}'}: {b['start']} for {a['start']}")
         print(f"{k:5.2f} {m:4.1f}  {cases:5d} {stopped:7d} {wrong:5d}  {max(losses, default=0.0):12.1%}  {saved:16d}  "
               + "; ".join(where[:3]) + (" …" if len(where) > 3 else ""))
+        table[f"k={k:g} m={m:g}"] = {"cases": cases, "stopped": stopped, "wrong": wrong,
+                                     "largest_loss": round(max(losses, default=0.0), 4), "iterations_saved": saved}
+    return table
 
 
-def top_k(runs: list[dict]) -> None:
+def top_k(runs: list[dict]) -> dict:
     """What the command's ``--starts k`` would have found: the best of the k best-ranked starts
     against the best of all, per problem (and seed), and where the best start ranked."""
     groups = by_problem(runs)
     ks = (1, 2, 4)
     print(f"\n{'problem':<12} {'starts':>6}  {'winner (rank)':<22}" + "".join(f"{f'top {k}':>9}" for k in ks)
           + "   slowest of the top 1 / 2 / 4 [iterations]")
+    found = {}
     for (problem, seed), rs in groups.items():
         rs = sorted(rs, key=lambda r: r["rank"])
         best = max(rs, key=lambda r: r["value"])
@@ -115,16 +125,22 @@ def top_k(runs: list[dict]) -> None:
         print(f"{label:<12} {len(rs):>6}  {winner:<22}"
               + "".join(f"{max(r['value'] for r in rs[:k]) / best['value']:9.1%}" for k in ks)
               + "   " + " / ".join(str(max(r["iterations"] for r in rs[:k])) for k in ks))
+        found[label] = {f"top_{k}_of_best": round(max(r["value"] for r in rs[:k]) / best["value"], 4) for k in ks}
+        found[label]["winner_rank"] = best["rank"]
+    return found
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--top", type=int, default=4)
+    ap.add_argument("--short", nargs="*", default=list(SHORT), choices=list(SHORT),
+                    help="the short problems to run every start of (none: only the 90 s problem)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "out" / "multistart.json")
     args = ap.parse_args()
+    session = Session()
     jobs = [("90 s", seed, args.top, k) for seed in args.seeds for k in range(args.top)]
-    for problem in SHORT:
+    for problem in args.short:
         jobs += [(problem, 0, 0, k) for k in range(len(_z0s(problem, 0, 0)[1]))]
     runs = []
     with ProcessPoolExecutor(2) as ex:
@@ -134,8 +150,14 @@ def main() -> None:
             runs.append(r)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(runs))
-    replay(runs)
-    top_k(runs)
+    rules = replay(runs)
+    found = top_k(runs)
+    session.record("multistart", {"early_stop_rules": rules, "best_of_top_k_starts": found},
+                   note=f"every IPOPT start run to convergence: the 90 s problem (seeds {args.seeds}, the {args.top} "
+                        "best-ranked starts each)" + (f" and every start of the {' and '.join(args.short)} problems"
+                                                      if args.short else "")
+                        + "; each rule (stop start B at k·N_A iterations when its best is below (1 − m)·S_A) replayed "
+                          "on every ordered pair: cases, stopped, wrong (B would have won), largest loss")
 
 
 if __name__ == "__main__":

@@ -36,6 +36,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from results import Session  # noqa: E402
+
 from excite.score.evaluate import evaluate  # noqa: E402
 from excite.plan import OptimizeSettings  # noqa: E402
 from excite.plan.candidates import check  # noqa: E402
@@ -133,6 +137,7 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=None, help="the command's --starts (default: its own default)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "out")
     args = ap.parse_args()
+    session = Session()
     rig = load_rig("robotaxi")
     settings = OptimizeSettings(time_budget_s=args.budget)
     t0 = time.perf_counter()
@@ -180,6 +185,15 @@ def main() -> None:
             for h in hogs:
                 h.kill()
     print(f"- load average at the end: {load():.2f}")
+    figures = {f"seed_{r['seed']}_budget_{r['budget']:g}s" + (f"_beside_{r['busy']}_busy_loops" if r.get("busy") else ""): {
+        "wall_s": round(r["wall_s"], 1), "status": r["status"], "iterations": r["iterations"],
+        "score": float(f"{r['score']:.4g}"), "vs_best_reference": round(r["vs_reference"], 2),
+        "vs_best_random": round(r["vs_random"], 2), "passes_check_again": r["passes_again"]} for r in results}
+    figures["converged_within_20s"] = f"{sum(r['wall_s'] <= 20.0 for r in conv)} of {len(full)}"
+    session.record("optimize", figures, note="excite optimize with default settings (robotaxi, 90 s, 80 × 50 m, "
+                   "200 random candidates) as a subprocess, wall time from start to exit (the compiled model in the "
+                   "cache); score by the full evaluator, against the best reference maneuver and the best random "
+                   "candidate")
     (args.out / "bench_optimize.json").write_text(json.dumps([{k: v for k, v in r.items() if k != "traj"}
                                                               for r in results], indent=2))
 

@@ -35,6 +35,9 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from results import Session  # noqa: E402
 
 from excite.cli.validate import with_imu_rate
 from excite.score.evaluate import evaluate
@@ -156,6 +159,7 @@ def main() -> int:
     ap.add_argument("--systematic-only", action="store_true", help="no trials: the systematic NEES only (seconds)")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
+    session = Session()
     out = args.out
     (out / "plans").mkdir(parents=True, exist_ok=True)
     rig = with_imu_rate(load_rig("robotaxi"), args.imu_rate)
@@ -193,6 +197,16 @@ def main() -> int:
     text = table(rows)
     (out / "table.md").write_text(text + "\n")
     print(text)
+    session.record("plan_mc", {r["plan"]: {
+        "score": float(f"{r['score']:.4g}"), "converged": r["converged"],
+        "nees": round(r["nees"], 2), "nees_95_interval": [round(x, 2) for x in r["nees_interval"]], "dof": r["dof"],
+        "systematic_nees": round(r["systematic_nees"], 2),
+        "worst_empirical_sigma_over_target": {r["worst_empirical"]["name"]:
+                                              round(r["worst_empirical"]["sigma_over_target"], 2)},
+        "worst_predicted_sigma_over_target": {r["worst_predicted"]["name"]:
+                                              round(r["worst_predicted"]["sigma_over_target"], 2)},
+    } for r in rows}, note=f"robotaxi rig (IMU at {args.imu_rate:g} Hz), {args.duration:g} s plans, each driven "
+                           f"{args.runs} times in the physical simulator (seed {args.seed}) and calibrated")
     return 0
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from results import record  # noqa: E402
+from results import Session  # noqa: E402
 
 from excite.io.timed_poses import read_timed_poses  # noqa: E402
 from excite.rig.noise import estimate_drift  # noqa: E402
@@ -27,6 +27,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
     args = parser.parse_args()
+    session = Session()
     reference = read_timed_poses(BAG, "groundtruth")
     figures = {}
     for topic in ("ORB-SLAM", "S-PTAM"):
@@ -45,7 +46,7 @@ def main() -> None:
         figures[f"{key}_scale"] = est.scale
         print(topic, figures[f"{key}_rotation_deg_per_sqrt_s"], figures[f"{key}_translation_m_per_sqrt_s"],
               figures[f"{key}_cpu_s"])
-    record("rig_noise", figures, note="density [value, 1σ]; CPU seconds of one estimate (process time)")
+    session.record("rig_noise", figures, note="density [value, 1σ]; CPU seconds of one estimate (process time)")
 
 
 if __name__ == "__main__":

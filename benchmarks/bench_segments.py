@@ -20,7 +20,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+
 from bench_evaluate import baseline_package, generated, load, ratios, row, timed
+from results import Session, spread
 
 from excite.score.evaluate import Options, evaluate
 from excite.rig.config import build_rig, load_rig
@@ -31,7 +33,7 @@ _PEAK = """
 import importlib, json, resource, sys
 sys.path[:0] = [{bench!r}, {where!r}]
 from bench_evaluate import generated
-ev, rg, vh = (importlib.import_module({pkg!r} + m) for m in (".evaluate", ".rig", ".vehicle"))
+ev, rg, vh = (importlib.import_module({pkg!r} + m) for m in (".score.evaluate", ".rig.config", ".motion.vehicle"))
 rig = rg.build_rig(json.loads({rig!r}))
 ev.evaluate(generated(1800.0, rig, vh), rig, ev.Options(segments={segments}))
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
@@ -56,6 +58,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.runs < 1 or args.segments < 1:
         parser.error("--runs and --segments must be at least 1")
+    session = Session()
+    figures: dict = {}
     rig = load_rig("robotaxi")
     print(load())
     traj = generated(600.0, rig)
@@ -76,6 +80,10 @@ def main() -> None:
         print(row("10-minute drive, score alone", alone))
         print(row(f"10-minute drive, {args.segments} segments", seg))
         print(ratios("segments / score alone", seg, alone))
+        figures["score_alone_cpu_ms"] = spread([t[1] for t in alone], 1)
+        figures[f"with_{args.segments}_segments_cpu_ms"] = spread([t[1] for t in seg], 1)
+        figures["segments_over_alone_cpu"] = spread([x[1] / y[1] for x, y in zip(seg, alone)], 3)
+        figures["segments_over_alone_wall"] = spread([x[0] / y[0] for x, y in zip(seg, alone)], 3)
         if args.baseline:
             base = [r[2] for r in runs]
             print(row(f"{args.baseline}, {args.segments} segments", base))
@@ -87,10 +95,15 @@ def main() -> None:
             data["imu"]["update_rate"] = 10_000.0
             build_rig(data)  # a bad edit fails here, not in the child
             for n in (0, 12):
-                print(f"30-minute drive, 100 keyframes/s, 10 kHz IMU, {n:2d} segments: peak RSS "
-                      f"{peak_rss_mb(data, n):.0f} MB"
+                mb = peak_rss_mb(data, n)
+                figures[f"peak_rss_30min_100hz_{n}_segments_mib"] = round(mb)
+                print(f"30-minute drive, 100 keyframes/s, 10 kHz IMU, {n:2d} segments: peak RSS {mb:.0f} MB"
                       + (f"; {args.baseline} {peak_rss_mb(data, n, base_dir):.0f} MB" if base_dir else ""))
     print(load())
+    if not args.baseline:
+        session.record("segments", figures, note="the 10-minute generated drive (robotaxi rig) scored without and "
+                       "with segments, alternating (CPU ms of one evaluation; ratio per pair); peak resident set of a "
+                       "fresh process scoring a 30-minute drive at 100 keyframes/s with a 10 kHz IMU")
 
 
 if __name__ == "__main__":

@@ -18,7 +18,9 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_api import machine  # noqa: E402
+from results import Session, spread  # noqa: E402
 from servers import LiveServer  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "api"))
 from test_page import CHROMIUM_ARGS, _chromium  # noqa: E402
@@ -28,6 +30,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--loads", type=int, default=20)
     args = ap.parse_args()
+    session = Session()
     from playwright.sync_api import sync_playwright
 
     weights: list[dict[str, int]] = []
@@ -67,6 +70,10 @@ def main() -> int:
     print(f"page weight: {total} B ({total / 1024:.1f} KiB) of which the page's own files {static} B")
     for name, xs in (("first contentful paint", fcp_ms), ("usable (rig list filled)", usable_ms)):
         print(f"{name}: median {statistics.median(xs):.0f} ms, range {min(xs):.0f}–{max(xs):.0f} ms")
+    session.record("web", {"page_weight_bytes": total, "own_files_bytes": static, "responses_bytes": dict(sorted(last.items())),
+                           "first_contentful_paint_ms": spread(fcp_ms, 0), "usable_ms": spread(usable_ms, 0)},
+                   note="GET / on loopback in headless Chromium, a fresh browser context (empty cache) per load; "
+                        "usable = the rig list filled in")
     return 0
 
 

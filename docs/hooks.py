@@ -344,6 +344,9 @@ def _figure(v: Any) -> str:
     return html.escape(json.dumps(v, ensure_ascii=False)) if not isinstance(v, str) else html.escape(v)
 
 
+BENCH_SCRIPT = re.compile(r"benchmarks/(bench_[a-z0-9_]+\.py)\b")
+
+
 def _benchmarks_markdown() -> str:
     import ast
 
@@ -358,7 +361,7 @@ def _benchmarks_markdown() -> str:
     for script in scripts:
         doc = ast.get_docstring(ast.parse(script.read_text())) or ""
         first = " ".join(doc.split("\n\n")[0].split()).replace("|", "&#124;")
-        mine = [d for d in recorded.values() if script.name in (d.get("command") or "")]
+        mine = [d for d in recorded.values() if script.name in BENCH_SCRIPT.findall(d.get("command") or "")]
         link = ", ".join(f"[{d['benchmark']}](#{d['benchmark']})" for d in mine) or \
             f"not recorded yet: `python benchmarks/{script.name}`"
         out.append(f"| `{script.name}` | {first} | {link} |")
