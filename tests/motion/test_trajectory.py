@@ -108,3 +108,40 @@ def test_segment_index_equals_a_binary_search():
         for times in (t, np.sort(t), np.sort(t)[::-1].copy()):
             ref = np.clip(np.searchsorted(breaks, times, side="right") - 1, 0, breaks.size - 2)
             np.testing.assert_array_equal(kernels.segments(breaks, times), ref)
+
+
+def test_threads_sampling_the_imu_at_once_build_the_acceleration_polynomial_once(monkeypatch):
+    """The evaluator's two sweeps sample a fresh drive's IMU at the same moment: the acceleration's
+    piecewise polynomial (a lazily built part of the trajectory) is built once, not once per
+    thread. The conversion is slowed down here so that both threads ask while it runs."""
+    import threading
+    import time
+
+    from excite.motion import trajectory
+
+    traj = weave_drive(Suspension())
+    calls = []
+    real = trajectory.PPoly.from_spline
+
+    class SlowPPoly:
+        @staticmethod
+        def from_spline(spline):
+            calls.append(threading.get_ident())
+            time.sleep(0.05)
+            return real(spline)
+
+    monkeypatch.setattr(trajectory, "PPoly", SlowPPoly)
+    both = threading.Barrier(2)
+    out = []
+
+    def sample():
+        both.wait()
+        out.append(traj.imu(traj.times(50.0), np.eye(3), np.zeros(3)))
+
+    threads = [threading.Thread(target=sample) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(calls) == 3  # one per axis, by one thread
+    np.testing.assert_array_equal(out[0][2], out[1][2])
