@@ -18,7 +18,13 @@ address-space limit (``RLIMIT_AS``: a task that needs more fails with a 413 insi
   each kind of task's cost per unit of size; work that this key's share of the workers could not
   finish by its deadline (its own queue and running tasks ahead of it), or that would queue past
   ``max_queued`` tasks, is refused at once (:class:`~api.errors.Overloaded`: 429 with
-  Retry-After) instead of timing out later.
+  Retry-After) instead of timing out later;
+- **costs follow the load**: a cost rises at once when a task takes longer than it (a running
+  task already past its cost counts, and so does one killed at its deadline) and falls back
+  gradually, so work admitted under a lighter load is judged again by what it costs now: a
+  waiting task that could no longer finish by its deadline is refused (429) as soon as that is
+  so, and a task starts only when it is expected to finish within :data:`ADMIT_SHARE` of its time
+  left. A key that sends more than its share can do is answered 429, not left to time out.
 """
 
 from __future__ import annotations
@@ -48,6 +54,8 @@ _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 # A task is admitted when its expected finish is within this share of its time left: costs are
 # recent averages, and a task that would finish just in time on average times out half the time.
 ADMIT_SHARE = 0.7
+RATE_FALL = 0.3  # a cost lower than the learned one moves it this share of the way down
+WAIT_CHECK_S = 0.25  # a waiting task checks this often whether it can still finish in time
 PRELOAD = ("excite.score.evaluate", "excite.io.routes", "excite.score.plots", "api.scoring")
 
 
@@ -117,7 +125,10 @@ def forkserver(preload: tuple[str, ...] = PRELOAD) -> Any:
 class _Task:
     key: str
     seq: int
-    cost_s: float
+    kind: str
+    size: float
+    deadline: float
+    started: float | None = None  # time.monotonic() when a worker took it
 
 
 class WorkerPool:
@@ -223,17 +234,28 @@ class WorkerPool:
     def _run(self, task: _Task, fn: Callable[..., Any], args: tuple, deadline: float, kind: str,
              size: float) -> Any:
         with self._cond:
-            while not self._turn(task):
+            while True:
                 left = deadline - time.monotonic()
                 if left <= 0 or self._closed:
                     self._waiting.remove(task)
                     self._cond.notify_all()
                     raise WorkTimeout("no scoring worker was free in time")
-                self._cond.wait(left)
+                cost = self._cost(kind, size)
+                if cost > ADMIT_SHARE * left:  # what it costs now would not finish in time
+                    self._waiting.remove(task)
+                    self._cond.notify_all()
+                    self.shed += 1
+                    raise Overloaded(f"this key's work ahead of this request took longer than expected, and its "
+                                     f"~{cost:.0f} s would not finish within its time limit",
+                                     int(min(60, max(1, math.ceil(cost)))))
+                if self._turn(task):
+                    break
+                self._cond.wait(min(left, WAIT_CHECK_S))
             self._waiting.remove(task)
             w = self._idle.pop()
+            task.started = time.monotonic()
             self._running[task.key].append(task)
-        t0 = time.monotonic()
+        t0 = task.started
         try:
             return w.run(fn, *args, deadline=deadline)
         except WorkTimeout:
@@ -249,10 +271,8 @@ class WorkerPool:
                 self._running[task.key].remove(task)
                 if not self._running[task.key]:
                     del self._running[task.key]
-                if size > 0 and not w.ending and w.alive:  # the cost of this kind of task per unit of size
-                    old = self._rate.get(kind)
-                    rate = seconds / size
-                    self._rate[kind] = rate if old is None else 0.7 * old + 0.3 * rate
+                if size > 0 and not w.ending and (w.alive or seconds >= deadline - t0):
+                    self._learn(kind, seconds / size)  # killed at its deadline: at least that
                 if w.alive and not w.ending and w in self._all:
                     self._idle.append(w)
                 self._cond.notify_all()
@@ -267,27 +287,27 @@ class WorkerPool:
         kind = f"{fn.__module__}.{fn.__qualname__}"
         sizes = sizes or [1.0] * len(calls)
         with self._cond:
-            rate = self._rate.get(kind, 0.0)
-            costs = [rate * s for s in sizes]
+            costs = [self._cost(kind, s) for s in sizes]
             now = time.monotonic()
             cap = self.cap
             mine_waiting = [t for t in self._waiting if t.key == key]
+            mine_running = self._running.get(key, [])
             free = len(self._idle) - len(self._waiting)
-            if len(calls) > max(0, free):
-                ahead = sum(t.cost_s for t in mine_waiting) + sum(t.cost_s for t in self._running.get(key, []))
-                wait = ahead / cap
-                finish = wait + sum(costs) / min(cap, len(calls))
-                retry = int(min(60, max(1, math.ceil(wait + finish))))
-                if len(self._waiting) + len(calls) > self.max_queued + max(0, free):
-                    self.shed += 1
-                    raise Overloaded(f"all {self.workers} scoring workers are busy and {len(self._waiting)} "
-                                     f"tasks are waiting (at most {self.max_queued})", retry)
-                if finish > ADMIT_SHARE * (deadline - now):
-                    self.shed += 1
-                    raise Overloaded(f"this key's share of the scoring workers ({cap} of {self.workers}) "
-                                     f"holds ~{wait:.0f} s of its work, and this request's ~{finish - wait:.0f} s "
-                                     "would not finish within its time limit", retry)
-            tasks = [_Task(key, next(self._seq), c) for c in costs]
+            # what this key's share does before this request's tasks, at what each costs now
+            ahead = sum(self._cost(t.kind, t.size) for t in mine_waiting + mine_running)
+            wait = ahead / cap if len(calls) > max(0, min(free, cap - len(mine_running) - len(mine_waiting))) else 0.0
+            finish = wait + sum(costs) / min(cap, len(calls))
+            retry = int(min(60, max(1, math.ceil(finish))))
+            if len(calls) > max(0, free) and len(self._waiting) + len(calls) > self.max_queued + max(0, free):
+                self.shed += 1
+                raise Overloaded(f"all {self.workers} scoring workers are busy and {len(self._waiting)} "
+                                 f"tasks are waiting (at most {self.max_queued})", retry)
+            if finish > ADMIT_SHARE * (deadline - now):
+                self.shed += 1
+                raise Overloaded(f"this key's share of the scoring workers ({cap} of {self.workers}) "
+                                 f"holds ~{wait:.0f} s of its work, and this request's ~{finish - wait:.0f} s "
+                                 "would not finish within its time limit", retry)
+            tasks = [_Task(key, next(self._seq), kind, s, deadline) for s in sizes]
             self._waiting.extend(tasks)
         futures = [self._threads.submit(self._run, t, fn, args, deadline, kind, s)
                    for t, args, s in zip(tasks, calls, sizes)]
@@ -301,6 +321,22 @@ class WorkerPool:
                 self._waiting.remove(task)
                 self._cond.notify_all()
 
+    def _learn(self, kind: str, rate: float) -> None:
+        """A task of ``kind`` took ``rate`` seconds per unit of size: a higher cost is taken at
+        once, a lower one gradually (called with the lock held)."""
+        old = self._rate.get(kind)
+        self._rate[kind] = rate if old is None or rate >= old else old + RATE_FALL * (rate - old)
+
+    def _cost(self, kind: str, size: float) -> float:
+        """The expected seconds of a task of ``kind`` on work of ``size`` now: the learned cost per
+        unit, or more when a running task of that kind has already taken longer (0 until one ran;
+        called with the lock held)."""
+        now = time.monotonic()
+        rate = max([self._rate.get(kind, 0.0)] + [(now - t.started) / t.size for ts in self._running.values()
+                                                  for t in ts if t.kind == kind and t.size > 0])
+        return rate * size
+
     def cost_s(self, fn: Callable[..., Any], size: float) -> float:
-        """The expected seconds of ``fn`` on work of ``size`` (0 until one ran)."""
-        return self._rate.get(f"{fn.__module__}.{fn.__qualname__}", 0.0) * size
+        """The expected seconds of ``fn`` on work of ``size`` now (0 until one ran)."""
+        with self._cond:
+            return self._cost(f"{fn.__module__}.{fn.__qualname__}", size)

@@ -11,6 +11,9 @@ import time
 import httpx
 import pytest
 
+from api.errors import Overloaded
+from api.pool import WorkerPool
+from excite.errors import WorkerDied, WorkTimeout
 from servers import LiveServer, write_keys
 
 SHORT = {"route": {"control": {"t_s": [0, 10, 20], "speed_mps": [0, 5, 0], "curvature_1pm": [0, 0.1, 0]}}}
@@ -62,3 +65,53 @@ def test_a_flooding_key_leaves_the_other_keys_latency_within_three_times_idle(tm
         assert loaded <= 3 * idle, (idle, loaded)
     finally:
         srv.stop()
+
+
+def _outcome(f) -> str:
+    exc = f.exception()
+    if exc is None:
+        return "200"
+    return {Overloaded: "429", WorkTimeout: "503", WorkerDied: "503"}.get(type(exc), repr(exc))
+
+
+def test_a_key_flooding_past_its_share_while_its_costs_triple_is_answered_429_and_the_other_key_is_served():
+    """Two workers, one per key. The flooding key sends a task of size 3 every 0.1 s, each with 6 s
+    to finish: for 3 s each is 0.2 s of work (what the pool learned: 0.067 s per unit), then 0.6 s
+    (as when the machine's load triples). Tasks sleep: their costs do not depend on the machine's
+    load. The flood's share does one task at a time, so most of the flood must be refused — with
+    429, at admission or once its admitted tasks are seen to cost more, never left to time out
+    (503). The quiet key's tasks, one after another throughout, all succeed."""
+    pool = WorkerPool(2, memory_mb=0, recycle_mb=0, share=0.5, max_queued=64)
+    pool.start()
+    try:
+        pool.submit(time.sleep, [(0.2,)], time.monotonic() + 10, key="quiet", sizes=[3.0])[0].result()
+        flood: list = []  # (phase, future or "429")
+        done = threading.Event()
+
+        def flooding() -> None:
+            for i in range(60):
+                phase = "light" if i < 30 else "tripled"
+                try:
+                    (f,) = pool.submit(time.sleep, [(0.2 if phase == "light" else 0.6,)], time.monotonic() + 6.0,
+                                       key="flood", sizes=[3.0])
+                    flood.append((phase, f))
+                except Overloaded:
+                    flood.append((phase, "429"))
+                time.sleep(0.1)
+            done.set()
+
+        t = threading.Thread(target=flooding)
+        t.start()
+        quiet = []
+        while not done.is_set():
+            (f,) = pool.submit(time.sleep, [(0.05,)], time.monotonic() + 6.0, key="quiet", sizes=[0.5])
+            quiet.append(_outcome(f))
+        t.join()
+        outcomes = [(phase, f if f == "429" else _outcome(f)) for phase, f in flood]
+        assert quiet and set(quiet) == {"200"}, quiet
+        assert {o for _, o in outcomes} == {"200", "429"}, outcomes
+        for phase in ("light", "tripled"):  # both phases were served and refused
+            assert {o for p, o in outcomes if p == phase} == {"200", "429"}, outcomes
+        assert pool.killed == 0
+    finally:
+        pool.close()
