@@ -46,12 +46,13 @@ def make_bag(path: Path, minutes: float) -> None:
 def one_run(path: Path) -> dict:
     t0 = time.perf_counter()
     from excite.io import bags
+    from excite.io.bags import reader
     from excite.score.evaluate import evaluate
     from excite.rig.config import load_rig
 
     rig = load_rig("robotaxi")
     t1 = time.perf_counter()
-    bags._read_drive(path, "/odom", "/imu", None, None)  # stream + decode only
+    reader._read_drive(path, "/odom", "/imu", None, None)  # stream + decode only
     t2 = time.perf_counter()
     traj = bags.read_bag_route(path, "/odom", imu_topic="/imu")  # again, with the fit
     t3 = time.perf_counter()
@@ -82,7 +83,7 @@ def main() -> None:
     size_mb = sum(f.stat().st_size for f in path.iterdir()) / 1e6
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     cmd = [sys.executable, __file__, "--child", str(path)]
-    subprocess.run(cmd, env=env, check=True, capture_output=True)  # warm-up: numba caches
+    subprocess.run(cmd, env=env, check=True, capture_output=True)  # warm-up: the compiled kernels loaded, the bag in the page cache
     runs = [json.loads(subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout)
             for _ in range(args.runs)]
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}")

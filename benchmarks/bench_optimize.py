@@ -50,7 +50,7 @@ from excite.io.routes import read_control_profile  # noqa: E402
 # excite.cli.app.leave, whose gc.freeze spares the interpreter ~0.6 s of tearing down after an
 # optimization; `python -c "… sys.exit(main())"` measured 9.78 s where the script took 9.17 s
 # with --time-budget 10)
-CLI = [sys.executable, "-c", "from excite.cli.resident_process import run; run()", "optimize"]
+CLI = [sys.executable, "-c", "from excite.cli.app import run; run()", "optimize"]
 
 
 def plot(traj, settings: OptimizeSettings, score: float, path: Path) -> None:
