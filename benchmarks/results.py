@@ -21,6 +21,7 @@ import datetime as _dt
 import json
 import os
 import platform
+import shlex
 import statistics
 import subprocess
 import sys
@@ -112,7 +113,7 @@ def record(name: str, figures: dict[str, Any], note: str = "", command: str | No
         "benchmark": name,
         "note": note,
         "figures": figures,
-        "command": command or " ".join(["python", *([Path(sys.argv[0]).resolve().relative_to(ROOT).as_posix()]
+        "command": command or shlex.join(["python", *([Path(sys.argv[0]).resolve().relative_to(ROOT).as_posix()]
                                                      if Path(sys.argv[0]).resolve().is_relative_to(ROOT)
                                                      else [sys.argv[0]]), *sys.argv[1:]]),
         "commit": commit(),
