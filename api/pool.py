@@ -67,6 +67,21 @@ def trim() -> None:
         pass
 
 
+SERVER_ARENAS = 2
+_M_ARENA_MAX = -8  # glibc's mallopt parameter
+
+
+def few_arenas(n: int = SERVER_ARENAS) -> bool:
+    """At most ``n`` malloc arenas in this process (glibc; False elsewhere). The server's many
+    threads (the request thread pool, the scoring pool's) each take an arena of their own by
+    default, and freed memory scattered over them is not given back: the server's resident size
+    rose through a soak while its Python heap (tracemalloc) stayed flat. Call before threads start."""
+    try:
+        return bool(ctypes.CDLL(None).mallopt(_M_ARENA_MAX, n))
+    except (OSError, AttributeError):
+        return False
+
+
 def _rss_mb() -> float:
     try:
         with open("/proc/self/statm") as fh:

@@ -97,8 +97,10 @@ def run(app: Any, header_timeout_s: float, host: str, port: int, log_level: str)
     import uvicorn
 
     from .auth import check_exposure
+    from .pool import few_arenas
     from .routers.live import MAX_MESSAGE_BYTES
 
+    few_arenas()  # before uvicorn's and the service's threads start
     ctx = app.state.ctx
     check_exposure(host, ctx.keys is not None, ctx.settings.open)
 

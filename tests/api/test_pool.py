@@ -115,3 +115,41 @@ def test_a_key_flooding_past_its_share_while_its_costs_triple_is_answered_429_an
         assert pool.killed == 0
     finally:
         pool.close()
+
+
+ARENAS = """
+import ctypes, sys, tempfile, threading
+from api.pool import few_arenas
+if sys.argv[1] == "few":
+    assert few_arenas()
+def work():
+    for _ in range(100):
+        x = [bytearray(1000) for _ in range(2000)]
+        del x
+threads = [threading.Thread(target=work) for _ in range(12)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+libc = ctypes.CDLL(None)
+libc.fopen.restype = ctypes.c_void_p
+path = tempfile.mktemp()
+fp = libc.fopen(path.encode(), b"w")
+libc.malloc_info(0, ctypes.c_void_p(fp))
+libc.fclose(ctypes.c_void_p(fp))
+print(open(path).read().count("<heap nr="))
+"""
+
+
+def test_the_server_allocates_from_few_arenas_however_many_threads_it_runs():
+    """glibc's malloc_info counts the arenas of a process whose 12 threads allocate at once: by
+    default several (one per thread up to 8 per core), with few_arenas() at most two."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    env.pop("MALLOC_ARENA_MAX", None)
+    counts = {how: int(subprocess.run([sys.executable, "-c", ARENAS, how], env=env, capture_output=True, text=True,
+                                      timeout=120, check=True).stdout)
+              for how in ("default", "few")}
+    assert counts["few"] <= 2 < counts["default"], counts
