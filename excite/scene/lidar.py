@@ -137,9 +137,9 @@ def _rows(scene: Scene, R: np.ndarray, origin: np.ndarray, d_S: np.ndarray, scan
     ``[p × n; n]`` and, for a return from the ground, its row ``[p; 1]`` of the road plane's fit
     (zero rows otherwise); flat over the m·n rays."""
     m, n = d_S.shape[:2]
-    d_W = (d_S @ np.swapaxes(R, 1, 2)).reshape(-1, 3)
-    hits = scene.cast(np.broadcast_to(origin[:, None, :], (m, n, 3)).reshape(-1, 3), d_W, scan.max_range_m)
-    facing = np.abs(np.sum(hits.normal * d_W, axis=1)) >= MIN_INCIDENCE_COS
+    d_W = d_S @ np.swapaxes(R, 1, 2)
+    hits = scene.cast(origin[:, None, :], d_W, scan.max_range_m)
+    facing = hits.cos >= MIN_INCIDENCE_COS
     ok = hits.hit & (hits.distance >= scan.min_range_m) & facing
     pts = d_S.reshape(-1, 3) * np.where(ok, hits.distance, 0.0)[:, None]
     nrm = (hits.normal.reshape(m, n, 3) @ R).reshape(-1, 3) * ok[:, None]
@@ -162,15 +162,27 @@ def _directions(elevation: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
     return np.stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)], axis=-1)
 
 
+def _grid_directions(elevations: np.ndarray, azimuths: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    """:func:`_directions` of every elevation × azimuth (elevation-major), the azimuths of scan k
+    turned by ``turn[k]``: m × (n_el · n_az) × 3, each angle's sine and cosine taken once."""
+    ce, se = np.cos(elevations), np.sin(elevations)
+    az = azimuths[None, :] + turn[:, None]
+    ca, sa = np.cos(az), np.sin(az)
+    out = np.empty((turn.size, elevations.size, azimuths.size, 3))
+    out[..., 0] = ce[None, :, None] * ca[:, None, :]
+    out[..., 1] = ce[None, :, None] * sa[:, None, :]
+    out[..., 2] = se[None, :, None]
+    return out.reshape(turn.size, -1, 3)
+
+
 def _sum_by_scan(rows: np.ndarray, weight: float, scan_of: np.ndarray, m: int) -> np.ndarray:
-    """``Σ weight · r rᵀ`` of the rows of each of m scans (``scan_of``: each row's scan), m × d × d,
-    one weighted count per entry of the upper triangle."""
-    d = rows.shape[1]
-    out = np.zeros((m, d, d))
-    for i in range(d):
-        wi = rows[:, i] * weight
-        for j in range(i, d):
-            out[:, i, j] = out[:, j, i] = np.bincount(scan_of, weights=wi * rows[:, j], minlength=m)
+    """``Σ weight · r rᵀ`` of the rows of each of m scans (``scan_of``: each row's scan, in
+    ascending order), m × d × d."""
+    out = np.zeros((m, rows.shape[1], rows.shape[1]))
+    bounds = np.searchsorted(scan_of, np.arange(m + 1))
+    for k in np.flatnonzero(np.diff(bounds)):
+        r = rows[bounds[k]:bounds[k + 1]]
+        out[k] = weight * (r.T @ r)
     return out
 
 
@@ -198,9 +210,8 @@ def informations(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, beams: Lida
     def chunk(a: int) -> None:
         b = min(S, a + SCANS_PER_CALL)
         m = b - a
-        el = np.repeat(scan.elevations, n_az)[None, :]
-        az = np.tile(scan.azimuths, n_el)[None, :] + (off[a:b] * step)[:, None]
-        ok, sid, J, P = _rows(scene, R_W_S[a:b], p_W_S[a:b], _directions(el, az), scan)
+        d_S = _grid_directions(scan.elevations, scan.azimuths, off[a:b] * step)
+        ok, sid, J, P = _rows(scene, R_W_S[a:b], p_W_S[a:b], d_S, scan)
         ok, sid = ok.reshape(m, n_el, n_az), sid.reshape(m, n_el, n_az)
         w = np.full((m, n_el, n_az), w0)
         # edges: a ray and its next neighbour along the beam see different things

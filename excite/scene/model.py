@@ -51,14 +51,16 @@ class Surface:
 class Hits:
     """What rays found: per ray, whether it hit (``hit``), the distance along its unit direction
     (``distance``; the range limit where it did not), the hit triangle (``face``, −1 for none),
-    the unit normal of that triangle facing the ray's origin (``normal``) and its surface's index
-    (``surface``, −1 for none)."""
+    the unit normal of that triangle facing the ray's origin (``normal``), its surface's index
+    (``surface``, −1 for none) and the cosine of the ray's incidence on it (``cos``, ``|n · d|``;
+    0 for none)."""
 
     hit: np.ndarray
     distance: np.ndarray
     face: np.ndarray
     normal: np.ndarray
     surface: np.ndarray
+    cos: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -194,27 +196,32 @@ class Scene:
             self._embree.append(scene)
         return self._embree[0]
 
+    @cached_property
+    def _by_face(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each face's unit normal and surface, and after them a zero normal and surface −1: what
+        a ray that meets no face (index −1) gets."""
+        return np.vstack([self.face_normals, np.zeros((1, 3))]), np.append(self.face_surface, -1)
+
     def cast(self, origins: np.ndarray, directions: np.ndarray, max_range: float | np.ndarray) -> Hits:
         """The first triangle each ray meets within ``max_range`` of its origin (occlusion
-        honoured): ``origins``, ``directions`` are N × 3 in W, the directions of unit length."""
-        o = np.asarray(origins, float)
-        d = np.asarray(directions, float)
+        honoured): ``directions`` N × 3 in W, of unit length (or … × 3, taken flat), ``origins``
+        the same or any shape that broadcasts to them (one origin per scan: m × 1 × 3)."""
+        shape = np.shape(directions)
+        d = np.asarray(directions, float).reshape(-1, 3)
         n = d.shape[0]
-        o = np.broadcast_to(o, d.shape)
+        o32 = np.empty(shape, np.float32)
+        o32[...] = np.asarray(origins, float) - self._origin
         reach = np.broadcast_to(np.asarray(max_range, float), (n,))
-        out = self._caster().run(np.ascontiguousarray(o - self._origin, dtype=np.float32),
-                                 np.ascontiguousarray(d, dtype=np.float32),
+        out = self._caster().run(o32.reshape(-1, 3), np.ascontiguousarray(d, dtype=np.float32),
                                  dists=np.ascontiguousarray(reach, dtype=np.float32), output=1)
         face = out["primID"].astype(np.int64)
         hit = face >= 0
-        dist = np.where(hit, out["tfar"].astype(float), reach)
-        normal = np.zeros((n, 3))
-        normal[hit] = self.face_normals[face[hit]]
-        flip = np.einsum("ij,ij->i", normal, d) > 0
-        normal[flip] *= -1.0
-        surface = np.full(n, -1, dtype=np.int64)
-        surface[hit] = self.face_surface[face[hit]]
-        return Hits(hit=hit, distance=dist, face=face, normal=normal, surface=surface)
+        dist = np.where(hit, out["tfar"], reach)
+        normals, surfaces = self._by_face
+        normal = normals[face]
+        nd = np.einsum("ij,ij->i", normal, d)
+        normal[nd > 0] *= -1.0
+        return Hits(hit=hit, distance=dist, face=face, normal=normal, surface=surfaces[face], cos=np.abs(nd))
 
     def is_ground(self) -> np.ndarray:
         """Per surface: whether it is the ground (carries the road plane)."""
