@@ -108,6 +108,8 @@ def jacobians(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock
                  (Jx, Jt))
     if W is not None:
         Jx, Jt = W @ Jx, W @ Jt
-    Jt = np.ascontiguousarray(Jt[:, :, lay.estimated_columns()])
+    estimated = lay.estimated_columns()
+    if estimated.size < Jt.shape[2]:  # (np.take copies once into C order; fancy indexing twice)
+        Jt = np.take(Jt, estimated, axis=2)
     cols = theta_columns(rig, coordinate_names(lay)) if lay.n_theta else np.zeros(0, dtype=int)
     return FactorBlock(kind.block_name(entry), first, stride, lay.arity, Jx, Jt, cols)
