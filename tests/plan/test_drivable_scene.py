@@ -54,3 +54,23 @@ def test_every_phase_of_the_search_scores_its_drives_in_the_scene():
     assert res.robust.scores.size >= 5 and res.robust.scores.min() > 5 * blind
     # the library's rates: the design's predicted λ_min (over the whole duration) at the scene's level
     assert res.design[0]["predicted"] > 5 * blind
+
+
+def test_a_lidar_rig_ranks_by_the_scenes_field_and_reports_exactly():
+    """The search's two scorers: for a rig with lidars only, the field over the lot (cast once)
+    and the exact scans; a rig with a camera (whose pairs depend on the drive's motion) and a
+    search without a scene score every drive one way."""
+    from excite.plan.drivable.search import scene_scorers
+    from excite.rig.config import load_rig
+
+    scene = load_scene("lot_buildings_one_side")
+    lot = Site.rectangle(40, 30)
+    rank, exact = scene_scorers(_lidar_rig(), scene, lot)
+    assert rank.field is not None and exact.field is None and exact.scene is scene
+    lo = rank.field.xs.min(), rank.field.ys.min()
+    hi = rank.field.xs.max(), rank.field.ys.max()
+    assert lo[0] < -20 and lo[1] < -15 and hi[0] > 20 and hi[1] > 15  # the whole lot, a lever arm beyond
+    rank, exact = scene_scorers(load_rig("robotaxi"), scene, lot)
+    assert rank is exact and exact.field is None and exact.scene is scene
+    rank, exact = scene_scorers(_lidar_rig(), None, lot)
+    assert rank is exact and exact.scene is None

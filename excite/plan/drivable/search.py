@@ -24,10 +24,13 @@ The result is re-scored by the full evaluator on the drive as instructed (the 10
 
 With a ``scene`` (:class:`~excite.scene.model.Scene`, in the lot's frame) every drive the search
 scores — the library's elements, every plan the refinement tries, the driver model's drives and
-the result — is first seen in it (:func:`excite.scene.along.seen`, its default sampling) and
-then evaluated (:class:`Scorer`): where each element goes and at what heading is chosen by what
-the lidars see there. A drive seen in a scene costs several times a blind evaluation (the ray
-casting), so the refinement tries fewer plans within the same budget.
+the result — is scored with what the rig's sensors see in it (:class:`Scorer`): where each
+element goes and at what heading is chosen by what the lidars see there. A drive seen in a scene
+(:func:`excite.scene.along.seen`, its default sampling) costs several times a blind evaluation
+(the ray casting); for a rig whose exteroceptive sensors are lidars only, the search casts the
+scene's scans once on a grid over the lot (:func:`excite.scene.field.field`, a few seconds) and
+ranks its drives by scans looked up there, at the cost of a blind evaluation
+(:func:`scene_scorers`); the result and its drives by the fresh drivers are seen exactly.
 """
 
 from __future__ import annotations
@@ -147,20 +150,41 @@ def check_scene(scene: Scene, site: Site) -> None:
 @dataclass(frozen=True)
 class Scorer:
     """The full evaluator's report of a drive with ``rig``, the drive first seen in ``scene``
-    (:func:`excite.scene.along.seen`) when there is one. Pickles (a worker process builds the
+    (:func:`excite.scene.along.seen`) when there is one, or looked up in the scene's ``field``
+    (:class:`excite.scene.field.Field`) when one is given. Pickles (a worker process builds the
     scene's ray caster again)."""
 
     rig: Rig
     scene: Scene | None = None
+    field: Any = None
 
     def __call__(self, traj):
         from ...score.evaluate import evaluate
 
-        if self.scene is not None:
+        if self.field is not None:
+            traj = self.field.seen(traj, self.rig)
+        elif self.scene is not None:
             from ...scene.along import seen
 
             traj = seen(traj, self.rig, self.scene)
         return evaluate(traj, self.rig)
+
+
+def scene_scorers(rig: Rig, scene: Scene | None, site: Site) -> tuple[Scorer, Scorer]:
+    """The scorer the search ranks drives by and the exact one its result is reported with:
+    with a scene and a rig whose exteroceptive sensors are lidars only, the scene's field over
+    the lot (:func:`excite.scene.field.field`, cast once: a drive looked up in it costs what a
+    blind one does) and :func:`~excite.scene.along.seen`; otherwise both the same."""
+    exact = Scorer(rig, scene)
+    if scene is None:
+        return exact, exact
+    from ...scene.along import cameras
+    from ...scene.field import field
+
+    if cameras(rig):
+        return exact, exact
+    lo, hi = site.lot.polygon_m.min(axis=0), site.lot.polygon_m.max(axis=0)
+    return Scorer(rig, scene, field(scene, rig, lo, hi)), exact
 
 
 def check_problem(site: Site, limits: Limits, speed_max_mps: float | None = None) -> None:
@@ -537,11 +561,10 @@ def _reraise(_: Any, exc: BaseException) -> Any:
 def _robust_task(args) -> tuple[int, Robust]:
     from .plan import plan_from_dict
 
-    i, doc, rig, limits, settings, nominal = args
+    i, doc, rig, limits, settings, nominal, scorer = args
     built = build(plan_from_dict(doc), limits)
     return i, robust_scores(built.course, rig, limits, settings.draws, nominal, settings.seed, settings.driver,
-                            duration_s=settings.duration_s, quantile=settings.quantile,
-                            evaluate=Scorer(rig, settings.scene))
+                            duration_s=settings.duration_s, quantile=settings.quantile, evaluate=scorer)
 
 
 # --------------------------------------------------------------------------------------------
@@ -588,7 +611,6 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     from ..settings import vehicle_limits
 
     limits = vehicle_limits(rig, limits)
-    scorer = Scorer(rig, settings.scene)
     check_problem(site, limits, settings.speed_max_mps)
     vmax = MARGIN * limits.speed_max_mps
     if settings.speed_max_mps is not None:
@@ -602,6 +624,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
             progress(Progress(phase, time.monotonic() - t0, best_so_far[0], detail, budget))
 
     report("library")
+    scorer, exact = scene_scorers(rig, settings.scene, site)
     lib = library(rig, limits_plan, site, settings.kinds,
                   evaluate=scorer, progress=lambda i, n: report("library", f"{i}/{n}"))
     timings["library"] = time.monotonic() - t0
@@ -685,7 +708,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     # best nominal first; a plan whose drives are not in by the deadline is not chosen
     deadline = t0 + budget - RESULT_S - FRESH_SHARE * budget
     robust: list[Robust | None] = [None] * len(picked)
-    args = [(i, p.to_dict(), rig, limits_plan, settings, sc) for i, (p, sc) in enumerate(picked)]
+    args = [(i, p.to_dict(), rig, limits_plan, settings, sc, scorer) for i, (p, sc) in enumerate(picked)]
     if workers > 1 and len(picked) > 1:
         def choosing() -> bool:  # a plan whose drives are not in by the deadline is cut short with its worker
             report("robust", f"{sum(r is not None for r in robust)}/{len(picked)} plans driven")
@@ -708,7 +731,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
     built = build(plan, limits_plan)
     timed = built.timed()
     traj = drive(timed.profile, rig.suspension)
-    rep = scorer(traj)
+    rep = exact(traj)
     # the chosen plan's quantile over drivers it was not chosen by (the choosing drivers' is
     # optimistic: the plan that did best on them was picked), as many as the time left allows
     chosen_by = robust[k]
@@ -719,7 +742,7 @@ def optimize_drivable(rig: Rig, settings: DrivableSettings = DrivableSettings(),
             break
         c0 = time.monotonic()
         sc, w = driven_scores(built.course, rig, limits_plan, 1, settings.seed + FRESH_SEED, settings.driver,
-                              settings.duration_s, scorer, first=len(fresh))
+                              settings.duration_s, exact, first=len(fresh))
         fresh.append(float(sc[0]))
         fresh_w.append(float(w[0]))
         t_draw = max(t_draw, time.monotonic() - c0)
