@@ -91,7 +91,7 @@ def odometry_calls(nom: Nominal, rig, runs: int) -> dict[str, list[float]]:
     inst = next(i for i in registry.instances(rig) if i.name == "lidar")
     kind, entry = inst.kind, inst.entry
     lay = kernels.layout(kind, rig, entry)
-    first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
+    first = registry.factor_keyframes(kind, rig, entry, nom.n_keyframes, nom)
     N = first.size
     out = {"native": cpu_ms(lambda: kernels.jacobians(kind, nom, rig, entry), runs),
            "casadi_vm": cpu_ms(lambda: symbolic.blocks(kind, nom, rig, entry), runs)}

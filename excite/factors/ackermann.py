@@ -255,9 +255,6 @@ class Ackermann(Kind[AckermannConfig]):
               "steering.rate_max_deg_per_s": Range(1.0, 3600.0, "deg/s")}
     advice = _ADVICE
 
-    def stride(self, rig: RigView, entry: AckermannConfig) -> int:
-        return 1  # a mean over every keyframe interval, whatever the stream's rate
-
     def quantities(self, cfg: ConfigView, ac: AckermannConfig) -> list[Quantity]:
         if getattr(cfg, "wheels", None) is not None:
             raise RigError("ackermann: a rig has rear-axle encoders (wheels) or a car's CAN wheel speeds "

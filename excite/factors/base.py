@@ -1,8 +1,8 @@
 """The factor protocol: what one measurement kind declares, the registry of kinds, and what every
 factor shares (the nominal states it is linearised at, its Jacobian blocks).
 
-A **kind** (:class:`Kind`) is one module of :mod:`excite.factors`. Every kind implements a few
-typed hooks:
+A **kind** (:class:`Kind`) is one module of :mod:`excite.factors`. Every kind declares a few
+class attributes and implements a few typed hooks:
 
 - its **rig entry**: the ``kind:`` values of the ``sensors:`` entries it measures
   (:attr:`Kind.sensor_kinds`) or the top-level rig section it reads (:attr:`Kind.section`), the
@@ -10,31 +10,46 @@ typed hooks:
   (:attr:`Kind.ranges`), and the calibration **quantities** it is a function of
   (:meth:`Kind.quantities`: each a rotation, a 3-vector or a scalar, with the coordinates it
   adds to θ);
-- its **arity** (one keyframe or a pair, :attr:`Kind.arity`), and which gauge symmetries its
-  measurements **break** (:attr:`Kind.breaks`: an absolute position or an absolute yaw), which
-  decides the trajectory's parametrisation and gauge (:mod:`excite.information.closure`);
+- its **arity** (one keyframe or a pair, :attr:`Kind.arity`), its residual's rows
+  (:attr:`Kind.rows`), and which gauge symmetries its measurements **break**
+  (:attr:`Kind.breaks`: an absolute position or an absolute yaw), which decides the
+  trajectory's parametrisation and gauge (:mod:`excite.information.closure`);
 - its **math, once**: the noise-free measurement at the nominal motion (:meth:`Kind.measurement`),
   the residual (:meth:`Kind.residual`) and its whitening (:meth:`Kind.sqrt_information`), in
-  CasADi symbols for one factor (:class:`excite.factors.symbolic.FactorInputs`), reading the
-  numbers of its entry through :meth:`Kind.constants` and its shape through :meth:`Kind.variant`.
-  Everything else follows from it: the evaluator's kernels are generated from it
-  (:mod:`excite.factors.generate`, run by :mod:`excite.factors.kernels`), the optimizer's
-  information model and the calibrator differentiate it with CasADi;
+  CasADi symbols for one factor (:class:`FactorInputs`), reading the numbers of its entry
+  through :meth:`Kind.constants`. Everything else follows from it: the evaluator's kernels are
+  generated from it (:mod:`excite.factors.generate`, run by :mod:`excite.factors.kernels`), the
+  optimizer's information model and the calibrator differentiate it with CasADi;
+- per-factor **whitening from data** where a drive carries it (:meth:`Kind.whitening`: a
+  reported covariance, a scene's information; None by default);
 - its **simulated measurement** (:meth:`Kind.simulate`: physical, or exactly as the model
-  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates.
+  assumes) for :mod:`excite.validate`, and the motion **advice** for its coordinates
+  (:attr:`Kind.advice`).
 
-The others have defaults most kinds keep: the keyframes between factors (:meth:`Kind.stride`),
-which measurements a **logged** drive holds (:meth:`Kind.factor_keyframes` reading
-:attr:`Nominal.logs`: an outage), per-factor **whitening from data** (:meth:`Kind.whitening`: a
-reported covariance, a scene's information), what a recording becomes before the residual
-compares it (:meth:`Kind.measured`), the same information per second at another rate
-(:meth:`Kind.at_rate`). What one kind needs is a smaller protocol of its own: a kind whose math
-reads its interval's IMU samples folds them into a summary (:class:`ReadsImu`: the IMU's
-preintegration), a kind whose noise is a Markov chain along the drive names the factor that opens
-it at a drive's start (:class:`OpensChain`: a GNSS antenna's first fix).
+What one or two kinds need is a small protocol of its own, which a kind implements by defining
+its methods; callers never ask the kind, they call this module's function of the same name,
+which gives the default for a kind without the protocol:
 
-Everything else loops over the registry (:func:`kinds`, :func:`instances`): adding a kind is a
-module that calls :func:`register`, and nothing else changes.
+- :class:`ChoosesEntries` (:func:`entries`): entries other than its sensors or section (the
+  vehicle's non-holonomic constraint; a lidar's road plane);
+- :class:`NamesBlocks` (:func:`block_name`): a block not named after its sensor or itself (the
+  road plane's, a GNSS antenna's first fix);
+- :class:`HasVariants` (:func:`variant`): a statement whose shape changes with the entry (a 2-D
+  radar; a car with or without steering), one kernel per variant;
+- :class:`ChoosesFactors` (:func:`factor_keyframes`): factors at only some of the entry's frames
+  (:func:`frames`, every :func:`stride`-th keyframe): the fixes a logged drive holds
+  (:attr:`Nominal.logs`), the frames that see ground;
+- :class:`PreparesRecording` (:func:`prepare_recording`): a recording made into what the
+  residual compares (the IMU's samples preintegrated at the estimate; consecutive fixes paired);
+- :class:`Resamples` (:func:`at_rate`): an entry at another rate with the same information per
+  second by more than its ``rate_hz`` (the optimizer's coarse rig);
+- :class:`ReadsImu`: math that reads the interval's IMU samples, folded into a summary (the
+  IMU's preintegration);
+- :class:`OpensChain` (:func:`openings`): noise that is a Markov chain along the drive, opened
+  at a drive's start by a factor of its own (a GNSS antenna's first fix).
+
+Everything else loops over the registry (:func:`kinds`, :func:`instances`, :func:`openings`):
+adding a kind is a module that calls :func:`register`, and nothing else changes.
 
 States. The nuisance state of keyframe k is ``x_k = [δθ (3), δp (3), δv (3)]``: a right
 perturbation of the body orientation ``R_W_B · Exp(δθ)``, and additive world position and velocity
@@ -47,11 +62,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import Any, ClassVar, Generic, Iterator, Protocol, Sequence, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Iterator, Protocol, Sequence, TypeVar, Union, runtime_checkable
 
 import numpy as np
 
 from ..core.bounds import Range
+from ..core.schema import SensorEntry
 from ..motion.trajectory import Trajectory, rigid_body
 
 
@@ -67,7 +83,9 @@ class RigView(Protocol):
     """What a kind reads of the rig it is linearised for (:class:`excite.rig.config.Rig` is one):
     the validated configuration, the parameter coordinates in column order, the keyframe rate."""
 
-    config: Any
+    @property
+    def config(self) -> ConfigView: ...
+
     coordinates: tuple
     keyframe_rate_hz: float
 
@@ -207,9 +225,9 @@ def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dic
         kind = kind_of_sensor(s.kind)
         if log is None or kind is None:
             continue
-        stride = kind.stride(rig, s)
+        step = stride(kind, rig, s)
         k = k0 + np.arange(t.size)
-        frame = k % stride == 0
+        frame = k % step == 0
         ts = np.asarray(log.t, dtype=float)
         if ts.size == 0:
             out[s.name] = KeyframeLog(np.zeros(t.size, dtype=bool))
@@ -217,7 +235,7 @@ def keyframe_logs(traj: Trajectory, rig: RigView, t: np.ndarray, k0: int) -> dic
         j = np.clip(np.searchsorted(ts, t), 1, ts.size - 1) if ts.size > 1 else np.zeros(t.size, dtype=int)
         if ts.size > 1:
             j = np.where(np.abs(ts[j - 1] - t) <= np.abs(ts[j] - t), j - 1, j)
-        near = np.abs(ts[j] - t) < 0.5 * stride / rig.keyframe_rate_hz  # (strictly: a message is one frame's)
+        near = np.abs(ts[j] - t) < 0.5 * step / rig.keyframe_rate_hz  # (strictly: a message is one frame's)
         avail = frame & near
         cov = None
         if log.covariance is not None:
@@ -352,11 +370,14 @@ class Column:
 # --- the protocol ------------------------------------------------------------------------------
 
 E = TypeVar("E")  # a kind's rig entry (its pydantic model)
-Expr = Any  # a CasADi SX expression
+if TYPE_CHECKING:
+    from casadi import SX as Expr  # a CasADi expression (CasADi is imported lazily: :mod:`excite.core.lazy`)
+else:
+    Expr = Any
 Variant = tuple  # what changes the shape of a kind's statement (its rows, its quantities): small, hashable
 # a residual's whitening: a vector (diagonal), a matrix (rows × the residual's rows), or
 # ("cholesky", Σ): the inverse Cholesky factor of a covariance Σ
-Whitening = Any
+Whitening = Union["Expr", np.ndarray, tuple[str, "Expr"]]
 
 
 @dataclass
@@ -370,21 +391,21 @@ class FactorInputs:
     constants the kind's math reads (:meth:`~excite.factors.base.Kind.constants`). ``imu``: the
     summary of the interval's IMU samples (:class:`~excite.factors.base.ReadsImu`), for a kind
     that reads them. ``dT``: the factor's interval [s]; ``R_V_B``, ``p_V_B``: the IMU's pose in V.
-    ``variant``: the entry's :meth:`~excite.factors.base.Kind.variant`. ``entry``, ``rig``: the
+    ``variant``: the entry's :func:`~excite.factors.base.variant`. ``entry``, ``rig``: the
     entry and its rig, for math that reads them directly (then generated per entry, on demand);
     None where the kernel is generated for every entry of the variant."""
 
-    R: list
-    p: list
-    v: list
-    omega: list
-    R_V_A: list
-    q: dict[str, Any]
-    c: dict[str, Any]
-    imu: dict[str, Any] | None
-    dT: Any
-    R_V_B: Any
-    p_V_B: Any
+    R: list[Expr]
+    p: list[Expr]
+    v: list[Expr]
+    omega: list[Expr]
+    R_V_A: list[Expr]
+    q: dict[str, Expr]
+    c: dict[str, Expr]
+    imu: dict[str, Expr] | None
+    dT: Expr
+    R_V_B: Expr
+    p_V_B: Expr
     variant: Variant
     entry: Any = None
     rig: RigView | None = None
@@ -394,9 +415,9 @@ class FactorInputs:
 class ConfigView(Protocol):
     """What a kind reads of a rig's validated configuration (:class:`excite.rig.config.RigConfig`)."""
 
-    sensors: Sequence[Any]
-    imu: Any
-    vehicle: Any
+    sensors: Sequence[SensorEntry]
+    imu: Any  # :class:`excite.factors.imu.ImuConfig` (a kind's own module)
+    vehicle: Any  # :class:`excite.rig.config.VehicleConfig` (of the package above)
 
 
 class SimulationView(Protocol):
@@ -420,11 +441,15 @@ class SimulationView(Protocol):
 
 
 class Kind(Generic[E]):
-    """One measurement kind (see the module docstring). Subclasses set the class attributes and
-    implement the hooks every kind implements (:meth:`quantities`, :meth:`measurement`,
-    :meth:`residual`, :meth:`sqrt_information`, :meth:`simulate`, and :meth:`constants` where its
-    math reads numbers of its entry); the others have defaults that most kinds keep. Instances are
-    stateless and registered once (:func:`register`)."""
+    """One measurement kind (see the module docstring): the class attributes and hooks every kind
+    declares. Subclasses set the attributes and implement :meth:`quantities`, :meth:`measurement`,
+    :meth:`residual`, :meth:`sqrt_information`, :meth:`simulate`, and :meth:`constants` and
+    :meth:`whitening` where their math reads numbers of the entry or their drives carry a
+    whitening; what one or two kinds need is a protocol of its own (:class:`ChoosesEntries`,
+    :class:`NamesBlocks`, :class:`HasVariants`, :class:`ChoosesFactors`, :class:`PreparesRecording`,
+    :class:`Resamples`, :class:`ReadsImu`, :class:`OpensChain`), reached through the functions
+    of this module (:func:`entries`, :func:`factor_keyframes`, …), never through the kind.
+    Instances are stateless and registered once (:func:`register`)."""
 
     name: ClassVar[str]
     arity: ClassVar[int] = 2  # keyframes per factor: 1, or a pair ``stride`` keyframes apart
@@ -436,46 +461,13 @@ class Kind(Generic[E]):
     ranges: ClassVar[dict[str, Range]] = {}  # sane ranges of an entry's numbers (dotted keys within it)
     # motion advice per (coordinate's quantity, vehicle axis or None): (the report's, the driver's)
     advice: ClassVar[dict[tuple[str, int | None], tuple[str, str]]] = {}
-    # a kind whose math reads the IMU samples of its interval (:class:`ReadsImu`)
-    reads_imu: ClassVar[bool] = False
-    summary_fields: ClassVar[tuple[tuple[str, tuple[int, ...]], ...]] = ()
-    summary_state: ClassVar[int] = 0
-
-    @property
-    def summary_size(self) -> int:
-        return sum(int(np.prod(shape)) for _, shape in self.summary_fields)
-
-    # --- the rig ---
-
-    def entries(self, rig: RigView) -> list[E]:
-        """The rig entries this kind measures: its sensors, or its section if the rig has one."""
-        if self.sensor_kinds:
-            return [s for s in rig.config.sensors if s.kind in self.sensor_kinds]
-        if self.section is not None:
-            entry = getattr(rig.config, self.section, None)
-            return [] if entry is None else [entry]
-        return [rig.config]
-
-    def block_name(self, entry: E) -> str:
-        """The name of the entry's factor block (a sensor's name; the kind's own otherwise)."""
-        return getattr(entry, "name", None) if self.sensor_kinds else self.name
 
     def quantities(self, cfg: ConfigView, entry: E) -> list[Quantity]:
         """The calibration quantities of ``entry`` (``cfg`` is the whole rig configuration): their
-        keys, sizes and kinds of perturbation depend on :meth:`variant` only."""
+        keys, sizes and kinds of perturbation depend on :func:`variant` only."""
         return []
 
-    def stride(self, rig: RigView, entry: E) -> int:
-        """Keyframes between consecutive factors (a sensor slower than the keyframes: its ratio)."""
-        rate = getattr(entry, "rate_hz", None)
-        return 1 if rate is None else int(round(rig.keyframe_rate_hz / rate))
-
     # --- the math: stated once, in CasADi symbols for one factor ---
-
-    def variant(self, entry: E) -> Variant:
-        """What of ``entry`` changes the shape of the statement (its rows, its quantities): one
-        kernel is generated per variant (a 2-D radar's; a car with or without steering)."""
-        return ()
 
     def constants(self, rig: RigView, entry: E) -> dict[str, float | np.ndarray]:
         """The numbers of ``entry`` (and of the rig) that the math reads, by name (``f.c[name]``):
@@ -495,50 +487,106 @@ class Kind(Generic[E]):
         """``W`` with ``WᵀW = Σ⁻¹`` of the residual (:data:`Whitening`)."""
         raise NotImplementedError
 
-    def whitening(self, nom: "Nominal", rig: RigView, entry: E, first: np.ndarray) -> np.ndarray | None:
+    def whitening(self, nom: Nominal, rig: RigView, entry: E, first: np.ndarray) -> np.ndarray | None:
         """Per-factor whitening from data, where a drive carries it (a reported covariance, a
         scene's information): ``W_n`` (N × rows × the residual's rows, ``W_nᵀW_n = Λ_n``, rows of
         zeros allowed) of the factors at keyframes ``first``, applied to the residual's rows in
         place of :meth:`sqrt_information`; None: the statement's whitening."""
         return None
 
-    # --- what the drive holds ---
-
-    def factor_keyframes(self, rig: RigView, entry: E, n_keyframes: int, nom: "Nominal | None" = None) -> np.ndarray:
-        """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes`` (relative to
-        its start): every ``stride``-th keyframe; pairs need their second keyframe. ``nom``, where
-        given, may say which measurements a logged drive holds (:attr:`Nominal.logs`); a kind
-        that reads it skips the missing ones."""
-        s = self.stride(rig, entry)
-        last = n_keyframes - 1 - (s if self.arity == 2 else 0)
-        return np.arange(0, last + 1, s) if last >= 0 else np.zeros(0, dtype=int)
-
-    def at_rate(self, entry: dict, rate_hz: float) -> dict:
-        """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second
-        (the optimizer's coarse rig, :func:`excite.plan.model.coarse_rig`); by default only its
-        rate changes (noise given as a density)."""
-        return dict(entry, rate_hz=rate_hz)
-
-    def measured(self, rig: RigView, entry: E, recorded: Any, values: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        """What :meth:`residual` compares with the model, from what ``entry`` recorded (its
-        :meth:`simulate` output), at the estimate ``values`` of its quantities; and the values the
-        residual is to be evaluated at. By default the recorded measurements as they are."""
-        return recorded, values
-
     # --- simulation ---
 
     def simulate(self, sim: SimulationView, entry: E) -> Any:
         """What ``entry`` records on the simulated drive ``sim``: a flat measurement per factor, in
-        the layout of :meth:`measurement` (rows of an array, one per factor of :meth:`factor_keyframes`)."""
+        the layout of :meth:`measurement` (rows of an array, one per factor of
+        :func:`factor_keyframes`), or what :meth:`PreparesRecording.prepare_recording` makes of it."""
         raise NotImplementedError
 
 
+# --- what one or two kinds add: protocols of their own -----------------------------------------
+
+E_co = TypeVar("E_co", covariant=True)
+E_contra = TypeVar("E_contra", contravariant=True)
+
+
+@runtime_checkable
+class ChoosesEntries(Protocol[E_co]):
+    """A kind whose entries are neither its ``sensors:`` entries nor its section (a vehicle's
+    constraint; another kind's sensors: a lidar's road plane)."""
+
+    def entries(self, rig: RigView) -> Sequence[E_co]:
+        """The rig entries this kind measures."""
+        ...
+
+
+@runtime_checkable
+class NamesBlocks(Protocol[E_contra]):
+    """A kind whose factor blocks are named otherwise than after its entry (a ``sensors:`` entry's
+    name) or after itself (:attr:`Kind.name`): one that measures another kind's entries."""
+
+    def block_name(self, entry: E_contra) -> str:
+        """The name of ``entry``'s factor block (unique among the rig's)."""
+        ...
+
+
+@runtime_checkable
+class HasVariants(Protocol[E_contra]):
+    """A kind whose statement changes shape with its entry (a 2-D radar's rows; a car with or
+    without steering): one kernel is generated per variant."""
+
+    def variant(self, entry: E_contra) -> Variant:
+        """What of ``entry`` changes the shape of the statement (its rows, its quantities)."""
+        ...
+
+
+@runtime_checkable
+class ChoosesFactors(Protocol[E_contra]):
+    """A kind whose drives hold factors at only some of its entry's frames (:func:`frames`): the
+    fixes a logged drive holds, the frames that see ground."""
+
+    def factor_keyframes(self, rig: RigView, entry: E_contra, n_keyframes: int,
+                         nom: Nominal | None = None) -> np.ndarray:
+        """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes`` (a subset
+        of :func:`frames`); ``nom``, where given, says what the drive holds
+        (:attr:`Nominal.logs`, :attr:`Nominal.ground`)."""
+        ...
+
+
+@runtime_checkable
+class PreparesRecording(Protocol[E_contra]):
+    """A kind whose recordings become something else before the residual compares them with
+    the model (the IMU's samples preintegrated at the estimated biases; pairs of consecutive
+    GNSS fixes)."""
+
+    def prepare_recording(self, rig: RigView, entry: E_contra, recorded: Any,
+                          values: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+        """What :meth:`Kind.residual` compares with the model (one row per factor of
+        :func:`factor_keyframes`), from what ``entry`` recorded (its :meth:`Kind.simulate`
+        output), at the estimate ``values`` of its quantities; and the values the residual is
+        to be evaluated at."""
+        ...
+
+
+@runtime_checkable
+class Resamples(Protocol):
+    """A ``sensors:`` kind whose entry at another rate keeps its information per second by more
+    than a new ``rate_hz`` (a radar's merged targets; white GNSS fixes' σ)."""
+
+    def at_rate(self, entry: dict[str, Any], rate_hz: float) -> dict[str, Any]:
+        """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second."""
+        ...
+
+
+@runtime_checkable
 class ReadsImu(Protocol):
-    """What a kind whose math reads the IMU samples of its interval (:attr:`Kind.reads_imu`: the
-    IMU's preintegration) adds: a fold over the samples, from the last to the first, into a
-    summary of the interval that :class:`~excite.factors.symbolic.FactorInputs` carries as ``imu``.
-    The fold's state has :attr:`Kind.summary_state` numbers and starts at zero; the summary's
-    pieces are :attr:`Kind.summary_fields` (name, shape), flat in that order."""
+    """A kind whose math reads the IMU samples of its interval (the IMU's preintegration): a fold
+    over the samples, from the last to the first, into a summary of the interval that
+    :class:`~excite.factors.base.FactorInputs` carries as ``imu``. The fold's state has
+    ``summary_state`` numbers and starts at zero; the summary's pieces are ``summary_fields``
+    (name, shape), flat in that order."""
+
+    summary_fields: tuple[tuple[str, tuple[int, ...]], ...]
+    summary_state: int
 
     def summary_step(self, state: Expr, R_i: Expr, R_s: Expr, f_s: Expr, c: dict[str, Expr]) -> Expr:
         """The state after sample s (orientation ``R_s`` at its start, specific force ``f_s``;
@@ -552,14 +600,91 @@ class ReadsImu(Protocol):
 
 @runtime_checkable
 class OpensChain(Protocol):
-    """What a kind whose noise is a Markov chain along the drive (a GNSS error correlated over
-    time, whitened by differencing consecutive measurements) adds: the one-keyframe kind of the
-    measurement that opens the chain at a drive's first keyframe (at its stationary noise). Not
-    registered: a drive's start (:meth:`excite.information.closure.Closure.start`) adds it where a
-    drive, or a window closed as one, starts. It observes absolute states: such a kind breaks the
-    translation symmetry."""
+    """A kind whose noise is a Markov chain along the drive (a GNSS error correlated over time,
+    whitened by differencing consecutive measurements): ``opening`` is the one-keyframe kind of
+    the measurement that opens the chain at a drive's first keyframe (at its stationary noise),
+    one per entry of the kind (:func:`openings`). Not registered: a drive's start
+    (:meth:`excite.information.closure.Closure.start`) adds it where a drive, or a window closed
+    as one, starts. It observes absolute states: such a kind breaks the translation symmetry."""
 
-    opening: "Kind"
+    opening: Kind
+
+
+# --- the hooks with their defaults: what every caller asks of a kind --------------------------
+
+def entries(kind: Kind, rig: RigView) -> list[Any]:
+    """The rig entries ``kind`` measures: its own choice (:class:`ChoosesEntries`), its sensors,
+    or its section if the rig has one."""
+    if isinstance(kind, ChoosesEntries):
+        return list(kind.entries(rig))
+    if kind.sensor_kinds:
+        return [s for s in rig.config.sensors if s.kind in kind.sensor_kinds]
+    if kind.section is not None:
+        entry = getattr(rig.config, kind.section, None)
+        return [] if entry is None else [entry]
+    return [rig.config]
+
+
+def block_name(kind: Kind, entry: Any) -> str:
+    """The name of ``entry``'s factor block: the kind's choice (:class:`NamesBlocks`), a sensor's
+    name, the kind's own otherwise."""
+    if isinstance(kind, NamesBlocks):
+        return kind.block_name(entry)
+    return entry.name if kind.sensor_kinds else kind.name
+
+
+def variant(kind: Kind, entry: Any) -> Variant:
+    """What of ``entry`` changes the shape of ``kind``'s statement (:class:`HasVariants`; ``()``)."""
+    return kind.variant(entry) if isinstance(kind, HasVariants) else ()
+
+
+def stride(kind: Kind, rig: RigView, entry: Any) -> int:
+    """Keyframes between consecutive factors of ``entry``: a sensor (an entry with a ``rate_hz``,
+    of a kind that reads no rig section) has one at each of its frames, the keyframe rate over
+    its rate; a section's factors (the IMU's, the wheels', a car's CAN means) fall on every
+    keyframe interval, whatever its stream's rate."""
+    rate = None if kind.section is not None else getattr(entry, "rate_hz", None)
+    return 1 if rate is None else int(round(rig.keyframe_rate_hz / rate))
+
+
+def frames(kind: Kind, rig: RigView, entry: Any, n_keyframes: int) -> np.ndarray:
+    """First keyframe of a factor at each frame of ``entry`` on a drive of ``n_keyframes``
+    (relative to its start): every :func:`stride`-th keyframe; a pair needs its second."""
+    s = stride(kind, rig, entry)
+    last = n_keyframes - 1 - (s if kind.arity == 2 else 0)
+    return np.arange(0, last + 1, s) if last >= 0 else np.zeros(0, dtype=int)
+
+
+def factor_keyframes(kind: Kind, rig: RigView, entry: Any, n_keyframes: int,
+                     nom: Nominal | None = None) -> np.ndarray:
+    """First keyframe of every factor of ``entry`` on a drive of ``n_keyframes``: the kind's
+    choice (:class:`ChoosesFactors`, reading ``nom`` where given), every frame otherwise."""
+    if isinstance(kind, ChoosesFactors):
+        return kind.factor_keyframes(rig, entry, n_keyframes, nom)
+    return frames(kind, rig, entry, n_keyframes)
+
+
+def prepare_recording(kind: Kind, rig: RigView, entry: Any, recorded: Any,
+                      values: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """What the residual of ``kind`` compares (:class:`PreparesRecording`; by default what
+    ``entry`` recorded as it is) and the quantity values it is evaluated at."""
+    if isinstance(kind, PreparesRecording):
+        return kind.prepare_recording(rig, entry, recorded, values)
+    return recorded, values
+
+
+def at_rate(kind: Kind, entry: dict[str, Any], rate_hz: float) -> dict[str, Any]:
+    """A ``sensors:`` entry (as a dict) at ``rate_hz`` with the same information per second
+    (the optimizer's coarse rig, :func:`excite.plan.model.coarse_rig`): the kind's
+    (:class:`Resamples`), or by default only its rate changed (noise given as a density)."""
+    return kind.at_rate(entry, rate_hz) if isinstance(kind, Resamples) else dict(entry, rate_hz=rate_hz)
+
+
+def summary_size(kind: Kind) -> int:
+    """Numbers in the summary of an interval's IMU samples ``kind`` reads (:class:`ReadsImu`; 0)."""
+    if not isinstance(kind, ReadsImu):
+        return 0
+    return sum(int(np.prod(shape)) for _, shape in kind.summary_fields)
 
 
 # --- the registry ------------------------------------------------------------------------------
@@ -623,8 +748,17 @@ class Instance:
 def instances(rig: RigView) -> Iterator[Instance]:
     """Every (kind, entry) of ``rig``, kind by kind in registration order, entries in rig order."""
     for k in _KINDS.values():
-        for e in k.entries(rig):
-            yield Instance(k, e, k.block_name(e))
+        for e in entries(k, rig):
+            yield Instance(k, e, block_name(k, e))
+
+
+def openings(rig: RigView) -> Iterator[Instance]:
+    """The opening (:class:`OpensChain`) of every entry of ``rig`` whose kind opens a chain, in
+    the order of :func:`instances`: what a drive's start adds (a GNSS antenna's first fix)."""
+    for k in _KINDS.values():
+        if isinstance(k, OpensChain):
+            for e in entries(k, rig):
+                yield Instance(k.opening, e, block_name(k.opening, e))
 
 
 def quantities(cfg: Any) -> list[tuple[Kind, Any, Quantity]]:
@@ -638,7 +772,7 @@ def quantities(cfg: Any) -> list[tuple[Kind, Any, Quantity]]:
     for k in _KINDS.values():
         if k.sensor_kinds:
             continue
-        for e in k.entries(view):
+        for e in entries(k, view):
             out += [(k, e, q) for q in k.quantities(cfg, e)]
     # a kind that reads another's quantities (a lidar's road plane, its extrinsic) adds no columns
     seen: set[tuple[str, ...]] = set()
@@ -664,6 +798,6 @@ def columns(cfg: Any) -> list[Column]:
 
 @dataclass(frozen=True)
 class _ConfigOnly:
-    """A rig configuration seen as a rig before its coordinates exist (for :meth:`Kind.entries`)."""
+    """A rig configuration seen as a rig before its coordinates exist (for :func:`entries`)."""
 
     config: Any

@@ -38,7 +38,7 @@ import casadi as ca
 
 from . import base as registry
 from . import symbolic
-from .base import Kind, OpensChain, RigView
+from .base import Kind, RigView
 from .layout import KEYFRAME_INPUTS, Layout, constant_inputs, constant_values, input_sizes, layout
 
 HERE = Path(__file__).resolve().parent
@@ -47,8 +47,7 @@ FLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno")
 
 def instances(rig: RigView) -> list[tuple[Kind, Any]]:
     """Every (kind, entry) of ``rig``, and the opening of every kind that opens a chain."""
-    out = [(i.kind, i.entry) for i in registry.instances(rig)]
-    return out + [(k.opening, e) for k, e in out if isinstance(k, OpensChain)]
+    return [(i.kind, i.entry) for i in (*registry.instances(rig), *registry.openings(rig))]
 
 
 def whitens_by_data(kind: Kind) -> bool:

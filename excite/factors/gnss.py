@@ -59,6 +59,7 @@ from pydantic import Field, model_validator
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
+from . import base
 from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .symbolic import exp
 
@@ -193,7 +194,8 @@ class GnssFirstFix(Kind[GnssSensor]):
         """``L⁻¹`` of the receiver's covariance of the first fix, where it reports one."""
         return fix_whitening(nom, s, first) if reports_covariance(nom, s) else None
 
-    def measured(self, rig: RigView, s: GnssSensor, recorded: GnssFixes, values: dict) -> tuple[np.ndarray, dict]:
+    def prepare_recording(self, rig: RigView, s: GnssSensor, recorded: GnssFixes,
+                          values: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
         k = recorded.keyframes[:1] if recorded.keyframes.size and recorded.keyframes[0] == 0 else np.zeros(0, int)
         return recorded.at(k), values
 
@@ -224,11 +226,11 @@ class Gnss(Kind[GnssSensor]):
 
     def factor_keyframes(self, rig: RigView, entry: GnssSensor, n_keyframes: int, nom: Nominal | None = None) -> np.ndarray:
         """Every fix whose successor (``stride`` keyframes on) the log holds too."""
-        first = super().factor_keyframes(rig, entry, n_keyframes)
+        first = base.frames(self, rig, entry, n_keyframes)
         if not first.size:
             return first
         ok = _available(nom, entry, n_keyframes)
-        s = self.stride(rig, entry)
+        s = base.stride(self, rig, entry)
         return first[ok[first] & ok[first + s]]
 
     def at_rate(self, entry: dict, rate_hz: float) -> dict:
@@ -244,7 +246,7 @@ class Gnss(Kind[GnssSensor]):
     # --- the math ---
 
     def constants(self, rig: RigView, s: GnssSensor) -> dict[str, Any]:
-        return {"sigma": s.noise.sigmas(), "phi": s.noise.phi(self.stride(rig, s) / rig.keyframe_rate_hz)}
+        return {"sigma": s.noise.sigmas(), "phi": s.noise.phi(base.stride(self, rig, s) / rig.keyframe_rate_hz)}
 
     def measurement(self, f: FactorInputs) -> Expr:
         return ca.vertcat(_antenna(f, 0), _antenna(f, 1))
@@ -263,7 +265,7 @@ class Gnss(Kind[GnssSensor]):
         covariance (the configured σ for a fix without one)."""
         if not reports_covariance(nom, s):
             return None
-        stride = self.stride(rig, s)
+        stride = base.stride(self, rig, s)
         phi = s.noise.phi(stride / rig.keyframe_rate_hz)
         c = math.sqrt(1.0 - phi * phi)
         return np.concatenate([fix_whitening(nom, s, first + stride), -phi * fix_whitening(nom, s, first)], axis=2) / c
@@ -277,7 +279,7 @@ class Gnss(Kind[GnssSensor]):
         across outages with their length."""
         nom, truth = sim.nom, sim.truth
         K = nom.n_keyframes
-        stride = self.stride(sim.rig, s)
+        stride = base.stride(self, sim.rig, s)
         k = np.arange(0, K, stride)
         k = k[_available(nom, s, K)[k]]
         l, t_d = truth.vector(s.name, "trans"), truth.scalar(s.name, "time_offset")
@@ -300,9 +302,10 @@ class Gnss(Kind[GnssSensor]):
             z = z + e
         return GnssFixes(k, z)
 
-    def measured(self, rig: RigView, s: GnssSensor, recorded: GnssFixes, values: dict) -> tuple[np.ndarray, dict]:
+    def prepare_recording(self, rig: RigView, s: GnssSensor, recorded: GnssFixes,
+                          values: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
         """The pairs of consecutive fixes (``[z_i, z_j]`` per factor of :meth:`factor_keyframes`)."""
-        stride = self.stride(rig, s)
+        stride = base.stride(self, rig, s)
         have = set(recorded.keyframes.tolist())
         first = np.array([k for k in recorded.keyframes.tolist() if k + stride in have], dtype=int)
         return np.hstack([recorded.at(first), recorded.at(first + stride)]), values

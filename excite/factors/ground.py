@@ -37,6 +37,7 @@ import numpy as np
 
 from ..core import so3
 from ..core.lazy import ca
+from . import base
 from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .odometry import OdometrySensor, sqrt_psd
 
@@ -80,7 +81,7 @@ class GroundPlane(Kind[OdometrySensor]):
                          nom: Nominal | None = None) -> np.ndarray:
         """The lidar's frames where the drive sees ground (none on a drive without a scene; every
         frame where no drive is given)."""
-        k = super().factor_keyframes(rig, s, n_keyframes, nom)
+        k = base.frames(self, rig, s, n_keyframes)
         if nom is None:
             return k
         if s.name not in nom.ground:

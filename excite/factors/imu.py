@@ -25,7 +25,7 @@ The biases are calibration parameters: constant over the drive, or random walks 
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import ConfigDict
@@ -68,7 +68,6 @@ class Imu(Kind[ImuConfig]):
     rows = 9
     section = "imu"
     config = ImuConfig
-    reads_imu = True
     summary_fields = (("G_R", (3, 3)), ("V_g", (3, 3)), ("P_g", (3, 3)), ("P_a", (3, 3)), ("cov", (9, 9)))
     summary_state = STATE
     ranges = {"accelerometer_noise_density": Range(1e-7, 10.0, "m/s^2/√Hz"),
@@ -185,7 +184,8 @@ class Imu(Kind[ImuConfig]):
         cov = ca.vertcat(ca.horzcat(cRR, cVR.T, cPR.T), ca.horzcat(cVR, cVV, cPV.T), ca.horzcat(cPR, cPV, cPP))
         return {"G_R": G_R, "V_g": V_g, "P_g": P_g, "P_a": P_a, "cov": cov}
 
-    def measured(self, rig: RigView, imu: ImuConfig, recorded: "ImuData", values: dict) -> tuple[np.ndarray, dict]:
+    def prepare_recording(self, rig: RigView, imu: ImuConfig, recorded: "ImuData",
+                          values: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
         """The preintegrated measurement of every interval, preintegrated at the estimated biases
         (so that the residual's first-order bias correction is zero there)."""
         n = int(round(imu.update_rate / rig.keyframe_rate_hz))

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..core.native import module
+from . import base
 from .base import FactorBlock, Kind, Nominal, RigView, theta_columns
 from .layout import (Layout, constant_inputs, constant_values, coordinate_names, input_sizes, layout, output_size,
                      quantity_inputs)
@@ -83,11 +84,11 @@ def summaries(nom: Nominal, first: np.ndarray, lay: Layout, fold, c: np.ndarray)
 def jacobians(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock | None:
     """The whitened Jacobians (world states) of every factor of ``entry`` on ``nom``, from its
     kind's generated kernel; None if the drive holds no factor of it."""
-    first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
+    first = base.factor_keyframes(kind, rig, entry, nom.n_keyframes, nom)
     if first.size == 0:
         return None
     lay = layout(kind, rig, entry)
-    stride = kind.stride(rig, entry)
+    stride = base.stride(kind, rig, entry)
     W = kind.whitening(nom, rig, entry, first)
     what = "lin" if W is None else "raw"
     lin = kernel(lay, what, kind, rig, entry)
@@ -112,4 +113,4 @@ def jacobians(kind: Kind, nom: Nominal, rig: RigView, entry: Any) -> FactorBlock
     if estimated.size < Jt.shape[2]:  # (np.take copies once into C order; fancy indexing twice)
         Jt = np.take(Jt, estimated, axis=2)
     cols = theta_columns(rig, coordinate_names(lay)) if lay.n_theta else np.zeros(0, dtype=int)
-    return FactorBlock(kind.block_name(entry), first, stride, lay.arity, Jx, Jt, cols)
+    return FactorBlock(base.block_name(kind, entry), first, stride, lay.arity, Jx, Jt, cols)

@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from .base import Kind, Nominal, Quantity, RigView, Variant
+from . import base
+from .base import Kind, Nominal, Quantity, ReadsImu, RigView, Variant
 
 
 KEYFRAME_INPUTS = 27  # vec R (9), p (3), v (3), ω (3), vec R_V_A (9)
@@ -87,11 +88,11 @@ class Layout:
 
 
 def layout(kind: Kind, rig: RigView, entry: Any) -> Layout:
-    n = samples_per_keyframe(rig) * kind.stride(rig, entry)
-    reads = kind.reads_imu
+    n = samples_per_keyframe(rig) * base.stride(kind, rig, entry)
+    reads = isinstance(kind, ReadsImu)
     consts = tuple((k, np.shape(v)) for k, v in kind.constants(rig, entry).items())
-    return Layout(kind.name, kind.variant(entry), kind.arity, n if reads else 0,
-                  kind.summary_size if reads else 0, kind.summary_state if reads else 0,
+    return Layout(kind.name, base.variant(kind, entry), kind.arity, n if reads else 0,
+                  base.summary_size(kind), kind.summary_state if reads else 0,
                   tuple(kind.quantities(rig.config, entry)), consts + COMMON)
 
 
@@ -102,9 +103,9 @@ def samples_per_keyframe(rig: RigView) -> int:
 def constant_values(kind: Kind, rig: RigView, entry: Any) -> dict[str, np.ndarray]:
     """The constants of ``entry``'s math by name (the kind's, then :data:`COMMON`)."""
     pose = rig.config.vehicle.T_V_B
-    dT = kind.stride(rig, entry) / rig.keyframe_rate_hz
+    dT = base.stride(kind, rig, entry) / rig.keyframe_rate_hz
     common = {"dT": dT, "dt_imu": 1.0 / rig.config.imu.update_rate,
-              "n_imu": float(samples_per_keyframe(rig) * kind.stride(rig, entry)), "R_V_B": pose.R, "p_V_B": pose.p}
+              "n_imu": float(samples_per_keyframe(rig) * base.stride(kind, rig, entry)), "R_V_B": pose.R, "p_V_B": pose.p}
     return {k: np.asarray(v, dtype=float) for k, v in {**kind.constants(rig, entry), **common}.items()}
 
 

@@ -75,6 +75,7 @@ from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
 from .optics import LIDAR_PRESETS, CameraOptics, LidarBeams
+from . import base
 from .base import ConfigView, Expr, FactorInputs, Kind, Nominal, Quantity, RigView, SimulationView
 from .symbolic import exp, residual_log
 
@@ -227,7 +228,7 @@ class Odometry(Kind[OdometrySensor]):
         """Every frame pair's whitening from data: the scene's information combined with the drift
         (:func:`scene_whitening`) where the drive sees a scene, the reported covariance's
         (:func:`reported_whitening`) where the rig asks for it and the drive's log carries one."""
-        stride = self.stride(rig, s)
+        stride = base.stride(self, rig, s)
         reported = reported_whitening(nom, s, first, stride)
         if s.name not in nom.scene:
             return reported
@@ -241,8 +242,8 @@ class Odometry(Kind[OdometrySensor]):
         order); a monocular camera's translations carry its true scale. A lidar whose scans the
         simulator ray-cast in a scene (``sim.scan_pairs``: :mod:`excite.validate.scans`) measures
         each pair as registering its two scans does (:func:`registered`), the drift added."""
-        first = self.factor_keyframes(sim.rig, s, sim.nom.n_keyframes)
-        frames = np.r_[first, first[-1] + self.stride(sim.rig, s)] if first.size else first
+        first = base.factor_keyframes(self, sim.rig, s, sim.nom.n_keyframes)
+        frames = np.r_[first, first[-1] + base.stride(self, sim.rig, s)] if first.size else first
         if frames.size < 2:
             return np.zeros((0, 12))
         truth = sim.truth

@@ -37,6 +37,7 @@ from pydantic import Field
 from ..core.bounds import Range
 from ..core.lazy import ca
 from ..core.schema import Model, PositiveFloat, SensorEntry
+from . import base
 from .base import ConfigView, Expr, FactorInputs, Kind, Quantity, RigView, SimulationView, Variant
 
 
@@ -148,7 +149,7 @@ class Radar(Kind[RadarSensor]):
         """The ego-velocity at every measurement (its factors' first keyframes): physical, the
         sensor's exact velocity at ``t + t_d`` (the drive's motion, the true body rate); model,
         the measurement model at the truth; each plus white noise of its σ."""
-        first = self.factor_keyframes(sim.rig, s, sim.nom.n_keyframes)
+        first = base.factor_keyframes(self, sim.rig, s, sim.nom.n_keyframes)
         if sim.settings.physical:
             truth = sim.truth
             R_BS, p_BS = truth.rotation(s.name), truth.vector(s.name, "trans")

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..core.lazy import ca
+from . import base
 from .base import FactorBlock, FactorInputs, Kind, Nominal, RigView, theta_columns
 from .layout import (COMMON, KEYFRAME_INPUTS, Layout, constant_inputs, constant_values, coordinate_names,
                       keyframe_inputs, layout, quantity_inputs, sample_inputs)
@@ -361,7 +362,7 @@ def measurement_function(kind: Kind, rig: RigView, entry: Any) -> ca.Function:
 
 def _args(kind: Kind, nom: Nominal, rig: RigView, entry: Any, first: np.ndarray, values: dict[str, Any] | None):
     lay = layout(kind, rig, entry)
-    return lay, [keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry)).T, sample_inputs(nom, first, lay).T,
+    return lay, [keyframe_inputs(nom, first, lay.arity, base.stride(kind, rig, entry)).T, sample_inputs(nom, first, lay).T,
                  np.repeat(quantity_inputs(lay, values)[:, None], first.size, axis=1)]
 
 
@@ -373,7 +374,7 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
     name; the nominal ones otherwise); whitened by ``whitening`` (N × rows × the residual's rows)
     in place of the statement's where given."""
     with LOCK:
-        first = kind.factor_keyframes(rig, entry, nom.n_keyframes, nom)
+        first = base.factor_keyframes(kind, rig, entry, nom.n_keyframes, nom)
         if first.size == 0:
             return None
         if meas is None:
@@ -391,7 +392,7 @@ def blocks(kind: Kind, nom: Nominal, rig: RigView, entry: Any, values: dict[str,
         if whitening is not None:
             Jx, Jt = whitening @ Jx, whitening @ Jt
         cols = theta_columns(rig, coordinate_names(lay)) if lay.n_theta else np.zeros(0, dtype=int)
-        return FactorBlock(kind.block_name(entry), first, kind.stride(rig, entry), lay.arity,
+        return FactorBlock(base.block_name(kind, entry), first, base.stride(kind, rig, entry), lay.arity,
                            np.ascontiguousarray(Jx), np.ascontiguousarray(Jt), cols)
 
 

@@ -98,7 +98,7 @@ class Closure:
     state_dim: int
     walk_density: np.ndarray  # random-walk density of each drifting coordinate (state slots 9 …)
     walk_columns: np.ndarray  # their columns of θ
-    openers: tuple[tuple[Kind, object], ...] = ()  # (opening kind, entry) of every chain that opens a drive
+    openers: tuple[registry.Instance, ...] = ()  # the opening of every chain that opens a drive (:func:`~excite.factors.base.openings`)
     origin: bool = False  # world positions split into the drive's origin (nuisance columns) and q's
 
     @classmethod
@@ -118,7 +118,7 @@ class Closure:
         gauge = tuple(s for s in registry.SYMMETRIES
                       if (s not in br or (origin and s == "position")) and not (local and s == "position"))
         drift = drifting(rig)
-        openers = tuple((i.kind.opening, i.entry) for i in registry.instances(rig) if isinstance(i.kind, registry.OpensChain))
+        openers = tuple(registry.openings(rig))
         return cls(local, gauge, STATE_DIM + len(drift), np.array([d for _, d in drift]),
                    np.array([c for c, _ in drift], dtype=int), openers, origin)
 
@@ -183,8 +183,8 @@ class Closure:
             return []
         first = nom.window(0, 0)
         out = []
-        for kind, entry in self.openers:
-            b = factor_kernels.jacobians(kind, first, rig, entry)
+        for i in self.openers:
+            b = factor_kernels.jacobians(i.kind, first, rig, i.entry)
             if b is not None and b.n_factors:
                 b = self.absolute(b, rig)
                 out.append(self.widened(b) if self.sees_drift(b) else b)
@@ -192,7 +192,7 @@ class Closure:
 
     def is_opening(self, b: FactorBlock) -> bool:
         """Whether ``b`` is an opening's block (:meth:`openings`; a window re-opens its own)."""
-        return any(b.name == kind.block_name(entry) for kind, entry in self.openers)
+        return any(b.name == i.name for i in self.openers)
 
     # --- the last keyframe ---
 

@@ -209,7 +209,7 @@ def frame_step(rig: RigView) -> int:
     """The fewest keyframes that hold a whole number of frames of every sensor (the least common
     multiple of every kind's stride): a chunk or window that starts and ends at multiples of it,
     counted from its drive's start, cuts no sensor's frame pair."""
-    strides = [i.kind.stride(rig, i.entry) for i in registry.instances(rig)] or [1]
+    strides = [registry.stride(i.kind, rig, i.entry) for i in registry.instances(rig)] or [1]
     return int(np.lcm.reduce(strides))
 
 

@@ -35,14 +35,14 @@ D = 9  # the trajectory state of a keyframe (the optimizer's model takes the bia
 
 def coarse_rig(rig: Rig, keyframe_rate_hz: float = 2.0, imu_substeps: int = 4) -> Rig:
     """A copy of ``rig`` at ``keyframe_rate_hz`` with every sensor at that rate
-    (:meth:`~excite.factors.base.Kind.at_rate`: the same information per second) and
+    (:func:`~excite.factors.base.at_rate`: the same information per second) and
     ``imu_substeps`` IMU samples per keyframe interval.
 
     The IMU biases are constant in the optimizer's model: on maneuvers of a few minutes the random
     walk moves the score by little (README, "What the numbers assume"), and the result is
     re-scored with the rig's own model."""
     c = rig.config.model_dump()
-    sensors = [registry.kind_of_sensor(s["kind"]).at_rate(s, keyframe_rate_hz) for s in c["sensors"]]
+    sensors = [registry.at_rate(registry.kind_of_sensor(s["kind"]), s, keyframe_rate_hz) for s in c["sensors"]]
     changes = dict(keyframe_rate_hz=keyframe_rate_hz, sensors=sensors,
                    imu=dict(c["imu"], update_rate=keyframe_rate_hz * imu_substeps, bias_model="constant"))
     return rig.with_config(**changes)
@@ -74,10 +74,11 @@ def _row_major(c):
     return ca.vec(ca.reshape(c, 3, 3).T)
 
 
-def _factor_information(rig: Rig, closure: Closure, arity: int, n: int, instances: list | None = None) -> ca.Function | None:
+def _factor_information(rig: Rig, closure: Closure, arity: int, n: int,
+                        instances: list[registry.Instance] | None = None) -> ca.Function | None:
     """``JᵀJ`` in the closure's trajectory states and θ of every factor of ``arity`` that one
     keyframe (arity 1) or keyframe interval (arity 2) holds, summed over the rig's kinds (or over
-    ``instances``, ``(kind, entry)`` pairs: the openings of a drive).
+    ``instances``: the openings of a drive, :func:`~excite.factors.base.openings`).
 
     Inputs: per keyframe ``[vec R (row-major), p, v, ω, vec R_V_A]`` (27 each), and the interval's
     IMU samples (``n + 1`` orientations, ``n`` specific forces; arity 2). Outputs (vec): arity 1:
@@ -86,12 +87,12 @@ def _factor_information(rig: Rig, closure: Closure, arity: int, n: int, instance
     x = ca.SX.sym("x", symbolic.KEYFRAME_INPUTS * arity)
     s = ca.SX.sym("imu", 9 * (n + 1) + 3 * n if arity == 2 else 0)
     Jx_all, Jt_all = [], []
-    pairs = [(i.kind, i.entry) for i in registry.instances(rig)] if instances is None else instances
-    for kind, entry in pairs:
+    for i in registry.instances(rig) if instances is None else instances:
+        kind, entry = i.kind, i.entry
         if kind.arity != arity:
             continue
-        if kind.stride(rig, entry) != 1:
-            raise OptimizeError(f"{kind.block_name(entry)} runs at every {kind.stride(rig, entry)}th keyframe: the "
+        if registry.stride(kind, rig, entry) != 1:
+            raise OptimizeError(f"{registry.block_name(kind, entry)} runs at every {registry.stride(kind, rig, entry)}th keyframe: the "
                                 f"optimizer's model needs every sensor at the keyframe rate "
                                 f"{rig.keyframe_rate_hz:g} Hz (use coarse_rig)")
         lay = symbolic.layout(kind, rig, entry)
@@ -155,7 +156,8 @@ def build_model(rig: Rig, n_keyframes: int) -> InformationModel:
     P = len(rig.coordinates)
     pair = _factor_information(rig, closure, 2, n)
     single = _factor_information(rig, closure, 1, n)
-    opening = _factor_information(rig, closure, 1, n, list(closure.openers)) if closure.openers else None
+    openings = list(registry.openings(rig))
+    opening = _factor_information(rig, closure, 1, n, openings) if openings else None
     step = _elimination_step(P)
 
     N = (K - 1) * n + 1

@@ -66,7 +66,7 @@ def agreement(traj: Trajectory, rig: Rig, entry_name: str, recorded: np.ndarray,
         raise EvaluationError(f"cannot fit {', '.join(unknown)}: not coordinates of rig {rig.name}")
     kind, entry = inst.kind, inst.entry
     nom = Nominal.of(traj, rig)
-    first = kind.factor_keyframes(rig, entry, nom.n_keyframes)
+    first = registry.factor_keyframes(kind, rig, entry, nom.n_keyframes)
     recorded = np.asarray(recorded, dtype=float)
     if recorded.shape[0] != first.size:
         raise EvaluationError(f"{entry_name}: {recorded.shape[0]} recorded rows for {first.size} factors on this drive")

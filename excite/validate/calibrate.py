@@ -196,7 +196,8 @@ class _Problem:
         # factors that open its chains at the drive's start (a GNSS antenna's first fix)
         self.instances = [(i.kind, i.entry, i.name, i.name) for i in registry.instances(self.rig)
                           if i.name in data.recorded]
-        self.instances += [(k, e, e.name, k.block_name(e)) for k, e in self.closure.openers if e.name in data.recorded]
+        self.instances += [(i.kind, i.entry, i.entry.name, i.name) for i in registry.openings(self.rig)
+                           if i.entry.name in data.recorded]
         # the IMU biases reach every factor through the bias-corrected samples the nominal motion
         # is built from (keyframe rates, sample attitudes, the preintegration at the estimate),
         # which a factor's inputs hold fixed: their columns of the step's Jacobian are forward
@@ -232,8 +233,8 @@ class _Problem:
         parts, kinds, recorded, predicted = [], [], [], []
         self.empty_rows = {}
         for kind, entry, record, label in self.instances:
-            first = kind.factor_keyframes(self.rig, entry, self.K, nom)
-            meas, values = kind.measured(self.rig, entry, self.data.recorded[record],
+            first = registry.factor_keyframes(kind, self.rig, entry, self.K, nom)
+            meas, values = registry.prepare_recording(kind, self.rig, entry, self.data.recorded[record],
                                          cal.for_entry(kind, self.rig, entry))
             # the factors' whitening from data (a scene's information, a reported covariance; a
             # lidar pair's ray-cast scans by what their registration reports): at the first
@@ -755,7 +756,7 @@ def _lidar_whitening(data: SensorData, rig: Rig, s, nom, first: np.ndarray) -> n
         return None
     if A.shape[0] != first.size:
         raise ValidateError(f"internal: {s.name}'s registrations are of {A.shape[0]} pairs, not {first.size}")
-    stride = registry.kind_of_sensor(s.kind).stride(rig, s)
+    stride = registry.stride(registry.kind_of_sensor(s.kind), rig, s)
     reported = reported_whitening(nom, s, first, stride) if getattr(nom, "logs", None) is not None else None
     return drift_whitening(s, residual_information(nom, s, first, stride, A), reported)
 
@@ -782,9 +783,9 @@ def _odometry_sensors(data: SensorData, rig: Rig) -> list:
 def _relative_poses(data: SensorData, rig: Rig, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frames (keyframe indices), relative rotations and translations an odometry sensor recorded."""
     kind = registry.kind_of_sensor(s.kind)
-    first = kind.factor_keyframes(rig, s, data.n_keyframes)
+    first = registry.factor_keyframes(kind, rig, s, data.n_keyframes)
     rows = data.recorded[s.name]
-    return np.r_[first, first[-1] + kind.stride(rig, s)], rows[:, :9].reshape(-1, 3, 3), rows[:, 9:12]
+    return np.r_[first, first[-1] + registry.stride(kind, rig, s)], rows[:, :9].reshape(-1, 3, 3), rows[:, 9:12]
 
 
 def perturbed_states(states: States, rng: np.random.Generator, sigma_rot_rad: float = 0.01,

@@ -103,8 +103,8 @@ def pair_noise(scene: Scene, traj: Trajectory, rig, sensor) -> PairNoise:
     every frame pair cast at the sensor's nominal pose at keyframe j."""
     kind = registry.kind_of_sensor(sensor.kind)
     nom = Nominal.of(traj, rig)
-    first = kind.factor_keyframes(rig, sensor, nom.n_keyframes, nom)
-    j = first + kind.stride(rig, sensor)
+    first = registry.factor_keyframes(kind, rig, sensor, nom.n_keyframes, nom)
+    j = first + registry.stride(kind, rig, sensor)
     R_BS, p_BS = sensor.T_B_S.R, sensor.T_B_S.p
     R_W_S = nom.R[j] @ R_BS
     p_W_S = nom.p[j] + nom.R[j] @ p_BS

@@ -269,7 +269,7 @@ class Simulation:
     def measured(self, kind: Kind, entry: Any) -> np.ndarray:
         """The noise-free measurements of ``entry`` as its kind's model predicts them at the true
         calibration, on the nominal motion (the model simulator's)."""
-        first = kind.factor_keyframes(self.rig, entry, self.nom.n_keyframes, self.nom)
+        first = registry.factor_keyframes(kind, self.rig, entry, self.nom.n_keyframes, self.nom)
         return symbolic.measurements(kind, self.nom, self.rig, entry, first, self.truth.for_entry(kind, self.rig, entry))
 
 
@@ -329,10 +329,10 @@ def _registration_noise(sim: Simulation, kind: Kind, entry: Any, pairs: np.ndarr
     inverse the model weighs it by. The registration is the model's, not a ray-cast scan's."""
     from ..factors.odometry import scene_information
 
-    first = kind.factor_keyframes(sim.rig, entry, sim.nom.n_keyframes)
+    first = registry.factor_keyframes(kind, sim.rig, entry, sim.nom.n_keyframes)
     if first.size == 0:
         return pairs
-    A = scene_information(sim.nom, entry, first, kind.stride(sim.rig, entry))
+    A = scene_information(sim.nom, entry, first, registry.stride(kind, sim.rig, entry))
     lam, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
     keep = lam > 1e-12 * np.maximum(lam[:, -1:], 0.0)
     scale = np.where(keep, 1.0 / np.sqrt(np.where(keep, lam, 1.0)), 0.0)

@@ -112,7 +112,7 @@ def turning():
 
 def _measured(rig, nom):
     inst = next(i for i in registry.instances(rig) if i.kind.name == "ackermann")
-    first = inst.kind.factor_keyframes(rig, inst.entry, nom.n_keyframes)
+    first = registry.factor_keyframes(inst.kind, rig, inst.entry, nom.n_keyframes)
     return inst, symbolic.measurements(inst.kind, nom, rig, inst.entry, first)
 
 
@@ -155,7 +155,7 @@ def test_the_time_offset_is_the_readings_of_a_later_motion(car, turning):
     nom = Nominal.of(turning, car)
     inst, m0 = _measured(car, nom)
     td = 0.02
-    first = inst.kind.factor_keyframes(car, inst.entry, nom.n_keyframes)
+    first = registry.factor_keyframes(inst.kind, car, inst.entry, nom.n_keyframes)
     m = symbolic.measurements(inst.kind, nom, car, inst.entry, first, {"time_offset": td})
     later = Nominal.of(turning, car, t_start=turning.t_start + td)
     _, m_later = _measured(car, later)

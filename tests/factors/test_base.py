@@ -205,3 +205,36 @@ def test_the_kind_goes_through_the_simulator_and_the_calibrator(rig, traj):
     err = res.calibration.scalar("speedo", "scale_factor") - truth.scalar("speedo", "scale_factor")
     assert abs(err) < 4 * sigma, (err, sigma)
     assert abs(nominal.scalar("speedo", "scale_factor") - truth.scalar("speedo", "scale_factor")) > 8 * sigma
+
+
+def test_a_hook_of_kind_is_one_most_kinds_implement():
+    """What only one or two kinds need is a protocol of its own, not a hook of every kind: each
+    hook of :class:`Kind` is implemented by at least three of the registered kinds."""
+    hooks = [n for n, v in vars(Kind).items() if callable(v) and not n.startswith("_")]
+    assert {"quantities", "measurement", "residual", "sqrt_information", "simulate"} <= set(hooks)
+    for name in hooks:
+        own = [k.name for k in registry.kinds() if name in vars(type(k))]
+        assert len(own) >= 3, f"Kind.{name} is implemented by {own} only: a protocol of its own"
+
+
+def test_the_defaults_of_the_protocols():
+    """A kind without a protocol gets its default through this module's function of the same name;
+    a sensor's factors are at its frames, a section's at every keyframe interval."""
+    from helpers import gnss_rig
+
+    rig = gnss_rig(rate_hz=5.0)  # keyframes at the IMU-paced keyframe rate, fixes every 2nd one
+    gnss, imu = registry.kind_of_sensor("gnss"), registry.kind_of_section("imu")
+    entry = rig.config.sensors[0]
+    assert registry.stride(gnss, rig, entry) == round(rig.keyframe_rate_hz / 5.0) == 2
+    assert list(registry.frames(gnss, rig, entry, 7)) == [0, 2, 4]  # a pair needs its second keyframe
+    assert registry.stride(imu, rig, rig.config.imu) == 1
+    assert registry.variant(gnss, entry) == () and registry.block_name(gnss, entry) == entry.name
+    assert registry.block_name(imu, rig.config.imu) == "imu"
+    wheel = registry.kind_of_section("wheels")
+    rec, values = np.zeros((3, 2)), {"scale": 1.0}
+    assert registry.prepare_recording(wheel, rig, rig.config.wheels, rec, values) == (rec, values)
+    assert isinstance(gnss, registry.PreparesRecording) and not isinstance(wheel, registry.PreparesRecording)
+    # a chain's opening: one per entry of the kind, named apart from the entry's own block
+    (o,) = registry.openings(rig)
+    assert o.kind is gnss.opening and o.entry is entry and o.name != entry.name
+    assert [i.name for i in registry.instances(rig)].count(o.name) == 0

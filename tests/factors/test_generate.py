@@ -59,9 +59,9 @@ def _inputs(spec, fn) -> list[np.ndarray]:
         traj = along.seen(traj, rig, shapes.ground(-300.0, -300.0, 300.0, 300.0))
     nom = Nominal.of(traj, rig)
     c = layout.constant_inputs(lay, layout.constant_values(kind, rig, spec.entry))
-    first = kind.factor_keyframes(rig, spec.entry, nom.n_keyframes, nom)
+    first = registry.factor_keyframes(kind, rig, spec.entry, nom.n_keyframes, nom)
     k = int(first[min(7, first.size - 1)])
-    stride = kind.stride(rig, spec.entry)
+    stride = registry.stride(kind, rig, spec.entry)
     if spec.what in ("step", "step2", "finish"):
         rng = np.random.default_rng(5)
         state = rng.normal(size=lay.n_state) * 1e-2

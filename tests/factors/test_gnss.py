@@ -264,7 +264,7 @@ def test_an_outage_from_the_log_removes_its_fixes(eight):
     logged = eight.with_logs({"gnss": SensorLog(t[~gap])})
     nom = Nominal.of(logged, rig)
     kind = registry.kind_of_sensor("gnss")
-    first = kind.factor_keyframes(rig, rig.config.sensors[0], nom.n_keyframes, nom)
+    first = registry.factor_keyframes(kind, rig, rig.config.sensors[0], nom.n_keyframes, nom)
     assert first.size == nom.n_keyframes - 1 - int(gap.sum()) - 1  # no pair into, within or out of the gap
     assert not np.any((nom.t[first] > eight.t_start + 7.95) & (nom.t[first] < eight.t_start + 22.0))
     full, cut = sigmas(evaluate(eight, rig)), sigmas(evaluate(logged, rig))
@@ -334,7 +334,7 @@ def test_the_rig_entry():
 def test_the_optimizers_coarse_rig_keeps_the_error_process():
     kind = registry.kind_of_sensor("gnss")
     entry = gnss_rig().config.model_dump()["sensors"][0]
-    assert kind.at_rate(entry, 2.0)["noise"] == entry["noise"]  # correlated: the same process
+    assert registry.at_rate(kind, entry, 2.0)["noise"] == entry["noise"]  # correlated: the same process
     white = dict(entry, noise=dict(entry["noise"], correlation_time_s=0.0))
-    coarse = kind.at_rate(white, 2.5)["noise"]
+    coarse = registry.at_rate(kind, white, 2.5)["noise"]
     assert coarse["horizontal_sigma_m"] == pytest.approx(0.02 * math.sqrt(2.5 / 10.0))  # the same information per second

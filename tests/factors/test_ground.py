@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from excite.factors import base as registry
 from excite.factors.base import Nominal
 from excite.factors.ground import GroundPlane, information
 from excite.information import dense, elimination, problem
@@ -40,7 +41,7 @@ def test_a_stop_holds_the_road_s_worth_and_no_more():
     nom = Nominal.of(traj, RIG)
     s = next(e for e in RIG.config.sensors if e.kind == "lidar")
     kind = GroundPlane()
-    frames = kind.factor_keyframes(RIG, s, nom.n_keyframes, nom)
+    frames = registry.factor_keyframes(kind, RIG, s, nom.n_keyframes, nom)
     standing = frames[nom.t[frames] < 9.0]
     assert standing.size >= 80
     Lam = information(nom, RIG, s, frames)[nom.t[frames] < 9.0].sum(axis=0)

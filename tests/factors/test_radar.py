@@ -47,7 +47,7 @@ def test_the_ego_velocity_is_the_sensors_velocity_in_its_frame(radar3, radar2):
     for rig in (radar3, radar2):
         nom = Nominal.of(traj, rig)
         inst = next(i for i in registry.instances(rig) if i.kind.name == "radar")
-        first = inst.kind.factor_keyframes(rig, inst.entry, nom.n_keyframes)
+        first = registry.factor_keyframes(inst.kind, rig, inst.entry, nom.n_keyframes)
         m = symbolic.measurements(inst.kind, nom, rig, inst.entry, first)
         b = traj.sample(nom.t[first]).body(nom.R_V_B, nom.p_V_B)
         R_BS, p_BS = inst.entry.T_B_S.R, inst.entry.T_B_S.p
@@ -65,7 +65,7 @@ def test_the_time_offset_sees_the_later_velocity(radar3):
     traj = drive(profile(VARIED_SPEED, BOTH_WAYS), Suspension.rigid())
     nom = Nominal.of(traj, radar3)
     inst = next(i for i in registry.instances(radar3) if i.kind.name == "radar")
-    first = inst.kind.factor_keyframes(radar3, inst.entry, nom.n_keyframes)
+    first = registry.factor_keyframes(inst.kind, radar3, inst.entry, nom.n_keyframes)
     td = 0.03
     m0 = symbolic.measurements(inst.kind, nom, radar3, inst.entry, first)
     m = symbolic.measurements(inst.kind, nom, radar3, inst.entry, first, {"time_offset": td})

@@ -57,9 +57,7 @@ def _data():
 def _instances(rig):
     """Every instance of ``rig`` and every opening factor of its kinds (unregistered kinds that the
     closure adds where a drive starts)."""
-    out = list(registry.instances(rig))
-    return out + [registry.Instance(i.kind.opening, i.entry, i.kind.opening.block_name(i.entry))
-                  for i in out if isinstance(i.kind, registry.OpensChain)]
+    return list(registry.instances(rig)) + list(registry.openings(rig))
 
 
 @pytest.fixture(scope="module")
@@ -162,8 +160,8 @@ def _factor_inputs(nom, rig, inst, f):
     """The flat inputs of factor ``f`` of ``inst`` (see :mod:`excite.factors.symbolic`)."""
     kind, entry = inst.kind, inst.entry
     lay = symbolic.layout(kind, rig, entry)
-    first = kind.factor_keyframes(rig, entry, nom.n_keyframes)[f:f + 1]
-    return (lay, symbolic.keyframe_inputs(nom, first, lay.arity, kind.stride(rig, entry))[0],
+    first = registry.factor_keyframes(kind, rig, entry, nom.n_keyframes)[f:f + 1]
+    return (lay, symbolic.keyframe_inputs(nom, first, lay.arity, registry.stride(kind, rig, entry))[0],
             symbolic.sample_inputs(nom, first, lay)[0], symbolic.quantity_inputs(lay))
 
 
@@ -193,7 +191,7 @@ def _moved(x: np.ndarray, q: np.ndarray, lay, dx: np.ndarray, dq: np.ndarray):
 def test_the_derivative_of_the_residual_equals_finite_differences(request, rig, slow_rig, name, which, k):
     r, inst = _instance(request, rig, slow_rig, which, k)
     nom = _nominal(r, inst)
-    f = min(5, inst.kind.factor_keyframes(r, inst.entry, nom.n_keyframes).size - 1)
+    f = min(5, registry.factor_keyframes(inst.kind, r, inst.entry, nom.n_keyframes).size - 1)
     lay, x, s, q = _factor_inputs(nom, r, inst, f)
     Jx, Jt = (np.array(a) for a in symbolic.linearisation(inst.kind, r, inst.entry)(x, s, q))
     meas = np.array(symbolic.measurement_function(inst.kind, r, inst.entry)(x, s, q)).ravel()
@@ -223,7 +221,7 @@ def test_the_generated_kernel_equals_the_derivative_of_the_residual(request, rig
     lay = layout.layout(inst.kind, r, inst.entry)
     assert lay.name("lin") in kernels.compiled(), f"{lay.name('lin')} is not compiled in"
     fast = kernels.jacobians(inst.kind, nom, r, inst.entry)
-    first = inst.kind.factor_keyframes(r, inst.entry, nom.n_keyframes, nom)
+    first = registry.factor_keyframes(inst.kind, r, inst.entry, nom.n_keyframes, nom)
     ref = symbolic.blocks(inst.kind, nom, r, inst.entry,
                           whitening=inst.kind.whitening(nom, r, inst.entry, first))
     assert np.array_equal(fast.first, ref.first) and fast.stride == ref.stride and fast.n_states == ref.n_states
@@ -392,7 +390,7 @@ def test_imu_covariance_matches_monte_carlo(rig, nom):
 
 def _measured(rig, nom, name):
     inst = next(i for i in registry.instances(rig) if i.name == name)
-    first = inst.kind.factor_keyframes(rig, inst.entry, nom.n_keyframes)
+    first = registry.factor_keyframes(inst.kind, rig, inst.entry, nom.n_keyframes)
     return inst, symbolic.measurements(inst.kind, nom, rig, inst.entry, first)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from excite.core import so3
+from excite.factors import base as registry
 from excite.factors.base import Nominal
 from excite.factors.odometry import Odometry, pair_sigmas, scene_whitening
 from excite.motion.maneuvers import slalom
@@ -32,8 +33,8 @@ def lidar_pairs(traj):
     nom = Nominal.of(traj, RIG)
     s = next(e for e in RIG.config.sensors if e.kind == "lidar")
     kind = Odometry()
-    first = kind.factor_keyframes(RIG, s, nom.n_keyframes)
-    return nom, s, first, kind.stride(RIG, s)
+    first = registry.factor_keyframes(kind, RIG, s, nom.n_keyframes)
+    return nom, s, first, registry.stride(kind, RIG, s)
 
 
 def test_open_lot_pairs_have_exactly_three_directions_without_information():
