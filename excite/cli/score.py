@@ -10,7 +10,7 @@ import typer
 
 from ..core import bounds
 from . import seeing
-from .app import app, console
+from .app import app, console, imports
 
 if TYPE_CHECKING:
     from ..score.evaluate import Report
@@ -112,9 +112,10 @@ def score(
     scene: Annotated[Optional[str], typer.Option(help=seeing.HELP)] = None,
 ) -> None:
     """How well does this drive determine every calibration parameter of the rig?"""
-    from ..score.evaluate import Options, evaluate, max_segments
-    from ..rig.config import load_rig
-    from ..io.routes import read_route
+    with imports():
+        from ..score.evaluate import Options, evaluate, max_segments
+        from ..rig.config import load_rig
+        from ..io.routes import read_route
 
     if plot is not None and plot.suffix.lower() != ".png":
         raise typer.BadParameter(f"writes a PNG: name the file .png, got {plot.name!r}", param_hint="--plot")
