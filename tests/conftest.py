@@ -10,8 +10,8 @@ import pytest
 DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 # The optimizer's compiled model (excite.plan.compiled): a library the cache already holds is
-# used, but no test starts the C compiler in the background (minutes of both cores per problem
-# shape, in a detached process that would outlive the test); the test of compiling sets its own.
+# used, but no test starts the C compiler by accident (minutes of both cores per problem shape);
+# the tests of compiling set their own.
 os.environ.setdefault("EXCITE_COMPILE", "0")
 
 # The commands print their tables as wide as COLUMNS says, or excite.cli.app.PIPE_WIDTH when

@@ -20,7 +20,8 @@ the same promises:
   task that outlives its deadline ends the process (:class:`~excite.errors.WorkTimeout`), one
   that dies raises :class:`~excite.errors.WorkerDied`.
 
-Pools (:func:`map_ordered`, the service's scoring pool) are built from these.
+Pools (:func:`map_ordered`, the service's scoring pool) are built from these, and so is
+:func:`command`, a program (the C compiler) run to its end or ended with everything it started.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import multiprocessing.util
 import os
 import queue
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -432,3 +434,29 @@ def map_ordered(fn: Callable[[Any], Any], items: Sequence[Any], jobs: int, *,
         for w in workers:
             w.stop()
     return results
+
+
+# --------------------------------------------------------------------------------------------
+# Commands: a program run to its end, or ended with everything it started
+
+_OUTPUT_TAIL = 1 << 16  # bytes of a command's output and errors sent back
+
+
+def _run_command(cmd: list[str]) -> tuple[int, bytes, bytes]:
+    done = subprocess.run(cmd, stdin=subprocess.DEVNULL, capture_output=True)
+    return done.returncode, done.stdout[-_OUTPUT_TAIL:], done.stderr[-_OUTPUT_TAIL:]
+
+
+def command(cmd: Sequence[str], timeout_s: float, name: str = "excite-command") -> subprocess.CompletedProcess:
+    """Run ``cmd`` in a supervised process and return it as :func:`subprocess.run` would (the
+    last 64 KiB of its output and of its errors, as bytes). The command and every process it
+    starts (a compiler's passes) end when it does not finish within ``timeout_s``
+    (:class:`WorkTimeout`), when an exception reaches this call (Ctrl-C), and when this process
+    dies: nothing of it outlives its caller. A program that cannot be started raises its
+    :class:`OSError` here."""
+    with Worker(name=name) as w:
+        try:
+            code, out, err = w.run(_run_command, list(cmd), deadline=time.monotonic() + timeout_s)
+        except WorkTimeout:
+            raise WorkTimeout(f"{Path(cmd[0]).name} did not finish within {timeout_s:g} s") from None
+    return subprocess.CompletedProcess(list(cmd), code, out, err)

@@ -11,12 +11,13 @@ the source of every module that builds the functions). A cached library is found
 alone, without building the functions it was compiled from (that is the start-up it saves): the
 key must name every input and every source module, or a stale entry would be trusted.
 
-On a miss, :func:`load` generates the C source and starts the compiler in the background (a
-detached process, one per key); this run uses the virtual machine and says so in one line, the
-next run of the same shape finds the library. ``wait=True`` (``excite optimize --compile-only``)
-compiles before returning. Where no C compiler exists, or with ``EXCITE_COMPILE=0``, a library
-the cache holds is still used, and on a miss the virtual machine, with a one-line note; the
-service's jobs run so (a detached compile would outlive its job), and so do the tests.
+On a miss, :func:`load` says so in one line and the run uses the virtual machine;
+``wait=True`` (``excite optimize --compile-only``, the container image's build) generates the C
+source and compiles it before returning. The compiler runs as a command of
+:mod:`excite.core.processes`: it and its passes end with the call — past
+:data:`COMPILE_TIMEOUT_S`, on Ctrl-C or any exception, and when the calling process dies — so no
+compile outlives the command, job or test that started it. Where no C compiler exists, or with
+``EXCITE_COMPILE=0``, a library the cache holds is still used.
 
 Environment: ``EXCITE_CACHE_DIR`` (default ``$XDG_CACHE_HOME/excite``, ``~/.cache/excite``),
 ``CC`` (default ``cc``, else ``gcc``), ``EXCITE_COMPILE`` (``0``: never start the compiler).
@@ -28,7 +29,6 @@ import hashlib
 import os
 import shutil
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,8 +36,14 @@ from typing import Callable, Sequence
 
 import casadi as ca
 
+from ..core import processes
+from ..errors import WorkerDied, WorkTimeout
+
 FLAGS = ("-O2", "-shared", "-fPIC")
-LOCK_STALE_S = 1800.0  # a lock older than this belongs to a compile that died
+# the compiler is ended past this (the 90 s problem's model: 534 s at load 5-8 on 2 cores), and
+# a lock older than this, or whose process is gone, belongs to a compile that died
+COMPILE_TIMEOUT_S = 4 * 3600.0
+LOCK_STALE_S = COMPILE_TIMEOUT_S
 
 
 def cache_dir() -> Path:
@@ -112,7 +118,7 @@ def load(name: str, names: Sequence[str], key: str, build: Callable[[], Sequence
             seconds["load"] = time.perf_counter() - t0
             return Loaded(loaded, "compiled", "", seconds)
         lib.unlink(missing_ok=True)
-        note = f"{why}: rebuilding it"
+        note = f"{why}: " + ("rebuilding it" if wait else "deleted it")
     functions = list(build())
     vm = {f.name(): f for f in functions}
     cc = compiler()
@@ -121,30 +127,57 @@ def load(name: str, names: Sequence[str], key: str, build: Callable[[], Sequence
                else "no C compiler found (set CC)")
         return Loaded(vm, "virtual machine", f"{why}: {what} runs in CasADi's virtual machine (several "
                       "times slower)", seconds)
+    if not wait:
+        return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"{what} is not compiled for this "
+                      f"problem shape ({lib.name}): it runs in CasADi's virtual machine (several times slower); "
+                      "`excite optimize --compile-only` with this rig and duration compiles it into the cache",
+                      seconds)
     fresh = lib.with_suffix(f".{os.getpid()}.{time.time_ns()}.tmp")
     try:
-        started = _compile(name, functions, key, cc, wait, seconds, fresh)
-    except (OSError, subprocess.CalledProcessError) as exc:  # a read-only cache, a compiler that failed
+        started = _compile(name, functions, key, cc, seconds, fresh)
+    except (OSError, subprocess.CalledProcessError, WorkTimeout, WorkerDied) as exc:
+        # a read-only cache, a compiler that failed or did not finish
         return Loaded(vm, "virtual machine", f"cannot compile {what} ({type(exc).__name__}: "
                       f"{str(exc).splitlines()[0][:100] if str(exc) else ''}): it runs in CasADi's virtual machine",
                       seconds)
-    if wait and started:
-        # loaded from the new file (a name never loaded before) before it takes the cache's
-        # name: the dynamic loader hands a path it has seen back as the library it loaded then
-        try:
-            out = Loaded({n: ca.external(n, str(fresh)) for n in names}, "compiled", note, seconds)
-            os.replace(fresh, lib)
-            return out
-        finally:
-            fresh.unlink(missing_ok=True)
-    how = "started compiling" if started else "another process is compiling"
-    return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"{how} {what} for this problem shape "
-                  f"in the background ({lib.name}); this run uses CasADi's virtual machine for it", seconds)
+    if not started:
+        return Loaded(vm, "virtual machine", (note + "; " if note else "") + f"another process is compiling {what} "
+                      f"for this problem shape ({lib.name}); this run uses CasADi's virtual machine for it", seconds)
+    # loaded from the new file (a name never loaded before) before it takes the cache's name: the
+    # dynamic loader hands a path it has seen back as the library it loaded then
+    try:
+        out = Loaded({n: ca.external(n, str(fresh)) for n in names}, "compiled", note, seconds)
+        os.replace(fresh, lib)
+        return out
+    finally:
+        fresh.unlink(missing_ok=True)
 
 
-def _compile(name: str, functions: list[ca.Function], key: str, cc: str, wait: bool,
-             seconds: dict[str, float], tmp: Path) -> bool:
-    """Generate the C source and compile it (in the background unless ``wait``). False when
+def _lock_stale(lock: Path) -> bool:
+    """Whether ``lock`` belongs to a compile that died: older than :data:`LOCK_STALE_S`, or
+    written by a process of this machine that is gone."""
+    try:
+        if time.time() - lock.stat().st_mtime > LOCK_STALE_S:
+            return True
+        pid = int(lock.read_text() or "0")
+    except FileNotFoundError:
+        return True
+    except (OSError, ValueError):
+        return False
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+def _compile(name: str, functions: list[ca.Function], key: str, cc: str, seconds: dict[str, float],
+             tmp: Path) -> bool:
+    """Generate the C source and compile it into ``tmp`` (see the module docstring). False when
     another process holds the lock of this key."""
     lib = _library(name, key)
     lib.parent.mkdir(parents=True, exist_ok=True)
@@ -152,54 +185,30 @@ def _compile(name: str, functions: list[ca.Function], key: str, cc: str, wait: b
     try:
         fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
     except FileExistsError:
-        try:
-            stale = time.time() - lock.stat().st_mtime > LOCK_STALE_S
-        except FileNotFoundError:
-            stale = True
-        if not stale:
+        if not _lock_stale(lock):
             return False
         lock.unlink(missing_ok=True)
         fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
     os.write(fd, str(os.getpid()).encode())
     os.close(fd)
-    t0 = time.perf_counter()
     src = lib.with_suffix(".c")
     try:
+        t0 = time.perf_counter()
         cg = ca.CodeGenerator(src.name, {"with_header": False})
         for f in functions:
             cg.add(f)
         cg.generate(str(src.parent) + os.sep)
-    except Exception:
-        lock.unlink(missing_ok=True)
-        raise
-    seconds["generate"] = time.perf_counter() - t0
-    cmd = [cc, *FLAGS, str(src), "-o", str(tmp), "-lm"]
-    if wait:  # the caller loads ``tmp`` and moves it into place
+        seconds["generate"] = time.perf_counter() - t0
         t1 = time.perf_counter()
-        try:
-            subprocess.run(cmd, check=True, capture_output=True)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-        finally:
-            for p in (src, lock):
-                p.unlink(missing_ok=True)
+        cmd = [cc, *FLAGS, str(src), "-o", str(tmp), "-lm"]
+        done = processes.command(cmd, COMPILE_TIMEOUT_S, name="excite-compile")
+        if done.returncode != 0:
+            raise subprocess.CalledProcessError(done.returncode, cmd, done.stdout, done.stderr)
         seconds["compile"] = time.perf_counter() - t1
         return True
-    # detached: it outlives this process, and a Ctrl-C here does not reach it
-    script = ("import os, subprocess, sys\n"
-              "os.nice(10)\n"
-              "cmd, src, tmp, lib, lock = sys.argv[1:-4], *sys.argv[-4:]\n"
-              "try:\n"
-              "    if subprocess.run(cmd, capture_output=True).returncode == 0:\n"
-              "        os.replace(tmp, lib)\n"
-              "finally:\n"
-              "    for p in (src, tmp, lock):\n"
-              "        try:\n"
-              "            os.unlink(p)\n"
-              "        except OSError:\n"
-              "            pass\n")
-    subprocess.Popen([sys.executable, "-c", script, *cmd, str(src), str(tmp), str(lib), str(lock)],
-                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                     start_new_session=True, close_fds=True)
-    return True
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        for p in (src, lock):
+            p.unlink(missing_ok=True)

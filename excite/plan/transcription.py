@@ -57,8 +57,8 @@ class TranscriptionOptions:
     ``keyframe_rate_hz`` and ``imu_substeps``: the coarse information model's grid;
     ``hull_refine``: knot intervals are split this many times for the convex-hull bounds;
     ``lat_accel_every``: the lateral acceleration (and bump caps) at every n-th model sample;
-    ``compile``: ``"auto"`` (compiled when cached, else compiled in the background while the
-    virtual machine runs), ``"wait"`` (compile now on a miss), ``"never"``."""
+    ``compile``: ``"auto"`` (compiled when cached, else CasADi's virtual machine, with a note),
+    ``"wait"`` (compile now on a miss), ``"never"``."""
 
     knot_step_s: float = 1.5
     keyframe_rate_hz: float = 2.0

@@ -203,3 +203,22 @@ def test_an_interpreter_with_helpers_stopped_mid_write_exits(seed):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "done", r.stderr[-2000:]
     assert time.monotonic() - t0 < 120
+
+
+def test_a_command_past_its_timeout_ends_with_what_it_started(tmp_path):
+    """A command that started a process in a session of its own and waits is ended at its
+    timeout, the process it started too; its output comes back as subprocess.run's would, and a
+    program that does not exist raises its OSError."""
+    pids = tmp_path / "pids"
+    script = f"setsid sleep 600 & echo $$ $! > {pids}; wait"
+    t0 = time.monotonic()
+    with pytest.raises(WorkTimeout, match="sh did not finish within 3 s"):
+        processes.command(["sh", "-c", script], 3)
+    assert time.monotonic() - t0 < 30
+    started = [int(x) for x in pids.read_text().split()]
+    assert len(started) == 2
+    assert _wait_gone(started) == []
+    done = processes.command(["sh", "-c", "echo out; echo err >&2; exit 3"], 60)
+    assert (done.returncode, done.stdout, done.stderr) == (3, b"out\n", b"err\n")
+    with pytest.raises(FileNotFoundError):
+        processes.command([str(tmp_path / "no-such-program")], 60)
