@@ -34,15 +34,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import two_view  # noqa: E402
 from bench_evaluate import generated  # noqa: E402
-from bench_scene import canyon_around  # noqa: E402
 from results import Session, load_average  # noqa: E402
+from scenes import canyon_around, lot_with_buildings, slalom_drive  # noqa: E402
+from scenes import lot as lot_ground  # noqa: E402
 
 from excite.core import so3  # noqa: E402
 from excite.factors.optics import DEFAULT_CAMERA  # noqa: E402
-from excite.motion.maneuvers import slalom  # noqa: E402
-from excite.motion.vehicle import drive  # noqa: E402
 from excite.rig.config import load_rig  # noqa: E402
-from excite.scene import along, camera, shapes  # noqa: E402
+from excite.scene import along, camera  # noqa: E402
 from excite.scene.files import load_scene  # noqa: E402
 from excite.scene.model import Scene  # noqa: E402
 from excite.score.evaluate import evaluate  # noqa: E402
@@ -86,10 +85,8 @@ def camera_sigmas(traj, rig) -> np.ndarray:
 
 
 def lot(ground_per_m2: float, buildings: bool) -> Scene:
-    parts = [shapes.ground(-60, -45, 60, 45, features_per_m2=ground_per_m2)]
-    if buildings:
-        parts += [shapes.box(-40, 30, -10, 45, 12), shapes.box(0, 30, 35, 42, 9), shapes.box(-50, -44, -30, -35, 6)]
-    return Scene.combine(parts)
+    ground = lot_ground(ground_per_m2)
+    return lot_with_buildings(ground) if buildings else Scene.combine([ground])
 
 
 def main() -> None:
@@ -101,7 +98,7 @@ def main() -> None:
     cam = next(s for s in rig.config.sensors if s.kind == "camera")
     figures: dict = {"nees": consistency(args.trials)}
 
-    sl = drive(slalom(90.0), rig.suspension)
+    sl = slalom_drive(rig)
     quad, samp = {}, {}
     for name, sc in (("asphalt lot", lot(0.01, False)), ("asphalt lot with buildings", lot(0.01, True))):
         base = camera_sigmas(along.seen(sl, rig, sc), rig)

@@ -31,31 +31,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_evaluate import generated  # noqa: E402
 from results import Session, load_average, spread  # noqa: E402
+from scenes import canyon_around, lot_with_buildings, slalom_drive  # noqa: E402
+from scenes import lot as lot_ground  # noqa: E402
 
-from excite.motion.maneuvers import slalom  # noqa: E402
-from excite.motion.vehicle import drive  # noqa: E402
 from excite.rig.config import load_rig  # noqa: E402
 from excite.scene import along, lidar, shapes  # noqa: E402
 from excite.scene.model import Scene  # noqa: E402
 from excite.score.evaluate import evaluate  # noqa: E402
-
-
-def canyon_around(traj, clearance_m: float = 9.0, grid_m: float = 20.0, seed: int = 3) -> Scene:
-    """Ground under the drive and buildings on a grid wherever the drive does not pass near."""
-    p = traj.translation(traj.times(5.0))[0][:, :2]
-    lo, hi = p.min(axis=0) - 40.0, p.max(axis=0) + 40.0
-    rng = np.random.default_rng(seed)
-    parts = [shapes.ground(lo[0], lo[1], hi[0], hi[1], z=float(traj.translation(traj.times(1.0))[0][:, 2].min()) - 0.5)]
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(p)
-    half = 0.5 * (grid_m - 4.0)
-    for x in np.arange(lo[0], hi[0], grid_m):
-        for y in np.arange(lo[1], hi[1], grid_m):
-            d, _ = tree.query([x, y])
-            if d > clearance_m + half * np.sqrt(2):
-                parts.append(shapes.box(x - half, y - half, x + half, y + half, float(rng.uniform(10, 25)), base=-5.0))
-    return Scene.combine(parts, source="canyon around the drive")
 
 
 def lidar_sigmas(rep) -> np.ndarray:
@@ -94,11 +76,10 @@ def main() -> None:
     print(f"scene-aware {figures['ten_minute_canyon_ms']} ms, blind {figures['ten_minute_blind_ms']} ms, "
           f"peak RSS {figures['peak_rss_mib']} MiB")
 
-    sl = drive(slalom(90.0), rig.suspension)
-    lot = shapes.ground(-60, -45, 60, 45)
+    sl = slalom_drive(rig)
+    lot = lot_ground()
     scenes = {
-        "buildings": Scene.combine([lot, shapes.box(-40, 30, -10, 45, 12), shapes.box(0, 30, 35, 42, 9),
-                                    shapes.box(-50, -44, -30, -35, 6)]),
+        "buildings": lot_with_buildings(lot),
         "wall_and_pole": Scene.combine([lot, shapes.wall((-50, 38), (50, 38), 4.0), shapes.cylinder((10, -20), 0.3, 5.0)]),
     }
     default = (lidar.CAST_BEAMS, lidar.AZIMUTHS)
@@ -115,8 +96,8 @@ def main() -> None:
 
     table = {}
     canyon_street = Scene.combine([lot, shapes.box(-60, 30, 60, 45, 15), shapes.box(-60, -45, 60, -30, 15)])
-    for name, sc in (("blind", None), ("open lot", lot), ("buildings on one side", Scene.combine(
-            [lot, shapes.box(-40, 30, -10, 45, 12), shapes.box(0, 30, 35, 42, 9)])), ("street canyon", canyon_street)):
+    for name, sc in (("blind", None), ("open lot", lot), ("buildings on one side",
+                                                            lot_with_buildings(lot, 2)), ("street canyon", canyon_street)):
         rep = evaluate(sl if sc is None else along.seen(sl, rig, sc), rig)
         table[name] = {p.name: round(p.sigma / p.target, 3) for p in rep.parameters if p.name.startswith("lidar.")}
         print(name, table[name])

@@ -58,6 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.parallel import each
 from ..factors.optics import CameraOptics
 from .model import Scene
 
@@ -70,8 +71,6 @@ MIN_INCIDENCE_COS = 0.05
 normal, its texture foreshortened twentyfold) are not found."""
 REFINE = 3
 """Rays across and down a cell that is cast again (see :func:`informations`)."""
-THREADS = 2
-"""Threads casting and summing chunks of pairs at once (Embree and numpy release the GIL)."""
 PAIRS_PER_CALL = 64
 """Frame pairs ray-cast in one call to the ray caster (bounds the memory of a long drive)."""
 
@@ -398,13 +397,5 @@ def informations(scene: Scene, R_W_Si: np.ndarray, p_W_Si: np.ndarray, R_W_Sj: n
         A = _pair_sums(g, pr, m)
         H[a:b] = with_length(A, R_ij, t_ij)
 
-    starts = range(0, P, PAIRS_PER_CALL)
-    if THREADS > 1 and len(starts) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(THREADS) as pool:
-            list(pool.map(chunk, starts))
-    else:
-        for a in starts:
-            chunk(a)
+    each(chunk, range(0, P, PAIRS_PER_CALL))  # chunks on threads (Embree and numpy release the GIL)
     return Pairs(H=H, features=features)

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.parallel import each
 from ..factors.optics import LidarBeams
 from .model import Scene
 
@@ -46,9 +47,6 @@ REFINE = 8
 """Rays cast across the span between two neighbouring rays that see different surfaces."""
 SCANS_PER_CALL = 64
 """Scans ray-cast in one call to the ray caster (bounds the memory of a long drive)."""
-THREADS = 2
-"""Threads casting and summing chunks of scans at once (Embree and numpy release the GIL)."""
-
 
 @dataclass(frozen=True)
 class ScanPattern:
@@ -238,13 +236,5 @@ def informations(scene: Scene, R_W_S: np.ndarray, p_W_S: np.ndarray, beams: Lida
         G[a:b] += np.swapaxes(Pf * w.reshape(m, -1, 1), 1, 2) @ Pf
         returns[a:b] += ok.reshape(m, -1).sum(axis=1)
 
-    starts = range(0, S, SCANS_PER_CALL)
-    if THREADS > 1 and len(starts) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(THREADS) as pool:
-            list(pool.map(chunk, starts))
-    else:
-        for a in starts:
-            chunk(a)
+    each(chunk, range(0, S, SCANS_PER_CALL))  # chunks on threads (Embree and numpy release the GIL)
     return Scans(H=H, G=G, returns=returns)
