@@ -464,7 +464,7 @@ class Kind(Generic[E]):
 
     def quantities(self, cfg: ConfigView, entry: E) -> list[Quantity]:
         """The calibration quantities of ``entry`` (``cfg`` is the whole rig configuration): their
-        keys, sizes and kinds of perturbation depend on :func:`variant` only."""
+        keys, sizes and perturbations (rotation or additive) depend on :func:`variant` only."""
         return []
 
     # --- the math: stated once, in CasADi symbols for one factor ---
