@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import bz2
 import struct
+import time
 from pathlib import Path
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from servers import LiveServer
 
 
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
+REQUEST_TIMEOUT_S = 60
 
 
 def _ros1_records(data: bytes):
@@ -64,9 +66,9 @@ def _bz2_bomb_bag(tmp_path: Path, expands_to: int = 300 << 20) -> Path:
     return path
 
 
-def _mcap(tmp_path: Path, name: str, kind: str, records: bytes, size: int) -> Path:
-    """An MCAP file without a summary: header, one chunk (``records`` compressed by the caller
-    as ``kind``, declaring ``size``), data end and a footer that points nowhere."""
+def _mcap(tmp_path: Path, name: str, kind: str, records: bytes, size: int, chunks: int = 1) -> Path:
+    """An MCAP file without a summary: header, ``chunks`` chunks (each ``records`` compressed by
+    the caller as ``kind``, declaring ``size``), data end and a footer that points nowhere."""
     def rec(op: int, body: bytes) -> bytes:
         return struct.pack("<BQ", op, len(body)) + body
 
@@ -74,7 +76,7 @@ def _mcap(tmp_path: Path, name: str, kind: str, records: bytes, size: int) -> Pa
         return struct.pack("<I", len(s)) + s.encode()
 
     chunk = struct.pack("<QQQI", 0, 10**9, size, 0) + string(kind) + struct.pack("<Q", len(records)) + records
-    body = (b"\x89MCAP0\r\n" + rec(0x01, string("ros2") + string("test")) + rec(0x06, chunk)
+    body = (b"\x89MCAP0\r\n" + rec(0x01, string("ros2") + string("test")) + rec(0x06, chunk) * chunks
             + rec(0x0F, struct.pack("<I", 0)) + rec(0x02, struct.pack("<QQI", 0, 0, 0)) + b"\x89MCAP0\r\n")
     path = tmp_path / name
     path.write_bytes(body)
@@ -94,7 +96,7 @@ def _zstd_zeros(n: int) -> bytes:
 @pytest.fixture(scope="module")
 def bag_server(tmp_path_factory):
     srv = LiveServer(tmp_path_factory.mktemp("bombs"), workers=0, score_workers=1,
-                     request_timeout_s=60).start()
+                     request_timeout_s=REQUEST_TIMEOUT_S).start()
     yield srv
     srv.stop()
 
@@ -108,18 +110,24 @@ def _upload(srv, path: Path, topic: str = "/pose"):
 @pytest.mark.slow
 def test_compressed_bag_bombs_are_refused_before_they_expand(bag_server, tmp_path):
     """A ROS 1 bag whose bz2 chunk expands to 300 MiB, an MCAP without a summary whose zstd chunk
-    declares 900 MiB of zeros, and an LZ4 chunk that is not LZ4: each a 422 naming the bound or
-    the damage (never a 500, nor a worker held), and the next request is served."""
+    declares 900 MiB of zeros, one of 16 chunks of 64 MiB of zeros each (34 KB), and an LZ4 chunk
+    that is not LZ4: each a 422 naming the bound or the damage (never a 500, nor a worker held
+    until the request's time limit), and the next request is served."""
     cases = [
         (_bz2_bomb_bag(tmp_path), "/pose", "expands past"),
         (_mcap(tmp_path, "zeros.mcap", "zstd", _zstd_zeros(192 << 20), 192 << 20), "/odom", "past the bounds"),
+        (_mcap(tmp_path, "chunks.mcap", "zstd", _zstd_zeros(64 << 20), 64 << 20, chunks=16), "/odom",
+         "bytes per read"),
         (_mcap(tmp_path, "huge.mcap", "zstd", _zstd_zeros(896 << 20), 896 << 20), "/odom", "over the limit"),
         (_mcap(tmp_path, "bad.mcap", "lz4", b"this is not lz4 at all" * 10, 4096), "/odom", "cannot be decompressed"),
     ]
     for path, topic, words in cases:
         assert path.stat().st_size < 300_000
+        t0 = time.monotonic()
         r = _upload(bag_server, path, topic)
+        took = time.monotonic() - t0
         assert r.status_code == 422, (path.name, r.status_code, r.text[:300])
+        assert took < REQUEST_TIMEOUT_S / 3, (path.name, took)  # refused, not walked to the time limit
         body = r.json()
         assert words in body["detail"] and body["errors"][0]["field"] == "bag", body
         assert "/tmp" not in body["detail"]
