@@ -237,3 +237,33 @@ def test_a_database_outage_during_running_jobs_ends_every_job_once(tmp_path, pos
     finally:
         for srv in replicas:
             srv.stop()
+
+
+def test_concurrent_submissions_on_two_replicas_never_exceed_the_quota(postgres, fresh):
+    """Two replicas (two stores, each with its own connections) take a key's submissions at the
+    same moment: with a quota of 2, 10 at once create 2 jobs; with a quota of 20, 80 at once
+    create 20 — the count and the insert are one transaction, serialised per key."""
+    import concurrent.futures as cf
+    import threading
+
+    from api.store import OverQuota, open_store as PostgresStore
+
+    replicas = [fresh, PostgresStore(postgres)]
+    try:
+        for key, quota, n in (("two", 2, 10), ("twenty", 20, 80)):
+            start = threading.Barrier(n)
+
+            def submit(i: int, key=key, quota=quota, start=start) -> bool:
+                start.wait(30)
+                try:
+                    replicas[i % 2].create("maneuver", {"n": i}, key_id=key, max_active=quota)
+                    return True
+                except OverQuota:
+                    return False
+
+            with cf.ThreadPoolExecutor(n) as pool:
+                accepted = sum(pool.map(submit, range(n)))
+            assert accepted == quota, (key, accepted)
+        assert fresh.counts() == {"queued": 22}
+    finally:
+        replicas[1].close()
