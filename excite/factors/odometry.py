@@ -53,8 +53,9 @@ or the reported covariance of the pair), so the pair's information is
 written so that it holds for a singular ``A_r``: a direction no surface constrains (a tunnel's
 axis, the open lot's x, y and yaw) has no information at all — an exact zero the rank test sees —
 and a rich scene approaches the densities' ``Q⁻¹`` (the drift a real odometry has bounds what a
-scene can give). This is scan-to-scan registration (each pair on its own, the map not kept);
-scan-to-map odometry would tie the pairs together and is not modelled. A camera's pair is
+scene can give). Each pair is scan j registered against the surfaces the earlier scan saw, taken
+as exact (what an odometry's local map makes of them), on its own: the map's noise and the ties
+a scan-to-map odometry makes between pairs are not modelled. A camera's pair is
 bearing-only: the length of its translation is not in its bearings, and is taken as known as
 well as the translation's other two directions (the odometry keeps one scale from pair to pair
 through its landmarks; a monocular camera's overall scale stays the drive's nuisance ``s``:

@@ -6,11 +6,13 @@ moves the point by ``φ × p + ρ``, and the point-to-plane distance to the surf
 
     e = nᵀ(φ × p + ρ) = [p × n; n]ᵀ δ,
 
-so a scan whose points have range noise σ_r along the normal holds the information
+so a scan whose points lie off their surfaces by σ_r along the normal (the lidar's range noise,
+at every incidence: an oblique return's footprint spreads it along its ray by σ_r/c, c the cosine
+of its incidence) holds the information
 
     H = Σ_points w / σ_r² · [p × n; n] [p × n; n]ᵀ        (6 × 6, order [rotation, translation])
 
-about its pose against the surfaces — what an ICP's Gauss–Newton Hessian is at its solution
+about its pose against the surfaces, taken as exact — what an ICP's Gauss–Newton Hessian is at its solution
 (small_gicp's ``PLANE_ICP`` states its residual per axis, ``n ⊙ (q − T p)``; where the normals are
 axis-aligned the two are the same). A direction no surface constrains has no information at all:
 the open flat lot leaves x, y and yaw free, a tunnel its axis, a single wall the translation

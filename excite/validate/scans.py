@@ -13,11 +13,12 @@ scans gives, with the range noise of each return along its ray:
   surface by ``c σ``, the target scan's matching point carries its own (the same incidence to
   first order: the scans are one frame apart), and the registration weighs every point alike.
   Registering every pair by ICP would cost a second or so per pair, hours for a Monte Carlo of a
-  whole drive: the draw from the covariance of the pair's actual scans is the approximation. (A
-  real registration adds what no covariance holds: small_gicp's, of ray-cast pairs, spreads up to
-  twice ``C``'s σ in some directions, and its nearest-point matches pull it towards no motion
-  along the directions the scene constrains least, by centimetres per pair: the Monte Carlo of
-  tests/scene/test_montecarlo.py);
+  whole drive: the draw from the covariance of the pair's actual scans is the approximation. It
+  differs from the information model, which registers scan j against the surfaces themselves
+  with a return's error σ off its surface at every incidence (what small_gicp's registrations
+  against a map of the surfaces follow: tests/scene/test_montecarlo.py); registered against the
+  noisy earlier scan, small_gicp is also pulled towards no motion by centimetres per pair, which
+  no covariance holds;
 - **along what the surfaces leave unconstrained** (a tunnel's axis, the open lot's x, y and yaw:
   directions ``H₁`` has no information about) the two scans look alike wherever the sensor is, and
   the registration reports no motion there (small_gicp's, in a tunnel, slides to where the two
