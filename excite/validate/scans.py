@@ -4,23 +4,17 @@ Where the drive sees a scene, the simulator ray-casts what the lidar sees at eac
 on the lidar's real pattern — every beam at every azimuth step of its horizontal resolution
 (:func:`scan_pattern`), not the information model's quadrature at samples along the drive —
 occlusion honoured, returns dropped as the model drops them (range limits, grazing incidence).
-Each pair's relative pose is then what scan-to-scan point-to-plane registration of two such
-scans gives, with the range noise of each return along its ray:
+Each pair's relative pose is then what registering scan j against the surfaces scan i saw gives
+(the information model's law: each return σ off its surface, the surfaces taken as exact):
 
 - **its error** is drawn from the registration's covariance (:func:`pair_covariance`):
-  ``C = H₁⁺ (Σ 2 c² σ² J Jᵀ) H₁⁺``, ``H₁ = Σ J Jᵀ`` over scan j's returns, ``J = [p × n; n]``,
-  ``c = |n · d|`` the cosine of the return's incidence — a range error moves its point off the
-  surface by ``c σ``, the target scan's matching point carries its own (the same incidence to
-  first order: the scans are one frame apart), and the registration weighs every point alike.
-  Registering every pair by ICP would cost a second or so per pair, hours for a Monte Carlo of a
-  whole drive: the draw from the covariance of the pair's actual scans is the approximation. It
-  differs from the information model, which registers scan j against the surfaces themselves
-  with a return's error σ off its surface at every incidence (what small_gicp's registrations
-  against a map of the surfaces follow: tests/scene/test_montecarlo.py); registered against the
-  noisy earlier scan, small_gicp is also pulled towards no motion by centimetres per pair, which
-  no covariance holds;
+  ``H⁺``, ``H = Σ J Jᵀ / σ²`` over every return of scan j on the real pattern,
+  ``J = [p × n; n]`` — what small_gicp's registrations of such scans against a map of the
+  surfaces follow (tests/scene/test_montecarlo.py). Registering every pair by ICP would cost a
+  second or so per pair, hours for a Monte Carlo of a whole drive: the draw from the covariance
+  of the pair's actual scan is the approximation;
 - **along what the surfaces leave unconstrained** (a tunnel's axis, the open lot's x, y and yaw:
-  directions ``H₁`` has no information about) the two scans look alike wherever the sensor is, and
+  directions ``H`` has no information about) the two scans look alike wherever the sensor is, and
   the registration reports no motion there (small_gicp's, in a tunnel, slides to where the two
   scans coincide): the pair's motion along them is removed;
 - **the odometry's drift** is added as for any odometry (:meth:`~excite.factors.odometry.Odometry.simulate`).
@@ -68,21 +62,17 @@ def scan_pattern(beams) -> lidar.ScanPattern:
 
 
 def pair_covariance(points: np.ndarray, normals: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """The registration covariance ``C`` of a scan pair whose scan j has returns ``points`` with
-    unit ``normals`` (sensor frame, N × 3) and range noise ``sigma`` (see the module docstring),
-    and the projector onto the directions its surfaces do not constrain (6 × 6 each, order
-    [rotation, translation], a right perturbation of scan j's pose)."""
-    J = lidar.point_rows(points, normals)
-    r = np.linalg.norm(points, axis=1)
-    c = np.abs(np.einsum("ij,ij->i", normals, points)) / np.where(r > 0, r, 1.0)
-    H1 = J.T @ J
-    M = (J * (2.0 * sigma**2 * c**2)[:, None]).T @ J
-    lam, V = np.linalg.eigh(0.5 * (H1 + H1.T))
+    """The registration covariance of a scan pair whose scan j has returns ``points`` with unit
+    ``normals`` (sensor frame, N × 3) and range noise ``sigma`` (see the module docstring): the
+    pseudo-inverse of its information ``H``, and the projector onto the directions its surfaces
+    do not constrain (6 × 6 each, order [rotation, translation], a right perturbation of scan j's
+    pose)."""
+    H = lidar.point_information(points, normals, sigma)
+    lam, V = np.linalg.eigh(0.5 * (H + H.T))
     seen = lam > NULL_RTOL * max(lam[-1], 0.0)
     Vs = V[:, seen]
-    P = Vs @ np.diag(1.0 / lam[seen]) @ Vs.T
     N = V[:, ~seen] @ V[:, ~seen].T
-    return P @ M @ P, N
+    return Vs @ np.diag(1.0 / lam[seen]) @ Vs.T, N
 
 
 @dataclass(frozen=True)
