@@ -89,7 +89,7 @@ class Layout:
 
 def layout(kind: Kind, rig: RigView, entry: Any) -> Layout:
     n = samples_per_keyframe(rig) * base.stride(kind, rig, entry)
-    reads = isinstance(kind, ReadsImu)
+    reads = base.implements(kind, ReadsImu)
     consts = tuple((k, np.shape(v)) for k, v in kind.constants(rig, entry).items())
     return Layout(kind.name, base.variant(kind, entry), kind.arity, n if reads else 0,
                   base.summary_size(kind), kind.summary_state if reads else 0,

@@ -238,3 +238,28 @@ def test_the_defaults_of_the_protocols():
     (o,) = registry.openings(rig)
     assert o.kind is gnss.opening and o.entry is entry and o.name != entry.name
     assert [i.name for i in registry.instances(rig)].count(o.name) == 0
+
+
+PROTOCOLS = (registry.ChoosesEntries, registry.NamesBlocks, registry.HasVariants, registry.ChoosesFactors,
+             registry.PreparesRecording, registry.Resamples, registry.ReadsImu, registry.OpensChain)
+
+
+def test_implements_answers_as_isinstance_for_every_kind_and_protocol_and_holds_no_kind_alive():
+    import gc
+    import weakref
+
+    kinds = registry.kinds() + [k.opening for k in registry.kinds() if isinstance(k, registry.OpensChain)]
+    answers = {(k.name, p.__name__): isinstance(k, p) for k in kinds for p in PROTOCOLS}
+    assert any(answers.values()) and not all(answers.values())
+    for _ in range(2):  # asked, then remembered
+        assert {(k.name, p.__name__): registry.implements(k, p) for k in kinds for p in PROTOCOLS} == answers
+
+    class Bare(Kind):
+        name = "bare"
+
+    bare = Bare()
+    assert not registry.implements(bare, registry.ReadsImu)
+    gone = weakref.ref(bare)
+    del bare
+    gc.collect()
+    assert gone() is None
