@@ -338,15 +338,13 @@ def test_a_ply_cloud_with_normals_keeps_them(tmp_path):
     check_plane_map(load_scene(tmp_path / "plane.ply"))
 
 
-def test_a_real_scan_in_ply_is_read_point_for_point():
+def test_a_real_scan_in_ply_is_read_point_for_point(data_dir):
     """small_gicp's test scan (``../shared/data/lidar_scan_pair_small_gicp/source.ply``, from
     koide3/small_gicp, MIT licence, written by CloudCompare): the points read equal its binary
     body decoded by numpy after the header, and every splat's normal is a unit vector."""
-    from pathlib import Path
-
     from excite.scene.clouds import read_points
 
-    path = Path(__file__).resolve().parents[3] / "shared" / "data" / "lidar_scan_pair_small_gicp" / "source.ply"
+    path = data_dir / "lidar_scan_pair_small_gicp" / "source.ply"
     raw = path.read_bytes()
     body = raw[raw.index(b"end_header\n") + len(b"end_header\n"):]
     ref = np.frombuffer(body, dtype="<f4").reshape(-1, 4)[:, :3]
