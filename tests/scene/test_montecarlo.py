@@ -151,8 +151,8 @@ def yaw(a):
 
 
 def monte_carlo(scene, starts, draws, seed, speed=SPEED, yaw_rate=YAW_RATE, converged=True):
-    """Per start pose (scan i's): the pair's truth, the model's ``H`` of scan j, and each draw's
-    error and initial guess."""
+    """Per start pose (scan i's): the pair's truth, the model's ``H`` of scan j and its σ, and each
+    draw's error."""
     rng = np.random.default_rng(seed)
     out = []
     for R_i, p_i in starts:
@@ -164,14 +164,13 @@ def monte_carlo(scene, starts, draws, seed, speed=SPEED, yaw_rate=YAW_RATE, conv
         sigma = np.full(6, np.inf)
         sigma[seen] = np.sqrt(np.diag(np.linalg.inv(H[np.ix_(seen, seen)])))
         surfaces = surface_map(scene, R_i, p_i)
-        err, prior = [], []
+        err = []
         for _ in range(draws):
             source, _ = cast(scene, R_j, p_j, rng=rng)
             d0 = rng.normal(0.0, PRIOR)
             # it ends within a tenth of the model's σ of its minimum (along what is seen)
             err.append(right_error(T, register(surfaces, source, perturbed(T, d0), 0.1 * sigma if converged else None)))
-            prior.append(d0)
-        out.append(dict(T=T, H=H, sigma=sigma, err=np.array(err), prior=np.array(prior)))
+        out.append(dict(T=T, H=H, sigma=sigma, err=np.array(err)))
     return out
 
 
