@@ -65,14 +65,17 @@ class DriverModel:
     effort_sigma: float = 0.1
     reaction_s: float = 0.3
     reaction_spread: float = 0.3
-    bandwidth_rad_s: float = 0.6
+    bandwidth_rad_s: float = 1.2
+    damping_ratio: float = 0.7
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise LimitError(f"driver.{name} must be a finite number ≥ 0, got {value!r}")
-        if self.bandwidth_rad_s <= 0 or self.lateral_correlation_m <= 0 or self.speed_noise_time_s <= 0:
-            raise LimitError("driver.bandwidth_rad_s, lateral_correlation_m and speed_noise_time_s must be positive")
+        if (self.bandwidth_rad_s <= 0 or self.damping_ratio <= 0 or self.lateral_correlation_m <= 0
+                or self.speed_noise_time_s <= 0):
+            raise LimitError("driver.bandwidth_rad_s, damping_ratio, lateral_correlation_m and speed_noise_time_s "
+                             "must be positive")
         if self.reaction_s > 2.0:
             raise LimitError(f"driver.reaction_s must be at most 2 s, got {self.reaction_s:g}")
 
@@ -80,7 +83,8 @@ class DriverModel:
     def exact(cls) -> "DriverModel":
         """A driver who does exactly what the instructions say (the nominal drive, steered by the
         same controller without delay or offset)."""
-        return cls(0.0, 25.0, 0.0, 0.0, 5.0, 1.0, 0.0, 0.0, 0.0)
+        return cls(lateral_sigma_m=0.0, speed_bias_sigma=0.0, speed_noise_sigma=0.0, effort_mean=1.0,
+                   effort_sigma=0.0, reaction_s=0.0, reaction_spread=0.0)
 
 
 def _ou(rng: np.random.Generator, n: int, step: float, corr: float, sigma: float) -> np.ndarray:
@@ -127,7 +131,7 @@ def _filtered_sd(ratio: float) -> float:
 
 
 @nb.njit(cache=True)
-def _steer(px, py, ph, pk, ds, aim, v, dt, x0, y0, h0, k0, delay_n, preview_s, omega, kmax, krate):
+def _steer(px, py, ph, pk, ds, aim, v, dt, x0, y0, h0, k0, delay_n, preview_s, omega, zeta, kmax, krate):
     """The steering loop over one leg (see the module docstring): returns the curvature at every
     step and the end state."""
     n = v.size
@@ -143,7 +147,6 @@ def _steer(px, py, ph, pk, ds, aim, v, dt, x0, y0, h0, k0, delay_n, preview_s, o
         d = (px[i] - x) ** 2 + (py[i] - y) ** 2
         if d < best:
             best, j = d, i
-    zeta = 0.8
     for t in range(n):
         u = v[t]
         # progress: the closest sample near the last one
@@ -248,7 +251,7 @@ def drive_course(course: Course, limits: Limits, model: DriverModel = DriverMode
         if model.lateral_sigma_m:
             aim = _smooth_ou(rng, p.s_m.size, ds, model.lateral_correlation_m, model.lateral_sigma_m)
         kap, x, y, h, k = _steer(p.xyz_m[:, 0], p.xyz_m[:, 1], p.heading_rad, p.curvature_1pm, ds, aim, v,
-                                 STEP_S, x, y, h, k, delay_n, delay, model.bandwidth_rad_s,
+                                 STEP_S, x, y, h, k, delay_n, delay, model.bandwidth_rad_s, model.damping_ratio,
                                  limits.curvature_max_1pm, limits.curvature_rate_max_1pms)
         if ts:  # the previous leg's last sample is this one's first (at rest)
             t, v, kap = t[1:], v[1:], kap[1:]
