@@ -15,9 +15,12 @@ control file. :func:`drive_course` is one such driver on a :class:`~excite.motio
   offset (``lateral_sigma_m``, correlation length ``lateral_correlation_m``: nobody drives a cone
   course on the centimetre), and steers towards it as a preview driver does: the path's curvature
   ahead (by the reaction time, which the preview compensates) plus a correction of the lateral
-  and heading errors with a closed-loop bandwidth ``bandwidth_rad_s`` and damping 0.7, acted on
+  and heading errors ``ey``, ``eh``: ``κ = κ_path − (ω²/v²)·ey − (2ζω/v)·eh`` with the natural
+  frequency ω = ``bandwidth_rad_s`` and the damping ζ = ``damping_ratio``, acted on
   ``reaction_s`` late, the curvature changing no faster and no further than the vehicle allows.
-  The lag turns into late turn-ins and corner cutting where the curvature changes, as in people.
+  The curvature is a lateral acceleration v²κ, so on a straight at constant speed and without
+  the delay the lateral error obeys ``ey'' + 2ζω·ey' + ω²·ey = 0``. The lag turns into late
+  turn-ins and corner cutting where the curvature changes, as in people.
 
 Default values and where they come from (every one is a field of :class:`DriverModel`):
 
@@ -29,7 +32,8 @@ Default values and where they come from (every one is a field of :class:`DriverM
 | ``speed_noise_sigma`` | 3 %, over 5 s | speed maintenance without cruise control wanders by 1–2 km/h at 50 km/h over seconds. |
 | ``effort_mean``, ``effort_sigma`` | 0.85, 0.1 | asked to "accelerate hard" / "brake hard" within a stated limit, test drivers stay under it: a fraction of the asked acceleration, varying from run to run (clipped to 0.5–1.05). |
 | ``reaction_s`` | 0.3 s (±30 % per drive) | the effective time delay of a human in a tracking task is 0.2–0.4 s (the crossover model's τe); a driver who sees the course ahead anticipates the rest (preview). |
-| ``bandwidth_rad_s`` | 1.2 rad/s | path-following crossover of drivers ~0.2 Hz; stable with the delay (phase lost 0.36 rad). |
+| ``bandwidth_rad_s`` | 1.2 rad/s | Drivers keep to a line with two nested loops (Weir & McRuer, "A theory for driver steering control of motor vehicles", HRR 247, 1968; "Dynamics of driver vehicle steering control", Automatica 6, 1970; McRuer, Allen, Weir & Klein, "New results in driver steering control models", Human Factors 19(4), 1977): heading inside, closed at the crossover model's few rad/s, lateral position outside it, closed lower, at about 1 rad/s (~0.15 Hz). This law is that pair: its heading loop closes at 2ζω = 1.7 rad/s and its lateral loop at ω/(2ζ) = 0.86 rad/s (0.6 rad/s would close the lateral loop at 0.37 rad/s and leave a 1 m offset standing for 5 s). With the delay: the open loop crosses over at 1.54ω = 1.85 rad/s with 65° of phase margin, of which 0.3 s takes 32° (the slowest drivers' 0.47 s, 53°). A lane change takes 5–6 s (Toledo & Zohar, "Modeling duration of lane changes", TRR 1999, 2007) against this loop's 2.4 s to remove 95 % of a 1 m offset: a lane change is planned at a comfortable lateral acceleration (Donges' guidance level, Human Factors 20(6), 1978), an error is corrected by the compensatory loop (his stabilisation level). |
+| ``damping_ratio`` | 0.7 | The crossover model (McRuer & Jex 1967) has the human shape the loop like ωc·e^(−jωτ)/(jω) near crossover; this law does so when its lead ω/(2ζ) sits well below its crossover 1.54ω: a factor 2.2 at ζ = 0.7 (4.6 % overshoot without the delay). No driver study gives the lateral error's damping itself, and the delay matters more: the correction of a 1 m offset at 10 m/s overshoots by 5 % with a 0.21 s reaction time and by 16 % with 0.39 s (the ±30 % spread), by 1.5 % without delay at ζ = 0.8. |
 
 :func:`driven` draws many drives of one course, each with its own driver (a seed per drive), and
 :func:`course_of` turns a free-form control profile into the course a driver would be given for it
