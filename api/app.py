@@ -39,7 +39,7 @@ from .pool import WorkerPool
 from .routers import batch, health, jobs, live, maneuvers, page, rigs, scenes, score
 from .scoring import warm
 from .settings import Settings
-from .store import open_store
+from .store import JobStore
 
 log = logging.getLogger("excite.api")
 
@@ -59,7 +59,7 @@ def create_app(settings: Settings | None = None, *,
     here, it is not a setting of the service.
     """
     settings = settings or Settings()
-    store = open_store(settings.store_url)
+    store = JobStore(settings.store_url)
     keys = None
     if settings.api_keys_file is not None:
         keys = load_keys(settings.api_keys_file, Limits(settings.quota_jobs, settings.quota_live_sessions,

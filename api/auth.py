@@ -51,6 +51,7 @@ from starlette.requests import HTTPConnection
 
 from . import problems
 from .errors import Exposed, KeysError, Problem
+from .middleware import header
 
 SCOPES = ("score", "plan", "admin")
 KEY_PREFIX = "exk_"
@@ -265,16 +266,9 @@ def unauthorized(detail: str) -> Problem:
                    headers={"WWW-Authenticate": 'APIKey, Bearer realm="excite"'})
 
 
-def _header(scope: dict, name: bytes) -> str | None:
-    for k, v in scope.get("headers", []):
-        if k == name:
-            return v.decode("latin-1")
-    return None
-
-
 def offered_ticket(scope: dict) -> str | None:
     """The ticket a WebSocket offers among its subprotocols, if any."""
-    for proto in (_header(scope, b"sec-websocket-protocol") or "").split(","):
+    for proto in (header(scope, b"sec-websocket-protocol") or "").split(","):
         proto = proto.strip()
         if proto.startswith(TICKET_PROTOCOL):
             return proto[len(TICKET_PROTOCOL):]
@@ -307,8 +301,8 @@ class Authenticate:
     async def _principal(self, scope: dict) -> Principal | None:
         if self.ring is None:
             return OPEN
-        secret = _header(scope, b"x-api-key")
-        auth = _header(scope, b"authorization")
+        secret = header(scope, b"x-api-key")
+        auth = header(scope, b"authorization")
         if not secret and auth and auth[:7].lower() == "bearer ":
             secret = auth[7:].strip()
         if secret:
@@ -340,8 +334,8 @@ class Authenticate:
 def _has_body(scope: dict) -> bool:
     if scope.get("method") in ("POST", "PUT", "PATCH", "DELETE"):
         return True
-    length = _header(scope, b"content-length")
-    return bool(length and length.strip() not in ("", "0")) or _header(scope, b"transfer-encoding") is not None
+    length = header(scope, b"content-length")
+    return bool(length and length.strip() not in ("", "0")) or header(scope, b"transfer-encoding") is not None
 
 
 async def authorize(security_scopes: SecurityScopes, conn: HTTPConnection,
@@ -376,15 +370,11 @@ async def problem_or_principal(security_scopes: SecurityScopes, conn: HTTPConnec
 Anyone = Annotated[Principal, Security(authorize)]  # any valid key
 Scorer = Annotated[Principal, Security(authorize, scopes=["score"])]
 Planner = Annotated[Principal, Security(authorize, scopes=["plan"])]
-Admin = Annotated[Principal, Security(authorize, scopes=["admin"])]
 LiveClient = Annotated[Principal | Problem, Security(problem_or_principal, scopes=["score"])]
 
 
 # --------------------------------------------------------------------------------------------
 # Exposure and hosts
-
-LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
-
 
 def is_loopback(host: str) -> bool:
     """Whether ``host`` (an address or a name) is only reachable from this machine."""

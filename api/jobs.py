@@ -28,15 +28,12 @@ returning plain JSON data (the report, the comparison and the control profile fo
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
-
-import numpy as np
 
 from excite.core.processes import Supervised
 from excite.errors import ExciteError
@@ -48,77 +45,34 @@ from .store import JobStore, replica_id
 log = logging.getLogger("excite.api")
 
 
-def plain(x: Any) -> Any:
-    """JSON-ready data: numpy to Python, dataclasses to dicts, non-finite floats to None."""
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        x = {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}
-    if isinstance(x, dict):
-        return {str(k): plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return plain(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
-def profile_data(profile: Any) -> dict[str, Any]:
-    """A ControlProfile as JSON data (what the downloads are rebuilt from)."""
-    return plain({"t_s": profile.t_s, "speed_mps": profile.speed_mps,
-                  "curvature_1pm": profile.curvature_1pm, "grade_rad": profile.grade_rad,
-                  "bank_rad": profile.bank_rad, "start": list(profile.start), "name": profile.name})
-
-
 def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]], None],
                      should_stop: Callable[[], bool]) -> dict[str, Any]:
-    """The default job: plan a maneuver for a :class:`~api.schemas.ManeuverRequest` (as data)."""
-    from excite.plan import OptimizeSettings, optimize
+    """The default job: plan a maneuver for a :class:`~api.schemas.ManeuverRequest` (as data),
+    free-form (:func:`excite.plan.optimize`) or drivable
+    (:func:`excite.plan.drivable.search.optimize_drivable`): the result, and the control profile
+    and the lot's origin the downloads are rebuilt from."""
+    from excite.plan import optimize
     from excite.plan.site import read_site
-    from excite.motion.vehicle import Limits
 
-    from .scoring import resolve_rig
+    from .scoring import drivable_settings, optimize_settings, plain, resolve_rig
 
     rig = resolve_rig(request["rig"])
     if request.get("drivable"):
-        return run_drivable(request, rig, progress, should_stop)
-    settings = OptimizeSettings(
-        duration_s=request["duration_s"], lot_x_m=request["lot_x_m"],
-        lot_y_m=request["lot_y_m"], limits=Limits(**request["limits"]),
-        seed=request["seed"], time_budget_s=request["time_budget_s"], closed=request["closed"],
-        n_random=request["n_random"], criterion=request.get("criterion", "E"),
-        site=read_site(request["lot"]) if request.get("lot") else None)
-    res = optimize(rig, settings, lambda p: progress(plain(p)), should_stop)
+        from excite.plan.drivable.search import optimize_drivable
+
+        if request.get("scene") is not None and request.get("_scene") is None:
+            raise Problem.at("scene", f"the scene {request['scene'][:12]}… is no longer kept for this key "
+                                      "(deleted, or unused for the retention period): upload it again")
+        settings = drivable_settings(request, request.get("_scene"))
+        res = optimize_drivable(rig, settings, lambda p: progress(plain(
+            {"phase": p.phase, "elapsed_s": p.elapsed_s, "score": p.best or None})), should_stop)
+    else:
+        settings = optimize_settings(request, read_site(request["lot"]) if request.get("lot") else None)
+        res = optimize(rig, settings, lambda p: progress(plain(p)), should_stop)
     out = plain(res.to_dict())
     out["report"]["route"] = request.get("name") or out["report"].get("route")
     origin = settings.lot.origin  # a georeferenced lot: GeoJSON downloads need no origin
-    return {**out, "profile": profile_data(res.profile),
-            "origin": None if origin is None else {"lon_deg": origin[0], "lat_deg": origin[1]}}
-
-
-
-
-def run_drivable(request: dict[str, Any], rig: Any, progress: Callable[[dict[str, Any]], None],
-                 should_stop: Callable[[], bool]) -> dict[str, Any]:
-    """A drivable plan's job (:func:`excite.plan.drivable.search.optimize_drivable`): the report,
-    the plan, its instructions and cones, its robust score, and the drive as instructed."""
-    from excite.plan.drivable.search import optimize_drivable
-
-    from .scoring import drivable_settings
-
-    if request.get("scene") is not None and request.get("_scene") is None:
-        raise Problem.at("scene", f"the scene {request['scene'][:12]}… is no longer kept for this key "
-                                  "(deleted, or unused for the retention period): upload it again")
-    settings = drivable_settings(request, request.get("_scene"))
-    res = optimize_drivable(rig, settings, lambda p: progress(plain({"phase": p.phase, "elapsed_s": p.elapsed_s,
-                                                                      "score": p.best or None})), should_stop)
-    out = plain(res.to_dict())
-    out["report"]["route"] = request.get("name") or out["report"].get("route")
-    origin = settings.lot.origin
-    return {**out,
-            "profile": profile_data(res.profile),
+    return {**out, "profile": plain(res.profile),
             "origin": None if origin is None else {"lon_deg": origin[0], "lat_deg": origin[1]}}
 
 

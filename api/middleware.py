@@ -17,6 +17,8 @@ from typing import Any, Awaitable, Callable, Iterator
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 
+from excite.errors import WorkTimeout
+
 from . import problems
 from .errors import Problem
 
@@ -25,7 +27,8 @@ log = logging.getLogger("excite.api")
 ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
 
 
-def _header(scope: dict, name: bytes) -> str | None:
+def header(scope: dict, name: bytes) -> str | None:
+    """The value of the request header ``name`` (lower case), or None."""
     for k, v in scope.get("headers", []):
         if k == name:
             return v.decode("latin-1")
@@ -47,10 +50,10 @@ class BodyLimit:
             return await self.app(scope, receive, send)
         path = scope.get("path", "")
         too_large = Problem(413, f"the request body exceeds the limit of {self.max_bytes} bytes")
-        length = _header(scope, b"content-length")
+        length = header(scope, b"content-length")
         if length is not None and length.strip().isdigit() and int(length) > self.max_bytes:
             return await problems.send(send, too_large, path, close=True)
-        if (_header(scope, b"content-type") or "").lower().startswith("multipart/form-data"):
+        if (header(scope, b"content-type") or "").lower().startswith("multipart/form-data"):
             # uploads (bags) stream through to the form parser, which spools them to disk; the
             # limit is counted on the way (the Problem surfaces from the route: 413)
             return await self.app(scope, self._counted(receive, too_large), send)
@@ -119,8 +122,7 @@ class Deadline:
     def commit(self) -> Iterator[None]:
         with self._lock:
             if self._state == "expired":
-                raise Problem(503, f"the request exceeded the time limit of {self.timeout_s:g} s",
-                              type_="timeout", headers={"Retry-After": "10"})
+                raise problems.of(WorkTimeout(), timeout_s=self.timeout_s)
             self._state = "committing"
         yield
 
@@ -164,8 +166,7 @@ class TimeLimit:
         task.cancel()
         log.warning("%s %s exceeded the time limit of %g s", scope.get("method"), scope.get("path"),
                     self.timeout_s)
-        await problems.send(send, Problem(503, f"the request exceeded the time limit of {self.timeout_s:g} s",
-                                          type_="timeout", headers={"Retry-After": "10"}), scope.get("path", ""))
+        await problems.send(send, problems.of(WorkTimeout(), timeout_s=self.timeout_s), scope.get("path", ""))
 
 
 class Metrics:
@@ -250,7 +251,7 @@ class Guard:
         origin = origin.rstrip("/").lower()
         if origin in self.origins:
             return True
-        host = _header(scope, b"host")
+        host = header(scope, b"host")
         if host is None or host_name(host) not in self.hosts:
             return False
         scheme = {"ws": "http", "wss": "https"}.get(scope.get("scheme", "http"), scope.get("scheme", "http"))
@@ -259,7 +260,7 @@ class Guard:
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] not in ("http", "websocket"):
             return await self.app(scope, receive, send)
-        host = _header(scope, b"host") or ""
+        host = header(scope, b"host") or ""
         if not self.any_host and host_name(host) not in self.hosts:
             log.warning("%s: Host %r is not an allowed host: refused", scope.get("path"), host[:200])
             if scope["type"] == "websocket":
@@ -269,7 +270,7 @@ class Guard:
                                                           "(EXCITE_ALLOWED_HOSTS)", type_="host"),
                                        scope.get("path", ""), close=True)
         if scope["type"] == "websocket":
-            origin = _header(scope, b"origin")
+            origin = header(scope, b"origin")
             if origin is not None and not self._allowed(origin, scope):
                 log.warning("%s: WebSocket from foreign origin %s refused", scope.get("path"), origin[:200])
                 await receive()  # websocket.connect
@@ -305,16 +306,16 @@ class Guard:
     def _cross_site(self, scope: dict) -> str | None:
         if scope["method"] not in UNSAFE:
             return None
-        origin = _header(scope, b"origin")
+        origin = header(scope, b"origin")
         if origin is not None:
             if self._allowed(origin, scope):
                 return None
             return (f"a {scope['method']} from the origin {origin[:200]!r} is refused: only this server's "
                     "own page (or EXCITE_ALLOWED_ORIGINS) may send one from a browser")
-        site = _header(scope, b"sec-fetch-site")
+        site = header(scope, b"sec-fetch-site")
         if site in ("cross-site", "same-site"):
             return f"a {site} {scope['method']} from a browser is refused"
-        ctype = (_header(scope, b"content-type") or "").lower().encode("latin-1")
+        ctype = (header(scope, b"content-type") or "").lower().encode("latin-1")
         names = {k for k, _ in scope.get("headers", [])}
         if (scope["method"] == "POST" and ctype.startswith(SIMPLE_TYPES)
                 and not names & {CLIENT_HEADER, b"x-api-key", b"authorization"}):

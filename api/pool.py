@@ -56,7 +56,8 @@ _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 ADMIT_SHARE = 0.7
 RATE_FALL = 0.3  # a cost lower than the learned one moves it this share of the way down
 WAIT_CHECK_S = 0.25  # a waiting task checks this often whether it can still finish in time
-PRELOAD = ("excite.score.evaluate", "excite.io.routes", "excite.score.plots", "api.scoring")
+PRELOAD = ("excite.score.evaluate", "excite.io.routes", "excite.score.plots", "excite.score.live", "api.scoring",
+           "api.routers.live")  # what a live session runs: loaded before its memory limit
 
 
 def trim() -> None:
@@ -350,8 +351,3 @@ class WorkerPool:
         rate = max([self._rate.get(kind, 0.0)] + [(now - t.started) / t.size for ts in self._running.values()
                                                   for t in ts if t.kind == kind and t.size > 0])
         return rate * size
-
-    def cost_s(self, fn: Callable[..., Any], size: float) -> float:
-        """The expected seconds of ``fn`` on work of ``size`` now (0 until one ran)."""
-        with self._cond:
-            return self._cost(f"{fn.__module__}.{fn.__qualname__}", size)

@@ -15,7 +15,6 @@ from excite.core import bounds
 from excite.core.bounds import Range
 from excite.rig.config import all_ranges
 
-ROUTE_FORMATS = ("tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv")
 RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv"]
 RigName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$",
                                description="Name of a bundled rig (GET /v1/rigs).")]

@@ -12,8 +12,9 @@ written in the matching file format first, so every route passes the same reader
 
 from __future__ import annotations
 
-import logging
+import dataclasses
 import io
+import logging
 import math
 from dataclasses import dataclass
 from functools import lru_cache
@@ -22,7 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from excite.io import routes
-from excite.core.bounds import MAX_NESTING, MAX_RIG_NODES, nesting, size as doc_size, tightened
+from excite.core.bounds import MAX_NESTING, MAX_RIG_NODES, nesting, size, tightened
 from excite.errors import ExciteError, RigError, RouteError, SceneError
 from excite.score.evaluate import Options, evaluate
 from excite.rig.config import Rig, build_rig, bundled_rigs, load_rig
@@ -76,21 +77,15 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
     if not isinstance(rig.get("imu"), dict):
         raise Problem.at(f"{field}.imu", "give the IMU block inline as an object (the service "
                                             "reads no files)")
-    if nesting(rig) > MAX_NESTING or doc_size(rig) > MAX_RIG_NODES:
-        raise Problem.at(field, f"nested more than {MAX_NESTING} levels or more than "
-                                f"{MAX_RIG_NODES} keys and items (a rig holds a few hundred)")
-    if _has_non_finite(rig):
+    if nesting(rig) <= MAX_NESTING and size(rig) <= MAX_RIG_NODES and _has_non_finite(rig):  # else build_rig refuses it
         raise Problem.at(field, "contains NaN or infinity")
     try:
         return build_rig(rig)
-    except RigError as exc:
-        # rig errors start with the offending key ("imu.update_rate: …")
-        msg = str(exc)
-        key = msg.split(":", 1)[0] if ":" in msg else ""
-        named = key and " " not in key and key != "rig"
-        if named:
-            raise Problem.at(f"{field}.{key}", msg.split(":", 1)[1].strip()) from None
-        raise Problem.at(field, msg) from None
+    except RigError as exc:  # rig errors start with the offending key ("imu.update_rate: …")
+        key, sep, rest = str(exc).partition(":")
+        if sep and " " not in key:
+            raise Problem.at(field if key == "rig" else f"{field}.{key}", rest.strip()) from None
+        raise Problem.at(field, str(exc)) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -111,8 +106,7 @@ def scene_of(spec: tuple | None, field: str = "scene") -> Any:
         return None
     from excite.scene.files import load_scene
 
-    key = spec[1]
-    scene = _SCENES.pop(key, None)
+    scene = _SCENES.pop(spec[1], None)
     if scene is None:
         try:
             scene = load_scene(spec[1]) if spec[0] == "bundled" else load_scene(spec[2], data=spec[3])
@@ -120,7 +114,11 @@ def scene_of(spec: tuple | None, field: str = "scene") -> Any:
             raise Problem.at(field, str(exc)) from None
         if spec[0] == "upload" and scene.digest != spec[1]:
             raise Problem(500, "the stored scene no longer reads as the scene it was kept as")
-    _SCENES[key] = scene
+    return _keep(spec[1], scene)
+
+
+def _keep(key: str, scene: Any) -> Any:
+    _SCENES[key] = scene  # the most recently used last
     while len(_SCENES) > _KEPT_SCENES:
         _SCENES.pop(next(iter(_SCENES)))
     return scene
@@ -144,10 +142,7 @@ def scene_file_task(name: str, data: bytes) -> dict[str, Any]:
         from excite.scene.files import load_scene
 
         scene = load_scene(name, data=data)
-        _SCENES[scene.digest] = scene
-        while len(_SCENES) > _KEPT_SCENES:
-            _SCENES.pop(next(iter(_SCENES)))
-        return scene_summary(scene, name)
+        return scene_summary(_keep(scene.digest, scene), name)
 
     return task(run, field="file")
 
@@ -306,35 +301,41 @@ def _from_control(control: dict[str, Any], name: str, rig: Rig, bounds: Bounds, 
 # The task a worker runs
 
 
-def _finite(x: Any) -> Any:
-    """The report with non-finite floats as None (the JSON contract; logged: it is a bug)."""
-    if isinstance(x, float) and not math.isfinite(x):
-        log.warning("non-finite number in a report replaced by null")
-        return None
+def plain(x: Any) -> Any:
+    """JSON-ready data: numpy to Python, dataclasses to dicts, non-finite floats to None."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        x = {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}
     if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_finite(v) for v in x]
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
     return x
 
 
-def _evaluated(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-               limits: dict[str, float] | None, bounds: Bounds, field: str, rig_field: str,
-               scene: tuple | None = None):
+def _evaluated(drive: Callable[[Rig], Trajectory], rig: str | dict[str, Any], segments: int, bounds: Bounds,
+               rig_field: str = "rig", scene: tuple | None = None):
+    """(rig, trajectory, report) of the drive ``drive(rig)`` builds, seen in ``scene``; the library
+    refuses a planned or logged drive over the service's bounds before building it."""
     r = resolve_rig(rig, rig_field)
-    lim = Limits(**limits) if limits else Limits()
     world = scene_of(scene)
-    # the library refuses a planned or logged drive over the service's bounds before building it
     with tightened(duration_s=bounds.max_route_duration_s, length_m=bounds.max_route_length_m):
-        traj = route_trajectory(route, r, lim, bounds, field)
-        if traj.duration > bounds.max_route_duration_s:
-            raise Problem.at(field, f"the route lasts {traj.duration:.1f} s, over the limit of "
-                                       f"{bounds.max_route_duration_s:g} s")
+        traj = drive(r)
         if world is not None:
             from excite.scene.along import seen
 
             traj = seen(traj, r, world)
         return r, traj, evaluate(traj, r, Options(segments=segments))
+
+
+def _planned(route: dict[str, Any], limits: dict[str, float] | None, bounds: Bounds,
+             field: str = "route") -> Callable[[Rig], Trajectory]:
+    return lambda r: route_trajectory(route, r, Limits(**limits) if limits else Limits(), bounds, field)
 
 
 def task(fn: Callable[..., Any], *args: Any, field: str = "route") -> Any:
@@ -366,15 +367,15 @@ def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
     also ``"scene_track"``: what the scene leaves undetermined at each scan along the route,
     :func:`excite.scene.survey.along_route`)."""
     def run() -> dict[str, Any]:
-        _, traj, report = _evaluated(route, rig, segments, limits, bounds, field, rig_field, scene)
-        out = {"report": _finite(report.to_dict())}
+        _, traj, report = _evaluated(_planned(route, limits, bounds, field), rig, segments, bounds, rig_field, scene)
+        out = {"report": report.to_dict()}
         if track_points:
-            out["track"] = _finite(track(traj, track_points))
+            out["track"] = track(traj, track_points)
             if scene is not None:
                 from excite.scene.survey import along_route
 
-                out["scene_track"] = _finite(along_route(traj))
-        return out
+                out["scene_track"] = along_route(traj)
+        return plain(out)
 
     return task(run, field=field)
 
@@ -398,19 +399,13 @@ def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | 
     never the path."""
     from excite.io.bags import BagSource, read_bag_route
 
-    def run() -> dict[str, Any]:
-        r = resolve_rig(rig, "rig")
-        world = scene_of(scene)
+    def read(_: Rig) -> Trajectory:
         traj = read_bag_route(path, **BagSource(**source).options())
         traj.name = f"{filename}:{source['topic']}"
-        if traj.duration > bounds.max_route_duration_s:
-            raise Problem.at("bag", f"the drive lasts {traj.duration:.1f} s, over the limit of "
-                                    f"{bounds.max_route_duration_s:g} s")
-        if world is not None:
-            from excite.scene.along import seen
+        return traj
 
-            traj = seen(traj, r, world)
-        return _finite(evaluate(traj, r, Options(segments=segments)).to_dict())
+    def run() -> dict[str, Any]:
+        return plain(_evaluated(read, rig, segments, bounds, scene=scene)[2].to_dict())
 
     return task(run, field="bag")
 
@@ -422,19 +417,13 @@ def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
     from excite.score import plots
 
     def run() -> bytes:
-        r, traj, report = _evaluated(route, rig, segments, limits, bounds, "route", "rig", scene)
+        r, traj, report = _evaluated(_planned(route, limits, bounds), rig, segments, bounds, scene=scene)
         if parameter is not None and parameter not in [c.name for c in r.scored]:
             raise Problem.at("parameter", f"{parameter!r} is not a parameter of rig {r.name} "
                                           f"(parameters: {', '.join(c.name for c in r.scored)})")
         return plots.report_figure(report, traj, parameter)
 
     return task(run)
-
-
-def rig_task(rig: str | dict[str, Any], field: str = "rig") -> dict[str, Any]:
-    """A client's rig checked (in a worker: a rig's globs are matched against every parameter):
-    its summary as ``GET /v1/rigs`` lists it."""
-    return task(lambda: rig_summary(resolve_rig(rig, field)), field=field)
 
 
 def rig_summary(rig: Rig) -> dict[str, Any]:
@@ -532,10 +521,20 @@ def lot_task(lot: dict[str, Any] | None, max_vertices: int, rig: str | dict[str,
     return errors
 
 
+def optimize_settings(request: dict[str, Any], site: Any = None):
+    """The free-form optimizer's settings of a maneuver request (as data), in ``site`` (None: the
+    rectangle ``lot_x_m`` × ``lot_y_m``)."""
+    from excite.plan import OptimizeSettings
+
+    return OptimizeSettings(duration_s=request["duration_s"], lot_x_m=request["lot_x_m"], lot_y_m=request["lot_y_m"],
+                            limits=Limits(**request["limits"]), seed=request["seed"],
+                            time_budget_s=request["time_budget_s"], closed=request["closed"],
+                            n_random=request["n_random"], criterion=request.get("criterion", "E"), site=site)
+
+
 def drivable_settings(request: dict[str, Any], scene: tuple | None = None):
     """The drivable search's settings of a maneuver request (as data), in the ``scene`` it names
     (:func:`scene_of`'s spec, resolved by the router or the job runner)."""
-    from excite.motion.vehicle import Limits
     from excite.plan.drivable.search import DrivableSettings
     from excite.plan.site import read_site
 
@@ -573,7 +572,6 @@ def drivable_file_task(plan: dict[str, Any], rig: str | dict[str, Any], fmt: str
     from excite.plan.drivable.plan import build, cones_geojson, plan_from_dict
     from excite.plan.drivable.sheet import sheet
     from excite.plan.settings import vehicle_limits
-    from excite.motion.vehicle import Limits
     from excite.plan.site import Site, read_site
 
     def make() -> bytes:

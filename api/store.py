@@ -646,9 +646,3 @@ class JobStore:
 def _sqlite_connect(dbapi_connection: Any, _record: Any) -> None:
     dbapi_connection.execute("PRAGMA journal_mode=WAL")
     dbapi_connection.execute("PRAGMA synchronous=FULL")
-
-
-def open_store(url: str | Path) -> JobStore:
-    """The job store at ``url`` (a ``postgresql://`` URL or a SQLite file's path)."""
-    return JobStore(url)
-

@@ -125,7 +125,7 @@ def slow_job(request: dict[str, Any], progress: Callable[[dict], None],
              should_stop: Callable[[], bool]) -> dict[str, Any]:
     """A stand-in optimizer: ``time_budget_s`` of 0.1 s iterations, then a real report of the
     reference figure eight (so downloads work)."""
-    from api.jobs import plain, profile_data
+    from api.scoring import plain
     from excite.score.evaluate import evaluate
     from excite.motion.maneuvers import figure_eight
     from excite.rig.config import load_rig
@@ -146,7 +146,7 @@ def slow_job(request: dict[str, Any], progress: Callable[[dict], None],
     return {"report": plain(rep.to_dict()), "comparison": [{"name": "figure_eight", "score": rep.score}],
             "status": "cancelled" if cancelled else "optimal", "iterations": i, "elapsed_s": 0.1 * i,
             "cancelled": cancelled, "score": rep.score, "model_score": None, "timings_s": {},
-            "message": "stand-in", "profile": profile_data(prof)}
+            "message": "stand-in", "profile": plain(prof)}
 
 
 def write_keys(path: Path, keys: dict[str, dict[str, Any]]) -> dict[str, str]:
@@ -187,7 +187,7 @@ def quick_job(request: dict[str, Any], progress: Callable[[dict], None],
 
 def job_result_file(path: Path) -> Path:
     """A valid job result (the figure eight's report) for :func:`quick_job` to return."""
-    from api.jobs import plain, profile_data
+    from api.scoring import plain
     from excite.motion.maneuvers import figure_eight
     from excite.motion.vehicle import drive
     from excite.rig.config import load_rig
@@ -199,7 +199,7 @@ def job_result_file(path: Path) -> Path:
     path.write_text(json.dumps({
         "report": plain(rep.to_dict()), "comparison": [], "status": "stand-in", "iterations": 0,
         "elapsed_s": 0.0, "cancelled": False, "score": rep.score, "model_score": None, "timings_s": {},
-        "message": "stand-in", "profile": profile_data(prof)}))
+        "message": "stand-in", "profile": plain(prof)}))
     return path
 
 

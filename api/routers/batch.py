@@ -11,13 +11,13 @@ from ..context import Ctx
 from ..errors import Problem
 from ..schemas import BatchRequest, BatchResponse
 from ..scoring import batch_item_task, work_size
-from .common import SCORED
+from .common import BODY
 from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["batch"])
 
 
-@router.post("/batch", response_model=BatchResponse, responses=SCORED,
+@router.post("/batch", response_model=BatchResponse, responses=BODY,
              summary="Score many routes with one rig (a CI gate's call)")
 def batch(body: BatchRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
     """Each route gets its report, or a problem naming its field (``routes[3].text``); one bad

@@ -26,4 +26,3 @@ def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
 
 AUTH = problems(401, 403, 429)  # every operation of a server with API keys
 BODY = problems(400, 401, 403, 408, 413, 421, 422, 429, 500, 503)
-SCORED = BODY  # operations that need a scoring worker

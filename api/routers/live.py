@@ -1,43 +1,18 @@
 """``/v1/live``: a WebSocket on which a vehicle streams its poses during the calibration drive and
 receives the live guidance of :mod:`excite.score.live` (the same updates as ``excite live --json``).
+The protocol is in ``docs/guides/live.md``: ``start`` (rig, name, optionally a ``scene`` and a
+drivable ``plan``), ``poses`` messages, ``end``; the server answers ``started``, ``update``,
+``done``, the plan's ``element``/``element_done``/``element_short``/``proposal`` and ``final``,
+or an ``error`` frame with a problem and closes (1008; 1009 over :data:`MAX_MESSAGE_BYTES`; 1013
+when :data:`MAX_SESSIONS` stream already; 1003 for a binary frame).
 
-Protocol (text frames, one JSON object each):
-
-- client → ``{"type": "start", "rig": "robotaxi" | {inline rig}, "name": "drive 7"}`` first;
-  with ``"scene"`` (a bundled scene's name or the digest of one uploaded with ``POST /v1/scenes``)
-  the drive is seen in that scene (the updates and the final report name it); with ``"plan": {plan.json of a drivable plan}`` the guidance follows the plan (as
-  ``excite live --plan``): the server also sends ``element`` (the element being driven and the
-  next), ``element_done``/``element_short`` (an element left, with its laps) and ``proposal``
-  (what to repeat when an element was cut short or the plan ends short of its goal:
-  :mod:`excite.plan.drivable.guide`);
-- client → ``{"type": "poses", "poses": [[t, x, y, z, qx, qy, qz, qw], ...],
-  "imu": [[t, wx, wy, wz, ax, ay, az], ...]}`` (``imu`` optional: checked, not used: the
-  model's IMU factor is predicted from the pose trajectory, as in batch evaluation);
-- client → ``{"type": "end"}``: the server answers the ``final`` update (``excite score`` on the
-  same poses) and closes;
-- server → ``update`` (about once per second of drive), ``done`` (``passed``: every parameter
-  within target, once; or, ``passed`` false, nothing more gained from the motion so far, with
-  the ``needs`` of each parameter short of target: again only after the motion changed), ``final``; on bad input ``{"type": "error", "problem": {RFC 9457 fields}}`` and the
-  connection closes (1008; 1009 for a message over :data:`MAX_MESSAGE_BYTES`; 1013 when
-  :data:`MAX_SESSIONS` are already streaming).
-
-Bounds: a message is at most :data:`MAX_MESSAGE_BYTES` (uvicorn's ``ws_max_size`` bounds the
-frame before it is read), :data:`MAX_POSES` poses and nested at most :data:`MAX_DEPTH` levels; a
-binary frame is refused (1003); a session sends at most :data:`MAX_MESSAGES_PER_S` messages per
-second on average (burst :data:`BURST`) and is closed after :data:`IDLE_S` without a message;
-its drive lasts at most ``EXCITE_MAX_ROUTE_DURATION_S``, holds at most ``EXCITE_MAX_SAMPLES``
-poses, no denser than ``EXCITE_MAX_LIVE_POSE_RATE_HZ``; at most ``EXCITE_MAX_LIVE_SESSIONS`` stream
-at once, and each key at most its quota of them.
-
-**Where the work runs.** Each session's incremental evaluator runs in a supervised process of its
-own (:class:`~excite.core.processes.Supervised`, forked from the scoring pool's forkserver) with
-an address-space limit (``EXCITE_LIVE_MEMORY_MB``); the start's rig is resolved there too, and
-every message's work, the start and the final evaluation included, has the request time limit:
-the event loop holds only the socket. A broken connection, a refusal or the end of the session
-ends that process.
-
-**Authentication**: a key in the headers, or (a browser) a single-use ticket offered as the
-subprotocol ``excite-ticket.<ticket>`` beside ``excite-live``, which the server answers with.
+Bounds: a message's size, poses and nesting (:data:`MAX_POSES`, :data:`MAX_DEPTH`), messages per
+second, the idle time; the drive's duration, poses and pose rate (the settings); sessions at once
+and per key. Each session's evaluator runs in a supervised process of its own
+(:class:`~excite.core.processes.Supervised`, from the scoring pool's forkserver, with
+``EXCITE_LIVE_MEMORY_MB``), which resolves the start's rig and scene; every message's work has the
+request time limit: the event loop holds only the socket. A browser authenticates with a
+single-use ticket offered as the subprotocol ``excite-ticket.<ticket>`` beside ``excite-live``.
 """
 
 from __future__ import annotations
@@ -52,6 +27,7 @@ from typing import Any
 import anyio
 from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
+from excite.core.bounds import nesting
 from excite.core.processes import Supervised
 from excite.errors import WorkerDied, WorkTimeout
 
@@ -77,28 +53,6 @@ def refused(status: int, field: str, message: str, close_code: int | None = None
     return Refusal(Problem.at(field, message, status), close_code)
 
 
-def depth(text: str) -> int:
-    """How deeply the JSON text nests (brackets outside strings), in one linear pass."""
-    deepest = level = 0
-    in_string = escaped = False
-    for ch in text:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif ch == "\\":
-                escaped = True
-            elif ch == '"':
-                in_string = False
-        elif ch == '"':
-            in_string = True
-        elif ch in "[{":
-            level += 1
-            deepest = max(deepest, level)
-        elif ch in "]}":
-            level -= 1
-    return deepest
-
-
 def _number(text: str) -> float | int:
     # an integer too large for a float (1 followed by 400 digits) is refused as non-finite later
     return int(text) if len(text) <= 18 else float(text)
@@ -107,13 +61,16 @@ def _number(text: str) -> float | int:
 def _message(text: str) -> dict[str, Any]:
     if len(text.encode("utf-8")) > MAX_MESSAGE_BYTES:
         raise refused(413, "message", f"over the limit of {MAX_MESSAGE_BYTES} bytes")
-    if depth(text) > MAX_DEPTH:
-        raise refused(422, "message", f"nested more than {MAX_DEPTH} levels deep")
+    deep = refused(422, "message", f"nested more than {MAX_DEPTH} levels deep")
     try:
         msg = json.loads(text, parse_int=_number)
+    except RecursionError:
+        raise deep from None
     except ValueError as exc:
         detail = f"{exc.msg} at character {exc.pos}" if isinstance(exc, json.JSONDecodeError) else str(exc)[:200]
         raise refused(400, "message", f"not JSON ({detail})") from None
+    if nesting(msg, MAX_DEPTH) > MAX_DEPTH:
+        raise deep
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
         raise refused(422, "type", "each message is an object with a string field 'type'")
     return msg

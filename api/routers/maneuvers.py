@@ -8,14 +8,12 @@ from typing import Any
 from fastapi import APIRouter, Request, Response
 
 from excite.errors import ExciteError
-from excite.motion.vehicle import Limits
-from excite.plan import OptimizeSettings
 
 from ..auth import Planner
 from ..context import Ctx, deadline
 from ..errors import Problem
 from ..schemas import Job, ManeuverRequest
-from ..scoring import drivable_check_task, lot_task
+from ..scoring import drivable_check_task, lot_task, optimize_settings
 from .common import BODY
 from .jobs import job_view
 from .scenes import scene_spec
@@ -38,11 +36,9 @@ def create_maneuver(body: ManeuverRequest, request: Request, ctx: Ctx, response:
     if body.time_budget_s > s.max_job_time_budget_s:
         errors.append({"field": "time_budget_s", "message": f"{body.time_budget_s:g} s is over the limit of "
                                                             f"{s.max_job_time_budget_s:g} s"})
+    data = body.model_dump()
     try:
-        OptimizeSettings(duration_s=body.duration_s, lot_x_m=body.lot_x_m,
-                         lot_y_m=body.lot_y_m, limits=Limits(**body.limits.model_dump()),
-                         seed=body.seed, time_budget_s=body.time_budget_s, closed=body.closed,
-                         n_random=body.n_random, criterion=body.criterion)
+        optimize_settings(data)
     except ExciteError as exc:  # the optimizer's own bounds, checked now rather than in a failed job
         errors.append({"field": str(exc).split(" ", 1)[0], "message": str(exc)})
     if body.lot is not None or isinstance(body.rig, dict):  # a client's lot and rig: in a worker
@@ -57,11 +53,10 @@ def create_maneuver(body: ManeuverRequest, request: Request, ctx: Ctx, response:
         except Problem as exc:
             errors += exc.errors or []
     if body.drivable and not errors:  # the lot's room for an element, its safe speed, the scene over it
-        errors += ctx.run(request, who, drivable_check_task, body.model_dump(), scene)
+        errors += ctx.run(request, who, drivable_check_task, data, scene)
     if errors:
         raise Problem(422, "; ".join(e["message"] if e["message"].startswith(e["field"]) else
                                      f"{e['field']}: {e['message']}" for e in errors), errors=errors)
-    data = body.model_dump()
     if len(json.dumps(data)) > MAX_STORED_REQUEST_BYTES:
         raise Problem.at("body", f"the request would be stored as more than {MAX_STORED_REQUEST_BYTES} bytes", 413)
     limits = who.limits

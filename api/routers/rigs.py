@@ -14,7 +14,7 @@ from ..auth import Anyone
 from ..context import Ctx
 from ..schemas import RigParsed, RigsResponse, RigYaml
 from ..scoring import resolve_rig, rig_summary, rig_yaml_task
-from .common import AUTH, SCORED
+from .common import AUTH, BODY
 
 router = APIRouter(prefix="/v1", tags=["rigs"])
 
@@ -24,7 +24,7 @@ def rigs(who: Anyone) -> Any:
     return {"rigs": [rig_summary(resolve_rig(name)) for name in bundled_rigs()]}
 
 
-@router.post("/rigs/parse", response_model=RigParsed, responses=SCORED,
+@router.post("/rigs/parse", response_model=RigParsed, responses=BODY,
              summary="Read a rig YAML file: the config object to send as `rig`, and its parameters")
 def parse_rig(body: RigYaml, request: Request, ctx: Ctx, who: Anyone) -> Any:
     """For clients that cannot read YAML (the page): the file's mapping, checked as a rig.

@@ -18,13 +18,13 @@ from ..context import Ctx
 from ..errors import Problem
 from ..schemas import SCENE_PATTERN, PlotRequest, Report, ScoreRequest, ScoreResponse
 from ..scoring import SCENE_WORK, bag_score_task, plot_task, score_task, work_size
-from .common import SCORED
+from .common import BODY
 from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["score"])
 
 
-@router.post("/score", response_model=ScoreResponse, responses=SCORED,
+@router.post("/score", response_model=ScoreResponse, responses=BODY,
              summary="Score a route: how well does it determine every calibration parameter?")
 def score(body: ScoreRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
     """The route is given inline (file text with its format, JSON waypoints, timed poses or a
@@ -40,7 +40,7 @@ def score(body: ScoreRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
 
 
 @router.post("/score/plot", response_class=Response, summary="The report of a route as a figure (PNG)",
-             responses={**SCORED, 200: {"content": {"image/png": {}},
+             responses={**BODY, 200: {"content": {"image/png": {}},
                                         "description": "route coloured by information, scaled spectrum, σ/target"}})
 def score_plot(body: PlotRequest, request: Request, ctx: Ctx, who: Scorer) -> Response:
     """The same figure as ``excite score ROUTE --plot FILE.png``: the route coloured by the
@@ -67,7 +67,7 @@ def _rig_field(text: str) -> str | dict[str, Any]:
     return rig
 
 
-@router.post("/score/bag", response_model=Report, responses=SCORED,
+@router.post("/score/bag", response_model=Report, responses=BODY,
              summary="Score a recorded drive: a ROS 1 bag or an MCAP file (multipart upload)")
 def score_bag(request: Request, ctx: Ctx, who: Scorer,
               bag: Annotated[UploadFile, File(description="The .bag or .mcap file.")],

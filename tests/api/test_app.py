@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 import api
 from api import Settings, create_app
-from api.store import open_store as SqliteStore
+from api.store import JobStore as SqliteStore
 
 
 def test_public_names():

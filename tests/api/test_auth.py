@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from api import Settings, create_app
-from api.store import open_store as SqliteStore
+from api.store import JobStore as SqliteStore
 from servers import LiveServer, job_result_file, write_keys
 
 LOOP = {"waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from api.store import open_store as SqliteStore
+from api.store import JobStore as SqliteStore
 from servers import LiveServer, processes_with, wait_job
 
 # a generous grace: after the cancel the stand-in still scores its best maneuver so far, which a

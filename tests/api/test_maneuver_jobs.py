@@ -10,7 +10,7 @@ import time
 import httpx
 import pytest
 
-from api.store import open_store
+from api.store import JobStore
 from servers import LiveServer, job_result_file, write_keys
 
 JOB = {"duration_s": 60, "time_budget_s": 5, "n_random": 2}
@@ -32,7 +32,7 @@ def test_concurrent_submissions_never_exceed_the_quota(tmp_path):
             twenty = list(pool.map(post, ["twenty"] * 40))
         assert sorted(two) == [202] * 2 + [429] * 8, two
         assert twenty.count(202) == 20 and twenty.count(429) == 20, twenty
-        store = open_store(tmp_path / "jobs.sqlite3")
+        store = JobStore(tmp_path / "jobs.sqlite3")
         assert store.counts() == {"queued": 22}
     finally:
         srv.stop()
@@ -57,7 +57,7 @@ def test_a_store_outage_during_running_jobs_ends_every_job_once_on_sqlite(tmp_pa
                 r = c.post("/v1/maneuvers", json={"duration_s": 60, "time_budget_s": 3, "name": f"j{i}"})
                 assert r.status_code == 202, r.text
                 ids.append(r.json()["id"])
-        store = open_store(folder / "jobs.sqlite3")
+        store = JobStore(folder / "jobs.sqlite3")
         deadline = time.monotonic() + 60
         while store.counts().get("running", 0) < 2:
             assert time.monotonic() < deadline
@@ -66,7 +66,7 @@ def test_a_store_outage_during_running_jobs_ends_every_job_once_on_sqlite(tmp_pa
         folder.rename(away)  # the outage: the jobs' ends fall inside it
         time.sleep(10)
         away.rename(folder)
-        store = open_store(folder / "jobs.sqlite3")
+        store = JobStore(folder / "jobs.sqlite3")
         deadline = time.monotonic() + 120
         while store.counts().get("succeeded", 0) < 6:
             assert time.monotonic() < deadline, store.counts()

@@ -10,7 +10,7 @@ import time
 import pytest
 from fastapi.testclient import TestClient
 from api import Settings, create_app
-from api.store import open_store as SqliteStore
+from api.store import JobStore as SqliteStore
 
 
 @pytest.mark.slow

@@ -104,7 +104,7 @@ def fresh(postgres):
     """The store emptied for this test."""
     import psycopg
 
-    from api.store import open_store as PostgresStore
+    from api.store import JobStore as PostgresStore
 
     store = PostgresStore(postgres)
     with psycopg.connect(postgres, autocommit=True) as db:
@@ -113,7 +113,7 @@ def fresh(postgres):
 
 
 def test_migrations_leases_and_fairness_on_postgres(postgres, fresh):
-    from api.store import SCHEMA_VERSION, open_store as PostgresStore
+    from api.store import SCHEMA_VERSION, JobStore as PostgresStore
 
     store = fresh
     assert PostgresStore(postgres).schema_version() == SCHEMA_VERSION  # opening again migrates nothing
@@ -246,7 +246,7 @@ def test_concurrent_submissions_on_two_replicas_never_exceed_the_quota(postgres,
     import concurrent.futures as cf
     import threading
 
-    from api.store import OverQuota, open_store as PostgresStore
+    from api.store import OverQuota, JobStore as PostgresStore
 
     replicas = [fresh, PostgresStore(postgres)]
     try:

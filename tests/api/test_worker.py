@@ -7,7 +7,7 @@ import pytest
 import sqlite3
 import time
 from pathlib import Path
-from api.store import open_store as SqliteStore
+from api.store import JobStore as SqliteStore
 from servers import LiveServer, processes_with, wait_job
 
 
