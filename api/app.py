@@ -30,7 +30,7 @@ from prometheus_client import CollectorRegistry, Gauge
 from excite.core import processes
 
 from . import auth, problems
-from .auth import Authenticate, Limits, authorize, load_keys
+from .auth import Authenticate, Quota, authorize, load_keys
 from .cluster import ClusterScoring
 from .context import Context
 from .jobs import JobRunner
@@ -62,9 +62,8 @@ def create_app(settings: Settings | None = None, *,
     store = JobStore(settings.store_url)
     keys = None
     if settings.api_keys_file is not None:
-        keys = load_keys(settings.api_keys_file, Limits(settings.quota_jobs, settings.quota_live_sessions,
-                                                        settings.quota_rate_per_s, settings.quota_burst,
-                                                        settings.quota_storage_mb))
+        defaults = Quota(**{f: getattr(settings, f"quota_{f}") for f in Quota.model_fields})  # EXCITE_QUOTA_*
+        keys = load_keys(settings.api_keys_file, defaults)
     registry = CollectorRegistry()
     ctx = Context(
         settings=settings, store=store,

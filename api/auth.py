@@ -11,21 +11,12 @@ their SHA-256 hashes (``python -m api.keys new`` makes a key and prints its entr
         sha256: 9f2c…        # of the secret; the secret itself is never stored
         quota: {jobs: 50, live_sessions: 2, rate_per_s: 5, burst: 10, storage_mb: 64}   # optional
 
-A client sends its key as ``X-API-Key: <key>`` or ``Authorization: Bearer <key>``. A browser's
-WebSocket, which cannot set headers, offers a single-use ticket from ``POST /v1/live/tickets`` as
-the subprotocol ``excite-ticket.<ticket>`` (never in the URL, so no log holds it). Tickets are
-signed with a random secret the replicas share through the job store, expire within
-:data:`TICKET_TTL_S` and are redeemed once (:mod:`api.store`).
-
-:class:`Authenticate` (ASGI, before the body limit and the app) resolves the key from the
-headers: an unknown key is 401, a key over its request rate 429, and a request with a body but
-no key 401, all before a byte of the body is read. The routes' dependencies then check scopes:
-``score`` (score, plot, batch, live), ``plan`` (maneuver jobs), ``admin`` (everything, every
-key's jobs, metrics). A job belongs to the key that made it: another key gets 404 for it.
-
-Without a keys file the server is **open**: everyone is admin and no quota applies (one user on
-their own machine). :func:`check_exposure` refuses to serve open on an address other than
-loopback unless ``EXCITE_OPEN=true`` says so.
+A client sends its key as ``X-API-Key`` or ``Authorization: Bearer``; a browser's WebSocket a
+single-use :func:`ticket` as a subprotocol. :class:`Authenticate` resolves the key from the
+headers before a byte of the body is read (401, 429 over its rate); the routes' dependencies
+check scopes (``score``, ``plan``, ``admin``: everything, every key's jobs). Without a keys file
+the server is **open**: everyone is admin, no quota applies, and only loopback is served unless
+``EXCITE_OPEN=true`` (:func:`check_exposure`).
 """
 
 from __future__ import annotations
@@ -59,6 +50,7 @@ TICKET_TTL_S = 60.0
 TICKET_PROTOCOL = "excite-ticket."  # a WebSocket subprotocol carrying a ticket
 LIVE_PROTOCOL = "excite-live"  # the subprotocol the server answers with
 OPEN_KEY = ""  # the key id of an open server's requests and jobs
+NO_KEY = "this server needs an API key: send it as X-API-Key or Authorization: Bearer"
 
 # declared so that the OpenAPI document states the credentials; the keys are read by Authenticate
 key_header = APIKeyHeader(name="X-API-Key", auto_error=False, scheme_name="APIKey",
@@ -67,9 +59,9 @@ bearer = HTTPBearer(auto_error=False, scheme_name="Bearer", description="The sam
 
 
 class Quota(BaseModel):
-    """A key's limits (any left out: the server's ``EXCITE_QUOTA_*`` settings)."""
+    """A key's limits (any left out: the server's ``EXCITE_QUOTA_*`` settings, its ``defaults``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True)
     jobs: int | None = Field(None, ge=0, le=100_000, description="Queued and running jobs at once.")
     live_sessions: int | None = Field(None, ge=0, le=1000, description="/v1/live sessions at once.")
     rate_per_s: float | None = Field(None, gt=0, le=100_000, description="Requests per second on average.")
@@ -93,15 +85,6 @@ class KeysFile(BaseModel):
 
 
 @dataclass(frozen=True)
-class Limits:
-    jobs: int
-    live_sessions: int
-    rate_per_s: float
-    burst: int
-    storage_mb: int
-
-
-@dataclass(frozen=True)
 class Principal:
     """Who a request is: the key's id (jobs belong to it), its owner, scopes and limits
     (``limits`` None: no quota, an open server)."""
@@ -109,7 +92,7 @@ class Principal:
     key_id: str
     owner: str
     scopes: frozenset[str]
-    limits: Limits | None = None
+    limits: Quota | None = None
 
     @property
     def admin(self) -> bool:
@@ -142,7 +125,7 @@ class KeyRing:
     """The keys of one file, by hash, with the server's default limits."""
 
     entries: dict[str, KeyEntry]
-    defaults: Limits
+    defaults: Quota
 
     def lookup(self, key: str) -> Principal | None:
         entry = self.entries.get(hash_key(key))
@@ -153,13 +136,11 @@ class KeyRing:
         return None if entry is None else self.principal(entry)
 
     def principal(self, entry: KeyEntry) -> Principal:
-        q, d = entry.quota, self.defaults
-        limits = Limits(*(getattr(d, f) if getattr(q, f) is None else getattr(q, f)
-                          for f in ("jobs", "live_sessions", "rate_per_s", "burst", "storage_mb")))
+        limits = self.defaults.model_copy(update=entry.quota.model_dump(exclude_none=True))
         return Principal(entry.id, entry.owner, frozenset(entry.scopes), limits)
 
 
-def load_keys(path: Path, defaults: Limits) -> KeyRing:
+def load_keys(path: Path, defaults: Quota) -> KeyRing:
     """The keys of ``path`` (YAML or JSON); :class:`KeysError` names what is wrong."""
     import yaml
 
@@ -318,7 +299,7 @@ class Authenticate:
                 raise unauthorized("the live ticket is not valid, was used already or has expired "
                                    f"(tickets last {TICKET_TTL_S:g} s and open one session)")
         elif _has_body(scope):
-            raise unauthorized("this server needs an API key: send it as X-API-Key or Authorization: Bearer")
+            raise unauthorized(NO_KEY)
         else:
             return None  # a read without a key: the route says whether it needs one
         if who.limits is not None and scope["type"] == "http":
@@ -349,7 +330,7 @@ async def authorize(security_scopes: SecurityScopes, conn: HTTPConnection,
         raise state["refusal"]
     who = state.get("principal", OPEN if getattr(conn.app.state, "ctx", None) is None else None)
     if who is None:
-        raise unauthorized("this server needs an API key: send it as X-API-Key or Authorization: Bearer")
+        raise unauthorized(NO_KEY)
     missing = [s for s in security_scopes.scopes if not who.allows(s)]
     if missing:
         raise Problem(403, f"the key {who.key_id} lacks the scope {missing[0]!r} "

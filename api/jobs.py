@@ -15,15 +15,9 @@ and, at the end, its outcome over its pipe, and reads "stop" from it. The dispat
 - re-queues the jobs of replicas whose leases expired — but not until the store has answered
   this replica for a whole lease: after an outage every lease has expired, and each live
   replica renews its own within that time (a replica that died meanwhile has its jobs re-queued
-  a lease later) — stops a cancelled job (asked over the
-  pipe; ended after ``cancel_grace_s``), purges finished jobs by the retention policy, and on
-  shutdown ends its job processes and puts their jobs back in the queue.
-
-A fault of the store is logged by the store (once when it starts, once when it ends);
-:attr:`JobRunner.fault` names the dispatcher's last one for ``/readyz``.
-
-:func:`run_optimization` is the default job: :func:`excite.plan.optimize` on the request,
-returning plain JSON data (the report, the comparison and the control profile for downloads).
+  a lease later) — stops a cancelled job (asked over the pipe; ended after ``cancel_grace_s``),
+  purges finished jobs by the retention policy, and on shutdown ends its job processes and puts
+  their jobs back in the queue. :attr:`JobRunner.fault` names its last store fault for ``/readyz``.
 """
 
 from __future__ import annotations
@@ -36,9 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from excite.core.processes import Supervised
-from excite.errors import ExciteError
 
-from . import problems
 from .errors import Problem, StoreError
 from .store import JobStore, replica_id
 
@@ -101,20 +93,15 @@ def job_main(conn: Any, function: str, request: dict[str, Any], instance: str, s
         return last["stopped"]
 
     from .cluster import load_function, run_remote
+    from .scoring import task
 
-    try:
-        if scheduler is None:
-            result = load_function(function)(request, progress, should_stop)
-        else:
-            log.info("job %s runs on the Dask cluster at %s", instance, scheduler)
-            result = run_remote(scheduler, function, request, progress, should_stop)
-    except (ExciteError, MemoryError, Problem) as exc:
-        conn.send(("done", "failed", None, problems.of(exc, "request").body(instance), last["latest"]))
-        return
-    except Exception:  # a bug: logged here, a bare 500 in the job
-        log.exception("job %s failed", instance)
-        conn.send(("done", "failed", None, Problem(500, "The job failed; the error is logged.").body(instance),
-                   last["latest"]))
+    if scheduler is not None:
+        log.info("job %s runs on the Dask cluster at %s", instance, scheduler)
+    try:  # every failure a problem (a bug: logged, a bare 500)
+        result = (task(load_function(function), request, progress, should_stop, field="request") if scheduler is None
+                  else task(run_remote, scheduler, function, request, progress, should_stop, field="request"))
+    except Problem as exc:
+        conn.send(("done", "failed", None, exc.body(instance), last["latest"]))
         return
     status = "cancelled" if result.get("cancelled") else "succeeded"
     conn.send(("done", status, result, None, last["latest"]))
@@ -145,7 +132,6 @@ class Run:
     progress_written: dict[str, Any] | None = None
     outcome: tuple | None = None  # (status, result, error, progress): written before the run is forgotten
     cancel_at: float | None = None  # when the stop was sent
-    lost: bool = False
 
     @property
     def key(self) -> tuple[str, int]:

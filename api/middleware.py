@@ -221,24 +221,16 @@ def host_name(host: str) -> str:
 class Guard:
     """What keeps a browser from being used against the service, and the last word on errors:
 
-    - a request whose ``Host`` is not in ``hosts`` (``"*"``: any) is refused (421) before
-      anything else: a page of another site whose name was rebound to this server's address
-      names that site in ``Host``;
-    - the server's own origins are ``scheme://Host`` for a Host whose name is listed *by name*
-      in ``hosts``, and the configured ``origins``: never built from a Host that only passed a
-      wildcard;
-    - a WebSocket whose ``Origin`` is not one of them is refused before the handshake completes;
-    - a state-changing request (POST, PUT, PATCH, DELETE) is refused (403) when its ``Origin``
-      is foreign, when the browser says it is cross-site (``Sec-Fetch-Site``), or when it is one
-      a cross-site HTML form could send (multipart, urlencoded or text/plain) and carries none
-      of the headers such a form cannot set (``X-Excite-Client``, ``X-API-Key``,
-      ``Authorization``);
-    - every response carries a Content-Security-Policy without ``'unsafe-inline'``
-      (``frame-ancestors 'none'``), ``X-Frame-Options: DENY``, ``X-Content-Type-Options:
-      nosniff`` and ``Referrer-Policy``;
-    - ``HEAD`` is answered wherever ``GET`` is (the GET's headers, no body);
-    - an exception nothing else handled becomes a 500 problem here, so it never reaches the
-      server (which would reset the connection and with it the client's next request).
+    - a request whose ``Host`` is not in ``hosts`` (``"*"``: any) is refused (421; a WebSocket:
+      closed) before anything else: a rebound name of another site arrives in ``Host``;
+    - the server's own origins are the configured ``origins`` and ``scheme://Host`` for a Host
+      listed *by name* in ``hosts`` (never one that only passed a wildcard); a WebSocket from
+      another origin is refused before the handshake completes, and so is (403) a POST, PUT,
+      PATCH or DELETE from another origin, one the browser calls cross-site, or one a cross-site
+      HTML form could send that carries none of the headers such a form cannot set;
+    - every response carries the security headers (:data:`CSP` without ``'unsafe-inline'``);
+      ``HEAD`` is answered wherever ``GET`` is; an exception nothing else handled is a 500 problem
+      here, so it never resets the connection (and with it the client's next request).
     """
 
     def __init__(self, app: ASGIApp, hosts: tuple[str, ...] = ("*",), origins: tuple[str, ...] = ()):
@@ -264,8 +256,7 @@ class Guard:
         if not self.any_host and host_name(host) not in self.hosts:
             log.warning("%s: Host %r is not an allowed host: refused", scope.get("path"), host[:200])
             if scope["type"] == "websocket":
-                await receive()  # websocket.connect
-                return await send({"type": "websocket.close", "code": 1008})
+                return await _close(receive, send)
             return await problems.send(send, Problem(421, f"this server does not answer to the host {host[:200]!r} "
                                                           "(EXCITE_ALLOWED_HOSTS)", type_="host"),
                                        scope.get("path", ""), close=True)
@@ -273,8 +264,7 @@ class Guard:
             origin = header(scope, b"origin")
             if origin is not None and not self._allowed(origin, scope):
                 log.warning("%s: WebSocket from foreign origin %s refused", scope.get("path"), origin[:200])
-                await receive()  # websocket.connect
-                return await send({"type": "websocket.close", "code": 1008})
+                return await _close(receive, send)
             return await self.app(scope, receive, send)
         refusal = self._cross_site(scope)
         if refusal is not None:
@@ -322,3 +312,9 @@ class Guard:
             return ("a POST a cross-site HTML form could send is refused: send the header "
                     "X-Excite-Client (any value) or an API key with it")
         return None
+
+
+async def _close(receive: Callable, send: Callable) -> None:
+    """Refuse a WebSocket before its handshake completes (1008)."""
+    await receive()  # websocket.connect
+    await send({"type": "websocket.close", "code": 1008})

@@ -15,16 +15,11 @@ address-space limit (``RLIMIT_AS``: a task that needs more fails with a 413 insi
   the fewest running tasks, then first come first served: one key's flood of hour-long routes
   holds its share, and another key's request finds a worker free;
 - **admission by size**: each task comes with its size (seconds of drive) and the pool learns
-  each kind of task's cost per unit of size; work that this key's share of the workers could not
-  finish by its deadline (its own queue and running tasks ahead of it), or that would queue past
-  ``max_queued`` tasks, is refused at once (:class:`~api.errors.Overloaded`: 429 with
-  Retry-After) instead of timing out later;
-- **costs follow the load**: a cost rises at once when a task takes longer than it (a running
-  task already past its cost counts, and so does one killed at its deadline) and falls back
-  gradually, so work admitted under a lighter load is judged again by what it costs now: a
-  waiting task that could no longer finish by its deadline is refused (429) as soon as that is
-  so, and a task starts only when it is expected to finish within :data:`ADMIT_SHARE` of its time
-  left. A key that sends more than its share can do is answered 429, not left to time out.
+  each kind of task's cost per unit of size (:meth:`WorkerPool._learn`: up at once, down
+  gradually); work that this key's share of the workers could not finish by its deadline, or that
+  would queue past ``max_queued`` tasks, is refused at once (:class:`~api.errors.Overloaded`: 429
+  with Retry-After), and so is a waiting task as soon as it could no longer finish in time: a key
+  that sends more than its share can do is answered 429, not left to time out.
 """
 
 from __future__ import annotations

@@ -7,12 +7,14 @@ the error; the static ones are here.
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, model_validator
 
 from excite.core import bounds
 from excite.core.bounds import Range
+from excite.motion.vehicle import Limits
 from excite.rig.config import all_ranges
 
 RouteFormat = Literal["tum", "kitti", "euroc", "waypoints_csv", "geojson", "control_csv"]
@@ -111,16 +113,9 @@ class RouteIn(In):
         return self
 
 
-class LimitsIn(In):
-    """Vehicle and test limits. Positive, SI units."""
-
-    speed_max_mps: float = ranged(bounds.LIMITS["speed_max_mps"], default=15.0)
-    accel_max_mps2: float = ranged(bounds.LIMITS["accel_max_mps2"], default=3.0)
-    decel_max_mps2: float = ranged(bounds.LIMITS["decel_max_mps2"], default=4.0)
-    jerk_max_mps3: float = ranged(bounds.LIMITS["jerk_max_mps3"], default=6.0)
-    lat_accel_max_mps2: float = ranged(bounds.LIMITS["lat_accel_max_mps2"], default=4.0)
-    curvature_max_1pm: float = ranged(bounds.LIMITS["curvature_max_1pm"], default=0.18)
-    curvature_rate_max_1pms: float = ranged(bounds.LIMITS["curvature_rate_max_1pms"], default=0.25)
+# The library's vehicle limits (excite.motion.vehicle.Limits: names and defaults) in their sane ranges
+LimitsIn = create_model("LimitsIn", __base__=In, __doc__="Vehicle and test limits. Positive, SI units.",
+                        **{f.name: (float, ranged(bounds.LIMITS[f.name], default=f.default)) for f in fields(Limits)})
 
 
 def parsed_rig(rig: Any) -> Any:

@@ -3,43 +3,22 @@ replica of the service; the scenes keys uploaded; and the replicas' shared ticke
 redeemed tickets.
 
 One schema (:data:`jobs`, :data:`job_runs`, …), stated once with SQLAlchemy Core, and one set of
-queries over it, on SQLite (a file; the embedded default, one host, WAL, fsync on commit) or
-PostgreSQL (``EXCITE_DATABASE_URL=postgresql://…``: several replicas on one database, psycopg 3).
+queries over it, on SQLite (a file; WAL, fsync on commit) or PostgreSQL
+(``EXCITE_DATABASE_URL=postgresql://…``: several replicas on one database, psycopg 3). Opening a
+store migrates it (:data:`ADDED`: what each schema version added, from the one statement of the
+schema; databases of servers before versioning are version 1).
 
 A job moves ``queued → running → succeeded | failed | cancelled``. Each run of a job has an
 ``attempt`` number, and only the current attempt of a running job may write its outcome, so a
-straggler can never overwrite a re-run, and a job ends once.
-
-**Transactions.** Every count-then-write (a key's quota of jobs and of storage, a claim, a
-reclaim, a purge) happens in one transaction that holds the write lock: ``BEGIN IMMEDIATE`` on
-SQLite, a transaction-level advisory lock on PostgreSQL (per key for a key's quota, one for the
-dispatchers' work). So ten concurrent submissions with a quota of two create two jobs, on one
-replica or several.
-
-**Leases.** A replica claims a job with a lease (``lease_owner``, ``lease_expires``) and renews,
-every third of it, the leases of the runs it really has (:meth:`JobStore.heartbeat` is given
-them). A job whose lease has expired (its replica died, or lost the database for longer than the
-lease) goes back to the queue, by whichever replica sees it first (:meth:`JobStore.reclaim`); a
-lease held by a dead process on this very host is reclaimed at once.
-
-**Fairness.** :meth:`JobStore.claim` serves the key with the fewest running jobs first, then the
-one served longest ago, then the oldest job.
-
-**Retention.** Per key: a key's finished jobs older than an age are deleted, and so are its
-scenes unused for as long; beyond its storage quota its own oldest finished jobs and least recently
-used scenes (never another key's). :meth:`JobStore.finish` keeps of the request only what the
-result's downloads need (:data:`KEPT_REQUEST_KEYS`).
-
-**Scenes.** A scene file a key uploaded (:meth:`JobStore.put_scene`) is kept under the digest of
-the scene it holds, for that key alone: another key neither sees nor uses it.
-
-**Migrations.** The schema carries a version (table ``excite_schema``); opening a store applies
-the missing steps (:data:`ADDED`: the columns and tables each version added, from the one
-statement of the schema) in one transaction. Databases of servers before versioning are version 1.
+straggler never overwrites a re-run and a job ends once. Every count-then-write (a key's quotas,
+a claim, a reclaim, a purge) is one transaction holding the write lock (``BEGIN IMMEDIATE`` on
+SQLite, an advisory lock on PostgreSQL: per key for its quotas, one for the dispatchers). Runs
+hold leases (:meth:`JobStore.claim`, :meth:`~JobStore.heartbeat`, :meth:`~JobStore.reclaim`);
+retention and storage quotas are per key, never touching another key's jobs or scenes
+(:meth:`JobStore.purge`); a scene is kept for the key that uploaded it alone.
 
 Every failure of the database is a :class:`~api.errors.StoreError` naming the store and what is
-wrong (full, read-only, corrupt, unreachable), never a bare driver exception. The store logs a
-fault once when it starts (whoever met it: the dispatcher, a request, a scrape) and once when
+wrong (full, read-only, corrupt, unreachable), logged once when the fault starts and once when
 the database answers again.
 """
 
@@ -60,6 +39,8 @@ from typing import Any, Callable, Iterator
 
 import sqlalchemy as sa
 from sqlalchemy.schema import CreateColumn
+
+from excite.core import processes
 
 from .errors import OverQuota, StoreError
 
@@ -157,19 +138,9 @@ def replica_id() -> str:
 
 def local_holder_dead(holder: str) -> bool:
     """Whether ``holder`` (a :func:`replica_id`) is a process of this host and boot that is gone."""
-    try:
-        host, boot, pid, _ = holder.split("/")
-    except ValueError:
-        return False
-    if host != socket.gethostname() or boot != boot_id()[:8]:
-        return False
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return True
-    except (PermissionError, ValueError):
-        return False
-    return False
+    parts = holder.split("/")
+    return (len(parts) == 4 and parts[0] == socket.gethostname() and parts[1] == boot_id()[:8]
+            and parts[2].isdigit() and not processes.alive(int(parts[2])))
 
 
 def kept_request(request: dict[str, Any]) -> dict[str, Any]:
@@ -320,23 +291,28 @@ class JobStore:
         text = json.dumps(request)
         now = time.time()
         job_id = uuid.uuid4().hex
-        mine = jobs.c.key_id == key_id
         with self._tx(f"key:{key_id}") as c:
-            active, active_bytes = c.execute(
-                sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0))
-                .where(mine, jobs.c.status.in_(ACTIVE))).one()
-            if max_active is not None and active >= max_active:
-                raise OverQuota(f"the key {key_id} has {active} jobs queued or running already "
-                                f"(its quota: {max_active}); retry when one has finished")
-            if max_bytes is not None and active_bytes + len(text) > max_bytes:
-                raise OverQuota(f"the key {key_id}'s unfinished jobs hold {active_bytes} bytes; this request "
-                                f"({len(text)} bytes) would exceed its storage quota of {max_bytes} bytes")
+            self._room(c, key_id, "request", len(text), max_bytes, max_active)
             c.execute(jobs.insert().values(id=job_id, kind=kind, status="queued", request=text,
                                            created_at=now, updated_at=now, key_id=key_id, owner=owner,
                                            size_bytes=len(text)))
             if max_bytes is not None:
                 self._trim(c, key_id, max_bytes)
         return job_id
+
+    @staticmethod
+    def _room(c: sa.Connection, key_id: str, what: str, size: int, max_bytes: int | None,
+              max_active: int | None = None) -> None:
+        """:class:`OverQuota` when the key has ``max_active`` jobs queued or running, or when its
+        unfinished jobs and ``size`` more bytes would hold more than ``max_bytes``."""
+        active, held = c.execute(sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0))
+                                 .where(jobs.c.key_id == key_id, jobs.c.status.in_(ACTIVE))).one()
+        if max_active is not None and active >= max_active:
+            raise OverQuota(f"the key {key_id} has {active} jobs queued or running already "
+                            f"(its quota: {max_active}); retry when one has finished")
+        if max_bytes is not None and held + size > max_bytes:
+            raise OverQuota(f"the key {key_id}'s unfinished jobs hold {held} bytes; this {what} "
+                            f"({size} bytes) would exceed its storage quota of {max_bytes} bytes")
 
     def get(self, job_id: str, key_id: str | None = None) -> dict[str, Any] | None:
         """The job (without its request), or None; with ``key_id``, only a job of that key."""
@@ -392,8 +368,9 @@ class JobStore:
     # -- dispatcher side --------------------------------------------------------------------
 
     def claim(self, replica: str, lease_s: float) -> tuple[str, int] | None:
-        """The next queued job by fairness (see the module docstring), now running under a new
-        attempt and a lease of ``lease_s`` held by ``replica``."""
+        """The next queued job, now running under a new attempt and a lease of ``lease_s`` held by
+        ``replica``: of the key with the fewest running jobs, then the one served longest ago, the
+        oldest job."""
         now = time.time()
         with self._tx("claim") as c:
             waiting = c.execute(sa.select(jobs.c.key_id, sa.func.min(jobs.c.created_at))
@@ -445,8 +422,7 @@ class JobStore:
                 if holder is not None and (expires or 0) >= now and not local_holder_dead(holder):
                     continue
                 this = (jobs.c.id == job_id) & (jobs.c.attempt == attempt)
-                c.execute(job_runs.update().where(job_runs.c.job_id == job_id, job_runs.c.attempt == attempt,
-                                                  job_runs.c.finished_at.is_(None)).values(finished_at=now, outcome="lost"))
+                self._ended(c, job_id, attempt, now, "lost")
                 if cancel:
                     c.execute(jobs.update().where(this).values(status="cancelled", finished_at=now,
                                                                updated_at=now, lease_owner=None))
@@ -464,8 +440,7 @@ class JobStore:
                                               jobs.c.status == "running").values(
                 status="queued", updated_at=now, lease_owner=None, lease_expires=None)).rowcount
             if n:
-                c.execute(job_runs.update().where(job_runs.c.job_id == job_id, job_runs.c.attempt == attempt)
-                          .values(finished_at=now, outcome="released"))
+                self._ended(c, job_id, attempt, now, "released")
 
     def cancel_requested(self, replica: str) -> set[tuple[str, int]]:
         """(id, attempt) of ``replica``'s running jobs asked to stop."""
@@ -499,9 +474,13 @@ class JobStore:
             c.execute(jobs.update().where(this).values(
                 status=status, result=res, error=err, request=req, progress=prog, finished_at=now,
                 updated_at=now, lease_owner=None, size_bytes=_size(req, res, err, prog)))
-            c.execute(job_runs.update().where(job_runs.c.job_id == job_id, job_runs.c.attempt == attempt)
-                      .values(finished_at=now, outcome=status))
+            self._ended(c, job_id, attempt, now, status)
         return True
+
+    @staticmethod
+    def _ended(c: sa.Connection, job_id: str, attempt: int, now: float, outcome: str) -> None:
+        c.execute(job_runs.update().where(job_runs.c.job_id == job_id, job_runs.c.attempt == attempt,
+                                          job_runs.c.finished_at.is_(None)).values(finished_at=now, outcome=outcome))
 
     def purge(self, max_age_s: float, max_bytes: Callable[[str], int]) -> int:
         """Per key: delete its finished jobs older than ``max_age_s`` and its scenes unused for as
@@ -543,11 +522,10 @@ class JobStore:
         return self._delete(c, gone_jobs) + len(gone_scenes)
 
     @staticmethod
-    def _key_bytes(c: sa.Connection, key_id: str) -> int:
-        held = c.execute(sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0)).where(
-            jobs.c.key_id == key_id)).scalar()
-        return held + c.execute(sa.select(sa.func.coalesce(sa.func.sum(scenes.c.size_bytes), 0)).where(
-            scenes.c.key_id == key_id)).scalar()
+    def _key_bytes(c: sa.Connection, key_id: str | None) -> int:
+        """What the key's jobs and scenes hold [bytes] (None: every key's)."""
+        return sum(c.execute(sa.select(sa.func.coalesce(sa.func.sum(t.c.size_bytes), 0)).where(
+            sa.true() if key_id is None else t.c.key_id == key_id)).scalar() for t in (jobs, scenes))
 
     @staticmethod
     def _delete(c: sa.Connection, ids: list[str]) -> int:
@@ -560,13 +538,8 @@ class JobStore:
 
     def total_bytes(self, key_id: str | None = None) -> int:
         """What the jobs and scenes hold [bytes] (of ``key_id``, or of every key)."""
-        q = sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0))
-        qs = sa.select(sa.func.coalesce(sa.func.sum(scenes.c.size_bytes), 0))
-        if key_id is not None:
-            q = q.where(jobs.c.key_id == key_id)
-            qs = qs.where(scenes.c.key_id == key_id)
         with self._tx() as c:
-            return c.execute(q).scalar() + c.execute(qs).scalar()
+            return self._key_bytes(c, key_id)
 
     # -- scenes -------------------------------------------------------------------------------
 
@@ -581,12 +554,7 @@ class JobStore:
         with self._tx(f"key:{key_id}") as c:
             if c.execute(scenes.update().where(this).values(used_at=now)).rowcount:
                 return False
-            if max_bytes is not None:
-                active = c.execute(sa.select(sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0)).where(
-                    jobs.c.key_id == key_id, jobs.c.status.in_(ACTIVE))).scalar()
-                if active + len(data) > max_bytes:
-                    raise OverQuota(f"the key {key_id}'s unfinished jobs hold {active} bytes; this scene "
-                                    f"({len(data)} bytes) would exceed its storage quota of {max_bytes} bytes")
+            self._room(c, key_id, "scene", len(data), max_bytes)
             c.execute(scenes.insert().values(key_id=key_id, digest=digest, name=name, summary=json.dumps(summary),
                                              data=data, size_bytes=len(data), created_at=now, used_at=now))
             if max_bytes is not None:

@@ -105,17 +105,14 @@ def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
     name = req.get("name") or "maneuver"
     if format in DRIVABLE:
         if not result.get("drivable"):
-            raise Problem(422, f"format: {format} is a drivable plan's; job {job_id} planned a free-form maneuver",
-                          errors=[{"field": "format", "message": "only for a drivable plan's job"}])
+            raise Problem.at("format", f"{format} is a drivable plan's; job {job_id} planned a free-form maneuver")
         data = ctx.run(request, who, drivable_file_task, result["drivable"]["plan"], req.get("rig", "robotaxi"),
                        format, req.get("lot"), req.get("lot_x_m", 80.0), req.get("lot_y_m", 50.0), origin)
         media, ext = DRIVABLE[format]
         return Response(data, media_type=media,
                         headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})
     if format == "geojson" and origin is None:
-        raise Problem(422, "lon_deg/lat_deg: GeoJSON needs the lot's origin: give lon_deg "
-                           "and lat_deg, or origin in the request",
-                      errors=[{"field": "lon_deg", "message": "required for geojson"}])
+        raise Problem.at("lon_deg", "GeoJSON needs the lot's origin: give lon_deg and lat_deg, or origin in the request")
     # the stored rig is a client's: resolved, and the drive rebuilt, in a worker
     text = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
     ext = {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]

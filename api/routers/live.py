@@ -164,36 +164,20 @@ def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: f
                   scene: tuple | None = None) -> None:
     """A session's evaluator: the rig and the scene resolved here (a client's rig can cost seconds
     to check, a scene to read), then each ``("poses", t, p, R)`` or ``("end",)`` answered
-    ``("ok", value)`` or ``("problem", Problem)``."""
+    ``("ok", value)`` or ``("problem", Problem)``; every failure is a problem
+    (:func:`api.scoring.task`)."""
     from excite.core.bounds import tightened
-    from excite.errors import ExciteError
-    from excite.score.live import PoseStream
 
-    from .. import problems
     from ..pool import trim
-    from ..scoring import resolve_rig, scene_of
+    from ..scoring import resolve_rig, scene_of, task
 
     with tightened(duration_s=duration_s, length_m=length_m):
         try:
-            r = resolve_rig(rig)
-        except (Problem, ExciteError, MemoryError, RecursionError) as exc:
-            conn.send(("problem", problems.of(exc, "rig")))
-            return
-        try:
-            world = scene_of(scene)
-        except (Problem, ExciteError, MemoryError, RecursionError) as exc:
-            conn.send(("problem", problems.of(exc, "scene")))
-            return
-        try:
-            if plan is None:
-                stream = PoseStream(r, name=name, scene=world)
-            else:
-                from excite.plan.drivable.guide import PlanStream
-                from excite.plan.drivable.plan import plan_from_dict
-
-                stream = PlanStream(r, plan_from_dict(plan, "plan"), name=name, scene=world)
-        except (Problem, ExciteError, MemoryError, RecursionError) as exc:
-            conn.send(("problem", problems.of(exc, "plan")))
+            r = task(resolve_rig, rig, field="rig")
+            world = task(scene_of, scene, field="scene")
+            stream = task(_stream, r, name, plan, world, field="plan")
+        except Problem as exc:
+            conn.send(("problem", exc))
             return
         conn.send(("ok", {"rig": r.name, "parameters": [c.name for c in r.scored],
                           "scene": None if world is None else {"name": world.source, "digest": world.digest}}))
@@ -203,16 +187,26 @@ def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: f
             except (EOFError, OSError):
                 return
             try:
-                out: Any = ("ok", stream.add(*msg[1:]) if msg[0] == "poses" else stream.finish())
-            except (ExciteError, MemoryError) as exc:
-                out = ("problem", problems.of(exc, "poses"))
-            except Exception:  # a bug: logged here, a 500 frame for the client
-                log.exception("live session failed")
-                out = ("problem", Problem(500, "the server failed to process the poses; the error is logged"))
+                out: Any = ("ok", task(stream.add, *msg[1:], field="poses") if msg[0] == "poses" else
+                            task(stream.finish, field="poses"))
+            except Problem as exc:
+                out = ("problem", exc)
             trim()
             conn.send(out)
             if out[0] != "ok" or msg[0] == "end":
                 return
+
+
+def _stream(rig: Any, name: str, plan: dict[str, Any] | None, scene: Any) -> Any:
+    """The live evaluator of a session, following ``plan`` (a drivable plan's plan.json) if given."""
+    from excite.score.live import PoseStream
+
+    if plan is None:
+        return PoseStream(rig, name=name, scene=scene)
+    from excite.plan.drivable.guide import PlanStream
+    from excite.plan.drivable.plan import plan_from_dict
+
+    return PlanStream(rig, plan_from_dict(plan, "plan"), name=name, scene=scene)
 
 
 class Session:
@@ -279,16 +273,11 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str, Any, str | None]:
 
 
 def _scene(ctx: Context | None, who: Any, ref: str | None) -> tuple | None:
-    """The start's scene for the session's process (:func:`api.routers.scenes.scene_spec`)."""
-    from excite.scene.files import bundled_scenes
-
+    """The start's scene for the session's process (:func:`api.routers.scenes.scene_spec`; the
+    router alone, without the service's store: bundled scenes only)."""
     from .scenes import scene_spec
 
     try:
-        if ctx is None:  # the router alone, without the service's store: bundled scenes only
-            if ref is not None and ref not in bundled_scenes():
-                raise Problem.at("scene", f"{ref!r} is not a bundled scene ({', '.join(bundled_scenes())})")
-            return None if ref is None else ("bundled", ref)
         return scene_spec(ctx, who, ref)
     except Problem as exc:
         raise Refusal(exc) from None

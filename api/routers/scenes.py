@@ -32,14 +32,15 @@ DIGEST = re.compile(r"^[0-9a-f]{64}$")
 _READ_CHUNK = 1 << 20
 
 
-def scene_spec(ctx: Context, who: Principal, ref: str | None, field: str = "scene") -> tuple | None:
+def scene_spec(ctx: Context | None, who: Principal, ref: str | None, field: str = "scene") -> tuple | None:
     """What a scoring worker needs of the scene a request names (:func:`api.scoring.scene_of`): a
-    bundled scene's name, or the file of the key's own scene with that digest (None: none)."""
+    bundled scene's name, or the file of the key's own scene with that digest (None: none; no
+    ``ctx``, no store: bundled scenes only)."""
     if ref is None:
         return None
     if ref in bundled_scenes():
         return ("bundled", ref)
-    if DIGEST.match(ref):
+    if DIGEST.match(ref) and ctx is not None:
         kept = ctx.store.scene(who.key_id, ref)
         if kept is None:
             raise Problem.at(field, f"no scene {ref[:12]}… uploaded with this key (POST /v1/scenes; a scene "

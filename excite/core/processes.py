@@ -112,7 +112,8 @@ def _reap() -> None:
             return
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether the process ``pid`` runs (a zombie does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -125,7 +126,7 @@ def _alive(pid: int) -> bool:
 def _watch_owner(owner: int) -> None:
     while True:
         time.sleep(OWNER_CHECK_S)
-        if not _alive(owner):
+        if not alive(owner):
             _end()
 
 
@@ -145,7 +146,7 @@ def _main(conn: Any, owner: int, memory_mb: int, target: Callable[..., Any], arg
         pass
     _prctl(_PR_SET_CHILD_SUBREAPER, 1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the owner decides when a helper ends
-    if not _alive(owner):
+    if not alive(owner):
         os._exit(70)
     threading.Thread(target=_watch_owner, args=(owner,), daemon=True, name="owner-watch").start()
     if memory_mb:
