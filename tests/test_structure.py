@@ -1,8 +1,9 @@
 """The package's structure, as a newcomer relies on it: imports point one way (no import
 cycles), no module uses another module's private names, every exception class lives in its
 package's errors module (``excite/errors.py``, ``api/errors.py``, each drawing its tree), and no
-module grows past what one can read (900 lines). Read from the source with ``ast``: nothing is
-imported or run."""
+module grows past what one can read (900 lines), processes are started by the one supervisor
+(``excite.core.processes``) and problem documents built by ``api.errors.Problem`` alone. Read from
+the source with ``ast``: nothing is imported or run."""
 
 from __future__ import annotations
 
@@ -172,4 +173,60 @@ def test_each_package_imports_only_packages_below_it():
             other = _layer(target)
             if other is not None and other > own:
                 bad.append(f"{path.relative_to(ROOT)}:{line}: {mod} imports {target} (above it)")
+    assert not bad, "\n".join(bad)
+
+
+def _calls(path: Path) -> list[tuple[str, int]]:
+    """(called name, line) of every call in the file: ``f(…)`` and ``x.f(…)`` give ``f``."""
+    return [(n.func.id if isinstance(n.func, ast.Name) else n.func.attr, n.lineno)
+            for n in ast.walk(ast.parse(path.read_text()))
+            if isinstance(n, ast.Call) and isinstance(n.func, (ast.Name, ast.Attribute))]
+
+
+# Starting a process: the one supervisor (its process tree ended with it, its owner's death ending
+# it). Besides it, only a C compiler is run to completion (the native module and generated kernels).
+PROCESS_STARTERS = {"Process", "Popen", "fork", "forkpty", "ProcessPoolExecutor", "Pool", "system", "spawnv",
+                    "spawnve", "spawnl", "spawnle", "posix_spawn", "run", "call", "check_call", "check_output"}
+SUPERVISOR = "excite.core.processes"
+RUNS_A_COMPILER = {"excite.core.native", "excite.factors.generate"}
+
+
+def test_only_the_supervisor_starts_processes():
+    bad = []
+    for mod, path in MODULES.items():
+        if mod == SUPERVISOR:
+            continue
+        tree = ast.parse(path.read_text())
+        for n in ast.walk(tree):
+            if not (isinstance(n, ast.Call) and isinstance(n.func, (ast.Name, ast.Attribute))):
+                continue
+            name = n.func.id if isinstance(n.func, ast.Name) else n.func.attr
+            owner = n.func.value.id if isinstance(n.func, ast.Attribute) and isinstance(n.func.value, ast.Name) else ""
+            if name not in PROCESS_STARTERS:
+                continue
+            if name in ("run", "call") and owner != "subprocess":  # run/call of anything else is no process
+                continue
+            if owner == "subprocess" and name == "run" and mod in RUNS_A_COMPILER:
+                continue
+            bad.append(f"{path.relative_to(ROOT)}:{n.lineno}: {owner + '.' if owner else ''}{name}(…)")
+    assert not bad, ("processes started outside excite.core.processes (use Supervised, Worker or command):\n"
+                     + "\n".join(bad))
+
+
+def test_only_api_errors_builds_problem_documents():
+    """A problem document is ``api.errors.Problem.body()``; everything else raises a Problem
+    (api.problems maps the library's errors to one), never an HTTPException or a hand-built body."""
+    bad = []
+    for mod, path in MODULES.items():
+        if not mod.startswith("api") or mod == "api.errors":
+            continue
+        for n in ast.walk(ast.parse(path.read_text())):
+            if isinstance(n, ast.Dict):
+                keys = {k.value for k in n.keys if isinstance(k, ast.Constant)}
+                if {"title", "status"} <= keys or {"type", "detail"} <= keys:
+                    bad.append(f"{path.relative_to(ROOT)}:{n.lineno}: a problem body built by hand")
+            if isinstance(n, ast.Constant) and n.value == "application/problem+json" and mod != "api.problems":
+                bad.append(f"{path.relative_to(ROOT)}:{n.lineno}: the problem media type stated again")
+        bad += [f"{path.relative_to(ROOT)}:{line}: HTTPException(…)" for name, line in _calls(path)
+                if name == "HTTPException"]
     assert not bad, "\n".join(bad)
