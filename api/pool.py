@@ -287,7 +287,7 @@ class WorkerPool:
                 if w.alive and not w.ending and w in self._all:
                     self._idle.append(w)
                 self._cond.notify_all()
-            if w.ending and w.alive:
+            if w.ending:  # replaced even when it has exited already (else the pool loses it)
                 self.recycled += 1
                 self._replace(w, f"its memory grew by more than {self.recycle_mb} MiB")
 

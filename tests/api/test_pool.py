@@ -117,6 +117,33 @@ def test_a_key_flooding_past_its_share_while_its_costs_triple_is_answered_429_an
         pool.close()
 
 
+def test_a_worker_that_has_exited_after_its_last_task_is_replaced(monkeypatch):
+    """A worker whose memory grew past recycle_mb answers and exits. Here each run waits until the
+    process is gone before the pool looks (as a loaded machine may): the pool must still replace
+    it. Checked only while it was alive, the pool kept the dead worker and every later task
+    waited for a worker that never came."""
+    from excite.core.processes import Worker
+
+    run = Worker.run
+
+    def run_then_exit(self, *args, **kw):
+        out = run(self, *args, **kw)
+        if self.ending:
+            self.proc.join(10)
+        return out
+
+    monkeypatch.setattr(Worker, "run", run_then_exit)
+    pool = WorkerPool(1, memory_mb=0, recycle_mb=1)
+    pool.start()
+    try:
+        for _ in range(3):  # a task grows its worker past 1 MiB: every task ends its worker
+            (f,) = pool.submit(bytearray, [(8 << 20,)], time.monotonic() + 20)
+            assert len(f.result(timeout=30)) == 8 << 20
+        assert pool.recycled >= 2
+    finally:
+        pool.close()
+
+
 ARENAS = """
 import ctypes, sys, tempfile, threading
 from api.pool import few_arenas
