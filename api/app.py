@@ -2,17 +2,8 @@
 
 Start-up opens the job store (SQLite or PostgreSQL, migrated), reads the API keys, re-queues
 the jobs of servers that are gone, starts the job dispatcher and the scoring processes;
-shutdown stops them and puts this server's running jobs back in the queue.
-
-**Adding a resource**: a module in ``api/routers/`` with an ``APIRouter`` (listed in
-:data:`ROUTERS`); its routes take the body as a schema of :mod:`api.schemas`, the caller as
-``Scorer``/``Planner``/``Anyone`` (:mod:`api.auth`) and the context as ``Ctx``; work that is not
-trivial is a function of :mod:`api.scoring` run by ``ctx.run(request, who, fn, *args)`` in a
-scoring worker (bounded by the request's deadline and the key's share); errors are raised as
-:class:`~api.errors.Problem` or the library's own errors (:func:`api.problems.of` maps them).
-**Adding a job kind**: a function ``(request, progress, should_stop) → result`` like
-:func:`api.jobs.run_optimization`, created by a route with ``ctx.store.create(kind, …)`` inside
-``deadline(request).commit()``; the dispatcher runs it in a supervised process.
+shutdown stops them and puts this server's running jobs back in the queue. Adding a route or a
+job kind: docs/guides/service.md.
 """
 
 from __future__ import annotations

@@ -138,8 +138,10 @@ def install(app: Any) -> None:
     from fastapi.exceptions import RequestValidationError
     from starlette.exceptions import HTTPException
 
+    known = (Problem, ExciteError, Overloaded, OverQuota, WorkTimeout, WorkerDied, OSError)
+
     async def mapped(request: Any, exc: Exception) -> Any:
-        if not isinstance(exc, (Problem, ExciteError, Overloaded, OverQuota, WorkTimeout, WorkerDied, OSError)):
+        if not isinstance(exc, known):
             log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
             return response(Problem(500, INTERNAL), request.url.path)
         return response(of(exc), request.url.path)
@@ -157,5 +159,5 @@ def install(app: Any) -> None:
     app.add_exception_handler(RequestValidationError, invalid)
     app.add_exception_handler(HTTPException, http)
     app.add_exception_handler(Exception, mapped)
-    for cls in (Problem, ExciteError, Overloaded, OverQuota, WorkTimeout, WorkerDied, OSError):
+    for cls in known:
         app.add_exception_handler(cls, mapped)

@@ -319,10 +319,10 @@ def plain(x: Any) -> Any:
 
 
 def _evaluated(drive: Callable[[Rig], Trajectory], rig: str | dict[str, Any], segments: int, bounds: Bounds,
-               rig_field: str = "rig", scene: tuple | None = None):
+               scene: tuple | None):
     """(rig, trajectory, report) of the drive ``drive(rig)`` builds, seen in ``scene``; the library
     refuses a planned or logged drive over the service's bounds before building it."""
-    r = resolve_rig(rig, rig_field)
+    r = resolve_rig(rig)
     world = scene_of(scene)
     with tightened(duration_s=bounds.max_route_duration_s, length_m=bounds.max_route_length_m):
         traj = drive(r)
@@ -360,14 +360,13 @@ def track(traj: Trajectory, n: int) -> dict[str, list[float]]:
     return {"t_s": t.tolist(), "x_m": p[:, 0].tolist(), "y_m": p[:, 1].tolist()}
 
 
-def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-               limits: dict[str, float] | None, bounds: Bounds, field: str = "route",
-               rig_field: str = "rig", track_points: int = 0, scene: tuple | None = None) -> dict[str, Any]:
+def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int, limits: dict[str, float] | None,
+               bounds: Bounds, scene: tuple | None = None, track_points: int = 0, field: str = "route") -> dict[str, Any]:
     """``{"report": …}`` (with ``"track"`` when ``track_points`` > 0, and then in a ``scene``
     also ``"scene_track"``: what the scene leaves undetermined at each scan along the route,
     :func:`excite.scene.survey.along_route`)."""
     def run() -> dict[str, Any]:
-        _, traj, report = _evaluated(_planned(route, limits, bounds, field), rig, segments, bounds, rig_field, scene)
+        _, traj, report = _evaluated(_planned(route, limits, bounds, field), rig, segments, bounds, scene)
         out = {"report": report.to_dict()}
         if track_points:
             out["track"] = track(traj, track_points)
@@ -381,13 +380,12 @@ def score_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
 
 
 def batch_item_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-                    limits: dict[str, float] | None, bounds: Bounds, index: int,
-                    scene: tuple | None = None) -> dict[str, Any]:
+                    limits: dict[str, float] | None, bounds: Bounds, scene: tuple | None, index: int) -> dict[str, Any]:
     """One route of a batch: ``{"report": …}`` or ``{"error": problem document}`` (one bad route
     does not fail the others)."""
     field = f"routes[{index}]"
     try:
-        return score_task(route, rig, segments, limits, bounds, field, scene=scene)
+        return score_task(route, rig, segments, limits, bounds, scene, field=field)
     except Problem as exc:
         return {"error": exc.body(f"/v1/batch#{field}")}
 
@@ -405,19 +403,18 @@ def bag_score_task(path: str, filename: str, source: dict[str, Any], rig: str | 
         return traj
 
     def run() -> dict[str, Any]:
-        return plain(_evaluated(read, rig, segments, bounds, scene=scene)[2].to_dict())
+        return plain(_evaluated(read, rig, segments, bounds, scene)[2].to_dict())
 
     return task(run, field="bag")
 
 
-def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int,
-              limits: dict[str, float] | None, bounds: Bounds, parameter: str | None,
-              scene: tuple | None = None) -> bytes:
+def plot_task(route: dict[str, Any], rig: str | dict[str, Any], segments: int, limits: dict[str, float] | None,
+              bounds: Bounds, scene: tuple | None, parameter: str | None) -> bytes:
     """The PNG of ``excite score --plot`` for this route (seen in ``scene``)."""
     from excite.score import plots
 
     def run() -> bytes:
-        r, traj, report = _evaluated(_planned(route, limits, bounds), rig, segments, bounds, scene=scene)
+        r, traj, report = _evaluated(_planned(route, limits, bounds), rig, segments, bounds, scene)
         if parameter is not None and parameter not in [c.name for c in r.scored]:
             raise Problem.at("parameter", f"{parameter!r} is not a parameter of rig {r.name} "
                                           f"(parameters: {', '.join(c.name for c in r.scored)})")

@@ -30,7 +30,7 @@ def batch(body: BatchRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
     routes = [r.model_dump() for r in body.routes]
     scene = scene_spec(ctx, who, body.scene)
     results = ctx.run_all(request, who, batch_item_task,
-                          [(r, body.rig, body.segments, limits, ctx.bounds, i, scene) for i, r in enumerate(routes)],
+                          [(r, body.rig, body.segments, limits, ctx.bounds, scene, i) for i, r in enumerate(routes)],
                           [work_size(r, scene) for r in routes], cluster=True)
     items, scores, passed = [], [], 0
     for i, (route, res) in enumerate(zip(body.routes, results)):

@@ -7,15 +7,15 @@ import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Callable
 
 from fastapi import APIRouter, File, Form, Request, UploadFile
 from fastapi.responses import Response
 
-from ..auth import Scorer
-from ..context import Ctx
+from ..auth import Principal, Scorer
+from ..context import Context, Ctx
 from ..errors import Problem
-from ..schemas import SCENE_PATTERN, PlotRequest, Report, ScoreRequest, ScoreResponse
+from ..schemas import SCENE_PATTERN, PlotRequest, Report, RouteScoring, ScoreRequest, ScoreResponse
 from ..scoring import SCENE_WORK, bag_score_task, plot_task, score_task, work_size
 from .common import BODY
 from .scenes import scene_spec
@@ -30,11 +30,7 @@ def score(body: ScoreRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
     control profile); the rig by bundled name or inline; the scene, if any, by a bundled name or
     the digest of one uploaded with ``POST /v1/scenes``. CPU-bound: runs in a worker process.
     A recorded bag is scored by ``POST /v1/score/bag``."""
-    route = body.route.model_dump()
-    scene = scene_spec(ctx, who, body.scene)
-    out = ctx.run(request, who, score_task, route, body.rig, body.segments,
-                  body.limits.model_dump() if body.limits else None, ctx.bounds, "route", "rig",
-                  body.track_points, scene, size=work_size(route, scene))
+    out = _scored(body, request, ctx, who, score_task, body.track_points)
     return {**out["report"], "track": out.get("track"), "scene_track": out.get("scene_track")}
 
 
@@ -45,12 +41,16 @@ def score_plot(body: PlotRequest, request: Request, ctx: Ctx, who: Scorer) -> Re
     """The same figure as ``excite score ROUTE --plot FILE.png``: the route coloured by the
     information it carries on ``parameter`` (or the weakest mode), the scaled spectrum with the
     pass line, and σ against target per parameter."""
+    return Response(content=_scored(body, request, ctx, who, plot_task, body.parameter), media_type="image/png")
+
+
+def _scored(body: RouteScoring, request: Request, ctx: Context, who: Principal, fn: Callable[..., Any],
+            *extra: Any) -> Any:
+    """``fn(route, rig, segments, limits, bounds, scene, *extra)`` of the request in a scoring worker."""
     route = body.route.model_dump()
     scene = scene_spec(ctx, who, body.scene)
-    png = ctx.run(request, who, plot_task, route, body.rig, body.segments,
-                  body.limits.model_dump() if body.limits else None, ctx.bounds, body.parameter, scene,
-                  size=work_size(route, scene))
-    return Response(content=png, media_type="image/png")
+    return ctx.run(request, who, fn, route, body.rig, body.segments, body.limits.model_dump() if body.limits else None,
+                   ctx.bounds, scene, *extra, size=work_size(route, scene))
 
 
 def _rig_field(text: str) -> str | dict[str, Any]:
