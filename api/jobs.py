@@ -236,15 +236,15 @@ class JobRunner:
         log.info("job %s attempt %d started (pid %d)", job_id, attempt, proc.pid)
 
     def _scene(self, job_id: str, ref: str) -> tuple | None:
-        """The scene a job's request names (:func:`api.scoring.scene_of`'s spec): a bundled one, or
-        its key's file of that digest (None when it is no longer kept: the run says so)."""
-        from excite.scene.files import bundled_scenes
+        """The scene a job's request names (:func:`api.scoring.scene_spec`; None when it is no
+        longer kept: the run says so)."""
+        from .scoring import scene_spec
 
-        if ref in bundled_scenes():
-            return ("bundled", ref)
         job = self.store.get(job_id)
-        kept = None if job is None else self.store.scene(job["key_id"], ref)
-        return None if kept is None else ("upload", ref, kept[0], kept[1])
+        try:
+            return scene_spec(None if job is None else self.store, job and job["key_id"], ref)
+        except Problem:
+            return None
 
     def _listen(self, run: Run) -> None:
         """Read what the run's process sent; note its outcome when it ended without one."""

@@ -16,6 +16,7 @@ import dataclasses
 import io
 import logging
 import math
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Callable
@@ -98,8 +99,30 @@ _SCENES: dict[str, Any] = {}  # a worker's scenes read last, by digest or bundle
 _KEPT_SCENES = 4
 
 
+DIGEST = re.compile(r"^[0-9a-f]{64}$")  # of a scene (excite.scene.model.Scene.digest)
+
+
+def scene_spec(store: Any, key_id: str, ref: str | None, field: str = "scene") -> tuple | None:
+    """What a worker needs of the scene a request names (:func:`scene_of`): a bundled scene's
+    name, or the file of the key's own scene with that digest in ``store`` (None: none named)."""
+    from excite.scene.files import bundled_scenes
+
+    if ref is None:
+        return None
+    if ref in bundled_scenes():
+        return ("bundled", ref)
+    if DIGEST.match(ref) and store is not None:
+        kept = store.scene(key_id, ref)
+        if kept is None:
+            raise Problem.at(field, f"no scene {ref[:12]}… uploaded with this key (POST /v1/scenes; a scene "
+                                    "unused for the retention period, or beyond the key's storage quota, is deleted)")
+        return ("upload", ref, kept[0], kept[1])
+    raise Problem.at(field, f"{ref!r} is neither a bundled scene ({', '.join(bundled_scenes())}) nor a scene's "
+                            "digest (64 hexadecimal digits, from POST /v1/scenes)")
+
+
 def scene_of(spec: tuple | None, field: str = "scene") -> Any:
-    """The scene a request names, resolved by its router (:func:`api.routers.scenes.scene_spec`):
+    """The scene a request names, resolved by :func:`scene_spec`:
     ``("bundled", name)`` or ``("upload", digest, file name, bytes)`` (None: none); read once per
     worker and kept (a scene's digest is what it holds: the same digest, the same scene)."""
     if spec is None:

@@ -10,9 +10,8 @@ from ..auth import Scorer
 from ..context import Ctx
 from ..errors import Problem
 from ..schemas import BatchRequest, BatchResponse
-from ..scoring import batch_item_task, work_size
+from ..scoring import batch_item_task, scene_spec, work_size
 from .common import BODY
-from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["batch"])
 
@@ -28,7 +27,7 @@ def batch(body: BatchRequest, request: Request, ctx: Ctx, who: Scorer) -> Any:
         raise Problem.at("routes", f"{len(body.routes)} routes exceed the limit of {n_max}")
     limits = body.limits.model_dump() if body.limits else None
     routes = [r.model_dump() for r in body.routes]
-    scene = scene_spec(ctx, who, body.scene)
+    scene = scene_spec(ctx.store, who.key_id, body.scene)
     results = ctx.run_all(request, who, batch_item_task,
                           [(r, body.rig, body.segments, limits, ctx.bounds, scene, i) for i, r in enumerate(routes)],
                           [work_size(r, scene) for r in routes], cluster=True)

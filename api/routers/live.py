@@ -49,6 +49,8 @@ IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot 
 MAX_SESSIONS = 64  # the ceiling of EXCITE_MAX_LIVE_SESSIONS (16 by default), whatever it says
 _sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
 _messages = RateLimiter()  # per session
+
+
 def refused(status: int, field: str, message: str, close_code: int | None = None) -> Refusal:
     return Refusal(Problem.at(field, message, status), close_code)
 
@@ -273,12 +275,12 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str, Any, str | None]:
 
 
 def _scene(ctx: Context | None, who: Any, ref: str | None) -> tuple | None:
-    """The start's scene for the session's process (:func:`api.routers.scenes.scene_spec`; the
-    router alone, without the service's store: bundled scenes only)."""
-    from .scenes import scene_spec
+    """The start's scene for the session's process (:func:`api.scoring.scene_spec`; the router
+    alone, without the service's store: bundled scenes only)."""
+    from ..scoring import scene_spec
 
     try:
-        return scene_spec(ctx, who, ref)
+        return scene_spec(None if ctx is None else ctx.store, who.key_id, ref)
     except Problem as exc:
         raise Refusal(exc) from None
 

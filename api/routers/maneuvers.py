@@ -13,10 +13,9 @@ from ..auth import Planner
 from ..context import Ctx, deadline
 from ..errors import Problem
 from ..schemas import Job, ManeuverRequest
-from ..scoring import drivable_check_task, lot_task, optimize_settings
+from ..scoring import drivable_check_task, lot_task, optimize_settings, scene_spec
 from .common import BODY
 from .jobs import job_view
-from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["maneuvers"])
 MAX_STORED_REQUEST_BYTES = 1 << 20  # a request with an inline rig and a GeoJSON lot is a few KiB
@@ -49,7 +48,7 @@ def create_maneuver(body: ManeuverRequest, request: Request, ctx: Ctx, response:
                                                     "optimizer plans scene-blind)"})
     elif body.scene is not None:
         try:
-            scene = scene_spec(ctx, who, body.scene)
+            scene = scene_spec(ctx.store, who.key_id, body.scene)
         except Problem as exc:
             errors += exc.errors or []
     if body.drivable and not errors:  # the lot's room for an element, its safe speed, the scene over it

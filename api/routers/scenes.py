@@ -5,13 +5,12 @@
 file that cannot be read is a 422 naming the file's field) and keeps it under the digest of the
 scene it holds (:attr:`excite.scene.model.Scene.digest`), for the key that uploaded it alone,
 within its storage quota (:mod:`api.store`). Requests name a scene by that digest or a bundled
-scene by its name (``scene``: :func:`scene_spec`); ``GET /v1/scenes/{scene}`` gives its summary
+scene by its name (``scene``: :func:`api.scoring.scene_spec`); ``GET /v1/scenes/{scene}`` gives its summary
 and its outline from above (what the page draws under a route).
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,35 +18,16 @@ from fastapi import APIRouter, File, Request, Response, UploadFile
 
 from excite.scene.files import SUFFIXES, bundled_scenes
 
-from ..auth import Principal, Scorer
-from ..context import Context, Ctx, deadline
+from ..auth import Scorer
+from ..context import Ctx, deadline
 from ..errors import Problem
 from ..schemas import SceneList, SceneSummary, SceneView
-from ..scoring import scene_file_task, scene_view_task
+from ..scoring import DIGEST, scene_file_task, scene_spec, scene_view_task
 from .common import AUTH, BODY, problems
 
 router = APIRouter(prefix="/v1", tags=["scenes"])
 
-DIGEST = re.compile(r"^[0-9a-f]{64}$")
 _READ_CHUNK = 1 << 20
-
-
-def scene_spec(ctx: Context | None, who: Principal, ref: str | None, field: str = "scene") -> tuple | None:
-    """What a scoring worker needs of the scene a request names (:func:`api.scoring.scene_of`): a
-    bundled scene's name, or the file of the key's own scene with that digest (None: none; no
-    ``ctx``, no store: bundled scenes only)."""
-    if ref is None:
-        return None
-    if ref in bundled_scenes():
-        return ("bundled", ref)
-    if DIGEST.match(ref) and ctx is not None:
-        kept = ctx.store.scene(who.key_id, ref)
-        if kept is None:
-            raise Problem.at(field, f"no scene {ref[:12]}… uploaded with this key (POST /v1/scenes; a scene "
-                                    "unused for the retention period, or beyond the key's storage quota, is deleted)")
-        return ("upload", ref, kept[0], kept[1])
-    raise Problem.at(field, f"{ref!r} is neither a bundled scene ({', '.join(bundled_scenes())}) nor a scene's "
-                            "digest (64 hexadecimal digits, from POST /v1/scenes)")
 
 
 @router.post("/scenes", status_code=201, response_model=SceneSummary,
@@ -98,7 +78,7 @@ def get_scene(scene: str, request: Request, ctx: Ctx, who: Scorer) -> Any:
     rectangle)."""
     if scene not in bundled_scenes() and not (DIGEST.match(scene) and ctx.store.scene_summaries(who.key_id, scene)):
         raise Problem(404, f"no scene {scene[:64]!r}: neither bundled nor uploaded with this key")
-    spec = scene_spec(ctx, who, scene)
+    spec = scene_spec(ctx.store, who.key_id, scene)
     out = ctx.run(request, who, scene_view_task, spec, spec[2] if spec[0] == "upload" else scene,
                   size=max(1.0, len(spec[3]) / 200_000) if spec[0] == "upload" else 1.0)
     if spec[0] == "upload":

@@ -16,9 +16,8 @@ from ..auth import Principal, Scorer
 from ..context import Context, Ctx
 from ..errors import Problem
 from ..schemas import SCENE_PATTERN, PlotRequest, Report, RouteScoring, ScoreRequest, ScoreResponse
-from ..scoring import SCENE_WORK, bag_score_task, plot_task, score_task, work_size
+from ..scoring import SCENE_WORK, bag_score_task, plot_task, scene_spec, score_task, work_size
 from .common import BODY
-from .scenes import scene_spec
 
 router = APIRouter(prefix="/v1", tags=["score"])
 
@@ -48,7 +47,7 @@ def _scored(body: RouteScoring, request: Request, ctx: Context, who: Principal, 
             *extra: Any) -> Any:
     """``fn(route, rig, segments, limits, bounds, scene, *extra)`` of the request in a scoring worker."""
     route = body.route.model_dump()
-    scene = scene_spec(ctx, who, body.scene)
+    scene = scene_spec(ctx.store, who.key_id, body.scene)
     return ctx.run(request, who, fn, route, body.rig, body.segments, body.limits.model_dump() if body.limits else None,
                    ctx.bounds, scene, *extra, size=work_size(route, scene))
 
@@ -92,7 +91,7 @@ def score_bag(request: Request, ctx: Ctx, who: Scorer,
     if suffix not in (".bag", ".mcap"):
         raise Problem.at("bag", f"the file name must end in .bag or .mcap, got {filename[:200]!r}")
     rig_value = _rig_field(rig)
-    world = scene_spec(ctx, who, scene or None)
+    world = scene_spec(ctx.store, who.key_id, scene or None)
     if free_mb(Path(tempfile.gettempdir())) < ctx.settings.min_free_mb:
         raise Problem(503, "the server's temporary folder is nearly full; retry later", type_="disk-full",
                       headers={"Retry-After": "30"})
