@@ -17,21 +17,25 @@ footprint that stretches over a surface met obliquely spreads the return along t
 the point's distance off the surface is σ at every incidence, the model's law. The point then
 also slides along its surface (up to 30 cm at the steepest incidence kept), across edges and
 past the ends of façades, which the model does not count. The target is the map scan i's
-surfaces make: the scene ray-cast from scan i's pose on a pattern seven times finer (0.1°), without
-noise; small_gicp estimates its normals from 20 neighbours, finds each source point's nearest map
+surfaces make: the scene ray-cast from scan i's pose on a pattern fourteen times finer (0.05°),
+without noise; small_gicp estimates its normals from 20 neighbours, finds each source point's nearest map
 point, and registers by its ``PLANE_ICP`` from an initial guess drawn about the truth (0.3° and
 3 cm per axis, the motion prior an odometry starts from). The error is the right perturbation
 ``δ = [φ, ρ]`` of the estimated pose of scan j in scan i's frame.
 
 What it shows (200 registrations per scene; ``pytest -s`` prints the NEES with its interval, the
-spread along each axis against the model's σ and the largest mean error): in the lot with
-buildings on one side the NEES of the errors against ``H⁻¹`` is inside its 95 % interval; in the
-street canyon it is just above it (6.6 for 5.53 … 6.49): at one of the four poses the estimate
-along the street is off by 0.9 mm, 1.2 σ, in every draw. That bias comes from the façades' noise
-(made noise-free, it falls to the 0.3 mm the map's own sampling leaves): façade returns met at
-grazing incidence slide along the street, past the building ends into the gaps, where their
-nearest map points are on the gaps' walls, which face along the street. The model counts every
-return at its surface; its σ along the street is then 3 % too small at that pose.
+spread along each axis against the model's σ and the mean error): in the lot with buildings on one
+side and in the street canyon the NEES of the errors against ``H⁻¹`` is inside its 95 % interval.
+
+**The map must be fine enough to stand for the surfaces.** The model takes scan i's surfaces as
+exact. A façade met at grazing incidence is sampled sparsely along the street by any ray pattern
+(rays 0.1° apart land tens of centimetres apart on it at 30 m), and the returns of scan j, which
+slide along it with their range error, meet their nearest map points unevenly: with the map cast
+0.1° apart, one of the canyon's four poses was biased along the street by 1.3 σ in every draw
+(NEES 6.6 for an interval ending at 6.49). The bias goes with the map's spacing (0.07°: 0.1 σ;
+0.05°: under 0.1 σ) and with the slide (errors along the normal instead of the ray: 0.3 σ on the
+0.1° map); dropping the few returns that slide off their face altogether leaves it (1.05 σ). It is
+the map's sampling, not information the scene lacks.
 
 **Registering against the earlier scan itself** — noisy, sampled on the same pattern — is another
 matter: its noisy normals and nearest points pull the estimate towards no motion along the
@@ -42,8 +46,8 @@ holds that. The model is that of registration against a map.
 exactly zero (every normal is across the axis), and so the pair's information along it is zero,
 the drift's included. small_gicp's estimate along the axis follows neither the motion nor its
 initial guess: nothing holds it, and it slides, iteration after iteration, wherever the map's
-sampling lets it (decimetres), while the directions across the axis are registered to about their
-σ.
+sampling lets it (centimetres, more than the guess's spread, where information would hold it to
+millimetres), while the directions across the axis are registered to about their σ.
 """
 
 from __future__ import annotations
@@ -66,7 +70,7 @@ pytestmark = [pytest.mark.montecarlo, pytest.mark.slow]
 BEAMS = LIDAR_PRESETS["vlp32c"]
 SIGMA = BEAMS.range_noise_m
 STEP_DEG = 0.7
-MAP_STEP_DEG = 0.1
+MAP_STEP_DEG = 0.05
 DT = 0.1
 SPEED = 8.0
 YAW_RATE = 0.2
@@ -203,6 +207,7 @@ def test_excite_sigma_against_small_gicp_registrations_in_the_lot_with_buildings
     # and along every axis, not only on the whole: a spread of 50 draws within its sampling error
     # (a tenth)
     assert np.all((spread > 0.65) & (spread < 1.35)), spread
+    assert np.abs(bias).max() < 0.75, bias
 
 
 def test_excite_sigma_against_small_gicp_registrations_in_the_street_canyon():
@@ -210,11 +215,10 @@ def test_excite_sigma_against_small_gicp_registrations_in_the_street_canyon():
     runs = monte_carlo(load_scene("street_canyon"), starts, DRAWS, seed=1)
     m, n, (lo, hi), spread, bias = report("street_canyon", runs)
     assert n >= 200 and all(np.isfinite(r["sigma"]).all() for r in runs)
-    # just above the interval (the façades' slide past the building ends: the module docstring),
-    # within 10 % of its upper end
-    assert lo < m < 1.1 * hi
+    assert lo < m < hi
     assert np.all((spread > 0.65) & (spread < 1.35)), spread
-    assert np.abs(bias).max() < 1.5, bias
+    # no pose biased along any axis beyond what 50 draws' means scatter (σ/√50 ≈ 0.14 σ each)
+    assert np.abs(bias).max() < 0.75, bias
 
 
 def test_the_tunnel_tells_nothing_along_its_axis():
@@ -233,9 +237,9 @@ def test_the_tunnel_tells_nothing_along_its_axis():
     rms = np.sqrt((across**2).mean(axis=0))
     print(f"\ntunnel: along the axis, errors of {along.std() * 1e2:.1f} cm spread (the initial guess's 3 cm); "
           f"across it, errors of {np.round(rms, 2)} of the model's σ (rms per axis)")
-    # along the axis the registration ends wherever the map's sampling lets it slide: decimetres,
-    # more than the guess it started from
-    assert along.std() > 2 * PRIOR[3]
+    # along the axis the registration ends wherever the map's sampling lets it slide: no closer to
+    # the truth than the guess it started from (across the axis it is millimetres)
+    assert along.std() > PRIOR[3]
     # across it, registered to about the model's σ (the slide along the axis drags roll and the
     # lateral translation with it)
     assert np.all(rms < 2.5), rms
