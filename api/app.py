@@ -9,7 +9,6 @@ job kind: docs/guides/service.md.
 from __future__ import annotations
 
 import logging
-import time
 from contextlib import asynccontextmanager
 from typing import Any, AsyncIterator
 
@@ -70,7 +69,7 @@ def create_app(settings: Settings | None = None, *,
         registry=registry,
         jobs_gauge=Gauge("excite_jobs", "Jobs in the store by status", ["status"], registry=registry),
         store_up=Gauge("excite_store_up", "Whether the job store answered the last scrape", registry=registry),
-        started_at=time.time(), keys=keys)
+        keys=keys)
     ctx.runner.storage_bytes = ctx.storage_bytes
     secret = store.secret("ticket")
 

@@ -1,10 +1,7 @@
 """The service's work on a Dask cluster, when ``EXCITE_DASK_SCHEDULER`` names one.
 
-- Batch routes (``POST /v1/batch``): each route is sent to the cluster as the request's own data
-  (small inputs travel as bytes), scored by :func:`api.scoring.score_task` on a Dask worker;
-  :class:`ClusterScoring` gives back standard futures that fail with
-  :class:`~excite.errors.WorkTimeout` at the request's deadline (the cluster task is cancelled then),
-  like the local scoring pool's.
+- Batch routes (``POST /v1/batch``): each route is scored on a Dask worker, through
+  :class:`ClusterScoring`'s futures, which behave like the local scoring pool's.
 - Optimization jobs: the job's process (:func:`api.jobs.job_main`, started per job by the server)
   stays the job's owner and the durable job record its truth; it submits the job function to
   the cluster (:func:`run_remote`) and relays progress (a Dask queue) and cancellation (a Dask

@@ -37,7 +37,6 @@ class Context:
     registry: CollectorRegistry
     jobs_gauge: Gauge
     store_up: Gauge
-    started_at: float
     cluster: ClusterScoring | None = None  # batch routes go to the Dask cluster when configured
     keys: KeyRing | None = None  # None: an open server
     rates: RateLimiter = field(default_factory=RateLimiter)

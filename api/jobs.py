@@ -157,7 +157,6 @@ class JobRunner:
     purge_every_s: float = 60.0
     replica: str = field(default_factory=replica_id)
     fault: str | None = None  # the store's current fault, for /readyz
-    requeued_at_start: int = 0
     purged: int = 0
 
     def __post_init__(self) -> None:
@@ -185,7 +184,6 @@ class JobRunner:
         except StoreError as exc:
             self._failed(exc)
             requeued = []
-        self.requeued_at_start = len(requeued)
         if requeued:
             log.warning("re-queued %d job(s) left running by a previous server: %s", len(requeued), ", ".join(requeued))
         self._thread = threading.Thread(target=self._loop, name="excite-jobs", daemon=True)

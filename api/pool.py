@@ -87,27 +87,21 @@ def _rss_mb() -> float:
 
 
 class _Grown:
-    """In a worker: after each task, trim the heap; True when it grew past ``recycle_mb``."""
+    """In a worker: :meth:`warm` it, then after each task trim the heap; True when it grew past
+    ``recycle_mb`` since it was warm."""
 
-    def __init__(self, recycle_mb: int):
-        self.recycle_mb, self.baseline = recycle_mb, None
+    def __init__(self, recycle_mb: int, warm: Callable[[], Any] | None):
+        self.recycle_mb, self.warm_up, self.baseline = recycle_mb, warm, 0.0
+
+    def warm(self) -> None:
+        if self.warm_up is not None:
+            self.warm_up()
+        trim()
+        self.baseline = _rss_mb()
 
     def __call__(self) -> bool:
         trim()
-        if self.baseline is None:
-            self.baseline = _rss_mb()
-            return False
         return bool(self.recycle_mb) and _rss_mb() - self.baseline > self.recycle_mb
-
-
-class _Warm:
-    def __init__(self, warm: Callable[[], Any] | None, grown: _Grown):
-        self.warm, self.grown = warm, grown
-
-    def __call__(self) -> None:
-        if self.warm is not None:
-            self.warm()
-        self.grown()  # the baseline: a warm worker
 
 
 _forkserver_lock = threading.Lock()
@@ -183,7 +177,7 @@ class WorkerPool:
         with self._cond:
             self._starting += 1
         try:
-            w = Worker(warm=_Warm(self.warm, grown := _Grown(self.recycle_mb)), after=grown,
+            w = Worker(warm=(grown := _Grown(self.recycle_mb, self.warm)).warm, after=grown,
                        context=forkserver(), memory_mb=self.memory_mb, name="excite-score",
                        start_deadline=time.monotonic() + self.start_timeout_s)
         finally:
@@ -248,13 +242,11 @@ class WorkerPool:
             while True:
                 left = deadline - time.monotonic()
                 if left <= 0 or self._closed:
-                    self._waiting.remove(task)
-                    self._cond.notify_all()
+                    self._dequeue(task)
                     raise WorkTimeout("no scoring worker was free in time")
                 cost = self._cost(kind, size)
                 if cost > ADMIT_SHARE * left:  # what it costs now would not finish in time
-                    self._waiting.remove(task)
-                    self._cond.notify_all()
+                    self._dequeue(task)
                     self.shed += 1
                     raise Overloaded(f"this key's work ahead of this request took longer than expected, and its "
                                      f"~{cost:.0f} s would not finish within its time limit",
@@ -327,6 +319,7 @@ class WorkerPool:
         return futures
 
     def _dequeue(self, task: _Task) -> None:
+        """``task`` waits no more (its future was cancelled, or it was refused)."""
         with self._cond:
             if task in self._waiting:
                 self._waiting.remove(task)

@@ -58,13 +58,11 @@ def of(exc: BaseException, field: str | None = None, *, timeout_s: float | None 
                        headers={"Retry-After": "10"})
     if isinstance(exc, WorkerDied):
         return Problem(503, "a worker process died; retry the request", headers={"Retry-After": "1"})
-    if isinstance(exc, Unsendable):
-        return Problem.at(field or "body", "nested too deeply to process")
     if isinstance(exc, MemoryError):
         limit = f" ({memory_mb} MiB)" if memory_mb else ""
         return Problem.at(field or "body", f"needs more memory than a worker may use{limit}; "
                                            "make it shorter or sparser", status=413)
-    if isinstance(exc, RecursionError):
+    if isinstance(exc, (RecursionError, Unsendable)):
         return Problem.at(field or "body", "nested too deeply to process")
     if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
         log.error("no space left on the server's disk: %s", exc)

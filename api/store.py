@@ -155,6 +155,20 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
+def _current(job_id: str, attempt: int) -> Any:
+    """Where the run ``attempt`` of the job ``job_id`` is its current one (the job is running)."""
+    return (jobs.c.id == job_id) & (jobs.c.attempt == attempt) & (jobs.c.status == "running")
+
+
+def _of_key(table: sa.Table, key_id: str | None) -> Any:
+    """Where a row is ``key_id``'s (None: anyone's)."""
+    return sa.true() if key_id is None else table.c.key_id == key_id
+
+
+def _scene(key_id: str, digest: str) -> Any:
+    return (scenes.c.key_id == key_id) & (scenes.c.digest == digest)
+
+
 def is_postgres_url(url: str) -> bool:
     return url.startswith(("postgresql://", "postgres://"))
 
@@ -316,23 +330,13 @@ class JobStore:
 
     def get(self, job_id: str, key_id: str | None = None) -> dict[str, Any] | None:
         """The job (without its request), or None; with ``key_id``, only a job of that key."""
-        q = sa.select(*_VIEW).where(jobs.c.id == job_id)
-        if key_id is not None:
-            q = q.where(jobs.c.key_id == key_id)
         with self._tx() as c:
-            row = c.execute(q).mappings().first()
-        if row is None:
-            return None
-        out = dict(row)
-        for key in ("progress", "result", "error"):
-            out[key] = _loads(out[key])
-        return out
+            row = c.execute(sa.select(*_VIEW).where(jobs.c.id == job_id, _of_key(jobs, key_id))).mappings().first()
+        return None if row is None else {**row, **{k: _loads(row[k]) for k in ("progress", "result", "error")}}
 
     def request_of(self, job_id: str, attempt: int | None = None) -> dict[str, Any] | None:
         """The job's request; with ``attempt``, only while that run of it is the current one."""
-        q = sa.select(jobs.c.request).where(jobs.c.id == job_id)
-        if attempt is not None:
-            q = q.where(jobs.c.attempt == attempt, jobs.c.status == "running")
+        q = sa.select(jobs.c.request).where(jobs.c.id == job_id if attempt is None else _current(job_id, attempt))
         with self._tx() as c:
             return _loads(c.execute(q).scalar())
 
@@ -340,11 +344,8 @@ class JobStore:
         """Cancel a queued job at once, flag a running one; returns the status after, or None
         (no such job, or none of ``key_id``'s)."""
         now = time.time()
-        q = sa.select(jobs.c.status).where(jobs.c.id == job_id)
-        if key_id is not None:
-            q = q.where(jobs.c.key_id == key_id)
         with self._tx("claim") as c:
-            status = c.execute(q).scalar()
+            status = c.execute(sa.select(jobs.c.status).where(jobs.c.id == job_id, _of_key(jobs, key_id))).scalar()
             if status == "queued":
                 c.execute(jobs.update().where(jobs.c.id == job_id).values(
                     status="cancelled", cancel_requested=1, finished_at=now, updated_at=now))
@@ -400,10 +401,8 @@ class JobStore:
         out = set()
         with self._tx() as c:
             for job_id, attempt in held:
-                n = c.execute(jobs.update().where(
-                    jobs.c.id == job_id, jobs.c.attempt == attempt, jobs.c.status == "running",
-                    jobs.c.lease_owner == replica).values(lease_expires=now + lease_s)).rowcount
-                if n:
+                if c.execute(jobs.update().where(_current(job_id, attempt), jobs.c.lease_owner == replica)
+                             .values(lease_expires=now + lease_s)).rowcount:
                     out.add((job_id, attempt))
         return out
 
@@ -421,7 +420,7 @@ class JobStore:
             for job_id, attempt, holder, expires, cancel in rows:
                 if holder is not None and (expires or 0) >= now and not local_holder_dead(holder):
                     continue
-                this = (jobs.c.id == job_id) & (jobs.c.attempt == attempt)
+                this = _current(job_id, attempt)
                 self._ended(c, job_id, attempt, now, "lost")
                 if cancel:
                     c.execute(jobs.update().where(this).values(status="cancelled", finished_at=now,
@@ -436,10 +435,8 @@ class JobStore:
         """A run stopped by this server's shutdown: back to the queue for the next server."""
         now = time.time()
         with self._tx() as c:
-            n = c.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.attempt == attempt,
-                                              jobs.c.status == "running").values(
-                status="queued", updated_at=now, lease_owner=None, lease_expires=None)).rowcount
-            if n:
+            if c.execute(jobs.update().where(_current(job_id, attempt)).values(
+                    status="queued", updated_at=now, lease_owner=None, lease_expires=None)).rowcount:
                 self._ended(c, job_id, attempt, now, "released")
 
     def cancel_requested(self, replica: str) -> set[tuple[str, int]]:
@@ -451,8 +448,7 @@ class JobStore:
 
     def progress(self, job_id: str, attempt: int, progress: dict[str, Any]) -> None:
         with self._tx() as c:
-            c.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.attempt == attempt,
-                                          jobs.c.status == "running")
+            c.execute(jobs.update().where(_current(job_id, attempt))
                       .values(progress=json.dumps(progress), updated_at=time.time()))
 
     def finish(self, job_id: str, attempt: int, status: str, result: dict[str, Any] | None = None,
@@ -464,7 +460,7 @@ class JobStore:
         now = time.time()
         res = None if result is None else json.dumps(result)
         err = None if error is None else json.dumps(error)
-        this = (jobs.c.id == job_id) & (jobs.c.attempt == attempt) & (jobs.c.status == "running")
+        this = _current(job_id, attempt)
         with self._tx() as c:
             row = c.execute(sa.select(jobs.c.request, jobs.c.progress).where(this)).first()
             if row is None:
@@ -525,7 +521,7 @@ class JobStore:
     def _key_bytes(c: sa.Connection, key_id: str | None) -> int:
         """What the key's jobs and scenes hold [bytes] (None: every key's)."""
         return sum(c.execute(sa.select(sa.func.coalesce(sa.func.sum(t.c.size_bytes), 0)).where(
-            sa.true() if key_id is None else t.c.key_id == key_id)).scalar() for t in (jobs, scenes))
+            _of_key(t, key_id))).scalar() for t in (jobs, scenes))
 
     @staticmethod
     def _delete(c: sa.Connection, ids: list[str]) -> int:
@@ -550,9 +546,8 @@ class JobStore:
         transaction: :class:`OverQuota` when the key's unfinished jobs leave no room for it within
         ``max_bytes``; the key's oldest finished jobs and least recently used scenes make room."""
         now = time.time()
-        this = (scenes.c.key_id == key_id) & (scenes.c.digest == digest)
         with self._tx(f"key:{key_id}") as c:
-            if c.execute(scenes.update().where(this).values(used_at=now)).rowcount:
+            if c.execute(scenes.update().where(_scene(key_id, digest)).values(used_at=now)).rowcount:
                 return False
             self._room(c, key_id, "scene", len(data), max_bytes)
             c.execute(scenes.insert().values(key_id=key_id, digest=digest, name=name, summary=json.dumps(summary),
@@ -563,20 +558,17 @@ class JobStore:
 
     def scene(self, key_id: str, digest: str) -> tuple[str, bytes] | None:
         """The name and bytes of ``key_id``'s scene ``digest`` (marked used), or None."""
-        this = (scenes.c.key_id == key_id) & (scenes.c.digest == digest)
         with self._tx() as c:
-            row = c.execute(sa.select(scenes.c.name, scenes.c.data).where(this)).first()
+            row = c.execute(sa.select(scenes.c.name, scenes.c.data).where(_scene(key_id, digest))).first()
             if row is not None:
-                c.execute(scenes.update().where(this).values(used_at=time.time()))
+                c.execute(scenes.update().where(_scene(key_id, digest)).values(used_at=time.time()))
         return None if row is None else (row.name, bytes(row.data))
 
     def scene_summaries(self, key_id: str, digest: str | None = None) -> list[dict[str, Any]]:
         """The key's scenes (or its scene ``digest``), most recently used first: each one's summary
         with its digest, name, size and times."""
         q = sa.select(scenes.c.digest, scenes.c.name, scenes.c.summary, scenes.c.size_bytes, scenes.c.created_at,
-                      scenes.c.used_at).where(scenes.c.key_id == key_id)
-        if digest is not None:
-            q = q.where(scenes.c.digest == digest)
+                      scenes.c.used_at).where(scenes.c.key_id == key_id if digest is None else _scene(key_id, digest))
         with self._tx() as c:
             rows = c.execute(q.order_by(scenes.c.used_at.desc())).mappings().all()
         return [{**json.loads(r["summary"]), "digest": r["digest"], "name": r["name"], "size_bytes": r["size_bytes"],
@@ -585,8 +577,7 @@ class JobStore:
     def delete_scene(self, key_id: str, digest: str) -> bool:
         """Delete ``key_id``'s scene ``digest``; False when it has none."""
         with self._tx(f"key:{key_id}") as c:
-            return bool(c.execute(scenes.delete().where(scenes.c.key_id == key_id,
-                                                        scenes.c.digest == digest)).rowcount)
+            return bool(c.execute(scenes.delete().where(_scene(key_id, digest))).rowcount)
 
     # -- tickets ------------------------------------------------------------------------------
 

@@ -1,11 +1,5 @@
-"""Probes and metrics: ``/healthz`` (the process answers), ``/readyz`` (it can do work),
-``/metrics`` (Prometheus text; who may read it is ``EXCITE_METRICS``).
-
-``/readyz`` is not ready while the job store does not answer or the dispatcher's last use of it
-failed, while the disk of the job database or of the temporary folder has less than
-``EXCITE_MIN_FREE_MB`` free, or while the scoring workers start. ``/metrics`` never fails: a
-store that does not answer is ``excite_store_up 0`` and its job counts are left out.
-"""
+"""Probes and metrics: ``/healthz`` (the process answers), ``/readyz`` (it can do work: :func:`unready`
+says why not), ``/metrics`` (Prometheus text, never failing; who may read it is ``EXCITE_METRICS``)."""
 
 from __future__ import annotations
 

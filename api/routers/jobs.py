@@ -24,15 +24,11 @@ JobId = Annotated[str, Path(max_length=64, description="The id returned by POST 
 
 def job_view(job: dict[str, Any]) -> dict[str, Any]:
     """The public view of a stored job (the request and the raw profile stay inside)."""
-    result = job["result"]
+    result, links = job["result"], {"self": f"/v1/jobs/{job['id']}"}
     if result is not None:
+        formats = (["tum"] if result.get("profile") is not None else []) + (list(DRIVABLE) if result.get("drivable") else [])
+        links.update({"maneuver" if f == "tum" else f: f"/v1/jobs/{job['id']}/maneuver?format={f}" for f in formats})
         result = {k: v for k, v in result.items() if k != "profile"}
-    links = {"self": f"/v1/jobs/{job['id']}"}
-    if job["result"] is not None and job["result"].get("profile") is not None:
-        links["maneuver"] = f"/v1/jobs/{job['id']}/maneuver?format=tum"
-    if job["result"] is not None and job["result"].get("drivable"):
-        for fmt in ("sheet_pdf", "sheet_png", "cones", "plan"):
-            links[fmt] = f"/v1/jobs/{job['id']}/maneuver?format={fmt}"
     return {"id": job["id"], "kind": job["kind"], "status": job["status"],
             "cancel_requested": bool(job["cancel_requested"]), "created_at": job["created_at"],
             "started_at": job["started_at"], "finished_at": job["finished_at"],
@@ -95,26 +91,20 @@ def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
     if result is None or result.get("profile") is None:
         raise Problem(409, f"job {job_id} has no maneuver (status {job['status']})")
     req = ctx.store.request_of(job_id) or {}
-    origin = None
-    if lon_deg is not None and lat_deg is not None:
-        origin = (lon_deg, lat_deg)
-    elif req.get("origin"):
-        origin = (req["origin"]["lon_deg"], req["origin"]["lat_deg"])
-    elif result.get("origin"):  # the request's lot was GeoJSON in lon/lat
-        origin = (result["origin"]["lon_deg"], result["origin"]["lat_deg"])
+    kept = req.get("origin") or result.get("origin")  # the request's, or its lot's (GeoJSON in lon/lat)
+    origin = (lon_deg, lat_deg) if lon_deg is not None and lat_deg is not None else (
+        kept and (kept["lon_deg"], kept["lat_deg"]))
     name = req.get("name") or "maneuver"
+    # the stored rig is a client's: resolved, and the file made, in a worker
     if format in DRIVABLE:
         if not result.get("drivable"):
             raise Problem.at("format", f"{format} is a drivable plan's; job {job_id} planned a free-form maneuver")
         data = ctx.run(request, who, drivable_file_task, result["drivable"]["plan"], req.get("rig", "robotaxi"),
                        format, req.get("lot"), req.get("lot_x_m", 80.0), req.get("lot_y_m", 50.0), origin)
         media, ext = DRIVABLE[format]
-        return Response(data, media_type=media,
-                        headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})
-    if format == "geojson" and origin is None:
-        raise Problem.at("lon_deg", "GeoJSON needs the lot's origin: give lon_deg and lat_deg, or origin in the request")
-    # the stored rig is a client's: resolved, and the drive rebuilt, in a worker
-    text = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
-    ext = {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]
-    return Response(text, media_type=MEDIA[format],
-                    headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})
+    else:
+        if format == "geojson" and origin is None:
+            raise Problem.at("lon_deg", "GeoJSON needs the lot's origin: give lon_deg and lat_deg, or origin in the request")
+        data = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
+        media, ext = MEDIA[format], {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]
+    return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})

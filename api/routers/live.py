@@ -1,18 +1,10 @@
 """``/v1/live``: a WebSocket on which a vehicle streams its poses during the calibration drive and
-receives the live guidance of :mod:`excite.score.live` (the same updates as ``excite live --json``).
-The protocol is in ``docs/guides/live.md``: ``start`` (rig, name, optionally a ``scene`` and a
-drivable ``plan``), ``poses`` messages, ``end``; the server answers ``started``, ``update``,
-``done``, the plan's ``element``/``element_done``/``element_short``/``proposal`` and ``final``,
-or an ``error`` frame with a problem and closes (1008; 1009 over :data:`MAX_MESSAGE_BYTES`; 1013
-when :data:`MAX_SESSIONS` stream already; 1003 for a binary frame).
-
-Bounds: a message's size, poses and nesting (:data:`MAX_POSES`, :data:`MAX_DEPTH`), messages per
-second, the idle time; the drive's duration, poses and pose rate (the settings); sessions at once
-and per key. Each session's evaluator runs in a supervised process of its own
-(:class:`~excite.core.processes.Supervised`, from the scoring pool's forkserver, with
-``EXCITE_LIVE_MEMORY_MB``), which resolves the start's rig and scene; every message's work has the
-request time limit: the event loop holds only the socket. A browser authenticates with a
-single-use ticket offered as the subprotocol ``excite-ticket.<ticket>`` beside ``excite-live``.
+receives the live guidance of :mod:`excite.score.live` (the same updates as ``excite live --json``,
+or a drivable ``plan``'s as :class:`excite.plan.drivable.guide.PlanStream` gives them). The protocol,
+its bounds and close codes are in ``docs/guides/live.md``; the bounds are this module's constants
+and the settings'. Each session's evaluator runs in a process of its own (:class:`Session`): the
+event loop holds only the socket. A browser authenticates with a single-use ticket offered as the
+subprotocol ``excite-ticket.<ticket>`` beside ``excite-live``.
 """
 
 from __future__ import annotations
@@ -27,7 +19,7 @@ from typing import Any
 import anyio
 from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
-from excite.core.bounds import nesting
+from excite.core.bounds import nesting, tightened
 from excite.core.processes import Supervised
 from excite.errors import WorkerDied, WorkTimeout
 
@@ -35,7 +27,9 @@ from .. import auth
 from ..auth import LIVE_PROTOCOL, LiveClient, RateLimiter, Scorer
 from ..context import Ctx, Context
 from ..errors import Problem, Refusal
+from ..pool import forkserver, trim
 from ..schemas import SCENE_PATTERN
+from ..scoring import resolve_rig, scene_of, scene_spec, task
 
 log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
@@ -168,11 +162,6 @@ def _session_main(conn: Any, rig: Any, name: str, duration_s: float, length_m: f
     to check, a scene to read), then each ``("poses", t, p, R)`` or ``("end",)`` answered
     ``("ok", value)`` or ``("problem", Problem)``; every failure is a problem
     (:func:`api.scoring.task`)."""
-    from excite.core.bounds import tightened
-
-    from ..pool import trim
-    from ..scoring import resolve_rig, scene_of, task
-
     with tightened(duration_s=duration_s, length_m=length_m):
         try:
             r = task(resolve_rig, rig, field="rig")
@@ -216,8 +205,6 @@ class Session:
     forkserver, with ``EXCITE_LIVE_MEMORY_MB``); every call has the request time limit."""
 
     def __init__(self, s: Any, rig: Any, name: str, plan: Any = None, scene: tuple | None = None):
-        from ..pool import forkserver
-
         self.timeout_s = s.request_timeout_s
         self.proc = Supervised(_session_main, rig, name, s.max_route_duration_s, s.max_route_length_m, plan, scene,
                                context=forkserver(), memory_mb=s.live_memory_mb, name="excite-live")
@@ -272,17 +259,6 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str, Any, str | None]:
     if scene is not None and not (isinstance(scene, str) and re.match(SCENE_PATTERN, scene)):
         raise refused(422, "scene", "must be a bundled scene's name or the digest of an uploaded scene")
     return rig, name, plan, scene
-
-
-def _scene(ctx: Context | None, who: Any, ref: str | None) -> tuple | None:
-    """The start's scene for the session's process (:func:`api.scoring.scene_spec`; the router
-    alone, without the service's store: bundled scenes only)."""
-    from ..scoring import scene_spec
-
-    try:
-        return scene_spec(None if ctx is None else ctx.store, who.key_id, ref)
-    except Problem as exc:
-        raise Refusal(exc) from None
 
 
 def _subprotocol(ws: WebSocket) -> str | None:
@@ -356,7 +332,8 @@ async def _session(ws: WebSocket, settings: Any, ctx: Context | None, who: Any) 
                 msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
                     rig, name, plan, scene_ref = _start(msg)
-                    scene = await anyio.to_thread.run_sync(_scene, ctx, who, scene_ref)
+                    # the router alone, without the service's store: bundled scenes only
+                    scene = await anyio.to_thread.run_sync(scene_spec, ctx and ctx.store, who.key_id, scene_ref)
                     # starting the process writes the rig to it (1 MB): not in the event loop either
                     session = await anyio.to_thread.run_sync(Session, settings, rig, name, plan, scene)
                     started = await anyio.to_thread.run_sync(session.call)
@@ -375,8 +352,8 @@ async def _session(ws: WebSocket, settings: Any, ctx: Context | None, who: Any) 
                     return
                 else:
                     raise refused(422, "type", f"expected 'poses' or 'end', got {msg['type']!r}")
-            except Refusal as exc:
-                await _refuse(ws, exc)
+            except (Refusal, Problem) as exc:  # a problem: the start's scene
+                await _refuse(ws, exc if isinstance(exc, Refusal) else Refusal(exc))
                 return
     finally:
         _messages.forget(name_of_session)

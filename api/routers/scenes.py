@@ -1,13 +1,6 @@
-"""``/v1/scenes``: a scene file uploaded once and named by its digest in the score requests after.
-
-``POST /v1/scenes`` (multipart, the file as ``file``) reads the file in a scoring worker
-(:func:`excite.scene.files.load_scene`: GeoJSON, meshes, point-cloud maps; every field checked, a
-file that cannot be read is a 422 naming the file's field) and keeps it under the digest of the
-scene it holds (:attr:`excite.scene.model.Scene.digest`), for the key that uploaded it alone,
-within its storage quota (:mod:`api.store`). Requests name a scene by that digest or a bundled
-scene by its name (``scene``: :func:`api.scoring.scene_spec`); ``GET /v1/scenes/{scene}`` gives its summary
-and its outline from above (what the page draws under a route).
-"""
+"""``/v1/scenes``: a scene file uploaded once (read by :func:`api.scoring.scene_file_task`, kept
+by :meth:`api.store.JobStore.put_scene`) and named by its digest in the score requests after
+(:func:`api.scoring.scene_spec`)."""
 
 from __future__ import annotations
 
