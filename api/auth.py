@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Callable
 
+import anyio
 from fastapi import Depends, Security
 from fastapi.security import APIKeyHeader, HTTPBearer, SecurityScopes
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -42,7 +43,7 @@ from starlette.requests import HTTPConnection
 
 from . import problems
 from .errors import Exposed, KeysError, Problem
-from .middleware import header
+from .middleware import UNSAFE, header
 
 SCOPES = ("score", "plan", "admin")
 KEY_PREFIX = "exk_"
@@ -290,10 +291,8 @@ class Authenticate:
             who = self.ring.lookup(secret)
             if who is None:
                 raise unauthorized("the API key is not one of this server's")
-        elif scope["type"] == "websocket" and offered_ticket(scope):
-            import anyio
-
-            key_id = await anyio.to_thread.run_sync(self.redeem, offered_ticket(scope))
+        elif scope["type"] == "websocket" and (ticket := offered_ticket(scope)):
+            key_id = await anyio.to_thread.run_sync(self.redeem, ticket)
             who = None if key_id is None else self.ring.by_id(key_id)
             if who is None:
                 raise unauthorized("the live ticket is not valid, was used already or has expired "
@@ -313,7 +312,7 @@ class Authenticate:
 
 
 def _has_body(scope: dict) -> bool:
-    if scope.get("method") in ("POST", "PUT", "PATCH", "DELETE"):
+    if scope.get("method") in UNSAFE:
         return True
     length = header(scope, b"content-length")
     return bool(length and length.strip() not in ("", "0")) or header(scope, b"transfer-encoding") is not None

@@ -13,7 +13,6 @@ This module imports no web framework at load time: the workers import it too.
 from __future__ import annotations
 
 import errno
-import json
 import logging
 from typing import Any, Callable
 
@@ -72,23 +71,18 @@ def of(exc: BaseException, field: str | None = None, *, timeout_s: float | None 
     return Problem(500, INTERNAL)
 
 
-def response(problem: Problem, instance: str) -> Any:
+def response(problem: Problem, instance: str, close: bool = False) -> Any:
+    """``problem`` as a response; ``close``: the connection is closed after it (a body left unread)."""
     from fastapi.responses import JSONResponse
 
+    headers = {**(problem.headers or {}), **({"Connection": "close"} if close else {})}
     return JSONResponse(problem.body(instance), status_code=problem.status, media_type=PROBLEM_JSON,
-                        headers=problem.headers)
+                        headers=headers or None)
 
 
 async def send(send_: Callable, problem: Problem, instance: str, close: bool = False) -> None:
-    """``problem`` as the whole answer of an ASGI request (middleware that answers before the
-    app); ``close``: the connection is closed after it (a body left unread)."""
-    body = json.dumps(problem.body(instance)).encode()
-    headers = [(b"content-type", PROBLEM_JSON.encode()), (b"content-length", str(len(body)).encode())]
-    headers += [(k.lower().encode("latin-1"), v.encode("latin-1")) for k, v in (problem.headers or {}).items()]
-    if close:
-        headers.append((b"connection", b"close"))
-    await send_({"type": "http.response.start", "status": problem.status, "headers": headers})
-    await send_({"type": "http.response.body", "body": body})
+    """``problem`` as the whole answer of an ASGI request (middleware that answers before the app)."""
+    await response(problem, instance, close)({"type": "http"}, None, send_)
 
 
 def field_name(loc: tuple[Any, ...] | list[Any]) -> str:

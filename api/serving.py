@@ -14,14 +14,13 @@ idle one silently, as uvicorn's keep-alive timeout does).
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 from typing import Any
 
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from .errors import Problem
-from .problems import PROBLEM_JSON
+from .problems import response
 
 log = logging.getLogger("excite.api")
 
@@ -80,11 +79,10 @@ def header_timeout_protocol(timeout_s: float) -> type[H11Protocol]:
                 return
             log.warning("%s: request headers not received within %g s; connection closed",
                         "%s:%d" % self.client if self.client else "a client", timeout_s)
-            body = json.dumps(Problem(408, f"the request headers did not arrive within {timeout_s:g} s",
-                                      type_="header-timeout").body()).encode()
-            self.transport.write(b"HTTP/1.1 408 Request Timeout\r\ncontent-type: " + PROBLEM_JSON.encode()
-                                 + b"\r\ncontent-length: " + str(len(body)).encode()
-                                 + b"\r\nconnection: close\r\n\r\n" + body)
+            r = response(Problem(408, f"the request headers did not arrive within {timeout_s:g} s",
+                                 type_="header-timeout"), "", close=True)
+            self.transport.write(b"HTTP/1.1 408 Request Timeout\r\n" + b"".join(
+                k + b": " + v + b"\r\n" for k, v in r.raw_headers) + b"\r\n" + r.body)
             self.transport.close()
 
     return HeaderTimeoutProtocol

@@ -17,7 +17,7 @@ from ..auth import authorize
 from ..context import Ctx, Context
 from ..errors import Problem
 from ..schemas import Health
-from .common import problems
+from .common import AUTH, problems
 
 router = APIRouter(tags=["health"])
 
@@ -103,4 +103,4 @@ def add_metrics(app: FastAPI, access: str) -> None:
                       dependencies=[Security(authorize, scopes=["admin"])] if access == "admin" else [],
                       responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}},
                                        "description": "Prometheus text exposition format"},
-                                 **(problems(401, 403, 429) if access == "admin" else {})})
+                                 **(AUTH if access == "admin" else {})})

@@ -72,11 +72,10 @@ def get_scene(scene: str, request: Request, ctx: Ctx, who: Scorer) -> Any:
     if scene not in bundled_scenes() and not (DIGEST.match(scene) and ctx.store.scene_summaries(who.key_id, scene)):
         raise Problem(404, f"no scene {scene[:64]!r}: neither bundled nor uploaded with this key")
     spec = scene_spec(ctx.store, who.key_id, scene)
-    out = ctx.run(request, who, scene_view_task, spec, spec[2] if spec[0] == "upload" else scene,
-                  size=max(1.0, len(spec[3]) / 200_000) if spec[0] == "upload" else 1.0)
-    if spec[0] == "upload":
-        out = {**out, **ctx.store.scene_summaries(who.key_id, scene)[0]}
-    return out
+    upload = spec[0] == "upload"
+    out = ctx.run(request, who, scene_view_task, spec, spec[2] if upload else scene,
+                  size=max(1.0, len(spec[3]) / 200_000) if upload else 1.0)
+    return {**out, **ctx.store.scene_summaries(who.key_id, scene)[0]} if upload else out
 
 
 @router.delete("/scenes/{scene}", status_code=204, responses={**AUTH, **problems(404)},
