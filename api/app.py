@@ -13,14 +13,14 @@ from contextlib import asynccontextmanager
 from typing import Any, AsyncIterator
 
 import anyio
-from fastapi import FastAPI, Security
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry, Gauge
 
 from excite.core import processes
 
 from . import auth, problems
-from .auth import Authenticate, Quota, authorize, load_keys
+from .auth import Authenticate, Quota, load_keys
 from .cluster import ClusterScoring
 from .context import Context
 from .jobs import JobRunner
@@ -100,11 +100,11 @@ def create_app(settings: Settings | None = None, *,
     app.state.ticket_secret = secret
     app.openapi = _openapi_with_settings(app, settings, open_server=keys is None)
     problems.install(app)
-    _docs_routes(app, settings, open_server=keys is None)
+    page.add_docs(app, "public" if keys is None else settings.docs)  # EXCITE_DOCS
     for module in ROUTERS:
         app.include_router(module.router)
     health.add_metrics(app, "public" if keys is None else settings.metrics)
-    app.mount("/static", page.static_files(), name="static")
+    app.mount("/static", StaticFiles(directory=page.STATIC_DIR), name="static")
     # added last = outermost: the guard (hosts, browser safety, security headers, the last word
     # on errors), then the key from the headers (before any body is read), metrics, the body limit,
     # the clock
@@ -114,24 +114,6 @@ def create_app(settings: Settings | None = None, *,
     app.add_middleware(Authenticate, ring=keys, rates=ctx.rates, redeem=redeem)
     app.add_middleware(Guard, hosts=settings.hosts(open_server=keys is None), origins=settings.origins)
     return app
-
-
-def _docs_routes(app: FastAPI, settings: Settings, open_server: bool) -> None:
-    """``/openapi.json`` and ``/docs`` as ``EXCITE_DOCS`` says (an open server: public)."""
-    access = "public" if open_server else settings.docs
-    if access == "off":
-        return
-    deps = [] if access == "public" else [Security(authorize)]
-
-    async def openapi_json() -> JSONResponse:
-        return JSONResponse(app.openapi())
-
-    async def swagger() -> FileResponse:
-        return FileResponse(page.STATIC_DIR / "docs.html", media_type="text/html; charset=utf-8")
-
-    app.add_api_route("/openapi.json", openapi_json, include_in_schema=False, dependencies=deps)
-    app.add_api_route("/docs", swagger, include_in_schema=False, dependencies=deps)
-    app.mount("/docs/static", page.docs_files(), name="docs-static")
 
 
 def _openapi_with_settings(app: FastAPI, settings: Settings, open_server: bool):

@@ -67,9 +67,6 @@ class Problem(Exception):
         """The problem of one field: ``"field: message"``, with the field named in ``errors``."""
         return cls(status, f"{field}: {message}", errors=[{"field": field, "message": message}], **kw)
 
-    def __reduce__(self) -> tuple:  # keyword arguments survive the pipe from a worker
-        return (_rebuild, (self.status, self.detail, self.type_, self.title, self.errors, self.headers))
-
     def body(self, instance: str = "") -> dict[str, Any]:
         """The problem document, within the bounds above."""
         out: dict[str, Any] = {"type": TYPE_BASE + self.type_, "title": self.title, "status": self.status,
@@ -81,10 +78,6 @@ class Problem(Exception):
             if len(self.errors) > MAX_ERRORS:
                 out["errors"].append({"field": "", "message": f"… and {len(self.errors) - MAX_ERRORS} more errors"})
         return out
-
-
-def _rebuild(status: int, detail: str, type_: str, title: str, errors: Any, headers: Any) -> Problem:
-    return Problem(status, detail, type_=type_, title=title, errors=errors, headers=headers)
 
 
 class Refusal(Exception):

@@ -15,6 +15,8 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from excite.core import bounds
 
+from .store import is_postgres_url
+
 
 def default_db_path() -> Path:
     """``$XDG_DATA_HOME/excite/jobs.sqlite3`` (``~/.local/share/excite/jobs.sqlite3``): a user's
@@ -154,7 +156,7 @@ class Settings(BaseSettings):
     def _database_url(cls, v: str | None) -> str | None:
         if not v:
             return None
-        if not v.startswith(("postgresql://", "postgres://")):
+        if not is_postgres_url(v):
             raise ValueError("must be a postgresql:// URL (SQLite: set EXCITE_DB_PATH instead)")
         return v
 

@@ -29,12 +29,10 @@ def create_maneuver(body: ManeuverRequest, request: Request, ctx: Ctx, response:
     beyond). A request answered 503 (past its time limit) has created no job."""
     s = ctx.settings
     errors: list[dict[str, str]] = []  # every refused field at once, so a form can mark them all
-    if body.duration_s > s.max_route_duration_s:
-        errors.append({"field": "duration_s", "message": f"{body.duration_s:g} s is over the limit of "
-                                                         f"{s.max_route_duration_s:g} s"})
-    if body.time_budget_s > s.max_job_time_budget_s:
-        errors.append({"field": "time_budget_s", "message": f"{body.time_budget_s:g} s is over the limit of "
-                                                            f"{s.max_job_time_budget_s:g} s"})
+    for field, value, limit in (("duration_s", body.duration_s, s.max_route_duration_s),
+                                ("time_budget_s", body.time_budget_s, s.max_job_time_budget_s)):
+        if value > limit:
+            errors.append({"field": field, "message": f"{value:g} s is over the limit of {limit:g} s"})
     data = body.model_dump()
     try:
         optimize_settings(data)
