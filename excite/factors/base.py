@@ -704,6 +704,13 @@ def summary_size(kind: Kind) -> int:
 # --- the registry ------------------------------------------------------------------------------
 
 _KINDS: dict[str, Kind] = {}
+_GENERATION = [0]  # changes whenever a kind is registered or removed
+
+
+def generation() -> int:
+    """A number that changes whenever the registry does (:func:`register`, :func:`unregister`):
+    what is derived from a rig's kinds is kept for as long as it stays the same."""
+    return _GENERATION[0]
 
 
 def register(kind: Kind) -> Kind:
@@ -722,12 +729,14 @@ def register(kind: Kind) -> Kind:
     if unknown:
         raise ValueError(f"{kind.name}: breaks {sorted(unknown)}, not symmetries ({', '.join(SYMMETRIES)})")
     _KINDS[kind.name] = kind
+    _GENERATION[0] += 1
     return kind
 
 
 def unregister(name: str) -> None:
     """Remove a kind (tests that register a kind of their own remove it again)."""
-    _KINDS.pop(name, None)
+    if _KINDS.pop(name, None) is not None:
+        _GENERATION[0] += 1
 
 
 def kinds() -> list[Kind]:

@@ -49,6 +49,7 @@ eliminated from Λ_θ last (:func:`marginalise_nuisance`).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +66,7 @@ from ..factors.base import STATE_DIM, FactorBlock, Kind, Nominal, RigView
 GAUGE_SIGMA_POS_M = 1.0
 GAUGE_SIGMA_YAW_RAD = 0.01
 _NO_COLS = np.zeros(0, dtype=int)
+_MADE: dict[tuple, tuple[weakref.ref, int, "Closure"]] = {}  # (id(rig), local, origin) → (rig, generation, closure)
 ORIGIN = ("drive.origin_x", "drive.origin_y", "drive.origin_z")  # a drive's origin columns [m] (world axes)
 
 
@@ -106,7 +108,24 @@ class Closure:
         """The closure of ``rig``'s drives; ``local`` forces a parametrisation (the world states
         always work; local ones only when no kind observes absolute position); ``origin=False``
         keeps plain world states for a rig that observes absolute position (no origin columns:
-        the optimizer's model, the calibrator)."""
+        the optimizer's model, the calibrator). Made once per rig object and registry
+        (:func:`~excite.factors.base.generation`): an evaluation asks for it several times, and a
+        rig does not change once built."""
+        key = (id(rig), local, origin)
+        made = _MADE.get(key)
+        if made is not None and made[0]() is rig and made[1] == registry.generation():
+            return made[2]
+        out = cls._made(rig, local, origin)
+        try:
+            ref = weakref.ref(rig, lambda _, key=key: _MADE.pop(key, None))
+        except TypeError:  # a rig view that takes no weak reference: made each time
+            return out
+        _MADE[key] = (ref, registry.generation(), out)
+        return out
+
+    @classmethod
+    def _made(cls, rig: RigView, local: bool | None, origin: bool) -> "Closure":
+        """:meth:`of`, made afresh."""
         br = broken(rig)
         can_local = "position" not in br
         if local is None:
@@ -119,8 +138,9 @@ class Closure:
                       if (s not in br or (origin and s == "position")) and not (local and s == "position"))
         drift = drifting(rig)
         openers = tuple(registry.openings(rig))
-        return cls(local, gauge, STATE_DIM + len(drift), np.array([d for _, d in drift]),
-                   np.array([c for c, _ in drift], dtype=int), openers, origin)
+        density, columns = np.array([d for _, d in drift]), np.array([c for c, _ in drift], dtype=int)
+        density.flags.writeable = columns.flags.writeable = False  # shared by every caller of :meth:`of`
+        return cls(local, gauge, STATE_DIM + len(drift), density, columns, openers, origin)
 
     # --- the origin ---
 
