@@ -178,25 +178,70 @@ static inline void subtract_combination(double *x, const double *c, Py_ssize_t c
     }
 }
 
-/* Hee −= ZT[:, :m] ZT[:, :m]ᵀ on the lower triangle (ZT: q × ld) */
-HOT static void border_update(const double *ZT, Py_ssize_t q, Py_ssize_t ld, Py_ssize_t m, double *Hee) {
-    for (Py_ssize_t e = 0; e < q; ++e) {
-        const double *a = ZT + e * ld;
-        for (Py_ssize_t e2 = 0; e2 <= e; ++e2) {
-            const double *b = ZT + e2 * ld;
-            double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-            Py_ssize_t k = 0;
-            for (; k + 4 <= m; k += 4) {
-                s0 += a[k] * b[k];
-                s1 += a[k + 1] * b[k + 1];
-                s2 += a[k + 2] * b[k + 2];
-                s3 += a[k + 3] * b[k + 3];
-            }
-            for (; k < m; ++k) s0 += a[k] * b[k];
-            Hee[e * q + e2] -= (s0 + s1) + (s2 + s3);
-        }
+/* H_ee −= ZT[:, :m] ZT[:, :m]ᵀ (border_update): each entry the sum of its two rows' products in
+ * four partial sums (k mod 4, the tail in the first) added as (s0 + s1) + (s2 + s3), a row
+ * against four others at once. ACC holds the four partial sums; the same arithmetic in
+ * either version. */
+typedef double v4d __attribute__((vector_size(32)));
+typedef double v2d __attribute__((vector_size(16)));
+typedef struct {
+    v2d lo, hi;
+} v2x2;
+#define LOAD(T, p) ({ T v_; memcpy(&v_, (p), sizeof v_); v_; })
+#define BORDER_UPDATE(NAME, ACC, ZERO, STEP, LANE0, SUM)                                                         \
+    static void NAME(const double *ZT, Py_ssize_t q, Py_ssize_t ld, Py_ssize_t m, double *Hee) {                 \
+        Py_ssize_t m4 = m & ~(Py_ssize_t)3;                                                                      \
+        for (Py_ssize_t e = 0; e < q; ++e) {                                                                     \
+            const double *a = ZT + e * ld;                                                                       \
+            Py_ssize_t e2 = 0;                                                                                   \
+            for (; e2 + 4 <= e + 1; e2 += 4) {                                                                   \
+                const double *b0 = ZT + e2 * ld, *b1 = b0 + ld, *b2 = b1 + ld, *b3 = b2 + ld;                    \
+                ACC s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO;                                                  \
+                for (Py_ssize_t k = 0; k < m4; k += 4) {                                                         \
+                    STEP(s0, a + k, b0 + k);                                                                     \
+                    STEP(s1, a + k, b1 + k);                                                                     \
+                    STEP(s2, a + k, b2 + k);                                                                     \
+                    STEP(s3, a + k, b3 + k);                                                                     \
+                }                                                                                                \
+                for (Py_ssize_t k = m4; k < m; ++k) {                                                            \
+                    LANE0(s0) += a[k] * b0[k];                                                                   \
+                    LANE0(s1) += a[k] * b1[k];                                                                   \
+                    LANE0(s2) += a[k] * b2[k];                                                                   \
+                    LANE0(s3) += a[k] * b3[k];                                                                   \
+                }                                                                                                \
+                Hee[e * q + e2] -= SUM(s0);                                                                      \
+                Hee[e * q + e2 + 1] -= SUM(s1);                                                                  \
+                Hee[e * q + e2 + 2] -= SUM(s2);                                                                  \
+                Hee[e * q + e2 + 3] -= SUM(s3);                                                                  \
+            }                                                                                                    \
+            for (; e2 <= e; ++e2) {                                                                              \
+                const double *b = ZT + e2 * ld;                                                                  \
+                ACC s = ZERO;                                                                                    \
+                for (Py_ssize_t k = 0; k < m4; k += 4) STEP(s, a + k, b + k);                                    \
+                for (Py_ssize_t k = m4; k < m; ++k) LANE0(s) += a[k] * b[k];                                     \
+                Hee[e * q + e2] -= SUM(s);                                                                       \
+            }                                                                                                    \
+        }                                                                                                        \
     }
+#define V2_ZERO ((v2x2){{0.0, 0.0}, {0.0, 0.0}})
+#define V2_STEP(s, x, y) ((s).lo += LOAD(v2d, x) * LOAD(v2d, y), (s).hi += LOAD(v2d, (x) + 2) * LOAD(v2d, (y) + 2))
+#define V2_LANE0(s) ((s).lo[0])
+#define V2_SUM(s) (((s).lo[0] + (s).lo[1]) + ((s).hi[0] + (s).hi[1]))
+BORDER_UPDATE(border_update_plain, v2x2, V2_ZERO, V2_STEP, V2_LANE0, V2_SUM)
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__GLIBC__)
+#define V4_ZERO ((v4d){0.0, 0.0, 0.0, 0.0})
+#define V4_STEP(s, x, y) ((s) += LOAD(v4d, x) * LOAD(v4d, y))
+#define V4_LANE0(s) ((s)[0])
+#define V4_SUM(s) (((s)[0] + (s)[1]) + ((s)[2] + (s)[3]))
+__attribute__((target("avx2"))) BORDER_UPDATE(border_update_avx2, v4d, V4_ZERO, V4_STEP, V4_LANE0, V4_SUM)
+static void border_update(const double *ZT, Py_ssize_t q, Py_ssize_t ld, Py_ssize_t m, double *Hee) {
+    static int avx2 = -1;
+    if (avx2 < 0) avx2 = __builtin_cpu_supports("avx2") ? 1 : 0;
+    (avx2 ? border_update_avx2 : border_update_plain)(ZT, q, ld, m, Hee);
 }
+#else
+#define border_update border_update_plain
+#endif
 
 /* The numbers eliminate() works in, for states of sd and a border of q. */
 static size_t workspace(Py_ssize_t D, Py_ssize_t sd, Py_ssize_t q) {
