@@ -38,10 +38,10 @@ typedef struct {
 HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1, Py_ssize_t origin, int sign,
                           const int64_t *comp) {
     Py_ssize_t r = b->r, nx = b->nx, ns = b->ns, c = b->c, nxc = b->nxc, sd = I->sd, p = I->p;
-    Py_ssize_t xd = nx / ns, M = nxc + c;
+    Py_ssize_t xd = nx / ns, M = nxc + c, Ms = (M + 3) & ~(Py_ssize_t)3; /* rows of G padded to whole 4s */
     if (xd > sd) return -2;
     int64_t *buf = malloc(sizeof(int64_t) * (7 * (size_t)(nxc + 1) + (size_t)ns));
-    double *w = malloc(sizeof(double) * (3 * (size_t)M + (size_t)M * M + (size_t)c * c + 1));
+    double *w = malloc(sizeof(double) * (3 * (size_t)Ms + (size_t)M * Ms + (size_t)c * c + 1));
     if (!buf || !w) {
         free(buf);
         free(w);
@@ -49,7 +49,7 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
     }
     int64_t *gx = buf, *gg = gx + nxc + 1, *gc = gg + nxc + 1, *run_g = gc + nxc + 1, *run_c = run_g + nxc + 1,
             *run_u = run_c + nxc + 1, *run_n = run_u + nxc + 1, *pos = run_n + nxc + 1;
-    double *W0 = w, *W1 = W0 + M, *W2 = W1 + M, *G = W2 + M, *T = G + M * M;
+    double *W0 = w, *W1 = W0 + Ms, *W2 = W1 + Ms, *G = W2 + Ms, *T = G + M * Ms;
     Py_ssize_t u = 0;
     for (Py_ssize_t g = 0; g < ns; ++g) {
         Py_ssize_t a = sign > 0 ? g : ns - 1 - g;
@@ -81,10 +81,11 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
         }
         run_n[n_runs - 1] += 1;
     }
+    for (Py_ssize_t k = M; k < Ms; ++k) W0[k] = W1[k] = W2[k] = 0.0;
     for (Py_ssize_t k = 0; k < c * c; ++k) T[k] = 0.0;
     for (Py_ssize_t f = f0; f < f1; ++f) {
         for (Py_ssize_t uu = 0; uu < M; ++uu)
-            for (Py_ssize_t v = 0; v <= uu; ++v) G[uu * M + v] = 0.0;
+            for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) G[uu * Ms + v] = 0.0;
         const double *Jxf = b->Jx + f * r * nx, *Jtf = b->Jt + f * r * c;
         for (Py_ssize_t row0 = 0; row0 < r; row0 += 3) {
             Py_ssize_t nr = r - row0 < 3 ? r - row0 : 3;
@@ -96,26 +97,26 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
                     for (Py_ssize_t v = 0; v < c; ++v) wk[v] = Tr[v];
                     for (Py_ssize_t v = 0; v < nxc; ++v) wk[c + v] = Jr[gx[v]];
                 } else {
-                    for (Py_ssize_t v = 0; v < M; ++v) wk[v] = 0.0;
+                    for (Py_ssize_t v = 0; v < Ms; ++v) wk[v] = 0.0;
                 }
             }
             if (nr == 3) {
                 for (Py_ssize_t uu = 0; uu < M; ++uu) {
                     double a0 = W0[uu], a1 = W1[uu], a2 = W2[uu];
                     if (a0 != 0.0 || a1 != 0.0 || a2 != 0.0) {
-                        double *Gu = G + uu * M;
-                        for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v] + a1 * W1[v] + a2 * W2[v];
+                        double *Gu = G + uu * Ms;
+                        for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) Gu[v] += a0 * W0[v] + a1 * W1[v] + a2 * W2[v];
                     }
                 }
             } else { /* the last one or two rows: the same sums without the rows of zeros */
                 for (Py_ssize_t uu = 0; uu < M; ++uu) {
                     double a0 = W0[uu], a1 = W1[uu];
                     if (a0 != 0.0 || a1 != 0.0) {
-                        double *Gu = G + uu * M;
+                        double *Gu = G + uu * Ms;
                         if (nr == 2)
-                            for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v] + a1 * W1[v];
+                            for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) Gu[v] += a0 * W0[v] + a1 * W1[v];
                         else
-                            for (Py_ssize_t v = 0; v <= uu; ++v) Gu[v] += a0 * W0[v];
+                            for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) Gu[v] += a0 * W0[v];
                     }
                 }
             }
@@ -132,20 +133,20 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
                 Py_ssize_t d = b->stride * (gA - gB);
                 double *blk = BAND(I, d, iA - d);
                 for (Py_ssize_t k = 0; k < nA; ++k) {
-                    const double *Gu = G + (uA + k) * M;
+                    const double *Gu = G + (uA + k) * Ms;
                     double *bu = blk + (cA + k) * sd;
                     Py_ssize_t top = B == A ? k + 1 : nB;
                     for (Py_ssize_t v = 0; v < top; ++v) bu[cB + v] += Gu[uB + v];
                 }
             }
             for (Py_ssize_t k = 0; k < nA; ++k) {
-                const double *Gu = G + (uA + k) * M;
+                const double *Gu = G + (uA + k) * Ms;
                 double *Hu = HXT(I, iA) + (cA + k) * p;
                 for (Py_ssize_t v = 0; v < c; ++v) Hu[b->cols[v]] += Gu[v];
             }
         }
         for (Py_ssize_t uu = 0; uu < c; ++uu)
-            for (Py_ssize_t v = 0; v <= uu; ++v) T[uu * c + v] += G[uu * M + v];
+            for (Py_ssize_t v = 0; v <= uu; ++v) T[uu * c + v] += G[uu * Ms + v];
     }
     for (Py_ssize_t uu = 0; uu < c; ++uu) {
         for (Py_ssize_t v = 0; v < uu; ++v) {
