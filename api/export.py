@@ -17,9 +17,8 @@ from excite.io import routes
 from excite.rig.config import Rig
 from excite.motion.vehicle import ControlProfile, drive
 
-MEDIA = {"tum": "text/plain", "csv": "text/csv", "control": "text/csv",
-         "geojson": "application/geo+json"}
-SUFFIX = {"tum": ".tum", "csv": ".csv", "control": ".csv", "geojson": ".geojson"}
+FILES = {"tum": ("text/plain", "tum"), "csv": ("text/csv", "csv"), "control": ("text/csv", "control.csv"),
+         "geojson": ("application/geo+json", "geojson")}  # each format's media type and file suffix
 
 
 def maneuver_file(profile: dict[str, Any], rig: Rig, fmt: str, name: str,
@@ -29,7 +28,7 @@ def maneuver_file(profile: dict[str, Any], rig: Rig, fmt: str, name: str,
 
     prof = ControlProfile(**{**profile, "start": tuple(profile["start"])})
     with tempfile.TemporaryDirectory(prefix="excite-") as tmp:
-        path = Path(tmp) / f"{name}{SUFFIX[fmt]}"
+        path = Path(tmp) / f"{name}.{FILES[fmt][1]}"
         if fmt == "control":
             return routes.write_control_csv(prof, path).read_text()
         traj = drive(prof, rig.suspension)

@@ -221,7 +221,6 @@ def route_trajectory(route: dict[str, Any], rig: Rig, limits: Limits, bounds: Bo
 
 
 def _text_of(write: Callable[[io.StringIO], None]) -> str:
-    """What ``write`` writes, in memory."""
     buf = io.StringIO()
     write(buf)
     return buf.getvalue()

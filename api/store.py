@@ -143,14 +143,6 @@ def local_holder_dead(holder: str) -> bool:
             and parts[2].isdigit() and not processes.alive(int(parts[2])))
 
 
-def kept_request(request: dict[str, Any]) -> dict[str, Any]:
-    return {k: request[k] for k in KEPT_REQUEST_KEYS if k in request}
-
-
-def _size(*texts: str | None) -> int:
-    return sum(len(t) for t in texts if t)
-
-
 def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
@@ -316,9 +308,7 @@ class JobStore:
 
     @staticmethod
     def _room(c: sa.Connection, key_id: str, what: str, size: int, max_bytes: int | None,
-              max_active: int | None = None) -> None:
-        """:class:`OverQuota` when the key has ``max_active`` jobs queued or running, or when its
-        unfinished jobs and ``size`` more bytes would hold more than ``max_bytes``."""
+              max_active: int | None = None) -> None:  # the quota check of create and put_scene
         active, held = c.execute(sa.select(sa.func.count(), sa.func.coalesce(sa.func.sum(jobs.c.size_bytes), 0))
                                  .where(jobs.c.key_id == key_id, jobs.c.status.in_(ACTIVE))).one()
         if max_active is not None and active >= max_active:
@@ -378,13 +368,10 @@ class JobStore:
                                 .where(jobs.c.status == "queued").group_by(jobs.c.key_id)).all()
             if not waiting:
                 return None
-            order = []
-            for key_id, first in waiting:
-                running = c.execute(sa.select(sa.func.count()).where(
-                    jobs.c.key_id == key_id, jobs.c.status == "running")).scalar()
-                last = c.execute(sa.select(sa.func.max(jobs.c.started_at)).where(jobs.c.key_id == key_id)).scalar()
-                order.append((running, last or 0.0, first, key_id))
-            key_id = min(order)[3]
+            running = dict(c.execute(sa.select(jobs.c.key_id, sa.func.count()).where(jobs.c.status == "running")
+                                     .group_by(jobs.c.key_id)).all())
+            last = dict(c.execute(sa.select(jobs.c.key_id, sa.func.max(jobs.c.started_at)).group_by(jobs.c.key_id)).all())
+            key_id = min((running.get(k, 0), last.get(k) or 0.0, first, k) for k, first in waiting)[3]
             job_id, attempt = c.execute(sa.select(jobs.c.id, jobs.c.attempt).where(
                 jobs.c.key_id == key_id, jobs.c.status == "queued").order_by(jobs.c.created_at).limit(1)).one()
             attempt += 1
@@ -465,11 +452,11 @@ class JobStore:
             row = c.execute(sa.select(jobs.c.request, jobs.c.progress).where(this)).first()
             if row is None:
                 return False
-            req = json.dumps(kept_request(json.loads(row.request)))
+            req = json.dumps({k: v for k, v in json.loads(row.request).items() if k in KEPT_REQUEST_KEYS})
             prog = row.progress if progress is None else json.dumps(progress)
             c.execute(jobs.update().where(this).values(
                 status=status, result=res, error=err, request=req, progress=prog, finished_at=now,
-                updated_at=now, lease_owner=None, size_bytes=_size(req, res, err, prog)))
+                updated_at=now, lease_owner=None, size_bytes=sum(len(t) for t in (req, res, err, prog) if t)))
             self._ended(c, job_id, attempt, now, status)
         return True
 
@@ -518,8 +505,7 @@ class JobStore:
         return self._delete(c, gone_jobs) + len(gone_scenes)
 
     @staticmethod
-    def _key_bytes(c: sa.Connection, key_id: str | None) -> int:
-        """What the key's jobs and scenes hold [bytes] (None: every key's)."""
+    def _key_bytes(c: sa.Connection, key_id: str | None) -> int:  # total_bytes in a transaction
         return sum(c.execute(sa.select(sa.func.coalesce(sa.func.sum(t.c.size_bytes), 0)).where(
             _of_key(t, key_id))).scalar() for t in (jobs, scenes))
 

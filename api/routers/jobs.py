@@ -8,7 +8,7 @@ from fastapi import APIRouter, Path, Query, Request, Response
 
 from ..auth import Planner
 from ..context import Ctx
-from ..export import MEDIA
+from ..export import FILES
 from ..errors import Problem
 from ..schemas import Job
 from ..scoring import drivable_file_task, maneuver_task
@@ -71,7 +71,7 @@ def cancel_job(job_id: JobId, ctx: Ctx, response: Response, who: Planner) -> Any
 @router.get("/jobs/{job_id}/maneuver", response_class=Response,
             responses={200: {"description": "The maneuver file",
                              "content": {m: {"schema": {"type": "string"}} for m in
-                                         sorted(set(MEDIA.values()) | {m for m, _ in DRIVABLE.values()})}},
+                                         sorted({m for m, _ in {**FILES, **DRIVABLE}.values()})}},
                        **problems(401, 403, 404, 409, 422, 429, 500, 503)},
             summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON; a drivable "
                     "plan's sheet (PDF, PNG), cone layout (GeoJSON) or plan (JSON)")
@@ -101,10 +101,9 @@ def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
             raise Problem.at("format", f"{format} is a drivable plan's; job {job_id} planned a free-form maneuver")
         data = ctx.run(request, who, drivable_file_task, result["drivable"]["plan"], req.get("rig", "robotaxi"),
                        format, req.get("lot"), req.get("lot_x_m", 80.0), req.get("lot_y_m", 50.0), origin)
-        media, ext = DRIVABLE[format]
     else:
         if format == "geojson" and origin is None:
             raise Problem.at("lon_deg", "GeoJSON needs the lot's origin: give lon_deg and lat_deg, or origin in the request")
         data = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
-        media, ext = MEDIA[format], {"tum": "tum", "csv": "csv", "control": "control.csv", "geojson": "geojson"}[format]
+    media, ext = {**FILES, **DRIVABLE}[format]
     return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})

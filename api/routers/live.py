@@ -30,6 +30,7 @@ from ..errors import Problem, Refusal
 from ..pool import forkserver, trim
 from ..schemas import SCENE_PATTERN
 from ..scoring import resolve_rig, scene_of, scene_spec, task
+from ..settings import Settings
 
 log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
@@ -110,17 +111,6 @@ def _poses(rows: list[list[float]]):
         k = int(np.argmax(bad))
         raise refused(422, f"poses[{k}]", f"the quaternion has norm {norm[k]:.6g}, not 1")
     return d[:, 0], d[:, 1:4], Rotation.from_quat(d[:, 4:8] / norm[:, None]).as_matrix()
-
-
-def settings_of(ws: Any) -> Any:
-    """The app's settings, or the defaults for an app built without the service's context (the
-    router alone behind uvicorn)."""
-    ctx = getattr(ws.app.state, "ctx", None)
-    if ctx is not None:
-        return ctx.settings
-    from ..settings import Settings
-
-    return Settings.model_construct()
 
 
 class Drive:
@@ -268,8 +258,9 @@ def _subprotocol(ws: WebSocket) -> str | None:
 
 @router.websocket("/live")
 async def live(ws: WebSocket, who: LiveClient) -> None:
+    # the router alone (behind uvicorn, without the service's context): the default settings, no store
     ctx: Context | None = getattr(ws.app.state, "ctx", None)
-    settings = settings_of(ws)
+    settings = ctx.settings if ctx is not None else Settings.model_construct()
     counts = ctx.live_sessions if ctx is not None else {}
     await ws.accept(subprotocol=_subprotocol(ws))
     if isinstance(who, Problem):
@@ -332,7 +323,6 @@ async def _session(ws: WebSocket, settings: Any, ctx: Context | None, who: Any) 
                 msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
                     rig, name, plan, scene_ref = _start(msg)
-                    # the router alone, without the service's store: bundled scenes only
                     scene = await anyio.to_thread.run_sync(scene_spec, ctx and ctx.store, who.key_id, scene_ref)
                     # starting the process writes the rig to it (1 MB): not in the event loop either
                     session = await anyio.to_thread.run_sync(Session, settings, rig, name, plan, scene)
