@@ -1,10 +1,8 @@
 """What the routes need, carried by dependencies: settings, the job store and runner, the scoring
 pool, the API keys and request rates, the metrics registry; and the request's own deadline.
 
-A route that needs work done calls :meth:`Context.run` (or :meth:`Context.run_all`): the work
-goes to a scoring worker by the request's deadline and under its key's share, and every failure
-comes back as an exception that :func:`api.problems.of` maps (a 429 when it cannot be done in
-time, a 503 past the deadline, the task's own problem).
+A route that needs work done calls :meth:`Context.run` (or :meth:`Context.run_all`); every failure
+comes back as an exception that :func:`api.problems.of` maps.
 """
 
 from __future__ import annotations

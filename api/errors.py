@@ -14,9 +14,7 @@
         ├── KeysError         the API keys file cannot be read or is invalid (names the entry)
         └── Exposed           the server would serve without keys on a non-loopback address
 
-:func:`api.problems.of` maps each of them, and excite's own errors (:mod:`excite.errors`), to its
-problem in one place. Anything else is a 500 without a traceback in the body (and with one in
-the log).
+:func:`api.problems.of` maps each of them, and excite's own errors, to its problem.
 """
 
 from __future__ import annotations

@@ -5,9 +5,8 @@ a maneuver file.
 Every task here runs inside a worker process (:mod:`api.pool`), with the request's deadline and
 the worker's memory limit, and returns plain data or raises a :class:`~api.errors.Problem`
 naming the request field (``route.waypoints[3]``, ``route.text`` line N), never a server path
-(:func:`task` maps every other exception in the worker, :func:`api.problems.of`). JSON routes are
-written in the matching file format first, so every route passes the same readers and checks.
-:func:`work_size` tells the pool how large a route's work is before it is admitted.
+(:func:`task`). JSON routes are written in the matching file format first, so every route passes
+the same readers and checks.
 """
 
 from __future__ import annotations
