@@ -12,6 +12,7 @@ import shutil
 import subprocess
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 import httpx
@@ -173,18 +174,22 @@ def test_three_replicas_run_thirty_jobs_exactly_once_with_one_killed(tmp_path, p
             time.sleep(0.5)
         jobs = [fresh.get(i) for i in ids]
         assert all(j["status"] == "succeeded" for j in jobs), fresh.counts()
-        rerun = 0
-        for j in jobs:
+        rerun = set()
+        for i, j in enumerate(jobs):
             runs = fresh.runs(j["id"])
             assert [r["outcome"] for r in runs].count("succeeded") == 1, runs
             assert j["attempt"] == len(runs)
             lost = [r for r in runs if r["outcome"] != "succeeded"]
             assert all(a_tag in r["replica"] and r["outcome"] == "lost" for r in lost), runs
-            rerun += bool(lost)
-        assert rerun >= 1, "the killed replica had a job running"
-        done = log.read_text().split()
-        names = done[0::3]
-        assert sorted(names) == sorted(f"j{i}" for i in range(30)), "a job completed twice or never"
+            if lost:
+                rerun.add(f"j{i}")
+        assert rerun, "the killed replica had a job running"
+        # each job's function ran to its end once; twice only for a job A was running when it
+        # died — A's run may have ended just before A could record it, and the job ran again
+        ended = Counter(log.read_text().split()[0::3])
+        assert set(ended) == {f"j{i}" for i in range(30)}, "a job never completed"
+        assert all(n == 1 or (n == 2 and name in rerun) for name, n in ended.items()), \
+            f"a job completed twice without losing its first run: {ended}"
     finally:
         for srv in (a, b, c):
             if srv is not None:
