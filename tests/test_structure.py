@@ -184,11 +184,12 @@ def _calls(path: Path) -> list[tuple[str, int]]:
 
 
 # Starting a process: the one supervisor (its process tree ended with it, its owner's death ending
-# it). Besides it, only a C compiler is run to completion (the native module and generated kernels).
+# it). Besides it, only a C compiler is run to completion, by excite.core.native.run_compiler (for the
+# native module and generated kernels).
 PROCESS_STARTERS = {"Process", "Popen", "fork", "forkpty", "ProcessPoolExecutor", "Pool", "system", "spawnv",
                     "spawnve", "spawnl", "spawnle", "posix_spawn", "run", "call", "check_call", "check_output"}
 SUPERVISOR = "excite.core.processes"
-RUNS_A_COMPILER = {"excite.core.native", "excite.factors.generate"}
+RUNS_A_COMPILER = {"excite.core.native"}
 
 
 def test_only_the_supervisor_starts_processes():

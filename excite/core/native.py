@@ -31,6 +31,7 @@ NAME = "excite._native"
 PACKAGE = Path(__file__).resolve().parents[1]  # excite/
 FLAGS = ("-O3", "-fPIC", "-fno-math-errno", "-ffp-contract=off", "-std=c99")  # IEEE arithmetic, no fast-math
 LOCK_STALE_S = 600.0
+COMPILE_TIMEOUT_S = 300.0  # a compiler run still going after this is ended (a few seconds is usual)
 
 _MODULE: ModuleType | None = None
 
@@ -110,6 +111,15 @@ def compiler() -> str:
                       "(set CC, or install excite: pip install .)")
 
 
+def run_compiler(cmd: list[str]) -> subprocess.CompletedProcess:
+    """Run a C compiler to completion: past :data:`COMPILE_TIMEOUT_S` it is killed and
+    :class:`ImportError` names the compiler and the limit."""
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=COMPILE_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        raise ImportError(f"the C compiler {cmd[0]} did not finish within {COMPILE_TIMEOUT_S:g} s") from None
+
+
 def build(lib: Path) -> None:
     """Compile the native module of this source tree to ``lib`` (under a lock: one process
     compiles, the others wait for it)."""
@@ -142,7 +152,7 @@ def build(lib: Path) -> None:
         cmd = [compiler(), *FLAGS, "-shared", f"-I{sysconfig.get_paths()['include']}", f"-D{name}={value}",
                *map(str, sources()), "-o", str(tmp), "-lm"]
         try:
-            done = subprocess.run(cmd, capture_output=True, text=True)
+            done = run_compiler(cmd)
             if done.returncode != 0:
                 raise ImportError("compiling excite's native module failed:\n" + done.stderr[-4000:])
             os.replace(tmp, lib)

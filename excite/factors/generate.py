@@ -27,7 +27,6 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
-import subprocess
 import tempfile
 import threading
 from dataclasses import dataclass
@@ -237,12 +236,17 @@ def _compiler() -> str | None:
 
 def compile_source(code: str, lib: Path, cc: str) -> None:
     """Compile C ``code`` into the shared library ``lib`` (written whole, then moved into place)."""
+    from ..core.native import run_compiler
+
     lib.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
         src = Path(tmp) / "kernel.c"
         src.write_text(code)
         out = Path(tmp) / lib.name
-        done = subprocess.run([cc, *FLAGS, str(src), "-o", str(out), "-lm"], capture_output=True, text=True)
+        try:
+            done = run_compiler([cc, *FLAGS, str(src), "-o", str(out), "-lm"])
+        except ImportError as exc:
+            raise RuntimeError(f"compiling a generated kernel failed: {exc}") from None
         if done.returncode != 0:
             raise RuntimeError(f"compiling a generated kernel failed:\n{done.stderr[-2000:]}")
         os.replace(out, lib)

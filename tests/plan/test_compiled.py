@@ -16,7 +16,7 @@ from pathlib import Path
 import casadi as ca
 import pytest
 
-from excite.core import processes
+from excite.core import native, processes
 from excite.plan import compiled
 
 REPO = Path(__file__).resolve().parents[2]
@@ -38,7 +38,13 @@ def _gone(pids: list[int], timeout_s: float = 20.0) -> list[int]:
 
 @pytest.fixture
 def stand_in(tmp_path, monkeypatch):
-    """``CC`` a script that writes its pid and its pass's, then waits for the pass (10 minutes)."""
+    """``CC`` a script that writes its pid and its pass's, then waits for the pass (10 minutes).
+    The native module is built first with the real compiler: in a source checkout whose build is
+    not current it is kept in the cache, which the fresh cache dir gets too."""
+    mod = Path(native.module().__file__)
+    if mod.parent == native.cache_dir() / "native":
+        (tmp_path / "cache" / "native").mkdir(parents=True)
+        (tmp_path / "cache" / "native" / mod.name).symlink_to(mod)
     pids = tmp_path / "pids"
     cc = tmp_path / "cc"
     cc.write_text(f"#!/bin/sh\nsleep 600 &\necho $$ $! > {pids}.part && mv {pids}.part {pids}\nwait\n")
