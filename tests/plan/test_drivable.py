@@ -186,3 +186,23 @@ def test_the_sheet_is_drawn_within_two_seconds():
         data = sheet(built, SITE, fmt)
         assert time.process_time() - t0 < 2.0
         assert data.startswith(magic)
+
+
+def test_the_search_scores_a_plan_as_its_document_states_it():
+    """A plan is scored in its written form (poses to 1 mm and 0.001°, parameters to six decimals),
+    so the plan handed over, read back from its document, builds and drives as scored: a plan placed
+    between those steps, as the search's continuous variables place it, could otherwise turn
+    infeasible when read back (a transit that fitted by less than the rounding)."""
+    from excite.plan.drivable.search import score_plan
+    from excite.rig.config import load_rig
+
+    plan = _plan()
+    rng = np.random.default_rng(3)
+    off = plan.with_elements([Element(e.kind, e.params, (e.pose[0] + rng.uniform(-4e-4, 4e-4),
+                                                        e.pose[1] + rng.uniform(-4e-4, 4e-4),
+                                                        e.pose[2] + rng.uniform(-7e-6, 7e-6)), e.dwell_s)
+                              for e in plan.elements])
+    assert plan_from_dict(off.to_dict()) != off
+    scored = score_plan(off, load_rig("robotaxi"), LIM, SITE)
+    assert scored.penalty == 0
+    assert plan_from_dict(json.loads(json.dumps(scored.plan.to_dict()))) == scored.plan

@@ -145,6 +145,13 @@ def plan_from_dict(doc: Any, where: str = "plan") -> DrivablePlan:
     return DrivablePlan(tuple(out), duration, entry, transit, str(name)[:100], expected)
 
 
+def as_written(plan: DrivablePlan) -> DrivablePlan:
+    """The plan as its document states it (:meth:`DrivablePlan.to_dict`: poses to 1 mm and
+    0.001°, parameters to six decimals): what a plan file read back, a worker or a service job
+    builds. The search scores plans in this form, so the plan it hands over builds as scored."""
+    return plan_from_dict(plan.to_dict())
+
+
 def read_plan(path: str | Path) -> DrivablePlan:
     try:
         text = Path(path).read_text(encoding="utf-8")

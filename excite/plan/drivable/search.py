@@ -54,7 +54,7 @@ from ..site import Site
 from .design import (Candidate, Design, describe, e_design, half_extent, lambda_min, library, repeat_param,
                      repetitions)
 from .elements import KINDS, MARGIN, footprint, kind
-from .plan import Built, DrivablePlan, Element, build, outside_m
+from .plan import Built, DrivablePlan, Element, as_written, build, outside_m
 from .robust import QUANTILE, Robust, driven_scores, robust_scores
 
 CONE_CLEARANCE_M = 1.2  # a path keeps this far from every cone but its own element's (half a car and room)
@@ -342,16 +342,17 @@ class Scored:
 
 def score_plan(plan: DrivablePlan, rig: Rig, limits: Limits, site: Site, evaluate=None,
                shares: list[float] | None = None, rate_hz: float = SCREEN_RATE_HZ) -> Scored:
-    """Build ``plan`` (laps refitted to its duration with ``shares``), check it, drive it as
-    instructed and score it. Infeasible plans get a penalty: the lot and cone intrusions [m]
+    """Build ``plan`` as written (:func:`~.plan.as_written`; laps refitted to its duration with
+    ``shares``), check it, drive it as instructed and score it. Infeasible plans get a penalty: the lot and cone intrusions [m]
     plus the seconds over the duration."""
     from ...score.evaluate import evaluate as full
 
     try:
+        plan = as_written(plan)
         built = build(plan, limits)
         if shares is not None:
             transit = sum(p.duration_s for leg, p in zip(built.course.legs, built.speed_plans) if leg.element < 0)
-            plan = fit_laps(plan, limits, shares, transit)
+            plan = as_written(fit_laps(plan, limits, shares, transit))
             built = build(plan, limits)
     except OptimizeError:
         return Scored(plan, 0.0, 1e6)
