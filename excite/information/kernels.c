@@ -33,6 +33,9 @@ typedef struct {
 #define BAND(I, d, j) ((I)->band + (((d) * (I)->n + (j)) * (I)->sd * (I)->sd))
 #define HXT(I, j) ((I)->Hxt + (j) * (I)->sd * (I)->p)
 
+/* The entries 0..uu of G's row uu, padded to whole 4s (the rows' tails are kept zero). */
+static inline Py_ssize_t row_span(Py_ssize_t uu) { return (uu + 4) & ~(Py_ssize_t)3; }
+
 /* Add JᵀJ of factors f0 … f1−1 of a block (see accumulate() in kernels.py). Returns 0, or -1
  * (memory) / -2 (a factor's states wider than the information's). */
 HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1, Py_ssize_t origin, int sign,
@@ -85,7 +88,7 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
     for (Py_ssize_t k = 0; k < c * c; ++k) T[k] = 0.0;
     for (Py_ssize_t f = f0; f < f1; ++f) {
         for (Py_ssize_t uu = 0; uu < M; ++uu)
-            for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) G[uu * Ms + v] = 0.0;
+            for (Py_ssize_t v = 0; v < row_span(uu); ++v) G[uu * Ms + v] = 0.0;
         const double *Jxf = b->Jx + f * r * nx, *Jtf = b->Jt + f * r * c;
         for (Py_ssize_t row0 = 0; row0 < r; row0 += 3) {
             Py_ssize_t nr = r - row0 < 3 ? r - row0 : 3;
@@ -105,7 +108,7 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
                     double a0 = W0[uu], a1 = W1[uu], a2 = W2[uu];
                     if (a0 != 0.0 || a1 != 0.0 || a2 != 0.0) {
                         double *Gu = G + uu * Ms;
-                        for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) Gu[v] += a0 * W0[v] + a1 * W1[v] + a2 * W2[v];
+                        for (Py_ssize_t v = 0; v < row_span(uu); ++v) Gu[v] += a0 * W0[v] + a1 * W1[v] + a2 * W2[v];
                     }
                 }
             } else { /* the last one or two rows: the same sums without the rows of zeros */
@@ -114,9 +117,9 @@ HOT static int accumulate(const Block *b, Info *I, Py_ssize_t f0, Py_ssize_t f1,
                     if (a0 != 0.0 || a1 != 0.0) {
                         double *Gu = G + uu * Ms;
                         if (nr == 2)
-                            for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) Gu[v] += a0 * W0[v] + a1 * W1[v];
+                            for (Py_ssize_t v = 0; v < row_span(uu); ++v) Gu[v] += a0 * W0[v] + a1 * W1[v];
                         else
-                            for (Py_ssize_t v = 0; v < ((uu + 4) & ~(Py_ssize_t)3); ++v) Gu[v] += a0 * W0[v];
+                            for (Py_ssize_t v = 0; v < row_span(uu); ++v) Gu[v] += a0 * W0[v];
                     }
                 }
             }

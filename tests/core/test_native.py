@@ -3,18 +3,11 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import pytest
 
-from excite.core import native
+from excite.core import native, processes
 
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
-    except OSError:
-        return False
 
 
 def test_a_compiler_that_hangs_is_ended_at_the_limit_with_a_one_line_error(tmp_path, monkeypatch):
@@ -30,6 +23,6 @@ def test_a_compiler_that_hangs_is_ended_at_the_limit_with_a_one_line_error(tmp_p
         native.build(lib)
     assert time.monotonic() - t0 < 30
     assert "\n" not in str(err.value) and str(cc) in str(err.value)
-    assert not _alive(int(pid_file.read_text()))
+    assert not processes.alive(int(pid_file.read_text()))
     # nothing half built, and no lock holding the next build back
     assert sorted(p.name for p in lib.parent.iterdir()) == []

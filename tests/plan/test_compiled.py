@@ -22,18 +22,12 @@ from excite.plan import compiled
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
-    except OSError:
-        return False
-
 
 def _gone(pids: list[int], timeout_s: float = 20.0) -> list[int]:
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and any(_alive(p) for p in pids):
+    while time.monotonic() < deadline and any(processes.alive(p) for p in pids):
         time.sleep(0.05)
-    return [p for p in pids if _alive(p)]
+    return [p for p in pids if processes.alive(p)]
 
 
 @pytest.fixture
@@ -118,7 +112,7 @@ def test_a_compile_ends_with_its_caller_interrupted_or_killed(stand_in, sig):
     caller = _caller(timeout_s=600)
     try:
         started = _wait_for(stand_in, caller)
-        assert all(_alive(p) for p in started)
+        assert all(processes.alive(p) for p in started)
         caller.send_signal(sig)
         caller.communicate(timeout=60)
     finally:

@@ -352,7 +352,7 @@ def score_plan(plan: DrivablePlan, rig: Rig, limits: Limits, site: Site, evaluat
         built = build(plan, limits)
         if shares is not None:
             transit = sum(p.duration_s for leg, p in zip(built.course.legs, built.speed_plans) if leg.element < 0)
-            plan = as_written(fit_laps(plan, limits, shares, transit))
+            plan = fit_laps(plan, limits, shares, transit)  # whole laps: still as written
             built = build(plan, limits)
     except OptimizeError:
         return Scored(plan, 0.0, 1e6)
