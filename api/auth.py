@@ -44,13 +44,13 @@ from starlette.requests import HTTPConnection
 from . import problems
 from .errors import Exposed, KeysError, Problem
 from .middleware import UNSAFE, header
+from .store import OPEN_KEY
 
 SCOPES = ("score", "plan", "admin")
 KEY_PREFIX = "exk_"
 TICKET_TTL_S = 60.0
 TICKET_PROTOCOL = "excite-ticket."  # a WebSocket subprotocol carrying a ticket
 LIVE_PROTOCOL = "excite-live"  # the subprotocol the server answers with
-OPEN_KEY = ""  # the key id of an open server's requests and jobs
 NO_KEY = "this server needs an API key: send it as X-API-Key or Authorization: Bearer"
 
 # declared so that the OpenAPI document states the credentials; the keys are read by Authenticate

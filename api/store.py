@@ -277,10 +277,6 @@ class JobStore:
             # a database of something else that happens to have a jobs table
             c.execute(sa.select(*jobs.c).limit(1)).fetchall()
 
-    def schema_version(self) -> int:
-        with self._tx() as c:
-            return c.execute(sa.select(sa.func.max(schema.c.version))).scalar()
-
     def ping(self) -> None:
         """Raises :class:`StoreError` when the database does not answer a read."""
         with self._tx() as c:
@@ -486,7 +482,8 @@ class JobStore:
     def _trim(self, c: sa.Connection, key_id: str, max_bytes: int) -> int:
         """While the key's jobs and scenes hold more than ``max_bytes``: delete its oldest finished
         job or least recently used scene, whichever is older."""
-        total = self._key_bytes(c, key_id)
+        total = sum(c.execute(sa.select(sa.func.coalesce(sa.func.sum(t.c.size_bytes), 0)).where(
+            t.c.key_id == key_id)).scalar() for t in (jobs, scenes))
         if total <= max_bytes:
             return 0
         done = c.execute(sa.select(jobs.c.finished_at, jobs.c.id, jobs.c.size_bytes).where(
@@ -505,11 +502,6 @@ class JobStore:
         return self._delete(c, gone_jobs) + len(gone_scenes)
 
     @staticmethod
-    def _key_bytes(c: sa.Connection, key_id: str | None) -> int:  # total_bytes in a transaction
-        return sum(c.execute(sa.select(sa.func.coalesce(sa.func.sum(t.c.size_bytes), 0)).where(
-            _of_key(t, key_id))).scalar() for t in (jobs, scenes))
-
-    @staticmethod
     def _delete(c: sa.Connection, ids: list[str]) -> int:
         n = 0
         for i in range(0, len(ids), 500):
@@ -517,11 +509,6 @@ class JobStore:
             n += c.execute(jobs.delete().where(jobs.c.id.in_(chunk))).rowcount
             c.execute(job_runs.delete().where(job_runs.c.job_id.in_(chunk)))
         return n
-
-    def total_bytes(self, key_id: str | None = None) -> int:
-        """What the jobs and scenes hold [bytes] (of ``key_id``, or of every key)."""
-        with self._tx() as c:
-            return self._key_bytes(c, key_id)
 
     # -- scenes -------------------------------------------------------------------------------
 

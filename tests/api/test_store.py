@@ -86,7 +86,8 @@ def test_finished_jobs_are_purged_by_age_and_size_and_keep_only_what_downloads_n
         store.finish(*claimed, "succeeded", result={"score": 1.0})
     assert store.request_of(ids[0]) == {"rig": "robotaxi", "name": "m", "origin": None}
     assert "request" not in store.get(ids[0])  # a GET never reads the request
-    assert store.total_bytes() < 250_000  # the queued job's request, and four small ones
+    with sqlite3.connect(tmp_path / "j.sqlite3") as db:  # the queued job's request, and four small ones
+        assert db.execute("SELECT sum(size_bytes) FROM jobs").fetchone()[0] < 250_000
     assert store.purge(max_age_s=3600, max_bytes=lambda key_id: 1 << 30) == 0
     with sqlite3.connect(tmp_path / "j.sqlite3") as db:
         db.execute("UPDATE jobs SET finished_at = finished_at - 7200 WHERE id = ?", (ids[0],))
