@@ -39,11 +39,12 @@ import anyio
 from fastapi import Depends, Security
 from fastapi.security import APIKeyHeader, HTTPBearer, SecurityScopes
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from starlette.datastructures import Headers
 from starlette.requests import HTTPConnection
 
 from . import problems
 from .errors import Exposed, KeysError, Problem
-from .middleware import UNSAFE, header
+from .middleware import UNSAFE
 from .store import OPEN_KEY
 
 SCOPES = ("score", "plan", "admin")
@@ -249,12 +250,9 @@ def unauthorized(detail: str) -> Problem:
 
 
 def offered_ticket(scope: dict) -> str | None:
-    """The ticket a WebSocket offers among its subprotocols, if any."""
-    for proto in (header(scope, b"sec-websocket-protocol") or "").split(","):
-        proto = proto.strip()
-        if proto.startswith(TICKET_PROTOCOL):
-            return proto[len(TICKET_PROTOCOL):]
-    return None
+    """The ticket a WebSocket offers among its subprotocols (the ASGI scope's), if any."""
+    return next((p[len(TICKET_PROTOCOL):] for p in scope.get("subprotocols", ()) if p.startswith(TICKET_PROTOCOL)),
+                None)
 
 
 class Authenticate:
@@ -283,8 +281,8 @@ class Authenticate:
     async def _principal(self, scope: dict) -> Principal | None:
         if self.ring is None:
             return OPEN
-        secret = header(scope, b"x-api-key")
-        auth = header(scope, b"authorization")
+        headers = Headers(scope=scope)
+        secret, auth = headers.get("x-api-key"), headers.get("authorization")
         if not secret and auth and auth[:7].lower() == "bearer ":
             secret = auth[7:].strip()
         if secret:
@@ -314,8 +312,9 @@ class Authenticate:
 def _has_body(scope: dict) -> bool:
     if scope.get("method") in UNSAFE:
         return True
-    length = header(scope, b"content-length")
-    return bool(length and length.strip() not in ("", "0")) or header(scope, b"transfer-encoding") is not None
+    headers = Headers(scope=scope)
+    length = headers.get("content-length")
+    return bool(length and length.strip() not in ("", "0")) or "transfer-encoding" in headers
 
 
 async def authorize(security_scopes: SecurityScopes, conn: HTTPConnection,

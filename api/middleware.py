@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from typing import Any, Awaitable, Callable, Iterator
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
+from starlette.datastructures import Headers
 
 from excite.errors import WorkTimeout
 
@@ -25,14 +26,6 @@ from .errors import Problem
 log = logging.getLogger("excite.api")
 
 ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
-
-
-def header(scope: dict, name: bytes) -> str | None:
-    """The value of the request header ``name`` (lower case), or None."""
-    for k, v in scope.get("headers", []):
-        if k == name:
-            return v.decode("latin-1")
-    return None
 
 
 class BodyLimit:
@@ -50,10 +43,11 @@ class BodyLimit:
             return await self.app(scope, receive, send)
         path = scope.get("path", "")
         too_large = Problem(413, f"the request body exceeds the limit of {self.max_bytes} bytes")
-        length = header(scope, b"content-length")
+        headers = Headers(scope=scope)
+        length = headers.get("content-length")
         if length is not None and length.strip().isdigit() and int(length) > self.max_bytes:
             return await problems.send(send, too_large, path, close=True)
-        if (header(scope, b"content-type") or "").lower().startswith("multipart/form-data"):
+        if headers.get("content-type", "").lower().startswith("multipart/form-data"):
             # uploads (bags) stream through to the form parser, which spools them to disk; the
             # limit is counted on the way (the Problem surfaces from the route: 413)
             return await self.app(scope, self._counted(receive, too_large), send)
@@ -202,8 +196,8 @@ class Metrics:
 
 
 # Content types a cross-site HTML form (or a "simple" fetch) can send without a preflight
-SIMPLE_TYPES = (b"multipart/form-data", b"application/x-www-form-urlencoded", b"text/plain")
-CLIENT_HEADER = b"x-excite-client"
+SIMPLE_TYPES = ("multipart/form-data", "application/x-www-form-urlencoded", "text/plain")
+CLIENT_HEADER = "x-excite-client"
 UNSAFE = ("POST", "PUT", "PATCH", "DELETE")
 CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; "
        "connect-src 'self'; font-src 'self'; object-src 'none'; base-uri 'none'; "
@@ -243,7 +237,7 @@ class Guard:
         origin = origin.rstrip("/").lower()
         if origin in self.origins:
             return True
-        host = header(scope, b"host")
+        host = Headers(scope=scope).get("host")
         if host is None or host_name(host) not in self.hosts:
             return False
         scheme = {"ws": "http", "wss": "https"}.get(scope.get("scheme", "http"), scope.get("scheme", "http"))
@@ -252,7 +246,7 @@ class Guard:
     async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
         if scope["type"] not in ("http", "websocket"):
             return await self.app(scope, receive, send)
-        host = header(scope, b"host") or ""
+        host = Headers(scope=scope).get("host", "")
         if not self.any_host and host_name(host) not in self.hosts:
             log.warning("%s: Host %r is not an allowed host: refused", scope.get("path"), host[:200])
             if scope["type"] == "websocket":
@@ -261,7 +255,7 @@ class Guard:
                                                           "(EXCITE_ALLOWED_HOSTS)", type_="host"),
                                        scope.get("path", ""), close=True)
         if scope["type"] == "websocket":
-            origin = header(scope, b"origin")
+            origin = Headers(scope=scope).get("origin")
             if origin is not None and not self._allowed(origin, scope):
                 log.warning("%s: WebSocket from foreign origin %s refused", scope.get("path"), origin[:200])
                 return await _close(receive, send)
@@ -296,19 +290,18 @@ class Guard:
     def _cross_site(self, scope: dict) -> str | None:
         if scope["method"] not in UNSAFE:
             return None
-        origin = header(scope, b"origin")
+        headers = Headers(scope=scope)
+        origin = headers.get("origin")
         if origin is not None:
             if self._allowed(origin, scope):
                 return None
             return (f"a {scope['method']} from the origin {origin[:200]!r} is refused: only this server's "
                     "own page (or EXCITE_ALLOWED_ORIGINS) may send one from a browser")
-        site = header(scope, b"sec-fetch-site")
+        site = headers.get("sec-fetch-site")
         if site in ("cross-site", "same-site"):
             return f"a {site} {scope['method']} from a browser is refused"
-        ctype = (header(scope, b"content-type") or "").lower().encode("latin-1")
-        names = {k for k, _ in scope.get("headers", [])}
-        if (scope["method"] == "POST" and ctype.startswith(SIMPLE_TYPES)
-                and not names & {CLIENT_HEADER, b"x-api-key", b"authorization"}):
+        if (scope["method"] == "POST" and headers.get("content-type", "").lower().startswith(SIMPLE_TYPES)
+                and not {CLIENT_HEADER, "x-api-key", "authorization"} & set(headers)):
             return ("a POST a cross-site HTML form could send is refused: send the header "
                     "X-Excite-Client (any value) or an API key with it")
         return None

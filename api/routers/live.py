@@ -251,18 +251,13 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str, Any, str | None]:
     return rig, name, plan, scene
 
 
-def _subprotocol(ws: WebSocket) -> str | None:
-    offered = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")]
-    return LIVE_PROTOCOL if LIVE_PROTOCOL in offered else None
-
-
 @router.websocket("/live")
 async def live(ws: WebSocket, who: LiveClient) -> None:
     # the router alone (behind uvicorn, without the service's context): the default settings, no store
     ctx: Context | None = getattr(ws.app.state, "ctx", None)
     settings = ctx.settings if ctx is not None else Settings.model_construct()
     counts = ctx.live_sessions if ctx is not None else {}
-    await ws.accept(subprotocol=_subprotocol(ws))
+    await ws.accept(subprotocol=LIVE_PROTOCOL if LIVE_PROTOCOL in ws.scope.get("subprotocols", ()) else None)
     if isinstance(who, Problem):
         await _refuse(ws, Refusal(who))
         return
