@@ -605,11 +605,37 @@ def drivable_file_task(plan: dict[str, Any], rig: str | dict[str, Any], fmt: str
     return task(make)
 
 
+def maneuver_file(profile: dict[str, Any], rig: Rig, fmt: str, name: str,
+                  origin: tuple[float, float] | None = None) -> str:
+    """A finished job's maneuver (its stored control profile) as the text of a file in ``fmt``: tum,
+    csv (waypoints), control (CSV) or geojson; the drive rebuilt with the rig's suspension and written
+    by :mod:`excite.io.routes`. GeoJSON (WGS84 lon/lat) needs the lot's origin: the inverse of the
+    projection :func:`excite.io.routes.read_geojson` uses, so the file reads back to the same drive."""
+    import tempfile
+    from pathlib import Path
+
+    from excite.motion.vehicle import ControlProfile, drive
+    from excite.plan.site import maneuver_geojson
+
+    prof = ControlProfile(**{**profile, "start": tuple(profile["start"])})
+    with tempfile.TemporaryDirectory(prefix="excite-") as tmp:
+        path = Path(tmp) / f"{name}.{fmt}"
+        if fmt == "control":
+            return routes.write_control_csv(prof, path).read_text()
+        traj = drive(prof, rig.suspension)
+        traj.name = name
+        if fmt == "tum":
+            return routes.write_tum(traj, path).read_text()
+        text = routes.write_waypoints_csv(traj, path).read_text()
+        if fmt == "csv":
+            return text
+        xyzv = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        return maneuver_geojson(xyzv[:, :3], xyzv[:, 3], origin, name)
+
+
 def maneuver_task(profile: dict[str, Any], rig: str | dict[str, Any], fmt: str, name: str,
                   origin: tuple[float, float] | None) -> str:
-    """A finished job's maneuver as a file's text (:func:`api.export.maneuver_file`)."""
-    from .export import maneuver_file
-
+    """:func:`maneuver_file` of a job's stored rig (a client's: resolved here, in a worker)."""
     return task(lambda: maneuver_file(profile, resolve_rig(rig), fmt, name, origin))
 
 

@@ -8,7 +8,6 @@ from fastapi import APIRouter, Path, Query, Request, Response
 
 from ..auth import Planner
 from ..context import Ctx
-from ..export import FILES
 from ..errors import Problem
 from ..schemas import Job
 from ..scoring import drivable_file_task, maneuver_task
@@ -16,8 +15,12 @@ from .common import problems
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
-DRIVABLE = {"sheet_pdf": ("application/pdf", "sheet.pdf"), "sheet_png": ("image/png", "sheet.png"),
-            "cones": ("application/geo+json", "cones.geojson"), "plan": ("application/json", "plan.json")}
+# each download's media type and file suffix: the maneuver's formats, then a drivable plan's files
+FILES = {"tum": ("text/plain", "tum"), "csv": ("text/csv", "csv"), "control": ("text/csv", "control.csv"),
+         "geojson": ("application/geo+json", "geojson"), "sheet_pdf": ("application/pdf", "sheet.pdf"),
+         "sheet_png": ("image/png", "sheet.png"), "cones": ("application/geo+json", "cones.geojson"),
+         "plan": ("application/json", "plan.json")}
+DRIVABLE = ("sheet_pdf", "sheet_png", "cones", "plan")
 
 JobId = Annotated[str, Path(max_length=64, description="The id returned by POST /v1/maneuvers.")]
 
@@ -71,7 +74,7 @@ def cancel_job(job_id: JobId, ctx: Ctx, response: Response, who: Planner) -> Any
 @router.get("/jobs/{job_id}/maneuver", response_class=Response,
             responses={200: {"description": "The maneuver file",
                              "content": {m: {"schema": {"type": "string"}} for m in
-                                         sorted({m for m, _ in {**FILES, **DRIVABLE}.values()})}},
+                                         sorted({m for m, _ in FILES.values()})}},
                        **problems(401, 403, 404, 409, 422, 429, 500, 503)},
             summary="Download a job's maneuver as TUM, waypoints CSV, control CSV or GeoJSON; a drivable "
                     "plan's sheet (PDF, PNG), cone layout (GeoJSON) or plan (JSON)")
@@ -105,5 +108,5 @@ def download_maneuver(job_id: JobId, request: Request, ctx: Ctx, who: Planner,
         if format == "geojson" and origin is None:
             raise Problem.at("lon_deg", "GeoJSON needs the lot's origin: give lon_deg and lat_deg, or origin in the request")
         data = ctx.run(request, who, maneuver_task, result["profile"], req.get("rig", "robotaxi"), format, name, origin)
-    media, ext = {**FILES, **DRIVABLE}[format]
+    media, ext = FILES[format]
     return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{name}.{ext}"'})

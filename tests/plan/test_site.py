@@ -183,7 +183,7 @@ def test_api_job_on_a_georeferenced_lot_downloads_geojson_without_an_origin(rig,
     """run_optimization reads the lot, and the job's GeoJSON download projects about the lot's
     own origin: the LineString lands back on the local path."""
     import api.jobs as jobs
-    from api.export import maneuver_file
+    from api.scoring import maneuver_file
 
     site = read_site(l_lot(ramp=False))
     t = np.linspace(0, 20, 201)
