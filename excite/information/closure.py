@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -286,7 +287,12 @@ class Closure:
 
     def sees_drift(self, b: FactorBlock) -> bool:
         """Whether ``b`` sees a drifting coordinate of θ (and so needs the deviation states)."""
-        return bool(self.walk_columns.size and np.isin(b.cols, self.walk_columns).any())
+        return not self.drifting_columns.isdisjoint(b.cols.tolist())
+
+    @cached_property
+    def drifting_columns(self) -> frozenset[int]:
+        """:attr:`walk_columns` as a set (:meth:`sees_drift` asks for every block of every chunk)."""
+        return frozenset(self.walk_columns.tolist())
 
 
 def marginalise_nuisance_symbolic(Lam, scored: np.ndarray):
