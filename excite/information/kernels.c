@@ -301,8 +301,10 @@ HOT static Py_ssize_t eliminate(double *band, Py_ssize_t D, Py_ssize_t n, Py_ssi
             subtract_combination(WZ + row * wz, L + row * sd, 1, WZ, wz, row, wz);
             for (Py_ssize_t e = 0; e < wz; ++e) WZ[row * wz + e] *= inv[row];
         }
-        for (Py_ssize_t k = 0; k < sd; ++k) /* H_ee −= Z_jᵀ Z_j, batched over 16 states */
-            for (Py_ssize_t e = 0; e < q; ++e) ZT[e * zt + fill + k] = Zj[k * wz + e];
+        for (Py_ssize_t e = 0; e < q; ++e) { /* H_ee −= Z_jᵀ Z_j, batched over 16 states (ZT's rows written in runs) */
+            double *zr = ZT + e * zt + fill;
+            for (Py_ssize_t k = 0; k < sd; ++k) zr[k] = Zj[k * wz + e];
+        }
         fill += sd;
         if (fill + sd > zt) {
             border_update(ZT, q, zt, fill, Hee);
