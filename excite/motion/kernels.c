@@ -3,6 +3,7 @@
  * (excite/motion/kernels.py states the math; the tests hold it to scipy's RotationSpline). */
 #include "../core/native.h"
 
+#define AHEAD 8     /* samples ahead whose spline segments are prefetched (sparse()) */
 #define SERIES 1e-2 /* below this rotation angle, series expansions (exact to ~1e-16) */
 
 static inline void cross(double ux, double uy, double uz, double vx, double vy, double vz, double *x, double *y,
@@ -101,6 +102,22 @@ static inline void rotation_at(const double *c, Py_ssize_t order, Py_ssize_t nse
     al[2] = ddz - b * qz + cc * qqz - eb * pd * pdz + ec * pd * ppz + cc * rz;
 }
 
+/* Times much sparser than a spline's segments (a long drive's spline at a coarse rate): each
+ * sample's coefficients are a cache miss, so those of the sample AHEAD are fetched early. */
+static inline int sparse(const int64_t *seg, Py_ssize_t n) { return n > 1 && seg[n - 1] - seg[0] > 2 * (n - 1); }
+
+static inline void prefetch_segment(const double *c, Py_ssize_t order, Py_ssize_t nseg, Py_ssize_t k, const double *x) {
+    for (Py_ssize_t m = 0; m < order; ++m) __builtin_prefetch(c + (m * nseg + k) * 3);
+    __builtin_prefetch(x + k);
+}
+
+static inline void prefetch_rotation(const double *c, Py_ssize_t order, Py_ssize_t nseg, Py_ssize_t k, const double *x,
+                                     const double *R_key) {
+    prefetch_segment(c, order, nseg, k, x);
+    __builtin_prefetch(R_key + 9 * k);
+    __builtin_prefetch(R_key + 9 * k + 8);
+}
+
 /* index of the first break > x (numpy's searchsorted side="right") */
 static Py_ssize_t upper_bound(const double *breaks, Py_ssize_t n, double x) {
     Py_ssize_t lo = 0, hi = n;
@@ -165,7 +182,9 @@ NATIVE_FUNCTION(native_rotation_samples) {
     const int64_t *S = Q(seg);
     double *oR = D(R), *ow = D(w), *oa = D(al);
     Py_BEGIN_ALLOW_THREADS;
+    int ahead = sparse(S, n);
     for (Py_ssize_t i = 0; i < n; ++i) {
+        if (ahead && i + AHEAD < n) prefetch_rotation(C, order, nseg, S[i + AHEAD], X, RK);
         Py_ssize_t k = S[i];
         rotation_at(C, order, nseg, k, T[i] - X[k], RK, oR + 9 * i, ow + 3 * i, oa + 3 * i);
     }
@@ -200,7 +219,12 @@ NATIVE_FUNCTION(native_imu_samples) {
     Py_BEGIN_ALLOW_THREADS;
     double R[9], w[3], al[3];
     double px = p[0], py = p[1], pz = p[2];
+    int ahead = sparse(sr, n);
     for (Py_ssize_t i = 0; i < n; ++i) {
+        if (ahead && i + AHEAD < n) {
+            prefetch_rotation(cr, order, nseg, sr[i + AHEAD], xr, RK);
+            prefetch_segment(ca, order_a, nseg_a, sa[i + AHEAD], xa);
+        }
         Py_ssize_t k = sr[i];
         rotation_at(cr, order, nseg, k, T[i] - xr[k], RK, R, w, al);
         Py_ssize_t j = sa[i];
