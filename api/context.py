@@ -76,13 +76,8 @@ class Context:
 
 
 def deadline(request: Request) -> Deadline:
-    """The request's :class:`~api.middleware.Deadline` (one of the settings' limit when the app
-    runs without the middleware)."""
-    state = request.scope.setdefault("state", {})
-    if "deadline" not in state:
-        ctx = getattr(request.app.state, "ctx", None)
-        state["deadline"] = Deadline(ctx.settings.request_timeout_s if ctx is not None else 60.0)
-    return state["deadline"]
+    """The request's :class:`~api.middleware.Deadline` (set by :class:`~api.middleware.TimeLimit`)."""
+    return request.scope["state"]["deadline"]
 
 
 def get_context(request: Request) -> Context:

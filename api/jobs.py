@@ -157,7 +157,6 @@ class JobRunner:
     purge_every_s: float = 60.0
     replica: str = field(default_factory=replica_id)
     fault: str | None = None  # the store's current fault, for /readyz
-    purged: int = 0
 
     def __post_init__(self) -> None:
         self.runs: dict[tuple[str, int], Run] = {}
@@ -174,9 +173,6 @@ class JobRunner:
     @property
     def running(self) -> int:
         return len(self.runs)
-
-    def pids(self) -> list[int]:
-        return [r.proc.pid for r in list(self.runs.values())]
 
     def start(self) -> None:
         try:
@@ -325,7 +321,6 @@ class JobRunner:
         if now - self._last_purge >= self.purge_every_s:
             self._last_purge = now
             n = self.store.purge(self.retention_s, self.storage_bytes)
-            self.purged += n
             if n:
                 log.info("retention: deleted %d finished job(s)", n)
 

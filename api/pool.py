@@ -165,10 +165,6 @@ class WorkerPool:
     def ready(self) -> bool:
         return self._started and not self._closed and bool(self._all)
 
-    def pids(self) -> list[int]:
-        with self._cond:
-            return [w.pid for w in self._all]
-
     # -- workers ---------------------------------------------------------------------------
 
     def _spawn(self) -> None:
