@@ -57,11 +57,7 @@ def create_app(settings: Settings | None = None, *,
     registry = CollectorRegistry()
     ctx = Context(
         settings=settings, store=store,
-        runner=JobRunner(store, settings.workers, job_function, settings.cancel_grace_s,
-                         settings.worker_memory_mb, scheduler=settings.dask_scheduler,
-                         lease_s=settings.job_lease_s, time_reserve_s=settings.job_time_reserve_s,
-                         max_time_budget_s=settings.max_job_time_budget_s,
-                         retention_s=settings.retention_days * 86400.0),
+        runner=JobRunner(store, settings, job_function),
         cluster=ClusterScoring(settings.dask_scheduler) if settings.dask_scheduler else None,
         pool=WorkerPool(settings.score_workers, settings.worker_memory_mb, settings.worker_recycle_mb,
                         warm=warm, max_queued=settings.max_queued_tasks,

@@ -32,6 +32,7 @@ from typing import Any, Callable
 from excite.core.processes import Supervised
 
 from .errors import Problem, StoreError
+from .settings import Settings
 from .store import JobStore, replica_id
 
 log = logging.getLogger("excite.api")
@@ -72,6 +73,8 @@ def run_optimization(request: dict[str, Any], progress: Callable[[dict[str, Any]
 # The job's process
 
 PROGRESS_EVERY_S = 0.5
+POLL_S = 0.2  # the dispatcher looks at the store this often (at once when woken)
+PURGE_EVERY_S = 60.0
 
 
 def job_main(conn: Any, function: str, request: dict[str, Any], instance: str, scheduler: str | None) -> None:
@@ -143,18 +146,9 @@ class JobRunner:
     """Runs queued jobs in supervised processes (see the module docstring)."""
 
     store: JobStore
-    workers: int
-    function: str
-    cancel_grace_s: float
-    memory_mb: int
-    poll_s: float = 0.2
-    scheduler: str | None = None
-    lease_s: float = 30.0
-    time_reserve_s: float = 60.0
-    max_time_budget_s: float = 900.0
-    retention_s: float = 7 * 86400.0
+    settings: Settings  # workers, cancel_grace_s, worker_memory_mb, dask_scheduler, job_*, retention_days
+    function: str  # module:function, the job (create_app's job_function)
     storage_bytes: Callable[[str], int] = lambda key_id: 1 << 30
-    purge_every_s: float = 60.0
     replica: str = field(default_factory=replica_id)
     fault: str | None = None  # the store's current fault, for /readyz
 
@@ -210,12 +204,13 @@ class JobRunner:
 
     def time_limit_s(self, request: dict[str, Any] | None) -> float:
         """A run's hard wall-clock limit: its time budget plus the reserve."""
-        budget = (request or {}).get("time_budget_s", self.max_time_budget_s)
+        most = self.settings.max_job_time_budget_s
+        budget = (request or {}).get("time_budget_s", most)
         try:
-            budget = min(float(budget), self.max_time_budget_s)
+            budget = min(float(budget), most)
         except (TypeError, ValueError):
-            budget = self.max_time_budget_s
-        return budget + self.time_reserve_s
+            budget = most
+        return budget + self.settings.job_time_reserve_s
 
     def _launch(self, job_id: str, attempt: int) -> None:
         request = self.store.request_of(job_id, attempt)
@@ -224,8 +219,8 @@ class JobRunner:
         if request.get("scene") is not None:  # the scene's file goes to the run, not into the stored request
             request = {**request, "_scene": self._scene(job_id, request["scene"])}
         limit = self.time_limit_s(request)
-        proc = Supervised(job_main, self.function, request, f"/v1/jobs/{job_id}", self.scheduler,
-                          context="spawn", memory_mb=self.memory_mb, name="excite-job")
+        proc = Supervised(job_main, self.function, request, f"/v1/jobs/{job_id}", self.settings.dask_scheduler,
+                          context="spawn", memory_mb=self.settings.worker_memory_mb, name="excite-job")
         self.runs[(job_id, attempt)] = Run(job_id, attempt, proc, time.monotonic() + limit, limit)
         log.info("job %s attempt %d started (pid %d)", job_id, attempt, proc.pid)
 
@@ -285,8 +280,9 @@ class JobRunner:
                         run.proc.send(("stop",))
                     except Exception:  # noqa: BLE001 — it is ending anyway
                         pass
-                elif now - run.cancel_at > self.cancel_grace_s:
-                    log.warning("job %s did not stop %.0f s after cancel: ending it", run.job_id, self.cancel_grace_s)
+                elif now - run.cancel_at > self.settings.cancel_grace_s:
+                    log.warning("job %s did not stop %.0f s after cancel: ending it", run.job_id,
+                                self.settings.cancel_grace_s)
                     run.proc.stop()
                     run.outcome = ("cancelled", None, None, run.progress)
             try:
@@ -303,24 +299,24 @@ class JobRunner:
             raise fault
 
     def _beat(self) -> None:
-        now = time.monotonic()
-        if now - self._last_beat < self.lease_s / 3:
+        now, lease_s = time.monotonic(), self.settings.job_lease_s
+        if now - self._last_beat < lease_s / 3:
             return
         held = {k for k, r in self.runs.items() if r.outcome is None}
-        still = self.store.heartbeat(self.replica, self.lease_s, held)
+        still = self.store.heartbeat(self.replica, lease_s, held)
         self._last_beat = now
         for key in held - still:  # lost (this replica lost the database longer than the lease)
             run = self.runs.pop(key)
             log.warning("job %s attempt %d: lease lost, its run here is ended (the job runs elsewhere)", *key)
             run.proc.stop()
-        if now - self._answering_since >= self.lease_s:  # not just after a fault (see the module docstring)
+        if now - self._answering_since >= lease_s:  # not just after a fault (see the module docstring)
             requeued = self.store.reclaim(self.replica)
             if requeued:
                 log.warning("re-queued %d job(s) whose replica's lease expired: %s", len(requeued),
                             ", ".join(requeued))
-        if now - self._last_purge >= self.purge_every_s:
+        if now - self._last_purge >= PURGE_EVERY_S:
             self._last_purge = now
-            n = self.store.purge(self.retention_s, self.storage_bytes)
+            n = self.store.purge(self.settings.retention_days * 86400.0, self.storage_bytes)
             if n:
                 log.info("retention: deleted %d finished job(s)", n)
 
@@ -331,7 +327,7 @@ class JobRunner:
         self.fault = text
 
     def _loop(self) -> None:
-        delay = self.poll_s
+        delay = POLL_S
         while not self._stop.is_set():
             ok = True
             cancelled: set[tuple[str, int]] = set()
@@ -349,13 +345,13 @@ class JobRunner:
                 self._answering_since = math.inf
             elif self._answering_since == math.inf:
                 self._answering_since = time.monotonic()
-            delay = self.poll_s if ok else min(2.0, max(delay * 2, 0.5))
+            delay = POLL_S if ok else min(2.0, max(delay * 2, 0.5))
             self._wake.wait(delay)
             self._wake.clear()
 
     def _claim(self) -> None:
-        while len(self.runs) < self.workers and not self._stop.is_set():
-            claimed = self.store.claim(self.replica, self.lease_s)
+        while len(self.runs) < self.settings.workers and not self._stop.is_set():
+            claimed = self.store.claim(self.replica, self.settings.job_lease_s)
             if claimed is None:
                 return
             self._launch(*claimed)
