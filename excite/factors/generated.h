@@ -13,4 +13,14 @@ typedef struct {
 extern const excite_kernel excite_kernels[];
 extern const int excite_n_kernels;
 
+/* A kernel of the table that also runs on several factors at once (the fold's step2, see
+ * excite/factors/generate.py: batched). */
+typedef struct {
+    const char *name;
+    void *f; /* int f(const double **arg, double **res) */
+} excite_batched_kernel;
+
+extern const excite_batched_kernel excite_batched[];
+extern const int excite_n_batched;
+
 #endif

@@ -150,6 +150,36 @@ static int resolve(PyObject *k, kernel_fn *f, work_fn *work) {
     return -1;
 }
 
+typedef int (*batch_fn)(const double **arg, double **res);
+#define LANES 4 /* intervals a batched step2 takes at once (excite/factors/generate.py: LANES) */
+
+/* The batched version of a kernel compiled in by that name (excite_batched), or NULL. */
+static batch_fn batched(PyObject *k) {
+    const char *name = PyUnicode_Check(k) ? PyUnicode_AsUTF8(k) : NULL;
+    for (int i = 0; name && i < excite_n_batched; ++i)
+        if (strcmp(excite_batched[i].name, name) == 0) return (batch_fn)excite_batched[i].f;
+    return NULL;
+}
+
+/* The end of the fold of the interval whose samples start at i0, from its state st after the pairs
+ * of samples down to s (st[ns … 2ns) free): sample 0 where one is left (s == 0), then finish into
+ * out. Returns 0, or 1 where a kernel failed. */
+static int fold_end(kernel_fn step, kernel_fn finish, double *st, long ns, long s, const double *Rm,
+                    const double *Fm, const double *cv, Py_ssize_t i0, long n, double *out, long long *iw, double *w) {
+    const double *arg[8];
+    double *res[2];
+    double *cur = st;
+    if (s == 0) {
+        arg[0] = st, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * i0, arg[3] = Fm + 3 * i0, arg[4] = cv;
+        res[0] = st + ns;
+        if (step(arg, res, iw, w, 0)) return 1;
+        cur = st + ns;
+    }
+    arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + n), arg[3] = cv;
+    res[0] = out;
+    return finish(arg, res, iw, w, 0) ? 1 : 0;
+}
+
 /* fold(step, step2, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): for every
  * interval starting at keyframe first[k] (its samples i0 … i0 + n, i0 = first[k]·per_keyframe),
  * the state starts at zero and takes the samples s = n − 1 down to 0: step2(state, R_i0, R_s, f_s,
@@ -191,6 +221,7 @@ NATIVE_FUNCTION(native_fold) {
         sz_iw = sz[i][2] > sz_iw ? sz[i][2] : sz_iw;
         sz_w = sz[i][3] > sz_w ? sz[i][3] : sz_w;
     }
+    batch_fn step2_x4 = batched(args[1]);
     int rc = 0;
     const double *Rm = D(R), *Fm = D(F), *cv = D(c);
     double *o = D(out);
@@ -198,12 +229,37 @@ NATIVE_FUNCTION(native_fold) {
     long long *iw = malloc(sizeof(long long) * ((size_t)sz_iw + 1));
     double *w = malloc(sizeof(double) * ((size_t)sz_w + 1));
     double *st = malloc(sizeof(double) * (2 * (size_t)ns + 1));
-    if (!iw || !w || !st) {
+    double *st4 = malloc(sizeof(double) * (2 * LANES * (size_t)ns + 1));
+    if (!iw || !w || !st || !st4) {
         rc = -1;
     } else {
-        const double *arg[8];
+        const double *arg[8], *arg4[7 * LANES];
         double *res[2];
-        for (Py_ssize_t k = 0; k < N && !rc; ++k) {
+        Py_ssize_t k = 0;
+        /* LANES intervals at once (their states interleaved), as far as they go: the pairs of samples */
+        for (; step2_x4 && k + LANES <= N && !rc; k += LANES) {
+            double *cur = st4, *nxt = st4 + LANES * ns, *t;
+            memset(cur, 0, sizeof(double) * LANES * ns);
+            long s = n - 1;
+            for (; s >= 1; s -= 2) {
+                for (int l = 0; l < LANES; ++l) {
+                    Py_ssize_t i0 = (Py_ssize_t)fi[k + l] * per;
+                    arg4[LANES + l] = Rm + 9 * i0, arg4[2 * LANES + l] = Rm + 9 * (i0 + s);
+                    arg4[3 * LANES + l] = Fm + 3 * (i0 + s), arg4[4 * LANES + l] = Rm + 9 * (i0 + s - 1);
+                    arg4[5 * LANES + l] = Fm + 3 * (i0 + s - 1), arg4[6 * LANES + l] = cv;
+                }
+                arg4[0] = cur;
+                res[0] = nxt;
+                if (step2_x4(arg4, res)) rc = 1;
+                t = cur, cur = nxt, nxt = t;
+            }
+            for (int l = 0; l < LANES && !rc; ++l) { /* each interval's state on its own: the rest as below */
+                for (long e = 0; e < ns; ++e) st[e] = cur[LANES * e + l];
+                rc = fold_end(step, finish, st, ns, s, Rm, Fm, cv, (Py_ssize_t)fi[k + l] * per, n, o + (k + l) * width,
+                              iw, w);
+            }
+        }
+        for (; k < N && !rc; ++k) {
             Py_ssize_t i0 = (Py_ssize_t)fi[k] * per;
             double *cur = st, *nxt = st + ns, *t;
             memset(cur, 0, sizeof(double) * ns);
@@ -215,20 +271,14 @@ NATIVE_FUNCTION(native_fold) {
                 if (step2(arg, res, iw, w, 0)) rc = 1;
                 t = cur, cur = nxt, nxt = t;
             }
-            if (s == 0) {
-                arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * i0, arg[3] = Fm + 3 * i0, arg[4] = cv;
-                res[0] = nxt;
-                if (step(arg, res, iw, w, 0)) rc = 1;
-                t = cur, cur = nxt, nxt = t;
-            }
-            arg[0] = cur, arg[1] = Rm + 9 * i0, arg[2] = Rm + 9 * (i0 + n), arg[3] = cv;
-            res[0] = o + k * width;
-            if (finish(arg, res, iw, w, 0)) rc = 1;
+            if (cur != st) memcpy(st, cur, sizeof(double) * ns);
+            if (!rc) rc = fold_end(step, finish, st, ns, s, Rm, Fm, cv, i0, n, o + k * width, iw, w);
         }
     }
     free(iw);
     free(w);
     free(st);
+    free(st4);
     Py_END_ALLOW_THREADS;
     native_release(&a);
     if (rc == -1) return PyErr_NoMemory();

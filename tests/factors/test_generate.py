@@ -101,6 +101,24 @@ def test_each_compiled_kernel_equals_its_statement(name):
         assert max(np.abs(w).max() for w in want) > 0
 
 
+def test_the_fold_of_four_intervals_at_once_is_each_interval_folded_alone():
+    """The fold runs its two-sample step on four intervals at once where it has the step's batched
+    form (the same statements on vectors of the intervals' numbers): every summary is the one of
+    its interval folded alone, bit for bit (the batched intervals, and those left over)."""
+    rig = load_rig("robotaxi")
+    nom = Nominal.of(drive(_PROFILE, rig.suspension), rig)
+    kind, entry = next((k, e) for k, e in generate.instances(rig) if registry.implements(k, registry.ReadsImu))
+    lay = layout.layout(kind, rig, entry)
+    assert f"{lay.name('step2')}_x{generate.LANES}" in generate.TARGET.read_text(), "the fold's step has no batched form"
+    c = layout.constant_inputs(lay, layout.constant_values(kind, rig, entry))
+    fold = tuple(lay.name(w) for w in ("step", "step2", "finish"))
+    first = np.array([0, 3, 4, 9, 10, 11, 30, 31, 50])  # two batches of four and one interval alone
+    together = kernels.summaries(nom, first, lay, fold, c)
+    alone = np.vstack([kernels.summaries(nom, first[i:i + 1], lay, fold, c) for i in range(first.size)])
+    assert np.abs(alone).max() > 0
+    np.testing.assert_array_equal(together, alone)
+
+
 @pytest.fixture(scope="module")
 def speedometer_rig():
     from factors.test_base import Speedometer  # the kind declared in that test file alone
