@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from contextlib import asynccontextmanager
-from typing import Any, AsyncIterator
+from typing import AsyncIterator
 
 import anyio
 from fastapi import FastAPI
@@ -138,17 +138,12 @@ def _openapi_with_settings(app: FastAPI, settings: Settings, open_server: bool):
         for model, prop in (("RouteIn", "waypoints"), ("RouteIn", "poses"), ("ControlIn", "t_s")):
             tighten(array(model, prop), "maxItems", s.max_samples)
         tighten(array("BatchRequest", "routes"), "maxItems", s.max_batch_routes)
-        if open_server:
-            _strip_security(doc)
+        if open_server:  # it asks for no credentials
+            doc["components"].pop("securitySchemes", None)
+            for op in (op for item in doc["paths"].values() for op in item.values() if isinstance(op, dict)):
+                op.pop("security", None)
         app.openapi_schema = doc
         return doc
 
     return openapi
 
-
-def _strip_security(doc: dict[str, Any]) -> None:
-    doc.get("components", {}).pop("securitySchemes", None)
-    for item in doc.get("paths", {}).values():
-        for op in item.values():
-            if isinstance(op, dict):
-                op.pop("security", None)

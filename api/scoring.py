@@ -16,6 +16,7 @@ import io
 import logging
 import math
 import re
+from collections import Counter
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Callable
@@ -149,11 +150,8 @@ def _keep(key: str, scene: Any) -> Any:
 def scene_summary(scene: Any, name: str) -> dict[str, Any]:
     """What ``POST /v1/scenes`` answers of a scene read from the file ``name``."""
     lo, hi = scene.bounds
-    kinds: dict[str, int] = {}
-    for surf in scene.surfaces:
-        kinds[surf.kind] = kinds.get(surf.kind, 0) + 1
     return {"digest": scene.digest, "name": name, "triangles": scene.n_triangles, "surfaces": len(scene.surfaces),
-            "surfaces_by_kind": kinds, "area_m2_by_kind": scene.area_by_kind(),
+            "surfaces_by_kind": dict(Counter(surf.kind for surf in scene.surfaces)), "area_m2_by_kind": scene.area_by_kind(),
             "bounds_m": {"min": lo.tolist(), "max": hi.tolist()}}
 
 
