@@ -1,21 +1,11 @@
 """Who may do what: API keys with scopes and an owner, checked from the request's headers before
-its body is read, and each key's quotas.
+its body is read, and each key's quotas. The keys file and what a client sends: the service guide
+(docs/guides/service.md, "Keys, scopes and quotas").
 
-The operator lists the keys in a file (``EXCITE_API_KEYS_FILE``, YAML or JSON) holding only
-their SHA-256 hashes (``python -m api.keys new`` makes a key and prints its entry)::
-
-    keys:
-      - id: ci-gate          # names the key in logs, metrics and job records
-        owner: calibration   # who holds it
-        scopes: [score]      # score, plan, admin
-        sha256: 9f2c…        # of the secret; the secret itself is never stored
-        quota: {jobs: 50, live_sessions: 2, rate_per_s: 5, burst: 10, storage_mb: 64}   # optional
-
-A client sends its key as ``X-API-Key`` or ``Authorization: Bearer``; a browser's WebSocket a
-single-use :func:`ticket` as a subprotocol. :class:`Authenticate` resolves the key from the
-headers before a byte of the body is read (401, 429 over its rate); the routes' dependencies
-check scopes (``score``, ``plan``, ``admin``: everything, every key's jobs). Without a keys file
-the server is **open**: everyone is admin, no quota applies, and only loopback is served unless
+:class:`Authenticate` resolves the key from the headers before a byte of the body is read (401,
+429 over its rate); the routes' dependencies check scopes (``admin``: everything, every key's
+jobs); a browser's WebSocket offers a single-use :func:`ticket` instead. Without a keys file the
+server is open: everyone is :data:`OPEN` (admin, no quota), on loopback only unless
 ``EXCITE_OPEN=true`` (:func:`check_exposure`).
 """
 
