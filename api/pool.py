@@ -157,9 +157,6 @@ class WorkerPool:
         self._closed = False
         self._started = False
         self._threads = cf.ThreadPoolExecutor(max(8, 4 * workers + max_queued), thread_name_prefix="score")
-        self.shed = 0  # tasks refused as overloaded
-        self.killed = 0  # workers killed past a deadline
-        self.recycled = 0  # workers replaced after growing
 
     @property
     def ready(self) -> bool:
@@ -243,7 +240,6 @@ class WorkerPool:
                 cost = self._cost(kind, size)
                 if cost > ADMIT_SHARE * left:  # what it costs now would not finish in time
                     self._dequeue(task)
-                    self.shed += 1
                     raise Overloaded(f"this key's work ahead of this request took longer than expected, and its "
                                      f"~{cost:.0f} s would not finish within its time limit",
                                      int(min(60, max(1, math.ceil(cost)))))
@@ -258,7 +254,6 @@ class WorkerPool:
         try:
             return w.run(fn, *args, deadline=deadline)
         except WorkTimeout:
-            self.killed += 1
             self._replace(w, "its task outlived the request's deadline")
             raise
         except WorkerDied:
@@ -276,7 +271,6 @@ class WorkerPool:
                     self._idle.append(w)
                 self._cond.notify_all()
             if w.ending:  # replaced even when it has exited already (else the pool loses it)
-                self.recycled += 1
                 self._replace(w, f"its memory grew by more than {self.recycle_mb} MiB")
 
     def submit(self, fn: Callable[..., Any], calls: list[tuple], deadline: float, key: str = "",
@@ -298,11 +292,9 @@ class WorkerPool:
             finish = wait + sum(costs) / min(cap, len(calls))
             retry = int(min(60, max(1, math.ceil(finish))))
             if len(calls) > max(0, free) and len(self._waiting) + len(calls) > self.max_queued + max(0, free):
-                self.shed += 1
                 raise Overloaded(f"all {self.workers} scoring workers are busy and {len(self._waiting)} "
                                  f"tasks are waiting (at most {self.max_queued})", retry)
             if finish > ADMIT_SHARE * (deadline - now):
-                self.shed += 1
                 raise Overloaded(f"this key's share of the scoring workers ({cap} of {self.workers}) "
                                  f"holds ~{wait:.0f} s of its work, and this request's ~{finish - wait:.0f} s "
                                  "would not finish within its time limit", retry)

@@ -4,6 +4,7 @@ flood's excess is refused at once with 429 (never a 503 at the time limit)."""
 
 from __future__ import annotations
 
+import os
 import statistics
 import threading
 import time
@@ -110,9 +111,8 @@ def test_a_key_flooding_past_its_share_while_its_costs_triple_is_answered_429_an
         outcomes = [(phase, f if f == "429" else _outcome(f)) for phase, f in flood]
         assert quiet and set(quiet) == {"200"}, quiet
         assert {o for _, o in outcomes} == {"200", "429"}, outcomes
-        for phase in ("light", "tripled"):  # both phases were served and refused
+        for phase in ("light", "tripled"):  # both phases were served and refused (none timed out: 503)
             assert {o for p, o in outcomes if p == phase} == {"200", "429"}, outcomes
-        assert pool.killed == 0
     finally:
         pool.close()
 
@@ -136,10 +136,12 @@ def test_a_worker_that_has_exited_after_its_last_task_is_replaced(monkeypatch):
     pool = WorkerPool(1, memory_mb=0, recycle_mb=1)
     pool.start()
     try:
-        for _ in range(3):  # a task grows its worker past 1 MiB: every task ends its worker
+        pids = []
+        for _ in range(3):  # a task grows its worker past 1 MiB: every such task ends its worker
             (f,) = pool.submit(bytearray, [(8 << 20,)], time.monotonic() + 20)
             assert len(f.result(timeout=30)) == 8 << 20
-        assert pool.recycled >= 2
+            pids.append(pool.submit(os.getpid, [()], time.monotonic() + 20)[0].result(timeout=30))
+        assert len(set(pids)) == 3  # each served by the worker that replaced the last
     finally:
         pool.close()
 
