@@ -136,24 +136,16 @@ def _shallow(rig: dict[str, Any]) -> dict[str, Any]:
     return rig
 
 
-def _rig_ranges() -> str:
-    return "; ".join(f"{k} {r}" for k, r in all_ranges().items())
-
-
-def _rig_kind(rig: Any) -> str:
-    return "inline" if isinstance(rig, dict) else "bundled"
-
-
 # Tagged, so that a wrong rig is reported against the kind it was (names the tags hide from
 # the field names in errors: api.problems.field_name).
 RIG_TAGS = ("bundled", "inline")
 RigIn = Annotated[Annotated[RigName, Tag("bundled")] |
                   Annotated[dict[str, Any], AfterValidator(parsed_rig), AfterValidator(_shallow), Tag("inline")],
-                  Discriminator(_rig_kind)]
-RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's structure; the IMU "
-                   "block inline; POST /v1/rigs/parse's response as it is; at most {bounds.MAX_SENSORS} sensors, nested at most "
-                   f"{bounds.MAX_NESTING} levels). Sane ranges: {_rig_ranges()}; targets and "
-                   "priors by unit: " + "; ".join(f"{u} {r}" for u, r in bounds.QUANTITY.items()) + ".")
+                  Discriminator(lambda rig: "inline" if isinstance(rig, dict) else "bundled")]
+RIG_DESCRIPTION = ("A bundled rig's name, or a rig config object (the YAML's structure; the IMU block inline; "
+                   f"POST /v1/rigs/parse's response as it is; at most {bounds.MAX_SENSORS} sensors, nested at most "
+                   f"{bounds.MAX_NESTING} levels). Sane ranges: " + "; ".join(f"{k} {r}" for k, r in all_ranges().items())
+                   + "; targets and priors by unit: " + "; ".join(f"{u} {r}" for u, r in bounds.QUANTITY.items()) + ".")
 
 
 _LOOP = {"name": "loop", "waypoints": [[0, 0], [30, 0], [30, 20], [0, 20], [0, 1]]}
