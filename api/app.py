@@ -49,7 +49,7 @@ def create_app(settings: Settings | None = None, *,
     here, it is not a setting of the service.
     """
     settings = settings or Settings()
-    store = JobStore(settings.store_url)
+    store = JobStore(settings.database_url or settings.db_path)
     keys = None
     if settings.api_keys_file is not None:
         defaults = Quota(**{f: getattr(settings, f"quota_{f}") for f in Quota.model_fields})  # EXCITE_QUOTA_*

@@ -641,24 +641,20 @@ def work_size(route: dict[str, Any], scene: Any = None) -> float:
     """The seconds of drive a route holds, estimated without reading it (what admission weighs):
     the span of its times, or its length at 5 m/s, or one keyframe per line of text; in a
     ``scene``, :data:`SCENE_WORK` times that."""
-    return (SCENE_WORK if scene is not None else 1.0) * _drive_seconds(route)
-
-
-def _drive_seconds(route: dict[str, Any]) -> float:
+    seconds = 1.0
     try:
         if route.get("control") is not None:
-            t = route["control"]["t_s"]
-            return max(1.0, float(t[-1]) - float(t[0]))
-        if route.get("poses") is not None:
-            return max(1.0, float(route["poses"][-1]["t"]) - float(route["poses"][0]["t"]))
-        if route.get("waypoints") is not None:
+            seconds = float(route["control"]["t_s"][-1]) - float(route["control"]["t_s"][0])
+        elif route.get("poses") is not None:
+            seconds = float(route["poses"][-1]["t"]) - float(route["poses"][0]["t"])
+        elif route.get("waypoints") is not None:
             p = np.asarray(route["waypoints"], dtype=float)[:, :2]
-            return max(1.0, float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) / 5.0)
-        if route.get("text") is not None:
-            return max(1.0, 0.1 * route["text"].count("\n"))
+            seconds = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) / 5.0
+        elif route.get("text") is not None:
+            seconds = 0.1 * route["text"].count("\n")
     except (KeyError, IndexError, TypeError, ValueError):
         pass
-    return 1.0
+    return (SCENE_WORK if scene is not None else 1.0) * max(1.0, seconds)
 
 
 def warm() -> bool:

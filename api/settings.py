@@ -170,11 +170,6 @@ class Settings(BaseSettings):
             raise ValueError(f"{v} is not a file")
         return v
 
-    @property
-    def store_url(self) -> str:
-        """Where the jobs are: the PostgreSQL URL, else the SQLite file."""
-        return self.database_url or str(self.db_path)
-
     def hosts(self, open_server: bool) -> tuple[str, ...]:
         """The host names the server answers to (see ``allowed_hosts``)."""
         named = tuple(h.strip().lower().strip("[]") for h in self.allowed_hosts.split(",") if h.strip())

@@ -20,8 +20,6 @@ from .common import AUTH, BODY, problems
 
 router = APIRouter(prefix="/v1", tags=["scenes"])
 
-_READ_CHUNK = 1 << 20
-
 
 @router.post("/scenes", status_code=201, response_model=SceneSummary,
              responses={**BODY, 200: {"model": SceneSummary, "description": "The key has this scene already"}},
@@ -38,19 +36,17 @@ def upload_scene(request: Request, ctx: Ctx, response: Response, who: Scorer,
     if suffix not in SUFFIXES:
         raise Problem.at("file", f"the file name must end in {', '.join(SUFFIXES)}, got {name[:200]!r}")
     limit = ctx.settings.max_scene_bytes
-    data = bytearray()
     try:
-        while chunk := file.file.read(_READ_CHUNK):
-            data += chunk
-            if len(data) > limit:
-                raise Problem.at("file", f"over the limit of {limit} bytes (EXCITE_MAX_SCENE_BYTES)", 413)
+        data = file.file.read(limit + 1)
     finally:
         file.file.close()
+    if len(data) > limit:
+        raise Problem.at("file", f"over the limit of {limit} bytes (EXCITE_MAX_SCENE_BYTES)", 413)
     if not data:
         raise Problem.at("file", "the file is empty")
-    summary = ctx.run(request, who, scene_file_task, name, bytes(data), size=max(1.0, len(data) / 200_000))
+    summary = ctx.run(request, who, scene_file_task, name, data, size=max(1.0, len(data) / 200_000))
     with deadline(request).commit():  # answered 503 already: nothing kept; keeping it: no 503
-        created = ctx.store.put_scene(who.key_id, summary["digest"], name, summary, bytes(data),
+        created = ctx.store.put_scene(who.key_id, summary["digest"], name, summary, data,
                                       max_bytes=ctx.storage_bytes(who.key_id))
     if not created:
         response.status_code = 200
