@@ -13,11 +13,12 @@ typedef struct {
 extern const excite_kernel excite_kernels[];
 extern const int excite_n_kernels;
 
-/* A kernel of the table that also runs on several factors at once (the fold's step2, see
- * excite/factors/generate.py: batched). */
+/* A kernel of the table that also runs on several factors at once (excite/factors/generate.py:
+ * batched); state: a fold's step, its state interleaved. */
 typedef struct {
     const char *name;
     void *f; /* int f(const double **arg, double **res) */
+    int state;
 } excite_batched_kernel;
 
 extern const excite_batched_kernel excite_batched[];

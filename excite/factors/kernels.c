@@ -40,6 +40,20 @@ NATIVE_FUNCTION(native_generated) {
     return out;
 }
 
+typedef int (*batch_fn)(const double **arg, double **res);
+#define LANES 4 /* factors a batched kernel takes at once (excite/factors/generate.py: LANES) */
+
+/* The batched version of a kernel compiled in by that name (excite_batched) that is a fold's step
+ * (state 1) or not (state 0), or NULL. */
+static batch_fn batched(PyObject *k, int state) {
+    const char *name = PyUnicode_Check(k) ? PyUnicode_AsUTF8(k) : NULL;
+    for (int i = 0; name && i < excite_n_batched; ++i)
+        if (strcmp(excite_batched[i].name, name) == 0 && excite_batched[i].state == state)
+            return (batch_fn)excite_batched[i].f;
+    return NULL;
+}
+
+
 /* run(kernel, first, inputs, offsets, outputs): the kernel (a name compiled in, or (address of f,
  * address of f_work) of one compiled on demand) over every factor k of a batch, whose first
  * keyframe is first[k]. Each input is a float64 array of rows: offsets[i] = -1, one row shared by
@@ -98,6 +112,7 @@ NATIVE_FUNCTION(native_run) {
                      sz_res, n_in, n_out);
         return native_release(&a), NULL;
     }
+    batch_fn f4 = batched(args[0], 0);
     int rc = 0;
     Py_BEGIN_ALLOW_THREADS;
     const double **arg = calloc((size_t)sz_arg + 1, sizeof(double *));
@@ -107,7 +122,19 @@ NATIVE_FUNCTION(native_run) {
     if (!arg || !res || !iw || !w) {
         rc = -1;
     } else {
-        for (Py_ssize_t k = 0; k < n && !rc; ++k) {
+        Py_ssize_t k = 0;
+        for (; f4 && k + LANES <= n && !rc; k += LANES) { /* LANES factors at once, as far as they go */
+            const double *arg4[LANES * MAX_ARGS];
+            double *res4[LANES * MAX_ARGS];
+            for (int l = 0; l < LANES; ++l) {
+                for (Py_ssize_t i = 0; i < n_in; ++i)
+                    arg4[LANES * i + l] =
+                        in[i] + width[i] * (offset[i] == -1 ? 0 : offset[i] == -2 ? k + l : first[k + l] + offset[i]);
+                for (Py_ssize_t i = 0; i < n_out; ++i) res4[LANES * i + l] = out[i] + (k + l) * out_row[i];
+            }
+            if (f4(arg4, res4)) rc = 1;
+        }
+        for (; k < n && !rc; ++k) {
             for (Py_ssize_t i = 0; i < n_in; ++i)
                 arg[i] = in[i] + width[i] * (offset[i] == -1 ? 0 : offset[i] == -2 ? k : first[k] + offset[i]);
             for (Py_ssize_t i = 0; i < n_out; ++i) res[i] = out[i] + k * out_row[i];
@@ -148,17 +175,6 @@ static int resolve(PyObject *k, kernel_fn *f, work_fn *work) {
     }
     PyErr_SetString(PyExc_TypeError, "kernel: a name, or (address of f, address of f_work)");
     return -1;
-}
-
-typedef int (*batch_fn)(const double **arg, double **res);
-#define LANES 4 /* intervals a batched step2 takes at once (excite/factors/generate.py: LANES) */
-
-/* The batched version of a kernel compiled in by that name (excite_batched), or NULL. */
-static batch_fn batched(PyObject *k) {
-    const char *name = PyUnicode_Check(k) ? PyUnicode_AsUTF8(k) : NULL;
-    for (int i = 0; name && i < excite_n_batched; ++i)
-        if (strcmp(excite_batched[i].name, name) == 0) return (batch_fn)excite_batched[i].f;
-    return NULL;
 }
 
 /* The end of the fold of the interval whose samples start at i0, from its state st after the pairs
@@ -221,7 +237,7 @@ NATIVE_FUNCTION(native_fold) {
         sz_iw = sz[i][2] > sz_iw ? sz[i][2] : sz_iw;
         sz_w = sz[i][3] > sz_w ? sz[i][3] : sz_w;
     }
-    batch_fn step2_x4 = batched(args[1]);
+    batch_fn step2_x4 = batched(args[1], 1);
     int rc = 0;
     const double *Rm = D(R), *Fm = D(F), *cv = D(c);
     double *o = D(out);

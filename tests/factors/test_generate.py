@@ -101,6 +101,31 @@ def test_each_compiled_kernel_equals_its_statement(name):
         assert max(np.abs(w).max() for w in want) > 0
 
 
+@pytest.mark.parametrize("name", [n for n, spec in sorted(rig_kernels.specs().items()) if spec.what in ("lin", "raw")])
+def test_a_kernel_run_on_four_factors_at_once_gives_each_factors_numbers(name):
+    """A kernel over a batch runs four factors at once where it has a batched form (the same
+    statements on vectors of the factors' numbers): each factor's Jacobians are bit for bit those of
+    the factor run alone (the batched factors, and the one left over)."""
+    spec = rig_kernels.specs()[name]
+    fn = generate.functions(spec.kind, spec.lay, spec.what)
+    one = _inputs(spec, fn)
+    rng = np.random.default_rng(3)
+    rows = [np.stack([np.asarray(a, dtype=float) * (1 + 1e-3 * rng.normal(size=np.size(a))) for _ in range(5)])
+            for a in one]  # five factors near the drive's
+    from excite.core.native import module
+
+    def run(inputs):
+        outs = tuple(np.empty((len(inputs[0]), fn.nnz_out(i))) for i in range(fn.n_out()))
+        module().run(name, np.zeros(len(inputs[0]), dtype=np.int64), tuple(inputs), (-2,) * len(inputs), outs)
+        return outs
+
+    together = run(rows)
+    alone = [run([r[f:f + 1] for r in rows]) for f in range(5)]
+    for i, got in enumerate(together):
+        np.testing.assert_array_equal(got, np.vstack([a[i] for a in alone]))
+    assert max(np.abs(o).max() for o in together) > 0 or spec.kind.name == "ground_plane"
+
+
 def test_the_fold_of_four_intervals_at_once_is_each_interval_folded_alone():
     """The fold runs its two-sample step on four intervals at once where it has the step's batched
     form (the same statements on vectors of the intervals' numbers): every summary is the one of
