@@ -28,13 +28,14 @@ from typing import Annotated, Any, Callable
 import anyio
 from fastapi import Depends, Security
 from fastapi.security import APIKeyHeader, HTTPBearer, SecurityScopes
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from starlette.datastructures import Headers
 from starlette.requests import HTTPConnection
 
 from . import problems
 from .errors import Exposed, KeysError, Problem
 from .middleware import UNSAFE
+from .settings import Settings
 from .store import OPEN_KEY
 
 SCOPES = ("score", "plan", "admin")
@@ -50,16 +51,11 @@ key_header = APIKeyHeader(name="X-API-Key", auto_error=False, scheme_name="APIKe
 bearer = HTTPBearer(auto_error=False, scheme_name="Bearer", description="The same API key as a bearer token.")
 
 
-class Quota(BaseModel):
-    """A key's limits (any left out: the server's ``EXCITE_QUOTA_*`` settings, its ``defaults``)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    jobs: int | None = Field(None, ge=0, le=100_000, description="Queued and running jobs at once.")
-    live_sessions: int | None = Field(None, ge=0, le=1000, description="/v1/live sessions at once.")
-    rate_per_s: float | None = Field(None, gt=0, le=100_000, description="Requests per second on average.")
-    burst: int | None = Field(None, ge=1, le=100_000, description="Requests at once above the rate.")
-    storage_mb: int | None = Field(None, ge=1, le=1_048_576, description="Stored jobs (requests and "
-                                                                         "results) and scenes of the key [MiB].")
+# A key's limits, each the server's EXCITE_QUOTA_* setting (its ``defaults``) where the keys file
+# leaves it out; the same names, bounds and descriptions as those settings, stated there
+Quota = create_model("Quota", __config__=ConfigDict(extra="forbid", frozen=True), **{
+    name.removeprefix("quota_"): (Annotated[f.annotation, *f.metadata] | None, Field(None, description=f.description))
+    for name, f in Settings.model_fields.items() if name.startswith("quota_")})
 
 
 class KeyEntry(BaseModel):
