@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
 import logging
 import math
 import re
@@ -58,16 +59,6 @@ def _bundled(name: str) -> Rig:
     return load_rig(name)
 
 
-def _has_non_finite(x: Any) -> bool:
-    if isinstance(x, float):
-        return not math.isfinite(x)
-    if isinstance(x, dict):
-        return any(_has_non_finite(v) for v in x.values())
-    if isinstance(x, (list, tuple)):
-        return any(_has_non_finite(v) for v in x)
-    return False
-
-
 def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
     """A bundled rig by name or an inline rig config; never reads a path the client names."""
     rig = parsed_rig(rig)
@@ -78,8 +69,11 @@ def resolve_rig(rig: str | dict[str, Any], field: str = "rig") -> Rig:
     if not isinstance(rig.get("imu"), dict):
         raise Problem.at(f"{field}.imu", "give the IMU block inline as an object (the service "
                                             "reads no files)")
-    if nesting(rig) <= MAX_NESTING and size(rig) <= MAX_RIG_NODES and _has_non_finite(rig):  # else build_rig refuses it
-        raise Problem.at(field, "contains NaN or infinity")
+    try:  # a rig too deep or too large is build_rig's to refuse
+        if nesting(rig) <= MAX_NESTING and size(rig) <= MAX_RIG_NODES:
+            json.dumps(rig, allow_nan=False)
+    except ValueError:
+        raise Problem.at(field, "contains NaN or infinity") from None
     try:
         return build_rig(rig)
     except RigError as exc:  # rig errors start with the offending key ("imu.update_rate: …")
@@ -463,8 +457,6 @@ def rig_yaml_task(text: str) -> dict[str, Any]:
     """A rig YAML file → ``{"rig": its mapping, "summary": …}``. Anchors and aliases are refused
     (a few nested aliases expand to gigabytes), so are documents nested deeper or larger than a
     rig can be: checked on the parser's events before anything is built."""
-    import json
-
     import yaml
 
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -583,8 +575,6 @@ def drivable_file_task(plan: dict[str, Any], rig: str | dict[str, Any], fmt: str
                        lot_x_m: float, lot_y_m: float, origin: tuple[float, float] | None) -> bytes:
     """A drivable plan's file: its sheet (``sheet_pdf``, ``sheet_png``), cone layout (``cones``,
     GeoJSON: lon/lat where the lot has an origin) or the plan itself (``plan``)."""
-    import json
-
     from excite.plan.drivable.plan import build, cones_geojson, plan_from_dict
     from excite.plan.drivable.sheet import sheet
     from excite.plan.settings import vehicle_limits

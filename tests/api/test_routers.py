@@ -99,6 +99,11 @@ def test_errors_are_problems_naming_the_field(client, data_dir):
     r = client.post("/v1/score", content=b'{"route": {"waypoints": [[0, 0], [1, 1]]}, "segments": Infinity}',
                     headers={"content-type": "application/json"})
     _problem(r, 422, "segments")
+    # a NaN inside an inline rig (the schema takes a rig object as it is): refused as the rig's
+    r = client.post("/v1/score", content=b'{"route": {"waypoints": [[0, 0], [30, 0], [30, 20]]}, '
+                                         b'"rig": {"name": "r", "imu": {"update_rate": NaN}}}',
+                    headers={"content-type": "application/json"})
+    assert "NaN or infinity" in _problem(r, 422, "rig")["detail"]
     # more segments than a short route holds (6 s at 10 Hz: 61 keyframes, at most 30): the most it
     # holds, and a warning that says so
     short = {"control": {"t_s": [0, 3, 6], "speed_mps": [0, 4, 0], "curvature_1pm": [0, 0.05, 0]}}
