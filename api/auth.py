@@ -312,7 +312,7 @@ async def authorize(security_scopes: SecurityScopes, conn: HTTPConnection,
     state = conn.scope.get("state", {})
     if "refusal" in state:
         raise state["refusal"]
-    who = state.get("principal", OPEN if getattr(conn.app.state, "ctx", None) is None else None)
+    who = state.get("principal")  # None: no key sent (Authenticate)
     if who is None:
         raise unauthorized(NO_KEY)
     missing = [s for s in security_scopes.scopes if not who.allows(s)]

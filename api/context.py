@@ -12,6 +12,7 @@ from typing import Annotated, Any, Callable
 
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry, Gauge
+from starlette.requests import HTTPConnection
 
 from excite.errors import WorkTimeout
 
@@ -80,8 +81,8 @@ def deadline(request: Request) -> Deadline:
     return request.scope["state"]["deadline"]
 
 
-def get_context(request: Request) -> Context:
-    return request.app.state.ctx
+def get_context(conn: HTTPConnection) -> Context:  # a request's or a WebSocket's
+    return conn.app.state.ctx
 
 
 Ctx = Annotated[Context, Depends(get_context)]

@@ -30,7 +30,6 @@ from ..errors import Problem, Refusal
 from ..pool import forkserver, trim
 from ..schemas import SCENE_PATTERN
 from ..scoring import resolve_rig, scene_of, scene_spec, task
-from ..settings import Settings
 
 log = logging.getLogger("excite.api")
 router = APIRouter(prefix="/v1", tags=["live"])
@@ -42,7 +41,6 @@ MAX_MESSAGES_PER_S = 50.0
 BURST = 100
 IDLE_S = 60.0  # a session that sends nothing for this long is closed (its slot freed)
 MAX_SESSIONS = 64  # the ceiling of EXCITE_MAX_LIVE_SESSIONS (16 by default), whatever it says
-_sessions = {"open": 0}  # sessions streaming right now (all in this event loop)
 _messages = RateLimiter()  # per session
 
 
@@ -252,17 +250,14 @@ def _start(msg: dict[str, Any]) -> tuple[Any, str, Any, str | None]:
 
 
 @router.websocket("/live")
-async def live(ws: WebSocket, who: LiveClient) -> None:
-    # the router alone (behind uvicorn, without the service's context): the default settings, no store
-    ctx: Context | None = getattr(ws.app.state, "ctx", None)
-    settings = ctx.settings if ctx is not None else Settings.model_construct()
-    counts = ctx.live_sessions if ctx is not None else {}
+async def live(ws: WebSocket, ctx: Ctx, who: LiveClient) -> None:
+    settings, counts = ctx.settings, ctx.live_sessions
     await ws.accept(subprotocol=LIVE_PROTOCOL if LIVE_PROTOCOL in ws.scope.get("subprotocols", ()) else None)
     if isinstance(who, Problem):
         await _refuse(ws, Refusal(who))
         return
     limit = min(settings.max_live_sessions, MAX_SESSIONS)
-    if _sessions["open"] >= limit:
+    if sum(counts.values()) >= limit:
         await _refuse(ws, refused(503, "session", f"{limit} sessions are streaming already; try again later", 1013))
         return
     mine = counts.get(who.key_id, 0)
@@ -270,7 +265,6 @@ async def live(ws: WebSocket, who: LiveClient) -> None:
         await _refuse(ws, refused(429, "session", f"the key {who.key_id} has {mine} sessions streaming "
                                                   f"(its quota: {who.limits.live_sessions})", 1013))
         return
-    _sessions["open"] += 1
     counts[who.key_id] = mine + 1
     try:
         await _session(ws, settings, ctx, who)
@@ -283,7 +277,6 @@ async def live(ws: WebSocket, who: LiveClient) -> None:
         except Exception:
             pass
     finally:
-        _sessions["open"] -= 1
         left = counts.get(who.key_id, 1) - 1
         if left:
             counts[who.key_id] = left
@@ -303,7 +296,7 @@ async def _receive_text(ws: WebSocket) -> str | None:
     return None
 
 
-async def _session(ws: WebSocket, settings: Any, ctx: Context | None, who: Any) -> None:
+async def _session(ws: WebSocket, settings: Any, ctx: Context, who: Any) -> None:
     name_of_session = f"session-{id(ws)}"
     session: Session | None = None
     drive = Drive(settings)
@@ -318,7 +311,7 @@ async def _session(ws: WebSocket, settings: Any, ctx: Context | None, who: Any) 
                 msg = await anyio.to_thread.run_sync(_message, text)  # 1 MB of JSON: not in the event loop
                 if session is None:
                     rig, name, plan, scene_ref = _start(msg)
-                    scene = await anyio.to_thread.run_sync(scene_spec, ctx and ctx.store, who.key_id, scene_ref)
+                    scene = await anyio.to_thread.run_sync(scene_spec, ctx.store, who.key_id, scene_ref)
                     # starting the process writes the rig to it (1 MB): not in the event loop either
                     session = await anyio.to_thread.run_sync(Session, settings, rig, name, plan, scene)
                     started = await anyio.to_thread.run_sync(session.call)

@@ -503,8 +503,6 @@ def test_websocket_kitti_00_ends_with_excite_score(ws_client, kitti, kitti_repor
 
 
 def test_websocket_sessions_are_independent_and_freed(ws_client):
-    from api.routers import live as router
-
     rows = _tum_rows(FIGURE_EIGHT)
     score = evaluate(read_tum(FIGURE_EIGHT), load_rig("robotaxi"))
     slow = [[t * 2, x, y, z, qx, qy, qz, qw] for t, x, y, z, qx, qy, qz, qw in rows]  # same path, half speed
@@ -513,7 +511,7 @@ def test_websocket_sessions_are_independent_and_freed(ws_client):
         for ws in (a, b):
             ws.send_text(json.dumps({"type": "start"}))
             ws.receive_json()
-        assert router._sessions["open"] == 2
+        assert sum(ws_client.app.state.ctx.live_sessions.values()) == 2
         for i in range(0, len(rows), 300):  # interleaved
             a.send_text(json.dumps({"type": "poses", "poses": rows[i:i + 300]}))
             b.send_text(json.dumps({"type": "poses", "poses": slow[i:i + 300]}))
@@ -527,10 +525,10 @@ def test_websocket_sessions_are_independent_and_freed(ws_client):
         ws.receive_json()
         ws.send_text(json.dumps({"type": "poses", "poses": rows[:300]}))
     for _ in range(100):
-        if router._sessions["open"] == 0:
+        if not ws_client.app.state.ctx.live_sessions:
             break
         time.sleep(0.02)
-    assert router._sessions["open"] == 0
+    assert not ws_client.app.state.ctx.live_sessions
 
 
 def _write(rows) -> Path:
@@ -596,21 +594,21 @@ def test_websocket_refuses_bad_input_with_problems(ws_client, monkeypatch):
             assert closed.value.code == 1013
 
 
-def test_websocket_over_a_real_connection():
-    """The live router behind uvicorn on loopback, configured as `excite serve` configures it: a
-    drive streamed over a real WebSocket ends with `excite score`; a frame over the size bound is
-    cut off by the protocol (1009) and the server serves on."""
+def test_websocket_over_a_real_connection(tmp_path):
+    """The service behind uvicorn on loopback, its WebSocket configured as `excite serve` configures
+    it: a drive streamed over a real WebSocket ends with `excite score`; a frame over the size bound
+    is cut off by the protocol (1009) and the server serves on."""
     import socket
 
     import uvicorn
-    from fastapi import FastAPI
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
+    from api.app import create_app
     from api.routers import live as router
+    from api.settings import Settings
 
-    app = FastAPI()
-    app.include_router(router.router)
+    app = create_app(Settings(db_path=tmp_path / "j.sqlite3", workers=0, score_workers=1))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -621,9 +619,8 @@ def test_websocket_over_a_real_connection():
     rows = _tum_rows(FIGURE_EIGHT)
     score = evaluate(read_tum(FIGURE_EIGHT), load_rig("robotaxi"))
     try:
-        for _ in range(200):
-            if server.started:
-                break
+        started_by = time.monotonic() + 120  # its lifespan warms the scoring worker first
+        while not server.started and time.monotonic() < started_by:
             time.sleep(0.05)
         url = f"ws://127.0.0.1:{port}/v1/live"
         for attempt in ("drive", "oversize", "drive"):
@@ -645,10 +642,10 @@ def test_websocket_over_a_real_connection():
             for p, q in zip(events[-1]["parameters"], score.parameters):
                 assert q.sigma is None or _rel(p["sigma"], q.sigma) <= 1e-9
         for _ in range(100):
-            if router._sessions["open"] == 0:
+            if not app.state.ctx.live_sessions:
                 break
             time.sleep(0.02)
-        assert router._sessions["open"] == 0
+        assert not app.state.ctx.live_sessions
     finally:
         server.should_exit = True
         th.join(10)
