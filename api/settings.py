@@ -160,12 +160,12 @@ class Settings(BaseSettings):
             raise ValueError("must be a postgresql:// URL (SQLite: set EXCITE_DB_PATH instead)")
         return v
 
-    @field_validator("api_keys_file")
+    @field_validator("api_keys_file", mode="before")  # before "" would be read as the path "."
     @classmethod
-    def _keys_file(cls, v: Path | None) -> Path | None:
+    def _keys_file(cls, v: str | Path | None) -> Path | None:
         if v is None or str(v) == "":
             return None
-        v = v.expanduser().resolve()
+        v = Path(v).expanduser().resolve()
         if not v.is_file():
             raise ValueError(f"{v} is not a file")
         return v

@@ -200,6 +200,16 @@ def test_a_bad_keys_file_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     assert len(lines) == 1 and "unknown scope 'fly'" in lines[0], lines
 
 
+def test_an_empty_keys_file_setting_is_no_keys_file(tmp_path, monkeypatch):
+    """EXCITE_API_KEYS_FILE set to nothing (as a compose file's ${VAR:-} leaves it) is unset: an
+    open server, still refused off loopback unless EXCITE_OPEN; it was read as the path "."."""
+    monkeypatch.setenv("EXCITE_API_KEYS_FILE", "")
+    assert Settings(db_path=tmp_path / "j.sqlite3").api_keys_file is None
+    monkeypatch.setenv("EXCITE_API_KEYS_FILE", str(tmp_path))
+    with pytest.raises(ValueError, match="is not a file"):
+        Settings(db_path=tmp_path / "j.sqlite3")
+
+
 def test_keys_tool_makes_a_key_whose_hash_is_its_entry(capsys):
     from api.auth import hash_key
     from api.keys import main
