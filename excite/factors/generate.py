@@ -187,6 +187,8 @@ _STATEMENTS = [
     (r"  (?P<a>a\d+)=arg\[(?P<j>\d+)\]\? arg\[(?P=j)\]\[(?P<k>\d+)\] : 0;", r"  \g<a>=GATHER_V4(\g<j>, \g<k>);"),
     (r"  if \(res\[(?P<j>\d+)\]!=0\) res\[(?P=j)\]\[(?P<k>\d+)\]=(?P<a>a\d+);", r"  SCATTER_V4(\g<j>, \g<k>, \g<a>);"),
     (r"  (?P<a>a\d+)=\((?P<x>a\d+)(?P<op>[-+*/])(?P<y>a\d+)\);", r"  \g<a>=(\g<x>\g<op>\g<y>);"),
+    (r"  (?P<a>a\d+)=\((?P<v>[0-9.]+(e[-+]\d+)?)(?P<op>[-+*/])(?P<y>a\d+)\);", r"  \g<a>=(BROADCAST_V4(\g<v>)\g<op>\g<y>);"),
+    (r"  (?P<a>a\d+)=\((?P<x>a\d+)(?P<op>[-+*/])(?P<v>[0-9.]+(e[-+]\d+)?)\);", r"  \g<a>=(\g<x>\g<op>BROADCAST_V4(\g<v>));"),
     (r"  (?P<a>a\d+)=\(-(?P<x>a\d+)\);", r"  \g<a>=(-\g<x>);"),
     (r"  (?P<a>a\d+)=casadi_sq\((?P<x>a\d+)\);", r"  \g<a>=(\g<x>*\g<x>);"),
     (r"  (?P<a>a\d+)=sqrt\((?P<x>a\d+)\);", r"  \g<a>=SQRT_V4(\g<x>);"),
