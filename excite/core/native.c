@@ -64,7 +64,7 @@ static PyMethodDef methods[] = {
     METHOD(eliminate_slabs, "eliminate_slabs(blocks, m, slab, forward, band, Hxt, Htt, w2, anchored, comp)"),
     METHOD(theta_diagonal, "theta_diagonal(blocks, out)"),
     METHOD(local_maps, "local_maps(R, v, p, V, P)"),
-    METHOD(to_local, "to_local(Jx, first, stride, V, P, out, seen)"),
+    METHOD(to_local, "to_local(Jx, first, stride, V, P, out, seen, Jt, from, to)"),
     METHOD(generated, "generated() -> the generated kernels: {name: (n_in, n_out, sizes_in, sizes_out)}"),
     METHOD(run, "run(kernel, first, inputs, offsets, outputs): a generated kernel over every factor"),
     METHOD(fold, "fold(step, step2, finish, first, per_keyframe, n, n_state, imu_R, imu_f, c, out): a generated "

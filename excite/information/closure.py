@@ -277,13 +277,18 @@ class Closure:
     def with_deviations(self, b: FactorBlock) -> FactorBlock:
         """A block already over the closure's states (its deviation columns zero) with its
         drifting θ columns copied onto the deviations at its first keyframe."""
-        slots = [(k, STATE_DIM + i) for i, c in enumerate(self.walk_columns) for k in np.flatnonzero(b.cols == c)]
-        if not slots:
+        ks, ss = self.deviation_slots(b)
+        if not ks.size:
             return b
-        for k, s in slots:
-            b.Jx[:, :, s] = b.Jt[:, :, k]
-        xcols = None if b.xcols is None else np.union1d(b.xcols, [s for _, s in slots])
+        b.Jx[:, :, ss] = b.Jt[:, :, ks]
+        xcols = None if b.xcols is None else np.union1d(b.xcols, ss)
         return FactorBlock(b.name, b.first, b.stride, b.n_states, b.Jx, b.Jt, b.cols, xcols)
+
+    def deviation_slots(self, b: FactorBlock) -> tuple[np.ndarray, np.ndarray]:
+        """Where :meth:`with_deviations` copies ``b``'s drifting θ columns: their columns of ``b.Jt``
+        and the deviation columns of its first keyframe."""
+        slots = [(k, STATE_DIM + i) for i, c in enumerate(self.walk_columns) for k in np.flatnonzero(b.cols == c)]
+        return np.array([k for k, _ in slots], dtype=np.int64), np.array([s for _, s in slots], dtype=np.int64)
 
     def sees_drift(self, b: FactorBlock) -> bool:
         """Whether ``b`` sees a drifting coordinate of θ (and so needs the deviation states)."""

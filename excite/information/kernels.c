@@ -651,10 +651,11 @@ NATIVE_FUNCTION(native_local_maps) {
     Py_RETURN_NONE;
 }
 
-/* to_local(Jx, first, stride, V, P, out, seen): world-state Jacobians re-expressed in local states
- * (see to_local() in kernels.py); seen[col] set where a column was written non-zero */
+/* to_local(Jx, first, stride, V, P, out, seen, Jt, from, to): world-state Jacobians re-expressed in
+ * local states (see to_local() in kernels.py), and columns from[i] of Jt copied into columns to[i]
+ * (< sd) of the first state; seen[col] set where a column was written non-zero, and at to[i] */
 NATIVE_FUNCTION(native_to_local) {
-    CHECK_NARGS(7, "to_local");
+    CHECK_NARGS(10, "to_local");
     Args a = {.n = 0};
     Py_buffer *Jx = native_array(&a, args[0], 'd', 3, 0, "Jx");
     Py_buffer *first = Jx ? native_array(&a, args[1], 'q', 1, 0, "first") : NULL;
@@ -662,15 +663,23 @@ NATIVE_FUNCTION(native_to_local) {
     Py_buffer *P = V ? native_array(&a, args[4], 'd', 3, 0, "P") : NULL;
     Py_buffer *out = P ? native_array(&a, args[5], 'd', 3, 1, "out") : NULL;
     Py_buffer *seenv = out ? native_array(&a, args[6], 'q', 1, 1, "seen") : NULL;
-    if (!seenv) return fail(&a, 0);
+    Py_buffer *Jtv = seenv ? native_array(&a, args[7], 'd', 3, 0, "Jt") : NULL;
+    Py_buffer *fromv = Jtv ? native_array(&a, args[8], 'q', 1, 0, "from") : NULL;
+    Py_buffer *tov = fromv ? native_array(&a, args[9], 'q', 1, 0, "to") : NULL;
+    if (!tov) return fail(&a, 0);
     long stride = native_long(args[2]);
     if (PyErr_Occurred()) return fail(&a, 0);
     Py_ssize_t N = SHAPE(Jx, 0), r = SHAPE(Jx, 1), nx = SHAPE(Jx, 2), ns = nx / 9, span = stride * (ns - 1);
     Py_ssize_t no = SHAPE(out, 2), sd = no / (span + 1);
-    if (SHAPE(out, 0) != N || SHAPE(out, 1) != r || no != sd * (span + 1) || SHAPE(seenv, 0) != no || sd < 9) {
-        PyErr_SetString(PyExc_ValueError, "to_local: out and seen do not fit Jx");
+    Py_ssize_t nc = SHAPE(fromv, 0), nt = SHAPE(Jtv, 2);
+    const int64_t *from = Q(fromv), *to = Q(tov);
+    int ok = SHAPE(Jtv, 0) == N && SHAPE(Jtv, 1) == r && SHAPE(tov, 0) == nc;
+    for (Py_ssize_t i = 0; ok && i < nc; ++i) ok = from[i] >= 0 && from[i] < nt && to[i] >= 9 && to[i] < sd;
+    if (SHAPE(out, 0) != N || SHAPE(out, 1) != r || no != sd * (span + 1) || SHAPE(seenv, 0) != no || sd < 9 || !ok) {
+        PyErr_SetString(PyExc_ValueError, "to_local: out, seen, Jt and the columns copied do not fit Jx");
         return fail(&a, 0);
     }
+    const double *T0 = D(Jtv);
     const double *J0 = D(Jx), *Vm = D(V), *Pm = D(P);
     const int64_t *fi = Q(first);
     double *O0 = D(out);
@@ -701,6 +710,8 @@ NATIVE_FUNCTION(native_to_local) {
                     } else {
                         Or[0] = r0, Or[1] = r1, Or[2] = r2;
                     }
+                    if (s == 0)
+                        for (Py_ssize_t i = 0; i < nc; ++i) Or[to[i]] = T0[(f * r + row) * nt + from[i]];
                 }
             }
             for (Py_ssize_t q = 0; q < span; ++q) { /* increment q moves the position of every later state */
@@ -735,6 +746,7 @@ NATIVE_FUNCTION(native_to_local) {
                 seen[sd * q + c] |= inc_seen[q];
                 seen[sd * q + 6 + c] |= inc_seen[q];
             }
+        for (Py_ssize_t i = 0; i < nc; ++i) seen[to[i]] = 1;
         free(flags);
     }
     Py_END_ALLOW_THREADS;

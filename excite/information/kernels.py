@@ -86,18 +86,20 @@ def local_maps(R, v, p) -> tuple[np.ndarray, np.ndarray]:
     return V, P
 
 
-def to_local(Jx, first, stride, V, P, sd) -> tuple[np.ndarray, np.ndarray]:
+def to_local(Jx, first, stride, V, P, sd, Jt, copied=((), ())) -> tuple[np.ndarray, np.ndarray]:
     """World-state Jacobians ``Jx`` (N × r × 9·n_states) of factors at keyframes ``first + stride·a``
     re-expressed in local states over every keyframe they span (N × r × sd·(span + 1): sd ≥ 9
-    columns per state, the 9 trajectory states first, any further ones zero); the maps
-    ``V, P`` (K × 3 × 6) and the formula are those of :func:`excite.information.problem.to_local`.
-    Also returns which of those columns it wrote a non-zero to (every other column is zero for
+    columns per state, the 9 trajectory states first, any further ones zero but for ``copied``);
+    the maps ``V, P`` (K × 3 × 6) and the formula are those of
+    :func:`excite.information.problem.to_local`. ``copied = (from, to)``: columns ``from`` of the
+    factors' ``Jt`` (N × r × c) copied into columns ``to`` (≥ 9) of their first state. Also returns
+    which of those columns it wrote a non-zero to, or copied into (every other column is zero for
     every factor: a factor that sees no velocity, the increments after its last keyframe)."""
     N, r, nx = Jx.shape
     span = stride * (nx // 9 - 1)
     out = np.empty((N, r, sd * (span + 1)))
     seen = np.zeros(sd * (span + 1), dtype=np.int64)
-    module().to_local(_f(Jx), _i(first), int(stride), _f(V), _f(P), out, seen)
+    module().to_local(_f(Jx), _i(first), int(stride), _f(V), _f(P), out, seen, _f(Jt), _i(copied[0]), _i(copied[1]))
     return out, seen.astype(bool)
 
 

@@ -237,9 +237,7 @@ def linearise(sub: Nominal, rig: RigView, closure: Closure, last: bool, walk: bo
         blocks.append(b)
     if closure.local:
         V, P = kernels.local_maps(sub.R, sub.v, sub.p)
-        blocks = [None if b is None else to_local(b, V, P, closure.state_dim if closure.sees_drift(b) else STATE_DIM)
-                  for b in blocks]
-        blocks = [b if b is None or not closure.sees_drift(b) else closure.with_deviations(b) for b in blocks]
+        blocks = [None if b is None else to_local(b, V, P, closure if closure.sees_drift(b) else None) for b in blocks]
     else:
         blocks = [b if b is None or not closure.sees_drift(b) else closure.widened(b) for b in blocks]
     if closure.state_dim > STATE_DIM and walk:
@@ -248,7 +246,7 @@ def linearise(sub: Nominal, rig: RigView, closure: Closure, last: bool, walk: bo
     return blocks
 
 
-def to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray, sd: int = STATE_DIM) -> FactorBlock:
+def to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray, drift: Closure | None = None) -> FactorBlock:
     """Re-express a block's world-state Jacobian in local states, with the maps of
     :func:`excite.information.kernels.local_maps`: ``δv_world = V_k [δθ_k; δv_k]`` with
     ``V_k = [−R_k[v_k]×, R_k]`` (body velocity ``v_k = R_kᵀ v``) and
@@ -258,8 +256,13 @@ def to_local(b: FactorBlock, V: np.ndarray, P: np.ndarray, sd: int = STATE_DIM) 
     Positions enter the factor only through differences (its position Jacobians sum to zero:
     every kind that does not break the translation symmetry, which the contract tests check), so
     ``Σ_a J_p,a δp_{k_a} = Σ_a J_p,a Σ_{first ≤ q < k_a} δ(p_{q+1} − p_q)`` and the position of
-    the factor's first keyframe drops out. ``sd`` columns per state (the 9 trajectory states
-    first; the deviation columns left zero).
+    the factor's first keyframe drops out. The 9 trajectory states per keyframe; with ``drift``, a
+    closure with drifting coordinates that ``b`` sees, its states (the deviations after them), with
+    the block's drifting θ columns on the deviations at its first keyframe
+    (:meth:`Closure.with_deviations <excite.information.closure.Closure.with_deviations>`, here while
+    each row is written).
     """
-    out, seen = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P, sd)
+    sd = STATE_DIM if drift is None else drift.state_dim
+    copied = ((), ()) if drift is None else drift.deviation_slots(b)
+    out, seen = kernels.to_local(np.ascontiguousarray(b.Jx), b.first, b.stride, V, P, sd, b.Jt, copied)
     return FactorBlock(b.name, b.first, 1, out.shape[2] // sd, out, b.Jt, b.cols, np.flatnonzero(seen))
