@@ -102,6 +102,141 @@ static inline void rotation_at(const double *c, Py_ssize_t order, Py_ssize_t nse
     al[2] = ddz - b * qz + cc * qqz - eb * pd * pdz + ec * pd * ppz + cc * rz;
 }
 
+/* The same, on four samples at once (the hot loop of imu_samples): vectors of one number per sample,
+ * each the same arithmetic as above (so the same numbers); what branches per sample (coeffs) runs
+ * per sample. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__GLIBC__)
+#define HOT __attribute__((target_clones("avx2", "default")))
+#else
+#define HOT
+#endif
+typedef double v4 __attribute__((vector_size(32)));
+/* the helpers inlined into each version of the loop (a vector of four is passed differently with
+ * and without AVX) */
+#define INLINE4 static inline __attribute__((always_inline))
+#define AT4(p, i) ((v4){(p)[0][i], (p)[1][i], (p)[2][i], (p)[3][i]}) /* entry i of four rows */
+
+INLINE4 void cross4(v4 ux, v4 uy, v4 uz, v4 vx, v4 vy, v4 vz, v4 *x, v4 *y, v4 *z) {
+    *x = uy * vz - uz * vy;
+    *y = uz * vx - ux * vz;
+    *z = ux * vy - uy * vx;
+}
+
+INLINE4 void horner4(const double *c, Py_ssize_t order, Py_ssize_t nseg, const Py_ssize_t k[4], v4 tau, v4 *x,
+                           v4 *y, v4 *z) {
+    v4 X = {0.0, 0.0, 0.0, 0.0}, Y = X, Z = X;
+    for (Py_ssize_t m = 0; m < order; ++m) {
+        const double *cm[4];
+        for (int l = 0; l < 4; ++l) cm[l] = c + (m * nseg + k[l]) * 3;
+        X = X * tau + AT4(cm, 0);
+        Y = Y * tau + AT4(cm, 1);
+        Z = Z * tau + AT4(cm, 2);
+    }
+    *x = X;
+    *y = Y;
+    *z = Z;
+}
+
+INLINE4 void horner2_4(const double *c, Py_ssize_t order, Py_ssize_t nseg, const Py_ssize_t k[4], v4 tau,
+                             v4 v[9]) {
+    const double *c0[4];
+    for (int l = 0; l < 4; ++l) c0[l] = c + k[l] * 3;
+    v4 px = AT4(c0, 0), py = AT4(c0, 1), pz = AT4(c0, 2);
+    v4 dx = {0.0, 0.0, 0.0, 0.0}, dy = dx, dz = dx, ddx = dx, ddy = dx, ddz = dx;
+    for (Py_ssize_t m = 1; m < order; ++m) {
+        const double *cm[4];
+        for (int l = 0; l < 4; ++l) cm[l] = c + (m * nseg + k[l]) * 3;
+        ddx = ddx * tau + dx;
+        ddy = ddy * tau + dy;
+        ddz = ddz * tau + dz;
+        dx = dx * tau + px;
+        dy = dy * tau + py;
+        dz = dz * tau + pz;
+        px = px * tau + AT4(cm, 0);
+        py = py * tau + AT4(cm, 1);
+        pz = pz * tau + AT4(cm, 2);
+    }
+    v[0] = px, v[1] = py, v[2] = pz, v[3] = dx, v[4] = dy, v[5] = dz;
+    v[6] = 2.0 * ddx, v[7] = 2.0 * ddy, v[8] = 2.0 * ddz;
+}
+
+INLINE4 void rotation_at4(const double *c, Py_ssize_t order, Py_ssize_t nseg, const Py_ssize_t k[4], v4 tau,
+                                const double *R_key, v4 R[9], v4 w[3], v4 al[3]) {
+    v4 v[9];
+    horner2_4(c, order, nseg, k, tau, v);
+    v4 fx = v[0], fy = v[1], fz = v[2], dx = v[3], dy = v[4], dz = v[5], ddx = v[6], ddy = v[7], ddz = v[8];
+    v4 t2 = fx * fx + fy * fy + fz * fz;
+    double a_[4], b_[4], c_[4], eb_[4], ec_[4];
+    for (int l = 0; l < 4; ++l) coeffs(t2[l], &a_[l], &b_[l], &c_[l], &eb_[l], &ec_[l]);
+    v4 a, b, cc, eb, ec;
+    memcpy(&a, a_, sizeof a), memcpy(&b, b_, sizeof b), memcpy(&cc, c_, sizeof cc);
+    memcpy(&eb, eb_, sizeof eb), memcpy(&ec, ec_, sizeof ec);
+    v4 co = 1.0 - b * t2;
+    v4 e00 = co + b * fx * fx, e01 = b * fx * fy - a * fz, e02 = b * fx * fz + a * fy;
+    v4 e10 = b * fy * fx + a * fz, e11 = co + b * fy * fy, e12 = b * fy * fz - a * fx;
+    v4 e20 = b * fz * fx - a * fy, e21 = b * fz * fy + a * fx, e22 = co + b * fz * fz;
+    const double *K[4];
+    for (int l = 0; l < 4; ++l) K[l] = R_key + 9 * k[l];
+    for (int r = 0; r < 3; ++r) {
+        v4 k0 = AT4(K, 3 * r), k1 = AT4(K, 3 * r + 1), k2 = AT4(K, 3 * r + 2);
+        R[3 * r + 0] = k0 * e00 + k1 * e10 + k2 * e20;
+        R[3 * r + 1] = k0 * e01 + k1 * e11 + k2 * e21;
+        R[3 * r + 2] = k0 * e02 + k1 * e12 + k2 * e22;
+    }
+    v4 pdx, pdy, pdz, ppx, ppy, ppz, qx, qy, qz, qqx, qqy, qqz, rx, ry, rz;
+    cross4(fx, fy, fz, dx, dy, dz, &pdx, &pdy, &pdz);
+    cross4(fx, fy, fz, pdx, pdy, pdz, &ppx, &ppy, &ppz);
+    w[0] = dx - b * pdx + cc * ppx;
+    w[1] = dy - b * pdy + cc * ppy;
+    w[2] = dz - b * pdz + cc * ppz;
+    v4 pd = fx * dx + fy * dy + fz * dz;
+    cross4(fx, fy, fz, ddx, ddy, ddz, &qx, &qy, &qz);
+    cross4(fx, fy, fz, qx, qy, qz, &qqx, &qqy, &qqz);
+    cross4(dx, dy, dz, pdx, pdy, pdz, &rx, &ry, &rz);
+    al[0] = ddx - b * qx + cc * qqx - eb * pd * pdx + ec * pd * ppx + cc * rx;
+    al[1] = ddy - b * qy + cc * qqy - eb * pd * pdy + ec * pd * ppy + cc * ry;
+    al[2] = ddz - b * qz + cc * qqz - eb * pd * pdz + ec * pd * ppz + cc * rz;
+}
+
+/* imu_samples' loop body (see there) for samples i … i + 3 */
+HOT static void imu_samples4(Py_ssize_t i, const double *T, const int64_t *sr, const double *xr, const double *cr,
+                             Py_ssize_t order, Py_ssize_t nseg, const double *RK, const int64_t *sa, const double *xa,
+                             const double *ca, Py_ssize_t order_a, Py_ssize_t nseg_a, const double *g,
+                             const double *RVB, const double *p, double *oR, double *ow, double *of) {
+    Py_ssize_t k[4], j[4];
+    double tr[4], ta[4];
+    for (int l = 0; l < 4; ++l) {
+        k[l] = sr[i + l], j[l] = sa[i + l];
+        tr[l] = T[i + l] - xr[k[l]], ta[l] = T[i + l] - xa[j[l]];
+    }
+    v4 taur, taua, R[9], w[3], al[3];
+    memcpy(&taur, tr, sizeof taur), memcpy(&taua, ta, sizeof taua);
+    rotation_at4(cr, order, nseg, k, taur, RK, R, w, al);
+    v4 ax, ay, az;
+    horner4(ca, order_a, nseg_a, j, taua, &ax, &ay, &az);
+    ax -= g[0];
+    ay -= g[1];
+    az -= g[2];
+    v4 px = {p[0], p[0], p[0], p[0]}, py = {p[1], p[1], p[1], p[1]}, pz = {p[2], p[2], p[2], p[2]};
+    v4 l1x, l1y, l1z, wpx, wpy, wpz, l2x, l2y, l2z;
+    cross4(al[0], al[1], al[2], px, py, pz, &l1x, &l1y, &l1z);
+    cross4(w[0], w[1], w[2], px, py, pz, &wpx, &wpy, &wpz);
+    cross4(w[0], w[1], w[2], wpx, wpy, wpz, &l2x, &l2y, &l2z);
+    v4 fV[3];
+    fV[0] = R[0] * ax + R[3] * ay + R[6] * az + l1x + l2x;
+    fV[1] = R[1] * ax + R[4] * ay + R[7] * az + l1y + l2y;
+    fV[2] = R[2] * ax + R[5] * ay + R[8] * az + l1z + l2z;
+    for (int r = 0; r < 3; ++r) {
+        for (int q = 0; q < 3; ++q) {
+            v4 x = R[3 * r] * RVB[q] + R[3 * r + 1] * RVB[3 + q] + R[3 * r + 2] * RVB[6 + q];
+            for (int l = 0; l < 4; ++l) oR[9 * (i + l) + 3 * r + q] = x[l];
+        }
+        v4 wr = RVB[r] * w[0] + RVB[3 + r] * w[1] + RVB[6 + r] * w[2];
+        v4 fr = RVB[r] * fV[0] + RVB[3 + r] * fV[1] + RVB[6 + r] * fV[2];
+        for (int l = 0; l < 4; ++l) ow[3 * (i + l) + r] = wr[l], of[3 * (i + l) + r] = fr[l];
+    }
+}
+
 /* Times much sparser than a spline's segments (a long drive's spline at a coarse rate): each
  * sample's coefficients are a cache miss, so those of the sample AHEAD are fetched early. */
 static inline int sparse(const int64_t *seg, Py_ssize_t n) { return n > 1 && seg[n - 1] - seg[0] > 2 * (n - 1); }
@@ -220,11 +355,15 @@ NATIVE_FUNCTION(native_imu_samples) {
     double R[9], w[3], al[3];
     double px = p[0], py = p[1], pz = p[2];
     int ahead = sparse(sr, n);
-    for (Py_ssize_t i = 0; i < n; ++i) {
-        if (ahead && i + AHEAD < n) {
-            prefetch_rotation(cr, order, nseg, sr[i + AHEAD], xr, RK);
-            prefetch_segment(ca, order_a, nseg_a, sa[i + AHEAD], xa);
+    Py_ssize_t i0 = 0;
+    for (; i0 + 4 <= n; i0 += 4) {
+        for (Py_ssize_t i = i0 + AHEAD; ahead && i < i0 + AHEAD + 4 && i < n; ++i) {
+            prefetch_rotation(cr, order, nseg, sr[i], xr, RK);
+            prefetch_segment(ca, order_a, nseg_a, sa[i], xa);
         }
+        imu_samples4(i0, T, sr, xr, cr, order, nseg, RK, sa, xa, ca, order_a, nseg_a, g, RVB, p, oR, ow, of);
+    }
+    for (Py_ssize_t i = i0; i < n; ++i) {
         Py_ssize_t k = sr[i];
         rotation_at(cr, order, nseg, k, T[i] - xr[k], RK, R, w, al);
         Py_ssize_t j = sa[i];

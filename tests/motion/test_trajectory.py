@@ -110,6 +110,23 @@ def test_segment_index_equals_a_binary_search():
             np.testing.assert_array_equal(kernels.segments(breaks, times), ref)
 
 
+def test_the_imu_sampled_four_at_a_time_is_each_sample_taken_alone():
+    """The compiled IMU sampling takes four samples at once (vectors of their numbers, the same
+    arithmetic): every sample is bit for bit the one taken alone, at a dense and a sparse rate, with
+    a lever arm and a tilted mounting, and the samples left over past the last four."""
+    traj = weave_drive(Suspension())
+    R_V_B = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(0.1), -np.sin(0.1)], [0.0, np.sin(0.1), np.cos(0.1)]])
+    p_V_B = np.array([1.2, -0.3, 0.8])
+    for rate in (200.0, 3.0):
+        t = traj.times(rate)[:4 * 9 + 3]
+        together = traj.imu(t, R_V_B, p_V_B)
+        alone = [traj.imu(t[i:i + 1], R_V_B, p_V_B) for i in range(t.size)]
+        for q, got in enumerate(together):
+            assert np.abs(got).max() > 0
+            np.testing.assert_array_equal(got, np.concatenate([a[q] for a in alone]))
+
+
 def test_threads_sampling_the_imu_at_once_build_the_acceleration_polynomial_once(monkeypatch):
     """The evaluator's two sweeps sample a fresh drive's IMU at the same moment: the acceleration's
     piecewise polynomial (a lazily built part of the trajectory) is built once, not once per
