@@ -10,7 +10,7 @@ Each pair's relative pose is then what registering scan j against the surfaces s
 - **its error** is drawn from the registration's covariance (:func:`pair_covariance`):
   ``H⁺``, ``H = Σ J Jᵀ / σ²`` over every return of scan j on the real pattern,
   ``J = [p × n; n]`` — what small_gicp's registrations of such scans against a map of the
-  surfaces follow (tests/scene/test_montecarlo.py). Registering every pair by ICP would cost a
+  surfaces follow (tests/scan_registration.py). Registering every pair by ICP would cost a
   second or so per pair, hours for a Monte Carlo of a whole drive: the draw from the covariance
   of the pair's actual scan is the approximation;
 - **along what the surfaces leave unconstrained** (a tunnel's axis, the open lot's x, y and yaw:

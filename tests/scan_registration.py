@@ -1,5 +1,6 @@
-"""Monte Carlo: scans ray-cast in a scene and registered by small_gicp, against the information
-the scene model predicts.
+"""Scans ray-cast in a scene and registered by small_gicp, against the information the scene
+model predicts: the Monte Carlo of tests/scene/test_registration_*.py (one module per scene, so
+that the test workers share them).
 
 **What the model states** (:mod:`excite.scene.lidar`): a scan whose returns lie off their
 surfaces by σ along the normal holds ``H = Σ [p × n; n][p × n; n]ᵀ / σ²`` about its pose
@@ -65,7 +66,6 @@ from excite.scene.files import load_scene
 
 small_gicp = pytest.importorskip("small_gicp")
 
-pytestmark = [pytest.mark.montecarlo, pytest.mark.slow]
 
 BEAMS = LIDAR_PRESETS["vlp32c"]
 SIGMA = BEAMS.range_noise_m
@@ -195,51 +195,3 @@ def report(name, runs):
     print(f"{name}: spread / the model's σ per axis [φx φy φz ρx ρy ρz], per pose:\n{np.round(spread, 2)}")
     print(f"{name}: mean error / the model's σ, per pose:\n{np.round(bias, 2)}")
     return m, n, (lo, hi), spread, bias
-
-
-def test_excite_sigma_against_small_gicp_registrations_in_the_lot_with_buildings():
-    starts = [(yaw(a), np.array([x, y, 1.9])) for a, x, y in (
-        (0.0, -20.0, 10.0), (np.pi / 2, 0.0, 0.0), (np.pi, 20.0, -10.0), (-np.pi / 2, 10.0, 15.0))]
-    runs = monte_carlo(load_scene("lot_buildings_one_side"), starts, DRAWS, seed=1)
-    m, n, (lo, hi), spread, bias = report("lot_buildings_one_side", runs)
-    assert n >= 200 and all(np.isfinite(r["sigma"]).all() for r in runs)  # every direction is seen
-    assert lo < m < hi
-    # and along every axis, not only on the whole: a spread of 50 draws within its sampling error
-    # (a tenth)
-    assert np.all((spread > 0.65) & (spread < 1.35)), spread
-    assert np.abs(bias).max() < 0.75, bias
-
-
-def test_excite_sigma_against_small_gicp_registrations_in_the_street_canyon():
-    starts = [(yaw(0.0), np.array([x, y, 1.9])) for x, y in ((-60.0, 8.0), (-10.0, -6.0), (30.0, 3.0), (70.0, -12.0))]
-    runs = monte_carlo(load_scene("street_canyon"), starts, DRAWS, seed=1)
-    m, n, (lo, hi), spread, bias = report("street_canyon", runs)
-    assert n >= 200 and all(np.isfinite(r["sigma"]).all() for r in runs)
-    assert lo < m < hi
-    assert np.all((spread > 0.65) & (spread < 1.35)), spread
-    # no pose biased along any axis beyond what 50 draws' means scatter (σ/√50 ≈ 0.14 σ each)
-    assert np.abs(bias).max() < 0.75, bias
-
-
-def test_the_tunnel_tells_nothing_along_its_axis():
-    """Three places across the tunnel, 0.4 and 0.8 m per pair."""
-    scene = load_scene("tunnel")
-    starts = [(yaw(0.0), np.array([700.0 + 50 * k, y, 1.9])) for k, y in enumerate((-2.0, 0.0, 2.0))]
-    along, across = [], []
-    for speed in (4.0, 8.0):
-        # (along the axis small_gicp never stops: each iteration slides on)
-        for r in monte_carlo(scene, starts, 4, seed=int(speed), speed=speed, yaw_rate=0.0, converged=False):
-            # the scan looks along the axis: the axis's row of H is exactly zero
-            assert np.array_equal(r["H"][3], np.zeros(6)) and np.array_equal(r["H"][:, 3], np.zeros(6))
-            along.append(r["err"][:, 3])
-            across.append(r["err"][:, [0, 1, 2, 4, 5]] / r["sigma"][[0, 1, 2, 4, 5]])
-    along, across = np.concatenate(along), np.concatenate(across)
-    rms = np.sqrt((across**2).mean(axis=0))
-    print(f"\ntunnel: along the axis, errors of {along.std() * 1e2:.1f} cm spread (the initial guess's 3 cm); "
-          f"across it, errors of {np.round(rms, 2)} of the model's σ (rms per axis)")
-    # along the axis the registration ends wherever the map's sampling lets it slide: no closer to
-    # the truth than the guess it started from (across the axis it is millimetres)
-    assert along.std() > PRIOR[3]
-    # across it, registered to about the model's σ (the slide along the axis drags roll and the
-    # lateral translation with it)
-    assert np.all(rms < 2.5), rms
