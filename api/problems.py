@@ -145,7 +145,8 @@ def install(app: Any) -> None:
         detail = exc.detail if isinstance(exc.detail, str) else TITLES.get(exc.status_code, "Error")
         headers = dict(getattr(exc, "headers", None) or {})
         if exc.status_code == 405:  # every method of the path, not only the first route's
-            headers["Allow"] = ", ".join(_methods(request))
+            own = {m.strip() for m in headers.get("Allow", "").split(",") if m.strip()}
+            headers["Allow"] = ", ".join(sorted(own | set(_methods(request))))
         return response(Problem(exc.status_code, detail, headers=headers or None), request.url.path)
 
     app.add_exception_handler(RequestValidationError, invalid)

@@ -391,6 +391,9 @@ def test_default_job_database_is_a_user_data_file(tmp_path, monkeypatch):
 def test_405_on_a_path_with_several_routes_lists_all_their_methods(client):
     r = client.put("/v1/jobs/0123456789abcdef")
     assert r.status_code == 405 and set(r.headers["allow"].split(", ")) == {"GET", "DELETE"}
+    # and a route the API document leaves out (the page) names its own
+    r = client.post("/")
+    assert r.status_code == 405 and "GET" in r.headers["allow"].split(", ")
 
 
 def test_numbers_are_not_coerced_from_booleans_or_strings(client):
