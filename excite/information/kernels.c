@@ -264,9 +264,10 @@ static size_t workspace(Py_ssize_t D, Py_ssize_t sd, Py_ssize_t q) {
 
 /* Eliminate the states lo … hi−1 of a block-banded system with a border (block Cholesky); see
  * eliminate() in kernels.py; mem: workspace(D, sd, q) zeros (left as they were found but for the
- * zeros), or NULL. Returns -1, the first state whose pivot failed, or -2 (memory). */
+ * zeros), or NULL; zero: each eliminated state's blocks (band[·, j], Hxe[j]) set to zero once read
+ * (a sweep's ring reuses them). Returns -1, the first state whose pivot failed, or -2 (memory). */
 HOT static Py_ssize_t eliminate(double *band, Py_ssize_t D, Py_ssize_t n, Py_ssize_t sd, double *Hxe, Py_ssize_t q,
-                                double *Hee, Py_ssize_t lo, Py_ssize_t hi, double *work) {
+                                double *Hee, Py_ssize_t lo, Py_ssize_t hi, double *work, int zero) {
     Py_ssize_t wz = D * sd + q, zt = 16 * sd, yx = sd + q;
     double *mem = work ? work : calloc(workspace(D, sd, q), sizeof(double));
     if (!mem) return -2;
@@ -342,6 +343,10 @@ HOT static Py_ssize_t eliminate(double *band, Py_ssize_t D, Py_ssize_t n, Py_ssi
                         subtract_combination(Y + row * sd, C2 + row, wz, Cd, wz, sd, d2 == d ? row + 1 : sd);
                 }
             }
+        }
+        if (zero) { /* state j's blocks are read no more */
+            for (Py_ssize_t d = 0; d <= D; ++d) memset(BLK(d, j), 0, sizeof(double) * sd * sd);
+            memset(Hxe + j * sd * q, 0, sizeof(double) * sd * q);
         }
     }
     border_update(ZT, q, zt, fill, Hee);
@@ -447,7 +452,7 @@ NATIVE_FUNCTION(native_eliminate) {
     }
     Py_ssize_t bad;
     Py_BEGIN_ALLOW_THREADS;
-    bad = eliminate(D(band), D1 - 1, n, sd, D(Hxe), q, D(Hee), lo, hi, NULL);
+    bad = eliminate(D(band), D1 - 1, n, sd, D(Hxe), q, D(Hee), lo, hi, NULL, 0);
     Py_END_ALLOW_THREADS;
     if (bad == -2) return fail(&a, -1);
     native_release(&a);
@@ -536,7 +541,7 @@ NATIVE_FUNCTION(native_eliminate_slabs) {
                 for (Py_ssize_t c = 0; c < 6; ++c) BAND(&I, 1, j)[(o + c) * sd + o + c] -= w2[c];
         }
         memset(work, 0, sizeof(double) * workspace(D, sd, I.p));
-        Py_ssize_t bad = eliminate(I.band, D, I.n, sd, I.Hxt, I.p, I.Htt, 0, hi - s, work);
+        Py_ssize_t bad = eliminate(I.band, D, I.n, sd, I.Hxt, I.p, I.Htt, 0, hi - s, work, 1);
         if (bad == -2) {
             rc = -1;
             goto out;
@@ -545,15 +550,16 @@ NATIVE_FUNCTION(native_eliminate_slabs) {
             result = forward ? s + bad : m - s - bad;
             goto out;
         }
-        if (hi < m) { /* the keyframes the next slab shares move to the ring's front */
-            Py_ssize_t k = hi - s, bs = sd * sd, hs = sd * I.p;
+        if (hi < m) { /* the keyframes the next slab shares move to the ring's front; the slab's own
+                       * were zeroed as they were eliminated, the ring past them is untouched */
+            Py_ssize_t k = hi - s, bs = sd * sd, hs = sd * I.p, z = k > D ? k : D;
             for (Py_ssize_t d = 0; d <= D; ++d) {
                 double *row = I.band + d * I.n * bs;
                 memmove(row, row + k * bs, sizeof(double) * D * bs);
-                memset(row + D * bs, 0, sizeof(double) * (I.n - D) * bs);
+                memset(row + z * bs, 0, sizeof(double) * (k + D - z) * bs);
             }
             memmove(I.Hxt, I.Hxt + k * hs, sizeof(double) * D * hs);
-            memset(I.Hxt + D * hs, 0, sizeof(double) * (I.n - D) * hs);
+            memset(I.Hxt + z * hs, 0, sizeof(double) * (k + D - z) * hs);
         }
     }
 out:
